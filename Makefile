@@ -1,0 +1,51 @@
+# Two commands set up everything on a fresh machine:
+#   make demo   build the demo maps, localize the demo sequences with all four methods
+#   make test   run the test suite
+# Both create .venv and install the project with its models extra and the system
+# libraries it needs (open3d: libusb; headless screenshots: Mesa's Vulkan driver).
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+STAMP  := $(VENV)/.installed
+APT_PACKAGES := libusb-1.0-0 libgomp1 mesa-vulkan-drivers
+
+export YOLO_OFFLINE ?= 1
+export YOLO_AUTOINSTALL ?= false
+export HF_HUB_OFFLINE ?= 1
+
+.PHONY: install sysdeps demo test bench clean
+
+install: $(STAMP)
+
+sysdeps:
+	@missing=""; for p in $(APT_PACKAGES); do \
+	  dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+	  if command -v apt-get >/dev/null; then \
+	    echo "installing system packages:$$missing"; \
+	    $(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "warning: install these system packages yourself:$$missing"; fi; \
+	fi
+
+$(STAMP): pyproject.toml
+	$(MAKE) sysdeps
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# torch first, pinned to a build whose torchvision imports beside it
+	$(PY) -m pip install -q torch==2.14.1 torchvision==0.29.1
+	$(PY) -m pip install -q -e '.[models,dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) tools/demo.py
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	$(PY) tools/bench.py
+
+clean:
+	rm -rf $(VENV) outputs

@@ -1,0 +1,216 @@
+"""Parameters with the paper's defaults; methods and ablations are configurations of one pipeline.
+
+A configuration is built from a method preset, then optionally a TOML file, then `key=value`
+overrides (`inliers.d_comp=0.4`), and written next to every result so a run can be repeated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from clipclique.errors import ClipcliqueError
+
+Descriptor = Literal["fused", "clip", "sh", "xview"]
+MatchingStrategy = Literal["adaptive", "knn", "one_to_one"]
+InlierMethod = Literal["cliques", "ransac", "prosac"]
+PoseWeights = Literal["none", "sim", "com", "both"]
+
+
+class ConfigError(ClipcliqueError):
+    """A configuration file or override is wrong; the message says which key and why."""
+
+
+@dataclass
+class GraphConfig:
+    d_adj: float = 0.8  # metres: landmarks closer than this are neighbours
+    walk_length: int = 3  # Semantic Histogram path length s (nodes per walk)
+    xview_walks: int = 100  # X-View: random walks per node
+    xview_seed: int = 0
+
+
+@dataclass
+class SimilarityConfig:
+    descriptor: Descriptor = "fused"
+    alpha: float = 0.7  # S = alpha * S_clip + (1 - alpha) * S_sh
+
+
+@dataclass
+class MatchingConfig:
+    strategy: MatchingStrategy = "adaptive"
+    k: int = 3  # kNN
+    top_m_fraction: float = 0.25  # adaptive: M = fraction of the landmarks
+    min_similarity: float = 0.0  # candidates at or below this are dropped
+
+
+@dataclass
+class InlierConfig:
+    method: InlierMethod = "cliques"
+    d_comp: float = 0.3  # metres: rigid distance test of the compatibility graph
+    min_clique_size: int = 3  # fewer cannot fix a 6-DoF pose
+    max_cliques: int = 100_000  # enumeration stops here and says so
+    time_limit_s: float = 1.0  # enumeration stops here and says so
+    ransac_iterations: int = 1000
+    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier
+    seed: int = 0
+
+
+@dataclass
+class PoseConfig:
+    weights: PoseWeights = "both"  # w = s_total * w_com ("sim" = s_total only, "com" = w_com only)
+
+
+@dataclass
+class LocalizationConfig:
+    method: str = "clipclique"
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    similarity: SimilarityConfig = field(default_factory=SimilarityConfig)
+    matching: MatchingConfig = field(default_factory=MatchingConfig)
+    inliers: InlierConfig = field(default_factory=InlierConfig)
+    pose: PoseConfig = field(default_factory=PoseConfig)
+    top_n: int = 5
+    success_threshold_m: float = 1.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+# The paper's Table I: each method is the one pipeline with parts swapped.
+METHOD_PRESETS: dict[str, dict[str, Any]] = {
+    "clipclique": {},
+    "sh": {
+        "similarity.descriptor": "sh",
+        "matching.strategy": "one_to_one",
+        "inliers.method": "ransac",
+        "pose.weights": "none",
+    },
+    "xview": {
+        "similarity.descriptor": "xview",
+        "matching.strategy": "one_to_one",
+        "inliers.method": "ransac",
+        "pose.weights": "none",
+    },
+    "cliploc": {
+        "similarity.descriptor": "clip",
+        "matching.strategy": "knn",
+        "inliers.method": "prosac",
+        "pose.weights": "none",
+    },
+}
+
+METHOD_TITLES = {"clipclique": "CLIP-Clique", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
+
+
+def make_config(
+    method: str = "clipclique",
+    file: Path | None = None,
+    overrides: dict[str, Any] | list[str] | None = None,
+) -> LocalizationConfig:
+    """Preset for `method`, then the TOML `file`, then `overrides` (dotted keys)."""
+    if method not in METHOD_PRESETS:
+        raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_PRESETS)}")
+    config = LocalizationConfig(method=method)
+    apply_overrides(config, METHOD_PRESETS[method], source=f"method preset {method}")
+    if file is not None:
+        apply_overrides(config, _flatten(load_toml(file)), source=str(file))
+    if overrides:
+        if isinstance(overrides, list):
+            overrides = parse_assignments(overrides)
+        apply_overrides(config, overrides, source="command line")
+    return config
+
+
+def load_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML: {error}") from None
+
+
+def parse_assignments(items: list[str]) -> dict[str, Any]:
+    """`["inliers.d_comp=0.4", "pose.weights=sim"]` -> dotted-key dict (values parsed as TOML)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"override {item!r} is not KEY=VALUE (e.g. inliers.d_comp=0.4)")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {raw.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key.strip()] = raw.strip()  # a bare word such as ransac
+    return out
+
+
+def apply_overrides(config: LocalizationConfig, values: dict[str, Any], source: str) -> None:
+    """Set dotted keys on `config` in place, checking names and types."""
+    for dotted, value in values.items():
+        target: Any = config
+        *parents, leaf = dotted.split(".")
+        for part in parents:
+            if not dataclasses.is_dataclass(target) or part not in _field_names(target):
+                raise ConfigError(f"{source}: unknown config section {dotted!r}")
+            target = getattr(target, part)
+        if not dataclasses.is_dataclass(target) or leaf not in _field_names(target):
+            raise ConfigError(f"{source}: unknown config key {dotted!r}")
+        current = getattr(target, leaf)
+        if dataclasses.is_dataclass(current):
+            raise ConfigError(f"{source}: {dotted!r} is a section, set one of its keys")
+        setattr(target, leaf, _coerce(value, current, dotted, source))
+    validate(config)
+
+
+def validate(config: LocalizationConfig) -> None:
+    allowed = {
+        "similarity.descriptor": Descriptor,
+        "matching.strategy": MatchingStrategy,
+        "inliers.method": InlierMethod,
+        "pose.weights": PoseWeights,
+    }
+    for dotted, literal in allowed.items():
+        section, key = dotted.split(".")
+        value = getattr(getattr(config, section), key)
+        if value not in literal.__args__:
+            raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
+    if not 0.0 <= config.similarity.alpha <= 1.0:
+        raise ConfigError(f"similarity.alpha = {config.similarity.alpha}; must be within [0, 1]")
+    if config.inliers.min_clique_size < 3:
+        raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
+    for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold"):
+        section, key = dotted.split(".")
+        if getattr(getattr(config, section), key) <= 0:
+            raise ConfigError(f"{dotted} must be positive")
+    if config.top_n < 1 or config.matching.k < 1 or config.graph.walk_length < 1:
+        raise ConfigError("top_n, matching.k and graph.walk_length must be at least 1")
+
+
+def _field_names(obj: Any) -> set[str]:
+    return {f.name for f in dataclasses.fields(obj)}
+
+
+def _coerce(value: Any, current: Any, dotted: str, source: str) -> Any:
+    if isinstance(current, bool):
+        if isinstance(value, bool):
+            return value
+    elif isinstance(current, int) and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    elif isinstance(current, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    elif isinstance(current, str) and isinstance(value, str):
+        return value
+    raise ConfigError(f"{source}: {dotted} = {value!r} should be a {type(current).__name__}")
+
+
+def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out

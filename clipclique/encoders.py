@@ -247,11 +247,16 @@ def _check_weights(open_clip, model_name: str, tag: str) -> None:
             "(open_clip:MODEL//path/to/weights.pt) or use --encoder simulated / none") from None
 
 
-def _prefer_offline_hub(host: str = "huggingface.co", timeout_s: float = 1.0) -> None:
+def _prefer_offline_hub() -> None:
     """Set HF_HUB_OFFLINE=1 when the user left it unset and the hub is unreachable."""
-    if "HF_HUB_OFFLINE" in os.environ:
-        return
+    if "HF_HUB_OFFLINE" not in os.environ and not host_reachable("huggingface.co"):
+        os.environ["HF_HUB_OFFLINE"] = "1"
+
+
+def host_reachable(host: str, timeout_s: float = 1.0) -> bool:
+    """Whether a TCP connection to host:443 opens within the timeout (a cheap online test)."""
     try:
         socket.create_connection((host, 443), timeout=timeout_s).close()
     except OSError:
-        os.environ["HF_HUB_OFFLINE"] = "1"
+        return False
+    return True

@@ -1,0 +1,104 @@
+"""Detector back-ends on synthetic frames, and YOLO-seg through a random-weight model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.types import Frame, Pose
+from localization.detectors import (
+    InstanceDetector,
+    SimulatedDetector,
+    YoloDetector,
+    coco_to_vocabulary,
+    make_detector,
+    mask_boxes,
+)
+
+CLASSES = ["chair", "table", "lamp", "sofa"]
+OBJECTS = {3: "chair", 7: "table", 9: "plant", 12: "chair"}  # 9 is not in the map's vocabulary
+
+
+def make_frame(index: int = 0) -> Frame:
+    instances = np.zeros((60, 80), np.int32)
+    instances[5:20, 10:30] = 3
+    instances[30:50, 0:40] = 7
+    instances[40:45, 60:70] = 9
+    instances[10:25, 50:79] = 12
+    return Frame(index, float(index), np.zeros((60, 80, 3), np.uint8), np.full((60, 80), 2.0, np.float32),
+                 np.array([[50.0, 0, 40], [0, 50.0, 30], [0, 0, 1]]), Pose.identity(), instances)
+
+
+def test_mask_boxes_are_tight_xyxy():
+    masks = np.zeros((2, 10, 12), bool)
+    masks[0, 2:5, 3:7] = True
+    masks[1, 9, 11] = True
+    np.testing.assert_array_equal(mask_boxes(masks), [[3, 2, 7, 5], [11, 9, 12, 10]])
+
+
+def test_ground_truth_detections_map_ids_to_the_vocabulary():
+    detections = InstanceDetector(OBJECTS, CLASSES).detect(make_frame())
+    np.testing.assert_array_equal(detections.instance_ids, [3, 7, 12])  # the plant is not in the map
+    np.testing.assert_array_equal(detections.class_ids, [0, 1, 0])
+    assert detections.masks.shape == (3, 60, 80)
+    assert detections.masks.sum(axis=(1, 2)).tolist() == [15 * 20, 20 * 40, 15 * 29]
+    np.testing.assert_array_equal(detections.boxes[1], [0, 30, 40, 50])
+    frame = make_frame()
+    frame.instances = None
+    assert len(InstanceDetector(OBJECTS, CLASSES).detect(frame)) == 0
+
+
+def test_simulated_detector_degrades_truth_reproducibly():
+    detector = SimulatedDetector(InstanceDetector(OBJECTS, CLASSES), miss_rate=0.3, false_positives=1.0,
+                                 confusion_rate=0.2, seed=4)
+    runs = [detector.detect(make_frame(i)) for i in range(200)]
+    true_kept = [(d.instance_ids >= 0).sum() for d in runs]
+    spurious = [(d.instance_ids < 0).sum() for d in runs]
+    assert np.mean(true_kept) == pytest.approx(3 * 0.7, abs=0.2)
+    assert np.mean(spurious) == pytest.approx(1.0, abs=0.2)
+    truth = {3: 0, 7: 1, 12: 0}
+    labels = np.concatenate([d.class_ids[d.instance_ids >= 0] for d in runs])
+    expected = np.array([truth[i] for d in runs for i in d.instance_ids[d.instance_ids >= 0]])
+    assert (labels != expected).mean() == pytest.approx(0.2, abs=0.06)
+    again = detector.detect(make_frame(17))
+    np.testing.assert_array_equal(again.masks, runs[17].masks)
+    np.testing.assert_array_equal(again.class_ids, runs[17].class_ids)
+    assert detector.simulated and detector.name == "simulated"
+    for d in runs[:20]:
+        assert d.masks.any(axis=(1, 2)).all() and d.boxes.shape == (len(d), 4)
+
+
+def test_make_detector_rejects_unknown_and_missing_yolo_weights(monkeypatch, tmp_path):
+    with pytest.raises(ClipcliqueError, match="--detector"):
+        make_detector("sam", OBJECTS, CLASSES)
+    monkeypatch.setenv("YOLO_OFFLINE", "1")
+    with pytest.raises(ModelUnavailableError, match="--yolo-weights"):
+        make_detector("yolo", OBJECTS, CLASSES, yolo_weights=tmp_path / "missing-seg.pt")
+
+
+def test_coco_classes_map_to_the_vocabulary():
+    table = coco_to_vocabulary({0: "person", 56: "chair", 57: "couch", 60: "dining table", 58: "potted plant"},
+                               ["table", "chair", "sofa", "desk"])
+    assert table.shape == (61,)
+    assert table[[0, 56, 57, 60, 58]].tolist() == [-1, 1, 2, 0, -1]
+
+
+@pytest.mark.models
+def test_yolo_random_weights_output_shapes_and_class_mapping(monkeypatch):
+    monkeypatch.setenv("YOLO_OFFLINE", "1")
+    ultralytics = pytest.importorskip("ultralytics")
+    from ultralytics.utils import ROOT, YAML
+
+    model = ultralytics.YOLO("yolov8n-seg.yaml")  # built from its config: random weights, no download
+    model.model.names = YAML.load(ROOT / "cfg/datasets/coco.yaml")["names"]
+    detector = YoloDetector(model, ["chair", "table", "person"], confidence=0.0, device="cpu")
+    assert detector.class_map[[0, 56, 60, 2]].tolist() == [2, 0, 1, -1]
+    frame = make_frame()
+    frame.rgb = np.random.default_rng(0).integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    detections = detector.detect(frame)
+    assert len(detections) > 0  # confidence 0 keeps random-weight boxes of the mapped classes
+    assert detections.masks.shape == (len(detections), 60, 80) and detections.masks.dtype == bool
+    assert detections.boxes.shape == (len(detections), 4)
+    assert set(detections.class_ids.tolist()) <= {0, 1, 2}
+    assert (detections.instance_ids == -1).all()

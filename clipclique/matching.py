@@ -1,0 +1,86 @@
+"""Initial matching: which (observation, landmark) pairs become candidate correspondences.
+
+Every strategy takes the (K, N) similarity matrix and returns `(candidates, scores)`: candidates
+(C, 2) int rows of (observation, landmark), grouped by observation in row order and, within an
+observation, best first; scores (C,) their similarities. Equal similarities are ordered by
+landmark index (stable sort), so the result is deterministic.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from clipclique.config import MatchingConfig
+
+FLAT = 1e-12  # a row whose largest gap is at most this has no gap at all
+
+
+def match(similarity: np.ndarray, config: MatchingConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The configured strategy, then candidates at or below `config.min_similarity` dropped."""
+    if config.strategy == "adaptive":
+        candidates = adaptive_matches(similarity, top_m(similarity.shape[1], config.top_m_fraction))
+    elif config.strategy == "knn":
+        candidates = knn_matches(similarity, config.k)
+    else:
+        candidates = mutual_best_matches(similarity)
+    scores = similarity[candidates[:, 0], candidates[:, 1]]
+    keep = scores > config.min_similarity
+    return candidates[keep], scores[keep]
+
+
+def top_m(num_landmarks: int, fraction: float) -> int:
+    """M for adaptive matching: `ceil(fraction * N)`, at least 2 (one gap), at most N."""
+    return min(num_landmarks, max(2, math.ceil(fraction * num_landmarks)))
+
+
+def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
+    """Per observation, the landmarks above the largest similarity gap among its top `m`.
+
+    Sorted descending, the top m values have m - 1 gaps; the candidates are those before the
+    largest gap. Ties between equal gaps go to the first (the fewest, most confident
+    candidates). A flat row (no gap larger than FLAT) gives no reason to prefer any landmark:
+    all m are kept. With m < 2 (a map of one landmark) there is no gap: the best one is kept.
+    """
+    num_obs, num_landmarks = similarity.shape
+    m = min(m, num_landmarks)
+    if num_obs == 0 or m == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    order = _best_first(similarity, m)
+    if m < 2:
+        count = np.ones(num_obs, dtype=np.int64)
+    else:
+        values = np.take_along_axis(similarity, order, axis=1)
+        gaps = values[:, :-1] - values[:, 1:]
+        count = np.where(gaps.max(axis=1) > FLAT, gaps.argmax(axis=1) + 1, m)
+    return _pairs(order, np.arange(m)[None, :] < count[:, None])
+
+
+def knn_matches(similarity: np.ndarray, k: int) -> np.ndarray:
+    """Per observation, its k most similar landmarks (all of them when the map has fewer)."""
+    k = min(k, similarity.shape[1])
+    if similarity.shape[0] == 0 or k == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    order = _best_first(similarity, k)
+    return _pairs(order, np.ones(order.shape, dtype=bool))
+
+
+def mutual_best_matches(similarity: np.ndarray) -> np.ndarray:
+    """1-to-1: pairs that are each other's best (first index on ties)."""
+    if similarity.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    best_landmark = similarity.argmax(axis=1)
+    best_observation = similarity.argmax(axis=0)
+    observations = np.flatnonzero(best_observation[best_landmark] == np.arange(similarity.shape[0]))
+    return np.column_stack((observations, best_landmark[observations])).astype(np.int64)
+
+
+def _best_first(similarity: np.ndarray, count: int) -> np.ndarray:
+    """(K, count) landmark indices of each row's largest values, best first, ties by index."""
+    return np.argsort(-similarity, axis=1, kind="stable")[:, :count]
+
+
+def _pairs(order: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    rows = np.broadcast_to(np.arange(order.shape[0])[:, None], order.shape)
+    return np.column_stack((rows[keep], order[keep])).astype(np.int64)

@@ -1,0 +1,95 @@
+"""Scoring one frame's localization against ground truth, and the paper's summary columns.
+
+Aggregation choices: translation/rotation errors are summarized by the median over the frames
+that have both a top-1 pose and a ground-truth pose (all of them, not only the successes);
+success rates divide by every evaluated frame (no pose = failure); precision averages over
+frames with a top-1 hypothesis, recall over frames where some observed object is in the map.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from clipclique.config import LocalizationConfig
+from clipclique.geometry import pose_errors
+from clipclique.pipeline import LocalizationResult
+from clipclique.types import Map, Observations, Pose
+
+TOP_K = (1, 3, 5)
+
+
+@dataclass
+class FrameEvaluation:
+    frame_index: int
+    translation_error: float | None  # metres, top-1 pose vs ground truth; None when no pose
+    rotation_error: float | None  # radians
+    success: dict[int, bool]  # {1: .., 3: .., 5: ..}: any of the top-k poses has TE < threshold
+    precision: float | None  # top-1 correspondences that are correct (by instance id)
+    recall: float  # correct top-1 correspondences / observations whose object is in the map
+    num_observations: int
+    failure: str | None
+    time_s: float  # matching + inliers + pose (the algorithm), seconds
+    num_in_map: int = 0  # observations whose object is in the map (recall's denominator)
+
+
+def evaluate_frame(
+    result: LocalizationResult,
+    observations: Observations,
+    map: Map,
+    gt_pose: Pose | None,
+    config: LocalizationConfig,
+    frame_index: int,
+) -> FrameEvaluation:
+    """Errors and success of the ranked poses, and correctness of the top-1 correspondences.
+
+    A correspondence is correct when the observation's ground-truth instance id (not -1) equals
+    the landmark's. Recall is 0 when no observed object is in the map (`num_in_map` tells).
+    """
+    errors = [pose_errors(h.pose, gt_pose) for h in result.hypotheses] if gt_pose is not None else []
+    success = {k: any(te < config.success_threshold_m for te, _ in errors[:k]) for k in TOP_K}
+    known = observations.instance_ids >= 0
+    num_in_map = int(np.count_nonzero(known & np.isin(observations.instance_ids, map.instance_ids)))
+    precision = None
+    correct = 0
+    if result.hypotheses:
+        pairs = result.hypotheses[0].correspondences
+        observed = observations.instance_ids[pairs[:, 0]]
+        correct = int(np.count_nonzero((observed >= 0) & (observed == map.instance_ids[pairs[:, 1]])))
+        precision = correct / len(pairs)
+    return FrameEvaluation(
+        frame_index=frame_index,
+        translation_error=errors[0][0] if errors else None,
+        rotation_error=errors[0][1] if errors else None,
+        success=success,
+        precision=precision,
+        recall=correct / num_in_map if num_in_map else 0.0,
+        num_observations=len(observations),
+        failure=result.failure,
+        time_s=sum(result.timings.get(stage, 0.0) for stage in ("matching", "inliers", "pose")),
+        num_in_map=num_in_map,
+    )
+
+
+def summarize(evaluations: list[FrameEvaluation]) -> dict[str, float]:
+    """The paper's columns over frames: success@1/3/5 (fractions), precision, recall, median TE (m)
+    and RE (deg), time per query (ms). A column with no frame to average over is NaN."""
+    te = [e.translation_error for e in evaluations if e.translation_error is not None]
+    re = [e.rotation_error for e in evaluations if e.rotation_error is not None]
+    summary = {"frames": float(len(evaluations))}
+    for k in TOP_K:
+        summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations])
+    summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
+    summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
+    summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])
+    summary["te_median_m"] = float(np.median(te)) if te else math.nan
+    summary["re_median_deg"] = float(np.degrees(np.median(re))) if re else math.nan
+    summary["time_ms_mean"] = _mean([1e3 * e.time_s for e in evaluations])
+    summary["time_ms_median"] = float(np.median([1e3 * e.time_s for e in evaluations])) if evaluations else math.nan
+    return summary
+
+
+def _mean(values: list[float]) -> float:
+    return float(np.mean(values)) if values else math.nan

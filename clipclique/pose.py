@@ -1,0 +1,98 @@
+"""Weighted closed-form rigid alignment (Kabsch/Umeyama without scale) and its weights.
+
+Given camera-frame observation centres `p_i`, map landmark centres `q_i` and weights `w_i >= 0`,
+the pose minimizes `sum_i w_i |R p_i + t - q_i|^2`: weighted centroids, the SVD of the weighted
+cross-covariance, and a sign fix so that `det R = +1` (never a reflection). Inputs that cannot fix
+a 6-DoF pose (fewer than 3 points, collinear points, zero weights) raise `DegeneratePoseError`
+with the reason; the solver never returns NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clipclique.config import PoseWeights
+from clipclique.types import Pose
+
+MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
+RELATIVE_SPREAD = 1e-6  # ... or thinner than this fraction of its length
+
+
+class DegeneratePoseError(ValueError):
+    """The correspondences cannot determine a rigid pose; the message says why."""
+
+
+def fit_rigid(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> Pose:
+    """The pose `x -> R x + t` that best maps `source` (P, 3) onto `target` (P, 3) in weighted least squares."""
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
+        raise ValueError(f"source {source.shape} and target {target.shape} must both be (P, 3)")
+    weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
+    if weights.shape != (len(source),) or not np.isfinite(weights).all() or (weights < 0).any():
+        raise DegeneratePoseError("weights must be finite, non-negative, one per point")
+    if len(source) < 3:
+        raise DegeneratePoseError(f"fewer than 3 correspondences ({len(source)})")
+    if np.count_nonzero(weights) < 3:
+        raise DegeneratePoseError(f"fewer than 3 correspondences with a positive weight ({np.count_nonzero(weights)})")
+    rotation, translation, ok = fit_rigid_batch(source[None], target[None], weights[None])
+    if not ok[0]:
+        raise DegeneratePoseError("collinear points: the rotation about their line is undetermined")
+    return Pose(rotation[0], translation[0])
+
+
+def fit_rigid_batch(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B independent fits at once: (B, P, 3) points, (B, P) weights -> R (B, 3, 3), t (B, 3), ok (B,).
+
+    `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
+    hold the identity so that callers can mask them without meeting NaN.
+    """
+    if weights is None:
+        weights = np.ones(source.shape[:2])
+    total = weights.sum(axis=1)
+    safe = np.where(total > 0, total, 1.0)
+    w = weights / safe[:, None]
+    mean_source = np.einsum("bp,bpi->bi", w, source)
+    mean_target = np.einsum("bp,bpi->bi", w, target)
+    centred_source = source - mean_source[:, None]
+    centred_target = target - mean_target[:, None]
+    cross = np.einsum("bp,bpi,bpj->bij", w, centred_target, centred_source)
+    u, _, vt = np.linalg.svd(cross)
+    sign = np.sign(np.linalg.det(u @ vt))
+    u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
+    rotation = u @ vt
+    ok = (total > 0) & _spread_ok(centred_source, w) & _spread_ok(centred_target, w)
+    rotation[~ok] = np.eye(3)
+    translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
+    translation[~ok] = 0.0
+    return rotation, translation, ok
+
+
+def _spread_ok(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
+    covariance = np.einsum("bp,bpi,bpj->bij", w, centred, centred)
+    variances = np.linalg.eigvalsh(covariance)  # ascending
+    return variances[:, 1] > np.maximum(RELATIVE_SPREAD**2 * variances[:, 2], MIN_SPREAD_M**2)
+
+
+def correspondence_weights(
+    scores: np.ndarray, observed_axes: np.ndarray, landmark_axes: np.ndarray, mode: PoseWeights
+) -> np.ndarray:
+    """Per-correspondence weights `w = s_total * w_com` (or either factor alone, or ones).
+
+    `s_total` is the similarity the matching used (negative values clipped to 0); the
+    completeness `w_com = min(1, sqrt(|axes_obs|^2 / |axes_map|^2))` shrinks the weight of an
+    object seen only in part, whose observed centre is biased.
+    """
+    ones = np.ones(len(scores))
+    similarity = np.clip(scores, 0.0, None) if mode in ("sim", "both") else ones
+    completeness = completeness_weights(observed_axes, landmark_axes) if mode in ("com", "both") else ones
+    return similarity * completeness
+
+
+def completeness_weights(observed_axes: np.ndarray, landmark_axes: np.ndarray) -> np.ndarray:
+    observed = np.einsum("ij,ij->i", observed_axes, observed_axes)
+    landmark = np.einsum("ij,ij->i", landmark_axes, landmark_axes)
+    return np.minimum(1.0, np.sqrt(observed / np.maximum(landmark, 1e-12)))

@@ -1,0 +1,97 @@
+"""Detections + an RGB-D frame -> observed ellipsoids in the camera frame, with their image crops.
+
+Each detection mask is eroded (depth at object edges mixes fore- and background), its valid
+depth back-projected with the frame's intrinsics, outliers cut and an open3d PCA box fitted
+(`geometry.fit_ellipsoid`). Detections that cannot give a trustworthy ellipsoid are dropped
+and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from clipclique.encoders import Encoder
+from clipclique.geometry import FitParams, backproject, fit_ellipsoid, stack_ellipsoids
+from clipclique.types import Detections, Frame, Observations
+
+DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
+
+
+@dataclass(frozen=True)
+class ObservationParams:
+    min_mask_pixels: int = 100  # smaller masks are too noisy to fit
+    erode_px: int = 2  # mask erosion before back-projection (kept only if enough pixels survive)
+    max_depth: float = 8.0  # metres: farther depth is unreliable on consumer RGB-D sensors
+    border_px: int = 8  # a mask is truncated when it comes this close to the image border
+    max_border_fraction: float = 0.5  # ... and dropped when more of it lies in that band (a sliver)
+    fit: FitParams = field(default_factory=FitParams)
+
+
+@dataclass
+class Extraction:
+    """Observations of one frame (embeddings not yet computed) and what the encoder needs."""
+
+    observations: Observations
+    crops: list[np.ndarray]  # (h, w, 3) uint8, one per observation
+    truncated: np.ndarray  # (K,) bool: the mask touches the image border
+    dropped: dict[str, int]  # detections lost, by reason (keys: DROP_REASONS)
+
+
+def extract_observations(frame: Frame, detections: Detections, params: ObservationParams = ObservationParams()) -> Extraction:
+    """Fit one camera-frame ellipsoid per usable detection."""
+    height, width = frame.depth.shape
+    depth = np.where(frame.depth <= params.max_depth, frame.depth, 0.0)
+    band = np.ones((height, width), bool)
+    band[params.border_px:height - params.border_px, params.border_px:width - params.border_px] = False
+    dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
+    fits, kept, truncated = [], [], []
+    for k, mask in enumerate(detections.masks):
+        pixels = int(mask.sum())
+        in_band = int((mask & band).sum())
+        if pixels < params.min_mask_pixels:
+            dropped["tiny mask"] += 1
+            continue
+        if in_band > params.max_border_fraction * pixels:
+            dropped["border sliver"] += 1
+            continue
+        eroded = ndimage.binary_erosion(mask, iterations=params.erode_px) if params.erode_px else mask
+        points = backproject(depth, frame.intrinsics, eroded if eroded.sum() >= params.min_mask_pixels else mask)
+        if len(points) < params.fit.min_points:
+            dropped["invalid depth"] += 1
+            continue
+        fit = fit_ellipsoid(points, params.fit)
+        if fit is None:
+            dropped["degenerate fit"] += 1
+            continue
+        fits.append(fit)
+        kept.append(k)
+        truncated.append(in_band > 0)
+    index = np.array(kept, int)
+    observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
+                                detections.instance_ids[index], index)
+    crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
+    return Extraction(observations, crops, np.array(truncated, bool), dict(dropped))
+
+
+def crop(rgb: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """The pixels of an xyxy box, clipped to the image, at least one pixel."""
+    height, width = rgb.shape[:2]
+    x0, y0 = np.clip(np.floor(box[:2]).astype(int), 0, (width - 1, height - 1))
+    x1, y1 = np.clip(np.ceil(box[2:]).astype(int), (x0 + 1, y0 + 1), (width, height))
+    return rgb[y0:y1, x0:x1]
+
+
+def embed(extraction: Extraction, encoder: Encoder | None, descriptions: dict[int, str]) -> Observations:
+    """The observations with CLIP image embeddings of their crops (None without an encoder).
+
+    `descriptions` (object id -> true description) reaches only a simulated encoder.
+    """
+    observations = extraction.observations
+    if encoder is not None:
+        truth = [descriptions.get(int(i)) for i in observations.instance_ids]
+        observations.image_embeddings = encoder.encode_images(extraction.crops, truth, extraction.truncated)
+    return observations

@@ -1,0 +1,97 @@
+"""Observations from synthetic RGB-D: a ray-traced sphere, plus every way a detection can be dropped."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from clipclique.encoders import SimulatedClipEncoder
+from clipclique.types import Detections, Frame, Pose
+from localization.detectors import mask_boxes
+from localization.observations import crop, embed, extract_observations
+
+K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
+SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
+
+
+def sphere_frame() -> tuple[Frame, np.ndarray]:
+    """Depth of a sphere in front of a wall at 4 m; returns the frame and the sphere's mask."""
+    v, u = np.mgrid[:240, :320]
+    rays = np.stack(((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((240, 320))), axis=-1)
+    # |z * ray - c|^2 = r^2, nearest root in z
+    a = (rays**2).sum(-1)
+    b = -2 * rays @ SPHERE_CENTER
+    c = SPHERE_CENTER @ SPHERE_CENTER - SPHERE_RADIUS**2
+    disc = b**2 - 4 * a * c
+    mask = disc > 0
+    depth = np.full((240, 320), 4.0)
+    depth[mask] = (-b[mask] - np.sqrt(disc[mask])) / (2 * a[mask])
+    rgb = np.random.default_rng(0).integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    return Frame(0, 0.0, rgb, depth.astype(np.float32), K, Pose.identity()), mask
+
+
+def detections_of(masks: list[np.ndarray], instance_ids: list[int]) -> Detections:
+    stack = np.stack(masks)
+    count = len(masks)
+    return Detections(stack, mask_boxes(stack), np.arange(count) % 2, np.ones(count), np.array(instance_ids))
+
+
+def test_sphere_becomes_a_camera_frame_ellipsoid():
+    frame, mask = sphere_frame()
+    extraction = extract_observations(frame, detections_of([mask], [5]))
+    observations = extraction.observations
+    assert len(observations) == 1 and extraction.dropped == dict.fromkeys(extraction.dropped, 0)
+    center = observations.ellipsoids.centers[0]
+    np.testing.assert_allclose(center[:2], SPHERE_CENTER[:2], atol=0.03)
+    assert SPHERE_CENTER[2] - SPHERE_RADIUS < center[2] < SPHERE_CENTER[2]  # only the near cap is seen
+    axes = observations.ellipsoids.axes[0]
+    np.testing.assert_allclose(axes[:2], SPHERE_RADIUS, atol=0.04)  # the silhouette spans the radius
+    assert axes[2] < 0.2  # the cap is shallow
+    assert observations.instance_ids.tolist() == [5] and observations.detection_index.tolist() == [0]
+    assert not extraction.truncated[0]
+    assert extraction.crops[0].shape[2] == 3 and abs(extraction.crops[0].shape[0] - 2 * 300 * 0.3 / 1.96) < 10
+
+
+def test_bad_detections_are_dropped_by_reason_never_nan():
+    frame, sphere = sphere_frame()
+    frame.depth[sphere & (np.arange(320) < 175)[None]] = np.nan  # half the sphere without depth
+    tiny = np.zeros_like(sphere)
+    tiny[10:15, 100:105] = True
+    sliver = np.zeros_like(sphere)
+    sliver[50:200, 0:5] = True
+    no_depth = np.zeros_like(sphere)
+    no_depth[180:230, 200:260] = True
+    frame.depth[no_depth] = 0.0
+    flat = np.zeros_like(sphere)
+    flat[20:80, 240:300] = True  # the wall: a plane, no thickness
+    far = np.zeros_like(sphere)
+    far[150:200, 20:80] = True
+    frame.depth[far] = 12.0
+    extraction = extract_observations(frame, detections_of([sphere, tiny, sliver, no_depth, flat, far], [1, 2, 3, 4, 5, 6]))
+    assert extraction.dropped == {"tiny mask": 1, "border sliver": 1, "invalid depth": 2, "degenerate fit": 1}
+    assert extraction.observations.detection_index.tolist() == [0]
+    assert np.isfinite(extraction.observations.ellipsoids.centers).all()
+
+
+def test_truncated_masks_are_kept_and_flagged():
+    frame, sphere = sphere_frame()
+    truncated = np.roll(sphere, -160, axis=1)  # shifted to the left border, depth rolled with it
+    frame.depth = np.roll(frame.depth, -160, axis=1)
+    extraction = extract_observations(frame, detections_of([truncated], [1]))
+    assert len(extraction.observations) == 1 and extraction.truncated.tolist() == [True]
+
+
+def test_crop_is_clipped_and_never_empty():
+    rgb = np.zeros((10, 20, 3), np.uint8)
+    assert crop(rgb, np.array([-5.0, 2.2, 7.5, 30.0])).shape == (8, 8, 3)
+    assert crop(rgb, np.array([19.5, 9.5, 19.5, 9.5])).shape == (1, 1, 3)
+
+
+def test_embed_passes_true_descriptions_to_the_simulated_encoder():
+    frame, mask = sphere_frame()
+    extraction = extract_observations(frame, detections_of([mask, mask], [5, -1]))
+    encoder = SimulatedClipEncoder()
+    observations = embed(extraction, encoder, {5: "a red ball"})
+    assert observations.image_embeddings.shape == (2, 512)
+    text = encoder.encode_text(["a red ball"])[0]
+    assert observations.image_embeddings[0] @ text > observations.image_embeddings[1] @ text + 0.05
+    assert embed(extract_observations(frame, detections_of([mask], [5])), None, {}).image_embeddings is None

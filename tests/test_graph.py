@@ -1,0 +1,67 @@
+import numpy as np
+import pytest
+
+from clipclique.graph import random_walk_descriptors, semantic_graph, semantic_histograms
+
+A, B, C = 0, 1, 2
+# Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.
+CENTERS = np.array([[0, 0, 0], [0.5, 0, 0], [0.25, 0.4, 0], [0.25, 1.1, 0], [5, 5, 5.0]])
+CLASSES = np.array([A, B, A, C, B])
+
+
+def bin_of(*labels):
+    return labels[0] * 9 + labels[1] * 3 + labels[2]
+
+
+def test_semantic_graph_joins_centres_closer_than_d_adj():
+    adjacency = semantic_graph(CENTERS, 0.8).toarray()
+    expected = {(0, 1), (0, 2), (1, 2), (2, 3)}
+    assert {(i, j) for i, j in np.argwhere(adjacency) if i < j} == expected
+    assert (adjacency == adjacency.T).all()
+
+
+def test_semantic_graph_boundary_is_strict():
+    adjacency = semantic_graph(np.array([[0, 0, 0], [0.5, 0, 0.0]]), 0.5)
+    assert adjacency.nnz == 0
+
+
+def test_semantic_histograms_equal_hand_counted_walks():
+    histograms = semantic_histograms(semantic_graph(CENTERS, 0.8), CLASSES, num_classes=3).toarray()
+    expected = np.zeros((5, 27))
+    # node 0: 0-1-0 ABA, 0-1-2 ABA, 0-2-0 AAA, 0-2-1 AAB, 0-2-3 AAC
+    expected[0, [bin_of(A, B, A), bin_of(A, A, A), bin_of(A, A, B), bin_of(A, A, C)]] = [2, 1, 1, 1]
+    # node 1: 1-0-1 BAB, 1-0-2 BAA, 1-2-0 BAA, 1-2-1 BAB, 1-2-3 BAC
+    expected[1, [bin_of(B, A, B), bin_of(B, A, A), bin_of(B, A, C)]] = [2, 2, 1]
+    # node 2: 2-0-1 AAB, 2-0-2 AAA, 2-1-0 ABA, 2-1-2 ABA, 2-3-2 ACA
+    expected[2, [bin_of(A, A, B), bin_of(A, A, A), bin_of(A, B, A), bin_of(A, C, A)]] = [1, 1, 2, 1]
+    # node 3: 3-2-0 CAA, 3-2-1 CAB, 3-2-3 CAC; node 4 is isolated: no walk, zero histogram
+    expected[3, [bin_of(C, A, A), bin_of(C, A, B), bin_of(C, A, C)]] = [1, 1, 1]
+    norms = np.linalg.norm(expected, axis=1, keepdims=True)
+    np.testing.assert_allclose(histograms, np.divide(expected, norms, where=norms > 0, out=np.zeros_like(expected)))
+    np.testing.assert_allclose(np.linalg.norm(histograms[:4], axis=1), 1.0)
+
+
+def test_histograms_are_sparse_for_large_vocabularies():
+    rng = np.random.default_rng(0)
+    centers = rng.uniform(0, 4, size=(200, 3))
+    histograms = semantic_histograms(semantic_graph(centers, 0.8), rng.integers(0, 40, 200), num_classes=40)
+    assert histograms.shape == (200, 64_000)
+    assert histograms.format == "csr" and histograms.nnz < 0.001 * 200 * 64_000
+
+
+@pytest.mark.parametrize("length", [1, 2, 4])
+def test_walk_length_sets_the_number_of_bins(length):
+    histograms = semantic_histograms(semantic_graph(CENTERS, 0.8), CLASSES, 3, walk_length=length)
+    assert histograms.shape == (5, 3**length)
+
+
+def test_random_walks_follow_edges_and_are_seeded():
+    adjacency = semantic_graph(CENTERS, 0.8)
+    counts = random_walk_descriptors(adjacency, CLASSES, 3, 3, walks=50, rng=np.random.default_rng(1)).toarray()
+    again = random_walk_descriptors(adjacency, CLASSES, 3, 3, walks=50, rng=np.random.default_rng(1)).toarray()
+    np.testing.assert_array_equal(counts, again)
+    np.testing.assert_array_equal(counts.sum(axis=1), 50)
+    hand = semantic_histograms(adjacency, CLASSES, 3).toarray()
+    assert ((counts[:4] > 0) <= (hand[:4] > 0)).all()  # every random walk is one of the walks counted by hand
+    assert counts[3, bin_of(C, A, C)] > 0 and counts[3, bin_of(C, A, A)] > 0
+    assert counts[4, bin_of(B, B, B)] == 50  # an isolated node stays on itself

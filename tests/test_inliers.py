@@ -1,0 +1,131 @@
+import itertools
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from clipclique.geometry import pose_errors, random_rotation
+from clipclique.inliers import compatibility_graph, maximal_cliques, rank_cliques, sample_consensus
+from clipclique.pose import fit_rigid
+from clipclique.types import Pose
+
+
+def outlier_heavy_problem(seed: int, inliers: int = 8, wrong_per_observation: int = 5):
+    """Landmarks, camera-frame observations of `inliers` of them, and candidates of which more than 80% are wrong."""
+    rng = np.random.default_rng(seed)
+    landmarks = rng.uniform(0, 6, size=(50, 3))
+    truth = Pose(random_rotation(rng), rng.uniform(-3, 3, 3))
+    seen = rng.choice(50, inliers, replace=False)
+    observed = truth.inverse().apply(landmarks[seen]) + rng.normal(scale=0.02, size=(inliers, 3))
+    right = np.column_stack((np.arange(inliers), seen))
+    wrong = np.column_stack(
+        (np.repeat(np.arange(inliers), wrong_per_observation), rng.integers(0, 50, inliers * wrong_per_observation))
+    )
+    wrong = wrong[wrong[:, 1] != np.repeat(seen, wrong_per_observation)]
+    candidates = np.concatenate((right, wrong))
+    assert len(wrong) / len(candidates) >= 0.8
+    return landmarks, observed, candidates, truth, len(right)
+
+
+def test_compatibility_graph_applies_the_rigid_distance_test():
+    observed = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0.0]])
+    landmarks = np.array([[5, 5, 0], [6.2, 5, 0], [5, 7, 0], [9, 9, 9.0]])
+    candidates = np.array([[0, 0], [1, 1], [2, 2], [2, 3], [0, 3]])
+    adjacency = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    expected = {(0, 1), (0, 2), (1, 2)}  # |1 - 1.2| < 0.3; candidate 3 is far; 0-4 and 3-4 share an observation or landmark
+    assert {(i, j) for i, j in np.argwhere(adjacency) if i < j} == expected
+    assert not compatibility_graph(observed, landmarks, candidates, d_comp=0.1)[0, 1]
+
+
+@pytest.mark.parametrize(("seed", "nodes", "density"), [(0, 30, 0.3), (1, 60, 0.2), (2, 40, 0.6), (3, 200, 0.05)])
+def test_maximal_cliques_equal_networkx(seed, nodes, density):
+    rng = np.random.default_rng(seed)
+    upper = np.triu(rng.random((nodes, nodes)) < density, 1)
+    adjacency = upper | upper.T
+    reference = {frozenset(c) for c in nx.find_cliques(nx.from_numpy_array(adjacency.astype(int)))}
+    for min_size in (1, 3):
+        cliques, cap = maximal_cliques(adjacency, min_size=min_size)
+        assert cap is None
+        assert len(cliques) == len({frozenset(c.tolist()) for c in cliques})
+        assert {frozenset(c.tolist()) for c in cliques} == {c for c in reference if len(c) >= min_size}
+
+
+def moon_moser(triangles: int) -> np.ndarray:
+    """Complement of disjoint triangles: 3^triangles maximal cliques."""
+    group = np.arange(3 * triangles) // 3
+    return group[:, None] != group[None, :]
+
+
+def test_clique_caps_are_reported():
+    adjacency = moon_moser(7)  # 2,187 maximal cliques of 7
+    cliques, cap = maximal_cliques(adjacency, max_cliques=50)
+    assert cap == "max_cliques" and len(cliques) == 50
+    cliques, cap = maximal_cliques(adjacency, max_cliques=100_000, time_limit_s=1e-9)
+    assert cap == "time_limit" and len(cliques) == 1_000  # the first round completes, then the clock stops it
+    cliques, cap = maximal_cliques(adjacency)
+    assert cap is None and len(cliques) == 3**7
+
+
+def test_rank_cliques_by_summed_similarity():
+    scores = np.array([0.9, 0.1, 0.5, 0.5, 0.2])
+    ranked = rank_cliques([np.array([0, 1, 4]), np.array([1, 2, 3]), np.array([0, 2, 3])], scores)
+    assert [c.tolist() for c in ranked] == [[0, 2, 3], [0, 1, 4], [1, 2, 3]]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cliques_recover_a_known_pose_among_80_percent_outliers(seed):
+    landmarks, observed, candidates, truth, right = outlier_heavy_problem(seed)
+    adjacency = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    cliques, _ = maximal_cliques(adjacency)
+    best = rank_cliques(cliques, np.ones(len(candidates)))[0]
+    assert best.tolist() == list(range(right))
+    pose = fit_rigid(observed[candidates[best, 0]], landmarks[candidates[best, 1]])
+    te, re = pose_errors(pose, truth)
+    assert te < 0.05 and re < np.radians(1.0)
+
+
+@pytest.mark.parametrize(("seed", "progressive"), list(itertools.product(range(3), (False, True))))
+def test_sample_consensus_recovers_a_known_pose_among_80_percent_outliers(seed, progressive):
+    landmarks, observed, candidates, truth, right = outlier_heavy_problem(seed)
+    scores = np.where(np.arange(len(candidates)) < right, 0.8, 0.6)  # PROSAC's ordering prior
+    consensus = sample_consensus(
+        observed, landmarks, candidates, scores, iterations=3000, threshold=0.2,
+        rng=np.random.default_rng(seed), progressive=progressive,
+    )
+    assert consensus.inlier_sets[0].tolist() == list(range(right))
+    assert right - 2 < consensus.scores[0] <= right  # each inlier adds 1 - residual / threshold
+    assert consensus.scores == sorted(consensus.scores, reverse=True)
+    pose = fit_rigid(observed[candidates[consensus.inlier_sets[0], 0]], landmarks[candidates[consensus.inlier_sets[0], 1]])
+    te, re = pose_errors(pose, truth)
+    assert te < 0.05 and re < np.radians(1.0)
+
+
+def test_sample_consensus_is_seeded_and_respects_classes():
+    landmarks, observed, candidates, _, right = outlier_heavy_problem(0)
+    run = lambda **kw: sample_consensus(  # noqa: E731
+        observed, landmarks, candidates, np.ones(len(candidates)), iterations=500, threshold=0.2,
+        rng=np.random.default_rng(5), **kw,
+    )
+    first, second = run(), run()
+    assert [s.tolist() for s in first.inlier_sets] == [s.tolist() for s in second.inlier_sets]
+    same_class = np.arange(len(candidates)) >= 2  # candidates 0 and 1 disagree in class: never inliers
+    for members in run(same_class=same_class).inlier_sets:
+        assert not np.isin([0, 1], members).any()
+
+
+def test_prosac_tries_the_best_scored_candidates_first():
+    landmarks, observed, candidates, _, right = outlier_heavy_problem(1)
+    scores = np.where(np.arange(len(candidates)) < right, 0.9, 0.1)
+    consensus = sample_consensus(
+        observed, landmarks, candidates, scores, iterations=5, threshold=0.2,
+        rng=np.random.default_rng(0), progressive=True,
+    )
+    assert consensus.inlier_sets[0].tolist() == list(range(right))  # 5 draws suffice with the right prior
+
+
+def test_too_few_candidates_give_no_consensus():
+    consensus = sample_consensus(
+        np.zeros((2, 3)), np.zeros((2, 3)), np.array([[0, 0], [1, 1]]), np.ones(2),
+        iterations=10, threshold=0.2, rng=np.random.default_rng(0),
+    )
+    assert consensus.inlier_sets == [] and consensus.num_hypotheses == 0

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+
+from clipclique.config import MatchingConfig
+from clipclique.matching import adaptive_matches, knn_matches, match, mutual_best_matches, top_m
+
+
+def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
+    # sorted row: 0.9 (lm 3), 0.85 (lm 0), 0.3 (lm 4), 0.2 (lm 1), 0.1 (lm 2): largest gap after 2 values
+    row = np.array([[0.85, 0.2, 0.1, 0.9, 0.3, 0.05]])
+    np.testing.assert_array_equal(adaptive_matches(row, 5), [[0, 3], [0, 0]])
+
+
+def test_adaptive_only_looks_at_the_top_m():
+    # within the top 3 (0.9, 0.8, 0.6) the largest gap is after 0.8; the bigger gap 0.6 -> 0.0 is outside
+    row = np.array([[0.9, 0.8, 0.6, 0.0]])
+    np.testing.assert_array_equal(adaptive_matches(row, 3), [[0, 0], [0, 1]])
+    np.testing.assert_array_equal(adaptive_matches(row, 4), [[0, 0], [0, 1], [0, 2]])
+
+
+def test_adaptive_ties_flat_rows_and_small_m():
+    tied = np.array([[1.0, 0.75, 0.5, 0.25]])  # equal gaps: the first wins, one candidate
+    np.testing.assert_array_equal(adaptive_matches(tied, 4), [[0, 0]])
+    flat = np.array([[0.5, 0.5, 0.5, 0.5]])  # no gap: all top m kept
+    np.testing.assert_array_equal(adaptive_matches(flat, 3), [[0, 0], [0, 1], [0, 2]])
+    single = np.array([[0.4], [0.7]])  # one landmark: m = 1, the best is kept
+    np.testing.assert_array_equal(adaptive_matches(single, top_m(1, 0.25)), [[0, 0], [1, 0]])
+
+
+def test_adaptive_rows_are_independent():
+    rows = np.array([[0.9, 0.1, 0.8, 0.0], [0.2, 0.9, 0.1, 0.15]])
+    np.testing.assert_array_equal(adaptive_matches(rows, 4), [[0, 0], [0, 2], [1, 1]])
+
+
+@pytest.mark.parametrize(("landmarks", "expected"), [(40, 10), (41, 11), (3, 2), (1, 1), (0, 0)])
+def test_top_m_is_a_quarter_at_least_two(landmarks, expected):
+    assert top_m(landmarks, 0.25) == expected
+
+
+def test_knn_takes_the_k_best_per_row():
+    similarity = np.array([[0.1, 0.5, 0.3, 0.9], [0.4, 0.4, 0.0, 0.2]])
+    np.testing.assert_array_equal(knn_matches(similarity, 3), [[0, 3], [0, 1], [0, 2], [1, 0], [1, 1], [1, 3]])
+    assert len(knn_matches(similarity[:, :2], 3)) == 4
+
+
+def test_mutual_best_keeps_only_pairs_that_choose_each_other():
+    similarity = np.array([[0.9, 0.1, 0.0], [0.8, 0.2, 0.1], [0.0, 0.3, 0.7]])
+    # obs 1's best is lm 0, but lm 0 prefers obs 0
+    np.testing.assert_array_equal(mutual_best_matches(similarity), [[0, 0], [2, 2]])
+
+
+def test_match_drops_candidates_at_or_below_min_similarity():
+    similarity = np.array([[0.9, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+    candidates, scores = match(similarity, MatchingConfig(strategy="knn", k=2, min_similarity=0.0))
+    np.testing.assert_array_equal(candidates, [[0, 0]])
+    np.testing.assert_array_equal(scores, [0.9])
+
+
+def test_empty_inputs_give_no_candidates():
+    for strategy in ("adaptive", "knn", "one_to_one"):
+        candidates, scores = match(np.zeros((0, 5)), MatchingConfig(strategy=strategy))
+        assert candidates.shape == (0, 2) and scores.shape == (0,)

@@ -1,0 +1,125 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from clipclique.config import make_config
+from clipclique.errors import ClipcliqueError
+from clipclique.geometry import pose_errors
+from clipclique.metrics import evaluate_frame, summarize
+from clipclique.pipeline import STAGES, index_map, localize
+from clipclique.synthetic import synthetic_map, synthetic_query
+
+
+def run(method: str, frames: int = 12, overrides: list[str] | None = None, seed: int = 1, **query):
+    config = make_config(method, overrides=overrides)
+    rng = np.random.default_rng(seed)
+    map = synthetic_map(rng, num_landmarks=40, num_classes=8)
+    index = index_map(map, config)
+    evaluations, results = [], []
+    for frame in range(frames):
+        observations, truth = synthetic_query(map, rng, **query)
+        result = localize(observations, index, config)
+        results.append(result)
+        evaluations.append(evaluate_frame(result, observations, map, truth, config, frame))
+    return summarize(evaluations), results
+
+
+# The baselines need no CLIP (SH, X-View) or no graph (CLIP-Loc); all localize this easy synthetic map.
+@pytest.mark.parametrize(
+    ("method", "success", "precision"), [("clipclique", 1.0, 0.95), ("sh", 0.75, 0.95), ("xview", 0.75, 0.95), ("cliploc", 0.9, 0.95)]
+)
+def test_each_method_localizes_synthetic_frames(method, success, precision):
+    summary, results = run(method)
+    assert summary["success@1"] >= success
+    assert summary["precision"] >= precision
+    assert summary["te_median_m"] < 0.2 and summary["re_median_deg"] < 5.0
+    for result in results:
+        assert set(result.timings) >= set(STAGES)
+        assert len(result.hypotheses) <= 5
+        scores = [h.score for h in result.hypotheses]
+        assert scores == sorted(scores, reverse=True)
+
+
+def test_clipclique_beats_sh_on_small_noisy_views():
+    # 6 objects and 3 false detections: histograms of a small view are unreliable, CLIP still tells objects apart
+    clipclique, _ = run("clipclique", num_visible=6, num_outliers=3)
+    sh, _ = run("sh", num_visible=6, num_outliers=3)
+    assert clipclique["success@1"] > sh["success@1"]
+    assert clipclique["recall"] > sh["recall"]
+
+
+def test_hypotheses_are_one_to_one_and_consistent_with_their_pose():
+    _, results = run("clipclique", frames=3)
+    for result in results:
+        for hypothesis in result.hypotheses:
+            pairs = hypothesis.correspondences
+            assert len(pairs) >= 3
+            assert len(np.unique(pairs[:, 0])) == len(pairs) == len(np.unique(pairs[:, 1]))
+
+
+def test_fewer_than_three_observations_is_a_documented_failure():
+    config = make_config("clipclique")
+    map = synthetic_map(np.random.default_rng(0))
+    observations, _ = synthetic_query(map, np.random.default_rng(0), num_visible=2, num_outliers=0)
+    result = localize(observations, index_map(map, config), config)
+    assert result.hypotheses == [] and result.failure == "fewer than 3 observations (2)"
+    assert result.similarity.shape == (2, len(map))
+
+
+def test_no_candidates_is_a_documented_failure():
+    config = make_config("clipclique", overrides=["matching.min_similarity=0.99"])
+    map = synthetic_map(np.random.default_rng(0))
+    observations, _ = synthetic_query(map, np.random.default_rng(0))
+    result = localize(observations, index_map(map, config), config)
+    assert result.failure.startswith("fewer than 3 observations with a candidate landmark")
+
+
+def test_missing_embeddings_fall_back_to_sh_for_fused_and_fail_for_clip():
+    map = synthetic_map(np.random.default_rng(0))
+    observations, truth = synthetic_query(map, np.random.default_rng(0))
+    blind = dataclasses.replace(map, text_embeddings=None)
+    config = make_config("clipclique")
+    result = localize(observations, index_map(blind, config), config)
+    assert result.notes == ["no CLIP embeddings (the map has no text embeddings): alpha = 0 (SH only)"]
+    sh = make_config("sh", overrides=["matching.strategy=adaptive", "inliers.method=cliques", "pose.weights=both"])
+    np.testing.assert_allclose(result.similarity, localize(observations, index_map(blind, sh), sh).similarity)
+    with pytest.raises(ClipcliqueError, match="needs CLIP embeddings"):
+        cliploc = make_config("cliploc")
+        localize(observations, index_map(blind, cliploc), cliploc)
+
+
+def test_bad_observation_classes_and_embedding_sizes_are_user_errors():
+    map = synthetic_map(np.random.default_rng(0), num_classes=8)
+    observations, _ = synthetic_query(map, np.random.default_rng(0))
+    config = make_config("clipclique")
+    index = index_map(map, config)
+    with pytest.raises(ClipcliqueError, match="8 classes"):
+        localize(dataclasses.replace(observations, class_ids=observations.class_ids + 8), index, config)
+    with pytest.raises(ClipcliqueError, match="dimensions"):
+        localize(dataclasses.replace(observations, image_embeddings=observations.image_embeddings[:, :5]), index, config)
+
+
+def test_the_pipeline_is_deterministic():
+    first, _ = run("cliploc", frames=3)
+    second, _ = run("cliploc", frames=3)
+    assert {k: v for k, v in first.items() if not k.startswith("time")} == {
+        k: v for k, v in second.items() if not k.startswith("time")
+    }
+
+
+@pytest.mark.parametrize("weights", ["none", "sim", "com", "both"])
+def test_pose_weight_ablations_run_through_one_pipeline(weights):
+    summary, results = run("clipclique", frames=4, overrides=[f"pose.weights={weights}"])
+    assert summary["success@1"] == 1.0
+    truth_free = [h.pose for r in results for h in r.hypotheses]
+    assert all(np.isfinite(p.matrix()).all() for p in truth_free)
+
+
+def test_top1_pose_error_is_the_metric_error():
+    config = make_config("clipclique")
+    map = synthetic_map(np.random.default_rng(2))
+    observations, truth = synthetic_query(map, np.random.default_rng(2))
+    result = localize(observations, index_map(map, config), config)
+    evaluation = evaluate_frame(result, observations, map, truth, config, 0)
+    assert (evaluation.translation_error, evaluation.rotation_error) == pose_errors(result.hypotheses[0].pose, truth)

@@ -1,0 +1,83 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from clipclique.geometry import random_rotation
+from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid, fit_rigid_batch
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_weighted_pose_equals_scipy_align_vectors(seed):
+    rng = np.random.default_rng(seed)
+    source = rng.normal(size=(12, 3))
+    rotation = random_rotation(rng)
+    target = source @ rotation.T + rng.normal(size=3) + rng.normal(scale=0.2, size=(12, 3))
+    weights = rng.uniform(0.1, 2.0, 12)
+
+    pose = fit_rigid(source, target, weights)
+
+    mean_source = weights @ source / weights.sum()
+    mean_target = weights @ target / weights.sum()
+    expected, _ = Rotation.align_vectors(target - mean_target, source - mean_source, weights=weights)
+    np.testing.assert_allclose(pose.rotation, expected.as_matrix(), atol=1e-9)
+    np.testing.assert_allclose(pose.translation, mean_target - expected.as_matrix() @ mean_source, atol=1e-9)
+
+
+def test_exact_correspondences_give_the_exact_pose():
+    rng = np.random.default_rng(7)
+    source = rng.normal(size=(5, 3))
+    rotation, translation = random_rotation(rng), np.array([1.0, -2.0, 0.5])
+    pose = fit_rigid(source, source @ rotation.T + translation)
+    np.testing.assert_allclose(pose.rotation, rotation, atol=1e-12)
+    np.testing.assert_allclose(pose.translation, translation, atol=1e-12)
+
+
+def test_mirrored_points_still_give_a_rotation():
+    rng = np.random.default_rng(3)
+    source = rng.normal(size=(6, 3))
+    pose = fit_rigid(source, source * np.array([1.0, 1.0, -1.0]))
+    assert np.linalg.det(pose.rotation) == pytest.approx(1.0)
+
+
+def test_zero_weights_drop_their_points():
+    rng = np.random.default_rng(4)
+    source = rng.normal(size=(6, 3))
+    rotation = random_rotation(rng)
+    target = source @ rotation.T
+    target[5] += 10.0  # an outlier with weight 0 must not move the pose
+    pose = fit_rigid(source, target, np.array([1, 1, 1, 1, 1, 0.0]))
+    np.testing.assert_allclose(pose.rotation, rotation, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("source", "weights", "reason"),
+    [
+        (np.eye(3)[:2], None, "fewer than 3 correspondences"),
+        (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3.0]]), None, "collinear"),
+        (np.eye(3), np.zeros(3), "positive weight"),
+        (np.eye(4)[:, :3], np.array([1.0, 1.0, 0.0, 0.0]), "positive weight"),
+        (np.eye(3), np.array([1.0, np.nan, 1.0]), "finite"),
+    ],
+)
+def test_degenerate_input_is_an_explicit_failure(source, weights, reason):
+    with pytest.raises(DegeneratePoseError, match=reason):
+        fit_rigid(source, source + 1.0, weights)
+
+
+def test_batch_flags_degenerate_sets_without_nan():
+    good = np.random.default_rng(0).normal(size=(3, 3))
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
+    rotation, translation, ok = fit_rigid_batch(np.stack((good, line)), np.stack((good, line)))
+    assert ok.tolist() == [True, False]
+    assert np.isfinite(rotation).all() and np.isfinite(translation).all()
+    np.testing.assert_allclose(rotation[0], np.eye(3), atol=1e-12)
+
+
+def test_correspondence_weights_follow_the_formula():
+    scores = np.array([0.8, -0.2])
+    observed = np.array([[1.0, 1.0, 1.0], [2.0, 0.0, 0.0]])
+    landmark = np.array([[2.0, 2.0, 2.0], [1.0, 0.0, 0.0]])  # completeness 0.5 and min(1, 2) = 1
+    np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "both"), [0.4, 0.0])
+    np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "sim"), [0.8, 0.0])
+    np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "com"), [0.5, 1.0])
+    np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "none"), [1.0, 1.0])

@@ -1,0 +1,33 @@
+import numpy as np
+import scipy.sparse as sp
+
+from clipclique.graph import semantic_graph, semantic_histograms
+from clipclique.similarity import clip_similarity, fuse, histogram_similarity, walk_similarity
+
+
+def test_histogram_similarity_is_cosine_of_histograms():
+    rng = np.random.default_rng(0)
+    centers = rng.uniform(0, 3, size=(30, 3))
+    classes = rng.integers(0, 5, 30)
+    histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 5)
+    similarity = histogram_similarity(histograms[:4], histograms)
+    dense = histograms.toarray()
+    np.testing.assert_allclose(similarity, dense[:4] @ dense.T)
+    connected = np.flatnonzero(np.linalg.norm(dense, axis=1) > 0)[:4]
+    np.testing.assert_allclose(histogram_similarity(histograms[connected], histograms[connected]).diagonal(), 1.0)
+    # a node's own class is each walk's first label: different classes never share a bin
+    assert (similarity[classes[:4, None] != classes[None, :]] == 0).all()
+
+
+def test_walk_similarity_is_the_fraction_of_shared_walks():
+    query = sp.csr_matrix(np.array([[3.0, 1.0, 0.0, 0.0], [0.0, 0.0, 2.0, 2.0]]))
+    landmarks = sp.csr_matrix(np.array([[5.0, 0.0, 0.0, 0.0], [0.0, 9.0, 1.0, 0.0]]))
+    np.testing.assert_allclose(walk_similarity(query, landmarks), [[0.75, 0.25], [0.0, 0.5]])
+
+
+def test_clip_and_fused_similarity():
+    image = np.array([[1.0, 0.0], [0.6, 0.8]])
+    text = np.array([[0.0, 1.0], [1.0, 0.0]])
+    clip = clip_similarity(image, text)
+    np.testing.assert_allclose(clip, [[0.0, 1.0], [0.8, 0.6]])
+    np.testing.assert_allclose(fuse(clip, np.ones((2, 2)), 0.7), [[0.3, 1.0], [0.86, 0.72]])

@@ -1,0 +1,116 @@
+"""`clipclique-loc`: localize every frame of a sequence against its map and score it.
+
+Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help` is instant.
+"""
+
+from __future__ import annotations
+
+import sys
+from enum import Enum
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
+
+ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
+
+
+class Method(str, Enum):
+    clipclique = "clipclique"
+    sh = "sh"
+    xview = "xview"
+    cliploc = "cliploc"
+
+
+class DetectorKind(str, Enum):
+    gt = "gt"
+    annotations = "annotations"
+    yolo = "yolo"
+    simulated = "simulated"
+
+
+@app.command()
+def run(
+    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, scene0002_00, fr2, fr3, or a sequence folder")],
+    method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
+    top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame [default: 5]", rich_help_panel=ALGORITHM)] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
+                                                      rich_help_panel=ALGORITHM)] = None,
+    map_path: Annotated[Optional[Path], typer.Option("--map", help="map file [default: outputs/maps/SEQUENCE.map.npz]",
+                                                     rich_help_panel=INPUTS)] = None,
+    data_root: Annotated[Optional[Path], typer.Option(help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]",
+                                                      rich_help_panel=INPUTS)] = None,
+    detector: Annotated[Optional[DetectorKind], typer.Option(
+        help="[default: simulated on the demo, gt on ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+    yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
+                                              rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
+    encoder: Annotated[Optional[str], typer.Option(
+        help="auto | simulated | none | open_clip:MODEL/PRETRAINED | checkpoint file "
+             "[default: simulated on the demo, else the map's CLIP if available, else none (SH only)]",
+        rich_help_panel=INPUTS)] = None,
+    stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
+    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
+    out: Annotated[Optional[Path], typer.Option(help="[default: outputs/loc/SEQUENCE/METHOD]",
+                                                rich_help_panel=OUTPUT)] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
+) -> None:
+    """Localize each frame; print the paper's table; write results.json, poses.tum, config.json, recording.rrd."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from localization.results import run_and_save
+    from localization.run import RunSettings
+    from localization.tables import print_documents
+
+    overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
+                           detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
+                           record=not no_rrd)
+    console = Console()
+    with _user_errors(), Progress(console=Console(stderr=True), transient=True) as progress:
+        task = progress.add_task(f"{sequence} / {method.value}", total=None)
+        document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
+    print_documents(console, [document])
+    out_dir = settings.out_dir()
+    console.print(f"results: {out_dir}/results.json, {out_dir}/poses.tum, {out_dir}/config.json")
+    if settings.record:
+        console.print(f"recording: rerun {out_dir}/recording.rrd")
+
+
+@app.command()
+def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
+    """One table of several runs (e.g. outputs/loc/demo/*)."""
+    from rich.console import Console
+
+    from localization.results import read_results
+    from localization.tables import print_documents
+
+    with _user_errors():
+        documents = [read_results(p / "results.json" if p.is_dir() else p) for p in results]
+    print_documents(Console(), documents)
+
+
+class _user_errors:
+    """Print a ClipcliqueError as one line and exit 2; anything else is a bug and keeps its traceback."""
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind, error, trace) -> bool:
+        from clipclique.errors import ClipcliqueError
+
+        if isinstance(error, ClipcliqueError):
+            print(f"clipclique-loc: error: {error}", file=sys.stderr)
+            raise typer.Exit(2)
+        return False
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

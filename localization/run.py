@@ -1,0 +1,199 @@
+"""The sequence loop of `clipclique-loc run`: frames -> detections -> observations -> poses -> metrics.
+
+Every frame is scored, including those with too few observations (they count as failures).
+Which detector and encoder ran, and whether they are simulated, travels with the results.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+from clipclique.config import LocalizationConfig, make_config
+from clipclique.datasets import Sequence, open_sequence
+from clipclique.encoders import Encoder, load_encoder
+from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
+from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
+from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
+from clipclique.types import Detections, Frame, Map, Observations, Pose
+from localization.detectors import Detector, make_detector
+from localization.observations import ObservationParams, embed, extract_observations
+
+MAP_DIR = Path("outputs/maps")
+LOC_DIR = Path("outputs/loc")
+QUERY_STAGES = ("detector", "observations", "encoder")  # before the pipeline's own STAGES
+
+
+@dataclass
+class RunSettings:
+    """Everything `clipclique-loc run` was asked; defaults follow the dataset."""
+
+    sequence: str
+    method: str = "clipclique"
+    config_file: Path | None = None
+    overrides: list[str] = field(default_factory=list)
+    map_path: Path | None = None  # default outputs/maps/<SEQUENCE>.map.npz
+    data_root: Path | None = None
+    detector: str | None = None  # default: simulated on the demo, gt on ScanNet, annotations on TUM
+    encoder: str | None = None  # default: simulated on the demo, else the map's CLIP if here, else none
+    yolo_weights: str = "yolov8x-seg.pt"
+    stride: int = 1
+    max_frames: int | None = None
+    out: Path | None = None  # default outputs/loc/<SEQUENCE>/<method>
+    record: bool = True
+    seed: int = 0  # the simulated detector's
+
+    def out_dir(self) -> Path:
+        return self.out or LOC_DIR / Path(self.sequence).name / self.method
+
+    def resolved_map_path(self) -> Path:
+        return self.map_path or MAP_DIR / f"{Path(self.sequence).name}.map.npz"
+
+
+@dataclass
+class FrameOutcome:
+    frame_index: int
+    timestamp: float
+    name: str
+    gt_pose: Pose | None
+    num_detections: int
+    dropped: dict[str, int]
+    result: LocalizationResult
+    evaluation: FrameEvaluation
+    timings: dict[str, float]  # seconds: QUERY_STAGES then the pipeline's stages
+
+
+@dataclass
+class Run:
+    settings: RunSettings
+    config: LocalizationConfig
+    sequence: Sequence
+    map: Map
+    detector: Detector
+    encoder: Encoder | None
+    notes: list[str]  # run-wide facts the user must see (simulated parts, alpha forced to 0, ...)
+    frames: list[FrameOutcome] = field(default_factory=list)
+
+    @cached_property
+    def truth_descriptions(self) -> dict[int, str]:
+        """Object id -> true description, which only a simulated encoder reads."""
+        return dict(zip(self.map.instance_ids.tolist(), self.map.descriptions))
+
+    def summary(self) -> dict[str, float]:
+        return summarize([outcome.evaluation for outcome in self.frames])
+
+
+def prepare(settings: RunSettings) -> Run:
+    """Open the sequence and map, choose the detector and encoder, settle the config."""
+    config = make_config(settings.method, settings.config_file, settings.overrides)
+    map_path = settings.resolved_map_path()
+    if not map_path.is_file():
+        raise MapFileError(f"{map_path}: no map; build it with `clipclique-map build {settings.sequence}` "
+                           "or pass --map PATH")
+    from clipclique.mapfile import load_map
+
+    map = load_map(map_path)
+    sequence = open_sequence(settings.sequence, settings.data_root)
+    notes: list[str] = []
+    detector_kind = settings.detector or default_detector(sequence)
+    detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
+                             settings.seed)
+    encoder = choose_encoder(settings.encoder, sequence, map, notes)
+    if config.similarity.descriptor == "clip" and (encoder is None or map.text_embeddings is None):
+        raise ModelUnavailableError(
+            f"method {settings.method} ranks by CLIP alone but {'no encoder is available' if encoder is None else f'{map_path} has no text embeddings'}"
+            "; pass --encoder (e.g. open_clip:ViT-L-14/openai) or choose --method clipclique / sh / xview")
+    if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
+        config.similarity.alpha = 0.0
+        notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
+    for part in (detector, encoder):
+        if part is not None and part.simulated:
+            notes.append(f"{part.name} is simulated (a stand-in with known ground truth)")
+    return Run(settings, config, sequence, map, detector, encoder, notes)
+
+
+def default_detector(sequence: Sequence) -> str:
+    if sequence.synthetic:
+        return "simulated"
+    return "gt" if sequence.kind == "scannet" else "annotations"
+
+
+def choose_encoder(spec: str | None, sequence: Sequence, map: Map, notes: list[str]) -> Encoder | None:
+    """The requested encoder, else one that matches the map's text embeddings, else none."""
+    if spec is None:
+        if sequence.synthetic:
+            spec = "simulated"
+        elif map.encoder.startswith("open_clip:"):
+            try:
+                return load_encoder(map.encoder)
+            except ModelUnavailableError as error:
+                notes.append(f"the map's encoder is not available here ({error})")
+                return None
+        else:
+            spec = "auto"
+    encoder = load_encoder(spec)
+    if encoder is not None and map.text_embeddings is not None and map.encoder != encoder.name:
+        raise ClipcliqueError(f"the map's text embeddings come from {map.encoder} but the query encoder is "
+                              f"{encoder.name}; their embeddings are not comparable (pass --encoder {map.encoder})")
+    return encoder
+
+
+@dataclass
+class Seen:
+    """One frame's detections and observations, and what producing them cost."""
+
+    detections: Detections
+    observations: Observations
+    dropped: dict[str, int]
+    timings: dict[str, float]  # seconds, QUERY_STAGES
+
+
+def observe(run: Run, frame: Frame, params: ObservationParams = ObservationParams()) -> Seen:
+    """Detect, fit observed ellipsoids, embed their crops."""
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+    detections = run.detector.detect(frame)
+    timings["detector"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    extraction = extract_observations(frame, detections, params)
+    timings["observations"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    observations = embed(extraction, run.encoder, run.truth_descriptions)
+    timings["encoder"] = time.perf_counter() - clock
+    return Seen(detections, observations, extraction.dropped, timings)
+
+
+def localize_frame(run: Run, frame: Frame, index: MapIndex) -> tuple[FrameOutcome, Seen]:
+    seen = observe(run, frame)
+    result = localize(seen.observations, index, run.config)
+    evaluation = evaluate_frame(result, seen.observations, run.map, frame.pose, run.config, frame.index)
+    outcome = FrameOutcome(frame.index, frame.timestamp, frame.name, frame.pose, len(seen.detections), seen.dropped,
+                           result, evaluation, seen.timings | result.timings)
+    return outcome, seen
+
+
+def selected_frames(run: Run) -> range:
+    selected = range(0, len(run.sequence), run.settings.stride)[:run.settings.max_frames]
+    if not selected:
+        raise ClipcliqueError(f"{run.settings.sequence}: no frames selected ({len(run.sequence)} frames, "
+                              f"stride {run.settings.stride}, max {run.settings.max_frames})")
+    return selected
+
+
+def execute(run: Run, recorder=None, progress: Callable[[int, int], None] | None = None) -> Run:
+    """Localize the selected frames; log each to `recorder` (a LocalizationRecorder) when given."""
+    index = index_map(run.map, run.config)
+    selected = selected_frames(run)
+    for count, i in enumerate(selected, start=1):
+        frame = run.sequence[i]
+        outcome, seen = localize_frame(run, frame, index)
+        run.frames.append(outcome)
+        if recorder is not None:
+            recorder.log_frame(frame, seen.detections, seen.observations, outcome.result, outcome.evaluation)
+        if progress is not None:
+            progress(count, len(selected))
+    return run
+

@@ -1,0 +1,76 @@
+"""Result files and CLI behaviour that need no dataset: TUM lines, JSON without NaN, user errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from typer.testing import CliRunner
+
+from clipclique.geometry import random_rotation
+from clipclique.types import Pose
+from localization.cli import app
+from localization.results import _finite, atomic_write, read_results, tum_line
+from localization.tables import results_table, run_banner
+
+RUNNER = CliRunner()
+
+
+def test_tum_line_round_trips_the_pose():
+    pose = Pose(random_rotation(np.random.default_rng(3)), np.array([1.5, -2.25, 0.125]))
+    fields = [float(v) for v in tum_line(1305031102.175304, pose).split()]
+    assert len(fields) == 8
+    assert fields[0] == pytest.approx(1305031102.175304, abs=1e-6)
+    np.testing.assert_allclose(fields[1:4], pose.translation, atol=1e-6)
+    np.testing.assert_allclose(Rotation.from_quat(fields[4:]).as_matrix(), pose.rotation, atol=1e-5)
+    quarter_turn = Pose(Rotation.from_euler("z", 90, degrees=True).as_matrix(), np.zeros(3))
+    assert tum_line(7, quarter_turn).split()[4:] == ["0.000000", "0.000000", "0.707107", "0.707107"]
+
+
+def test_finite_replaces_nan_and_numpy_scalars():
+    tree = {"a": np.float64("nan"), "b": [np.int64(3), np.float32(0.5), float("inf")], 4: np.bool_(True)}
+    cleaned = _finite(tree)
+    assert cleaned == {"a": None, "b": [3, 0.5, None], "4": True}
+    json.dumps(cleaned, allow_nan=False)
+
+
+def test_atomic_write_leaves_no_partial_file(tmp_path):
+    target = tmp_path / "results.json"
+    atomic_write(target, "{}")
+    assert target.read_text() == "{}" and [p.name for p in tmp_path.iterdir()] == ["results.json"]
+
+
+def test_read_results_rejects_other_files(tmp_path):
+    (tmp_path / "x.json").write_text('{"format": "something else"}')
+    with pytest.raises(Exception, match="not a version 1"):
+        read_results(tmp_path / "x.json")
+
+
+def _document(method: str, success: float, simulated: bool) -> dict:
+    summary = {"frames": 10.0, "precision": 0.9, "recall": 0.5, "te_median_m": None, "re_median_deg": 2.0,
+               "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0}
+    return {"run": {"sequence": "demo", "method_title": method, "notes": ["a note"],
+                    "detector": {"name": "simulated", "simulated": simulated}, "encoder": None},
+            "summary": summary}
+
+
+def test_tables_show_the_papers_columns_and_flag_simulated_parts():
+    table = results_table([_document("CLIP-Clique", 0.8, True), _document("SH", 0.25, True)])
+    assert [c.header for c in table.columns][3:] == ["Precision", "Recall", "TE [m]", "RE [deg]", "Top-1 [%]",
+                                                     "Top-3 [%]", "Top-5 [%]", "Time [ms]"]
+    top1 = list(table.columns[7].cells)
+    assert top1 == ["80.0", "25.0"] and list(table.columns[5].cells) == ["-", "-"]
+    assert run_banner(_document("SH", 0.2, True)).splitlines() == [
+        "detector: simulated (SIMULATED)", "encoder: none", "note: a note"]
+
+
+def test_cli_help_and_missing_map(tmp_path):
+    assert "--method" in RUNNER.invoke(app, ["run", "--help"]).output
+    result = RUNNER.invoke(app, ["run", "demo", "--map", str(tmp_path / "none.map.npz"), "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "clipclique-map build demo" in result.output
+    assert not (tmp_path / "results.json").exists()
+    bad = RUNNER.invoke(app, ["run", "demo", "--set", "inliers.nope=1", "--map", str(tmp_path / "m.npz")])
+    assert bad.exit_code == 2 and "inliers.nope" in bad.output

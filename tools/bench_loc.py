@@ -1,0 +1,53 @@
+"""Per-frame timings of clipclique-loc on a sequence: the algorithm (matching + inliers + pose) apart
+from the detector, the observation fit and the encoder.
+
+    .venv/bin/python tools/bench_loc.py [SEQUENCE] [--method clipclique] [--repeat 3]
+
+The map must exist (`clipclique-map build SEQUENCE`). Each frame's observations are localized
+`--repeat` times and the fastest kept, which damps the noise of a shared machine; the table
+gives medians and 90th percentiles over frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+
+from clipclique.pipeline import STAGES, index_map, localize
+from localization.run import QUERY_STAGES, RunSettings, observe, prepare, selected_frames
+
+ALGORITHM_STAGES = ("matching", "inliers", "pose")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequence", nargs="?", default="demo")
+    parser.add_argument("--method", default="clipclique")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--max-frames", type=int, default=None)
+    args = parser.parse_args()
+
+    run = prepare(RunSettings(args.sequence, args.method, max_frames=args.max_frames, record=False))
+    index = index_map(run.map, run.config)
+    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *STAGES, "algorithm")}
+    for i in selected_frames(run):
+        seen = observe(run, run.sequence[i])
+        results = [localize(seen.observations, index, run.config) for _ in range(args.repeat)]
+        fastest = min(results, key=lambda r: sum(r.timings[s] for s in ALGORITHM_STAGES))
+        for stage, seconds in (seen.timings | fastest.timings).items():
+            rows[stage].append(1e3 * seconds)
+        rows["algorithm"].append(1e3 * sum(fastest.timings[s] for s in ALGORITHM_STAGES))
+
+    print(f"{args.method} on {args.sequence}: {len(rows['algorithm'])} frames, {os.cpu_count()} cores "
+          "(a shared machine gives noisy timings)")
+    print(f"detector: {run.detector.name}; encoder: {run.encoder.name if run.encoder else 'none'}")
+    print(f"{'stage':<14}{'median ms':>10}{'p90 ms':>10}")
+    for stage, times in rows.items():
+        print(f"{stage:<14}{np.median(times):>10.2f}{np.percentile(times, 90):>10.2f}")
+    print(f"algorithm = matching + inliers + pose, fastest of {args.repeat}; target: median <= 10 ms")
+
+
+if __name__ == "__main__":
+    main()

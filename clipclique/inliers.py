@@ -22,11 +22,14 @@ transformed observation centre adds `1 - residual / threshold`, counted once per
 
 from __future__ import annotations
 
+import itertools
+import math
 import time
 from dataclasses import dataclass
 
 import igraph
 import numpy as np
+from scipy.spatial import cKDTree
 
 from clipclique.pose import fit_rigid_batch
 
@@ -37,22 +40,33 @@ CHUNK = 256  # RANSAC hypotheses verified at once (bounds memory to CHUNK x C re
 def compatibility_graph(
     observed_centers: np.ndarray, landmark_centers: np.ndarray, candidates: np.ndarray, d_comp: float
 ) -> np.ndarray:
-    """(C, C) boolean adjacency of the candidates' pairwise rigid-distance compatibility."""
+    """(E, 2) edges `i < j` between compatible candidates (rows of `candidates`).
+
+    Two landmarks farther apart than the widest observation pair plus `d_comp` cannot pass the
+    test, so only landmark pairs within that reach (a KD-tree query) are tested: the cost grows
+    with the candidates' neighbourhoods, not with the square of their number.
+    """
+    if len(candidates) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
     obs, lm = candidates[:, 0], candidates[:, 1]
-    observed = _pairwise_distances(observed_centers[obs])
-    mapped = _pairwise_distances(landmark_centers[lm])
-    return (np.abs(observed - mapped) < d_comp) & (obs[:, None] != obs[None, :]) & (lm[:, None] != lm[None, :])
+    observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
+    points = landmark_centers[lm]
+    pairs = cKDTree(points).query_pairs(observed.max() + d_comp, output_type="ndarray").astype(np.int64)
+    a, b = pairs[:, 0], pairs[:, 1]
+    mapped = np.linalg.norm(points[a] - points[b], axis=1)
+    keep = (np.abs(observed[obs[a], obs[b]] - mapped) < d_comp) & (obs[a] != obs[b]) & (lm[a] != lm[b])
+    return pairs[keep]
 
 
 def maximal_cliques(
-    adjacency: np.ndarray, min_size: int = 3, max_cliques: int = 100_000, time_limit_s: float = 1.0
+    edges: np.ndarray, num_nodes: int, min_size: int = 3, max_cliques: int = 100_000, time_limit_s: float = 1.0
 ) -> tuple[list[np.ndarray], str | None]:
-    """Maximal cliques of at least `min_size` nodes, and the cap that stopped enumeration early.
+    """Maximal cliques of at least `min_size` nodes of the graph `edges` (E, 2) on `num_nodes` nodes,
+    and the cap that stopped enumeration early.
 
     Returns (cliques as sorted index arrays, cap) where cap is "max_cliques", "time_limit" or None.
     """
-    edges = np.argwhere(np.triu(adjacency, 1))
-    graph = igraph.Graph(n=len(adjacency), edges=edges)
+    graph = igraph.Graph(n=num_nodes, edges=edges)
     start = time.perf_counter()
     wanted = min(FIRST_ROUND, max_cliques)
     while True:
@@ -103,11 +117,9 @@ def sample_consensus(
     count = len(candidates)
     if count < 3 or iterations < 1:
         return Consensus([], [], 0)
-    order = np.argsort(-scores, kind="stable") if progressive else np.arange(count)
-    samples = order[_prosac_samples(count, iterations, rng) if progressive else _uniform_samples(count, iterations, rng)]
+    samples = _minimal_sets(scores, iterations, rng, progressive)
     obs, lm = candidates[:, 0], candidates[:, 1]
-    distinct = _all_different(obs[samples]) & _all_different(lm[samples])
-    samples = samples[distinct]
+    samples = samples[_all_different(obs[samples]) & _all_different(lm[samples])]
     rotation, translation, ok = fit_rigid_batch(observed_centers[obs[samples]], landmark_centers[lm[samples]])
     rotation, translation = rotation[ok], translation[ok]
 
@@ -116,29 +128,27 @@ def sample_consensus(
     allowed = np.ones(count, dtype=bool) if same_class is None else same_class
     source, target = observed_centers[obs], landmark_centers[lm]
     verification = np.empty(len(rotation))
+    inlier_masks = np.empty((len(rotation), count), dtype=bool)
     for lo in range(0, len(rotation), CHUNK):
         residual = _residuals(rotation[lo : lo + CHUNK], translation[lo : lo + CHUNK], source, target)
-        support = np.where(allowed & (residual < threshold), 1.0 - residual / threshold, 0.0)
+        inlier_masks[lo : lo + CHUNK] = allowed & (residual < threshold)
+        support = np.where(inlier_masks[lo : lo + CHUNK], 1.0 - residual / threshold, 0.0)
         verification[lo : lo + CHUNK] = np.maximum.reduceat(support[:, by_obs], group_starts, axis=1).sum(axis=1)
 
+    # Visit the best hypothesis of each distinct inlier set, best first.
+    order = np.argsort(-verification, kind="stable")
+    _, first = np.unique(np.packbits(inlier_masks[order], axis=1), axis=0, return_index=True)
     inlier_sets: list[np.ndarray] = []
     set_scores: list[float] = []
-    seen: set[bytes] = set()
-    for best in np.argsort(-verification, kind="stable"):
+    for best in order[np.sort(first)]:
         if verification[best] <= 0 or len(inlier_sets) == keep:
             break
         residual = _residuals(rotation[best : best + 1], translation[best : best + 1], source, target)[0]
-        inliers = _best_per_observation(np.flatnonzero(allowed & (residual < threshold)), obs, residual)
-        key = inliers.tobytes()
-        if len(inliers) >= 3 and key not in seen:
-            seen.add(key)
+        inliers = _best_per_observation(np.flatnonzero(inlier_masks[best]), obs, residual)
+        if len(inliers) >= 3 and not any(np.array_equal(inliers, known) for known in inlier_sets):
             inlier_sets.append(inliers)
             set_scores.append(float(verification[best]))
     return Consensus(inlier_sets, set_scores, int(len(rotation)))
-
-
-def _pairwise_distances(points: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(points[:, None, :] - points[None, :, :], axis=-1)
 
 
 def _residuals(rotation: np.ndarray, translation: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -156,6 +166,17 @@ def _best_per_observation(inliers: np.ndarray, obs: np.ndarray, residual: np.nda
 
 def _all_different(triples: np.ndarray) -> np.ndarray:
     return (triples[:, 0] != triples[:, 1]) & (triples[:, 0] != triples[:, 2]) & (triples[:, 1] != triples[:, 2])
+
+
+def _minimal_sets(scores: np.ndarray, iterations: int, rng: np.random.Generator, progressive: bool) -> np.ndarray:
+    """(I, 3) candidate indices: every 3-subset when there are no more than `iterations` of them
+    (exhaustive beats random), else PROSAC's or RANSAC's draws."""
+    count = len(scores)
+    if math.comb(count, 3) <= iterations:
+        return np.array(list(itertools.combinations(range(count), 3)), dtype=np.int64)
+    if not progressive:
+        return _uniform_samples(count, iterations, rng)
+    return np.argsort(-scores, kind="stable")[_prosac_samples(count, iterations, rng)]
 
 
 def _uniform_samples(count: int, iterations: int, rng: np.random.Generator) -> np.ndarray:

@@ -7,6 +7,7 @@ Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,6 +29,7 @@ class MapIndex:
     """Map-side work done once per map and config."""
 
     map: Map
+    built_for: tuple  # (descriptor, GraphConfig) this index was built with; localize checks it
     adjacency: sp.csr_matrix  # (N, N) semantic graph
     histograms: sp.csr_matrix | None  # (N, C^s) Semantic Histograms, when the descriptor uses them
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
@@ -50,12 +52,16 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
     adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config)
-    return MapIndex(map, adjacency, histograms, walks)
+    return MapIndex(map, _index_key(config), adjacency, histograms, walks)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
     """Ranked camera-to-map poses for one frame's observations."""
     _check_classes(observations, index.map)
+    if index.built_for != _index_key(config):
+        raise ClipcliqueError(
+            f"the map index was built for {index.built_for}, not {_index_key(config)}: call index_map with this config"
+        )
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -88,6 +94,10 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     if result.failure is None and not result.hypotheses:
         result.failure = "no correspondence set determines a pose"
     return result
+
+
+def _index_key(config: LocalizationConfig) -> tuple:
+    return (config.similarity.descriptor, dataclasses.replace(config.graph))
 
 
 def _graph_descriptors(
@@ -154,11 +164,11 @@ def _check_classes(observations: Observations, map: Map) -> None:
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
     """Maximal cliques of the compatibility graph ranked by summed similarity, one pose each."""
     settings = config.inliers
-    adjacency = inliers.compatibility_graph(
+    edges = inliers.compatibility_graph(
         observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, settings.d_comp
     )
     cliques, result.cap_hit = inliers.maximal_cliques(
-        adjacency, settings.min_clique_size, settings.max_cliques, settings.time_limit_s
+        edges, len(result.candidates), settings.min_clique_size, settings.max_cliques, settings.time_limit_s
     )
     result.num_cliques = len(cliques)
     ranked = inliers.rank_cliques(cliques, result.candidate_scores)

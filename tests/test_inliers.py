@@ -31,38 +31,47 @@ def test_compatibility_graph_applies_the_rigid_distance_test():
     observed = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0.0]])
     landmarks = np.array([[5, 5, 0], [6.2, 5, 0], [5, 7, 0], [9, 9, 9.0]])
     candidates = np.array([[0, 0], [1, 1], [2, 2], [2, 3], [0, 3]])
-    adjacency = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    edges = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
     expected = {(0, 1), (0, 2), (1, 2)}  # |1 - 1.2| < 0.3; candidate 3 is far; 0-4 and 3-4 share an observation or landmark
-    assert {(i, j) for i, j in np.argwhere(adjacency) if i < j} == expected
-    assert not compatibility_graph(observed, landmarks, candidates, d_comp=0.1)[0, 1]
+    assert set(map(tuple, edges.tolist())) == expected
+    assert (0, 1) not in set(map(tuple, compatibility_graph(observed, landmarks, candidates, d_comp=0.1).tolist()))
+
+
+def test_compatibility_graph_equals_the_all_pairs_test():
+    landmarks, observed, candidates, _, _ = outlier_heavy_problem(4)
+    obs, lm = candidates[:, 0], candidates[:, 1]
+    observed_distance = np.linalg.norm(observed[obs][:, None] - observed[obs][None], axis=-1)
+    mapped_distance = np.linalg.norm(landmarks[lm][:, None] - landmarks[lm][None], axis=-1)
+    dense = (np.abs(observed_distance - mapped_distance) < 0.3) & (obs[:, None] != obs) & (lm[:, None] != lm)
+    edges = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    assert set(map(tuple, edges.tolist())) == set(map(tuple, np.argwhere(np.triu(dense, 1)).tolist()))
 
 
 @pytest.mark.parametrize(("seed", "nodes", "density"), [(0, 30, 0.3), (1, 60, 0.2), (2, 40, 0.6), (3, 200, 0.05)])
 def test_maximal_cliques_equal_networkx(seed, nodes, density):
     rng = np.random.default_rng(seed)
     upper = np.triu(rng.random((nodes, nodes)) < density, 1)
-    adjacency = upper | upper.T
-    reference = {frozenset(c) for c in nx.find_cliques(nx.from_numpy_array(adjacency.astype(int)))}
+    reference = {frozenset(c) for c in nx.find_cliques(nx.from_numpy_array((upper | upper.T).astype(int)))}
     for min_size in (1, 3):
-        cliques, cap = maximal_cliques(adjacency, min_size=min_size)
+        cliques, cap = maximal_cliques(np.argwhere(upper), nodes, min_size=min_size)
         assert cap is None
         assert len(cliques) == len({frozenset(c.tolist()) for c in cliques})
         assert {frozenset(c.tolist()) for c in cliques} == {c for c in reference if len(c) >= min_size}
 
 
 def moon_moser(triangles: int) -> np.ndarray:
-    """Complement of disjoint triangles: 3^triangles maximal cliques."""
+    """Edges of the complement of disjoint triangles: 3^triangles maximal cliques."""
     group = np.arange(3 * triangles) // 3
-    return group[:, None] != group[None, :]
+    return np.argwhere(np.triu(group[:, None] != group[None, :], 1))
 
 
 def test_clique_caps_are_reported():
-    adjacency = moon_moser(7)  # 2,187 maximal cliques of 7
-    cliques, cap = maximal_cliques(adjacency, max_cliques=50)
+    edges = moon_moser(7)  # 2,187 maximal cliques of 7
+    cliques, cap = maximal_cliques(edges, 21, max_cliques=50)
     assert cap == "max_cliques" and len(cliques) == 50
-    cliques, cap = maximal_cliques(adjacency, max_cliques=100_000, time_limit_s=1e-9)
+    cliques, cap = maximal_cliques(edges, 21, max_cliques=100_000, time_limit_s=1e-9)
     assert cap == "time_limit" and len(cliques) == 1_000  # the first round completes, then the clock stops it
-    cliques, cap = maximal_cliques(adjacency)
+    cliques, cap = maximal_cliques(edges, 21)
     assert cap is None and len(cliques) == 3**7
 
 
@@ -75,8 +84,8 @@ def test_rank_cliques_by_summed_similarity():
 @pytest.mark.parametrize("seed", range(3))
 def test_cliques_recover_a_known_pose_among_80_percent_outliers(seed):
     landmarks, observed, candidates, truth, right = outlier_heavy_problem(seed)
-    adjacency = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
-    cliques, _ = maximal_cliques(adjacency)
+    edges = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    cliques, _ = maximal_cliques(edges, len(candidates))
     best = rank_cliques(cliques, np.ones(len(candidates)))[0]
     assert best.tolist() == list(range(right))
     pose = fit_rigid(observed[candidates[best, 0]], landmarks[candidates[best, 1]])

@@ -123,3 +123,13 @@ def test_top1_pose_error_is_the_metric_error():
     result = localize(observations, index_map(map, config), config)
     evaluation = evaluate_frame(result, observations, map, truth, config, 0)
     assert (evaluation.translation_error, evaluation.rotation_error) == pose_errors(result.hypotheses[0].pose, truth)
+
+
+def test_an_index_built_for_another_config_is_refused():
+    map = synthetic_map(np.random.default_rng(0))
+    observations, _ = synthetic_query(map, np.random.default_rng(0))
+    index = index_map(map, make_config("sh"))
+    with pytest.raises(ClipcliqueError, match="index_map"):
+        localize(observations, index, make_config("sh", overrides=["graph.d_adj=1.0"]))
+    with pytest.raises(ClipcliqueError, match="index_map"):
+        localize(observations, index, make_config("xview"))

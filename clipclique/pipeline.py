@@ -3,6 +3,13 @@
 One function composes the stages according to a LocalizationConfig; CLIP-Clique, the baselines
 (SH, X-View, CLIP-Loc) and every ablation are configurations of it (`config.METHOD_PRESETS`).
 Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
+
+A frame without a pose says why in `LocalizationResult.failure`, naming the stage that lost it:
+"fewer than 3 observations (K)", "fewer than 3 observations with a candidate landmark (k)",
+"no clique of 3 or more compatible correspondences", "no minimal set of 3 distinct,
+non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose"
+(every set was degenerate). Missing CLIP embeddings make "fused" fall back to SH only (a note
+says so) and make "clip" a ClipcliqueError.
 """
 
 from __future__ import annotations

@@ -15,14 +15,16 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Iterator
 
 import networkx as nx
 import numpy as np
 
-from clipclique.config import METHOD_PRESETS, make_config
+from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.inliers import compatibility_graph, maximal_cliques
-from clipclique.pipeline import index_map, localize
+from clipclique.pipeline import LocalizationResult, index_map, localize
 from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
+from clipclique.types import Map, Observations
 
 ALGORITHM = ("matching", "inliers", "pose")
 
@@ -53,17 +55,10 @@ def scalability(
 ) -> list[dict]:
     """Per landmark count: a `room`-landmark map duplicated count // room times, `frames` queries
     from it; median ms of matching + inliers + pose and of the whole query, candidates, cliques."""
-    config = make_config(method)
-    base = synthetic_map(np.random.default_rng(seed), num_landmarks=room)
     rows = []
     for count in counts:
-        map = duplicate_rooms(base, max(1, count // room))
-        index = index_map(map, config)
-        rng = np.random.default_rng(seed + 1)
         algorithm, total, candidates, cliques, caps = [], [], [], [], 0
-        for _ in range(frames):
-            observations, _ = synthetic_query(base, rng)  # seen in room 0; every room looks the same
-            result = localize(observations, index, config)
+        for map, _, _, result in duplicated_room_queries(count, method, room, frames, seed):
             algorithm.append(1e3 * sum(result.timings[s] for s in ALGORITHM))
             total.append(1e3 * sum(result.timings.values()))
             candidates.append(len(result.candidates))
@@ -83,6 +78,20 @@ def scalability(
     return rows
 
 
+def duplicated_room_queries(
+    count: int, method: str, room: int, frames: int, seed: int
+) -> Iterator[tuple[Map, Observations, LocalizationConfig, LocalizationResult]]:
+    """`frames` localized queries of room 0 against `count // room` identical rooms side by side."""
+    config = make_config(method)
+    base = synthetic_map(np.random.default_rng(seed), num_landmarks=room)
+    map = duplicate_rooms(base, max(1, count // room))
+    index = index_map(map, config)
+    rng = np.random.default_rng(seed + 1)
+    for _ in range(frames):
+        observations, _ = synthetic_query(base, rng)  # every room looks the same
+        yield map, observations, config, localize(observations, index, config)
+
+
 def growth_exponent(rows: list[dict], key: str = "median_ms") -> float:
     """Slope of log(latency) against log(landmarks): 1 = linear, 2 = quadratic."""
     x = np.log([r["landmarks"] for r in rows])
@@ -92,17 +101,10 @@ def growth_exponent(rows: list[dict], key: str = "median_ms") -> float:
 
 def clique_engines(counts: list[int], room: int = 50, frames: int = 5, seed: int = 0) -> list[dict]:
     """ms of igraph (as used) and networkx find_cliques on the same compatibility graphs."""
-    config = make_config("clipclique")
-    base = synthetic_map(np.random.default_rng(seed), num_landmarks=room)
     rows = []
     for count in counts:
-        map = duplicate_rooms(base, max(1, count // room))
-        index = index_map(map, config)
-        rng = np.random.default_rng(seed + 1)
         ig, nxs = [], []
-        for _ in range(frames):
-            observations, _ = synthetic_query(base, rng)
-            result = localize(observations, index, config)
+        for map, observations, config, result in duplicated_room_queries(count, "clipclique", room, frames, seed):
             edges = compatibility_graph(
                 observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, config.inliers.d_comp
             )
@@ -140,8 +142,12 @@ def main() -> None:
             f"{row['landmarks']:>10}{row['median_ms']:>11.2f}{row['median_total_ms']:>10.2f}"
             f"{row['candidates']:>11.0f}{row['cliques']:>9.0f}{row['cap_hits']:>6}"
         )
-    print(f"growth exponent (log-log slope): {growth_exponent(rows):.2f} algorithm, "
-          f"{growth_exponent(rows, 'median_total_ms'):.2f} whole query")
+    tail = rows[-3:]
+    print(
+        f"growth exponent (log-log slope): {growth_exponent(rows):.2f} over all counts, "
+        f"{growth_exponent(tail):.2f} over the last {len(tail)} (algorithm); "
+        f"{growth_exponent(rows, 'median_total_ms'):.2f} / {growth_exponent(tail, 'median_total_ms'):.2f} whole query"
+    )
 
     print("\nClique engines on the same compatibility graphs (median ms)")
     for row in clique_engines(args.counts[:: max(1, len(args.counts) // 3)]):

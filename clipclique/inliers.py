@@ -7,7 +7,8 @@ their observations equals the distance between their landmarks up to `d_comp`:
 landmark (one object cannot be two, so a clique is a one-to-one correspondence set).
 
 Maximal cliques are enumerated with igraph (Bron-Kerbosch with pivoting in C), which measured
-4-10x faster than networkx's `find_cliques` on these graphs (tools/bench_core.py). Cliques of
+2-7x faster than networkx's `find_cliques` on the compatibility graphs of 50 to 5,000 landmark
+maps (tools/bench_core.py). Cliques of
 fewer than `min_clique_size` (>= 3) are never returned: fewer than 3 points cannot fix a 6-DoF
 pose. igraph's enumeration is not lazy, so it runs in rounds of growing `max_results`
 (1,000, then doubling) up to `max_cliques`; the time limit is checked between rounds, and the
@@ -17,7 +18,8 @@ RANSAC / PROSAC (baselines) draw minimal sets of 3 candidates and verify each po
 MSAC-style score, a cheaper stand-in for the paper's projected overlap: every observation whose
 candidate landmark (of the same class, when classes are given) lies within `threshold` of the
 transformed observation centre adds `1 - residual / threshold`, counted once per observation
-(its best candidate).
+(its best candidate). When the candidates have no more 3-subsets than the iteration budget,
+all of them are tried instead of drawing (exhaustive, and still deterministic).
 """
 
 from __future__ import annotations

@@ -133,3 +133,25 @@ def test_an_index_built_for_another_config_is_refused():
         localize(observations, index, make_config("sh", overrides=["graph.d_adj=1.0"]))
     with pytest.raises(ClipcliqueError, match="index_map"):
         localize(observations, index, make_config("xview"))
+
+
+@pytest.mark.parametrize("method", ["clipclique", "sh", "xview", "cliploc"])
+def test_empty_map_or_frame_fails_cleanly(method):
+    config = make_config(method)
+    map = synthetic_map(np.random.default_rng(0))
+    observations, _ = synthetic_query(map, np.random.default_rng(0))
+    nothing = np.arange(0)
+    empty_map = dataclasses.replace(
+        map, ellipsoids=map.ellipsoids.subset(nothing), class_ids=map.class_ids[nothing], descriptions=[],
+        instance_ids=map.instance_ids[nothing], text_embeddings=map.text_embeddings[nothing],
+    )
+    result = localize(observations, index_map(empty_map, config), config)
+    assert result.similarity.shape == (len(observations), 0) and result.hypotheses == []
+    assert result.failure == "fewer than 3 observations with a candidate landmark (0)"
+    empty_frame = dataclasses.replace(
+        observations, ellipsoids=observations.ellipsoids.subset(nothing), class_ids=observations.class_ids[nothing],
+        image_embeddings=observations.image_embeddings[nothing], instance_ids=observations.instance_ids[nothing],
+        detection_index=nothing,
+    )
+    result = localize(empty_frame, index_map(map, config), config)
+    assert result.similarity.shape == (0, len(map)) and result.failure == "fewer than 3 observations (0)"

@@ -1,0 +1,92 @@
+"""Dataset readers: one small class per dataset, one entry point (`open_sequence`) by name.
+
+Every reader yields `Frame`s (depth in metres, camera-to-world ground-truth pose, per-pixel
+dataset object ids where the dataset has them) and the scene's object `Instance`s that
+`clipclique-map` turns into landmarks. Adding a dataset means adding one module and one line
+in `open_sequence`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from clipclique.datasets.base import STRUCTURE_CLASSES, Instance, Sequence, description_template
+from clipclique.errors import DatasetError
+
+__all__ = [
+    "STRUCTURE_CLASSES",
+    "Instance",
+    "Sequence",
+    "description_template",
+    "open_sequence",
+    "resolve_data_root",
+]
+
+DATA_ENV = "CLIPCLIQUE_DATA"
+SCANNET_NAME = re.compile(r"^scene\d{4}_\d{2}$")
+TUM_SHORT_NAMES = {
+    "fr1": "rgbd_dataset_freiburg1_desk",
+    "fr2": "rgbd_dataset_freiburg2_desk",
+    "fr3": "rgbd_dataset_freiburg3_long_office_household",
+}
+SCANNET_URL = "http://www.scan-net.org (request access and accept its terms of use)"
+TUM_URL = "https://cvg.cit.tum.de/data/datasets/rgbd-dataset/download"
+
+
+def resolve_data_root(cli_value: Path | None = None) -> Path:
+    """--data-root, else $CLIPCLIQUE_DATA, else ./data."""
+    if cli_value is not None:
+        return Path(cli_value)
+    return Path(os.environ.get(DATA_ENV) or "data")
+
+
+def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
+    """A scene or sequence by short name ("scene0002_00", "fr2", "fr3", "demo", "demo_tum") or folder path.
+
+    The demo scenes are generated under `<data_root>/demo/` on first use.
+    """
+    from clipclique.datasets import demo, scannet, tum
+
+    root = resolve_data_root(data_root)
+    if name in demo.DEMO_SCENES:
+        return open_folder(demo.ensure_demo(name, root))
+    if SCANNET_NAME.match(name):
+        folder = root / "scannet" / "scans" / name
+        if not folder.is_dir():
+            raise DatasetError(
+                f"ScanNet scene {name} not found: expected the folder {folder}/ holding "
+                f"{name}_vh_clean_2.labels.ply, {name}.aggregation.json, {name}_vh_clean_2.0.010000.segs.json "
+                f"and the SensReader export (color/ depth/ pose/ intrinsic/). Get ScanNet from {SCANNET_URL}; "
+                f"point --data-root or ${DATA_ENV} at the folder that holds scannet/scans/."
+            )
+        return scannet.ScanNetScene(folder)
+    if name in TUM_SHORT_NAMES or name.startswith("rgbd_dataset_"):
+        folder = root / "tum" / TUM_SHORT_NAMES.get(name, name)
+        if not folder.is_dir():
+            raise DatasetError(
+                f"TUM RGB-D sequence {name} not found: expected the folder {folder}/ holding rgb/ depth/ "
+                f"rgb.txt depth.txt groundtruth.txt (the .tgz from {TUM_URL}, extracted there); point "
+                f"--data-root or ${DATA_ENV} at the folder that holds tum/."
+            )
+        return tum.TumSequence(folder)
+    if Path(name).is_dir():
+        return open_folder(Path(name))
+    raise DatasetError(
+        f"unknown scene {name!r}: use a ScanNet name (scene0002_00), fr1/fr2/fr3, a TUM folder name "
+        f"(rgbd_dataset_freiburg2_desk), demo, demo_tum, or the path of a scene folder"
+    )
+
+
+def open_folder(folder: Path) -> Sequence:
+    """The reader for a folder, told apart by the files each dataset ships."""
+    from clipclique.datasets import scannet, tum
+
+    if (folder / "rgb.txt").is_file():
+        return tum.TumSequence(folder)
+    if any(folder.glob("*_vh_clean_2.labels.ply")):
+        return scannet.ScanNetScene(folder)
+    raise DatasetError(
+        f"{folder}: neither a ScanNet scene (no *_vh_clean_2.labels.ply) nor a TUM RGB-D sequence (no rgb.txt)"
+    )

@@ -1,0 +1,112 @@
+"""What every dataset reader provides, and the small image readers they share."""
+
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clipclique.errors import DatasetError
+from clipclique.types import Frame
+
+# Room structure, not landmarks: left out of maps and ground-truth detections.
+STRUCTURE_CLASSES = frozenset({"wall", "floor", "ceiling"})
+
+# Marker the demo generator writes last into each demo scene folder.
+DEMO_MARKER = "clipclique_demo.json"
+
+
+def description_template(class_name: str) -> str:
+    """The description of an object whose dataset gives none (CLIP's usual prompt form)."""
+    return f"a photo of a {class_name}"
+
+
+@dataclass
+class Instance:
+    """One object of a scene: the input of map building."""
+
+    instance_id: int  # dataset object id (ScanNet objectId + 1; TUM annotation id), never 0
+    class_name: str
+    description: str  # from the scene's descriptions, else description_template(class_name)
+    points: np.ndarray  # (P, 3) world frame
+
+
+class Sequence(ABC):
+    """A scene or sequence of one dataset: frames in order plus its annotated objects."""
+
+    name: str
+    kind: str  # "scannet" | "tum"
+    root: Path
+    synthetic: bool  # True for the generated demo scenes (their ground truth is exact)
+
+    @abstractmethod
+    def __len__(self) -> int: ...
+
+    @abstractmethod
+    def __getitem__(self, i: int) -> Frame: ...
+
+    @abstractmethod
+    def instances(self) -> list[Instance]:
+        """Every annotated object (structure included) with its world points."""
+
+    @abstractmethod
+    def object_classes(self) -> dict[int, str]:
+        """Dataset object id -> class name of the objects that can be landmarks (no structure)."""
+
+    def scene_cloud(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""
+        return None
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    def _check_index(self, i: int) -> int:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"frame {i} out of range for {self.name} ({len(self)} frames)")
+        return i % len(self)
+
+
+def is_demo(folder: Path) -> bool:
+    return (folder / DEMO_MARKER).is_file()
+
+
+def read_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise DatasetError(f"{path}: not valid JSON ({error})") from None
+
+
+def read_image(path: Path, mode: str | None = None) -> np.ndarray:
+    """An image file as an array (PIL), with a DatasetError naming the file when unreadable."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            return np.asarray(image.convert(mode) if mode else image)
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except (UnidentifiedImageError, OSError) as error:
+        raise DatasetError(f"{path}: unreadable image ({error})") from None
+
+
+def read_depth(path: Path, factor: float) -> np.ndarray:
+    """A uint16 depth PNG as float32 metres (0 stays 0 = invalid)."""
+    raw = read_image(path)
+    if raw.ndim != 2 or raw.dtype.kind not in "ui":
+        raise DatasetError(f"{path}: expected a single-channel 16-bit depth image, got {raw.dtype} {raw.shape}")
+    return raw.astype(np.float32) / np.float32(factor)
+
+
+def resize_rgb(rgb: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """RGB resampled to the depth image's (H, W) so that one intrinsics matrix serves both."""
+    from PIL import Image
+
+    if rgb.shape[:2] == shape:
+        return rgb
+    return np.asarray(Image.fromarray(rgb).resize((shape[1], shape[0]), Image.BILINEAR))

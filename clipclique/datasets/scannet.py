@@ -1,0 +1,207 @@
+"""ScanNet v2 scene folders, as ScanNet ships them and its SensReader exports them.
+
+Read from `scans/<scene>/`:
+- `<scene>_vh_clean_2.labels.ply`: mesh vertices (x, y, z, colour, ushort `label` = ScanNet label id);
+- `<scene>_vh_clean_2.0.010000.segs.json`: `segIndices`, the segment of every vertex;
+- `<scene>.aggregation.json`: `segGroups`, one per object (objectId, raw category `label`, segments);
+- SensReader output: `color/N.jpg`, `depth/N.png` (uint16 mm), `pose/N.txt` (4x4 camera-to-world,
+  `-inf` where tracking failed: those frames are skipped), `intrinsic/intrinsic_depth.txt`;
+- `instance-filt/N.png` when `<scene>_2d-instance-filt.zip` is unzipped (8-bit, objectId + 1);
+- `scannetv2-labels.combined.tsv` in the scene folder or up to two folders above it: raw
+  categories become NYU40 classes (`nyu40class`); without it the raw categories are the classes;
+- `<scene>_descriptions.json` (ours, optional): `{"<objectId>": "a red office chair"}`.
+
+Object ids are `objectId + 1` everywhere (instances, frames, classes) so that 0 means "none",
+as in the instance images. Colour images are resampled to the depth image's size so that the
+depth intrinsics serve both.
+"""
+
+from __future__ import annotations
+
+import csv
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from clipclique.datasets.base import (
+    STRUCTURE_CLASSES,
+    Instance,
+    Sequence,
+    description_template,
+    is_demo,
+    read_depth,
+    read_image,
+    read_json,
+    resize_rgb,
+)
+from clipclique.errors import DatasetError
+from clipclique.types import Frame, Pose
+
+LABELS_TSV = "scannetv2-labels.combined.tsv"
+DEPTH_FACTOR = 1000.0
+
+
+class ScanNetScene(Sequence):
+    kind = "scannet"
+
+    def __init__(self, folder: Path):
+        self.root = Path(folder)
+        self.name = self.root.name
+        self.synthetic = is_demo(self.root)
+        self.mesh_path = self.root / f"{self.name}_vh_clean_2.labels.ply"
+        self.segs_path = self.root / f"{self.name}_vh_clean_2.0.010000.segs.json"
+        self.aggregation_path = self.root / f"{self.name}.aggregation.json"
+        missing = [p.name for p in (self.mesh_path, self.segs_path, self.aggregation_path) if not p.is_file()]
+        if missing:
+            raise DatasetError(f"{self.root}: ScanNet scene is missing {', '.join(missing)}")
+        self.frame_numbers, self.poses = self._read_poses()
+        self.intrinsics = self._read_intrinsics() if len(self.frame_numbers) else None
+
+    # ---- frames -------------------------------------------------------------------------------
+
+    def _read_poses(self) -> tuple[list[int], list[Pose]]:
+        """Frames with a finite pose, in frame-number order (none when frames are not exported)."""
+        pose_dir = self.root / "pose"
+        files = sorted(pose_dir.glob("*.txt"), key=lambda p: int(p.stem) if p.stem.isdigit() else -1) if pose_dir.is_dir() else []
+        numbers, poses = [], []
+        for path in files:
+            if not path.stem.isdigit():
+                continue
+            try:
+                matrix = np.loadtxt(path, dtype=np.float64)
+            except ValueError as error:
+                raise DatasetError(f"{path}: not a 4x4 pose matrix ({error})") from None
+            if matrix.shape != (4, 4):
+                raise DatasetError(f"{path}: expected a 4x4 pose matrix, got shape {matrix.shape}")
+            if np.isfinite(matrix).all():
+                numbers.append(int(path.stem))
+                poses.append(Pose.from_matrix(matrix))
+        return numbers, poses
+
+    def _read_intrinsics(self) -> np.ndarray:
+        path = self.root / "intrinsic" / "intrinsic_depth.txt"
+        try:
+            matrix = np.loadtxt(path)
+        except (OSError, ValueError) as error:
+            raise DatasetError(f"{path}: cannot read the depth intrinsics ({error})") from None
+        if matrix.shape not in ((4, 4), (3, 3)):
+            raise DatasetError(f"{path}: expected a 4x4 (or 3x3) matrix, got shape {matrix.shape}")
+        return matrix[:3, :3].copy()
+
+    def __len__(self) -> int:
+        return len(self.frame_numbers)
+
+    def __getitem__(self, i: int) -> Frame:
+        i = self._check_index(i)
+        n = self.frame_numbers[i]
+        depth = read_depth(self.root / "depth" / f"{n}.png", DEPTH_FACTOR)
+        rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
+        instances = None
+        instance_path = self.root / "instance-filt" / f"{n}.png"
+        if instance_path.is_file():
+            labels = read_image(instance_path)
+            if labels.shape != depth.shape:
+                from PIL import Image
+
+                labels = np.asarray(Image.fromarray(labels).resize(depth.shape[::-1], Image.NEAREST))
+            instances = labels.astype(np.int32)
+        return Frame(i, float(n), rgb, depth, self.intrinsics, self.poses[i], instances, name=str(n))
+
+    # ---- objects ------------------------------------------------------------------------------
+
+    @cached_property
+    def _vertices(self) -> np.ndarray:
+        """The labelled mesh's vertex table (x, y, z, red, green, blue, label, ...)."""
+        from plyfile import PlyData
+
+        try:
+            vertex = PlyData.read(str(self.mesh_path))["vertex"].data
+        except Exception as error:  # plyfile raises several types for a damaged file
+            raise DatasetError(f"{self.mesh_path}: unreadable PLY mesh ({error})") from None
+        missing = {"x", "y", "z", "label"} - set(vertex.dtype.names or ())
+        if missing:
+            raise DatasetError(f"{self.mesh_path}: vertex property {', '.join(sorted(missing))} missing")
+        return vertex
+
+    @cached_property
+    def _class_of(self) -> dict[str, str]:
+        """Raw category -> class: NYU40 names from the label table when one is found, else identity."""
+        for folder in (self.root, self.root.parent, self.root.parent.parent):
+            if (folder / LABELS_TSV).is_file():
+                return read_label_table(folder / LABELS_TSV)
+        return {}
+
+    @cached_property
+    def _objects(self) -> list[tuple[int, str, str, np.ndarray]]:
+        """(object id, raw category, class, vertex indices) per aggregation segGroup."""
+        segments = np.asarray(read_json(self.segs_path).get("segIndices", []), dtype=np.int64)
+        if len(segments) != len(self._vertices):
+            raise DatasetError(
+                f"{self.segs_path}: {len(segments)} segIndices for {len(self._vertices)} vertices of {self.mesh_path.name}"
+            )
+        groups = read_json(self.aggregation_path).get("segGroups")
+        if not isinstance(groups, list):
+            raise DatasetError(f"{self.aggregation_path}: no segGroups list")
+        try:
+            ids = [int(g["objectId"]) for g in groups]
+            labels = [str(g["label"]) for g in groups]
+            members = [np.asarray(g["segments"], dtype=np.int64) for g in groups]
+        except (KeyError, TypeError, ValueError) as error:
+            raise DatasetError(f"{self.aggregation_path}: malformed segGroup ({error!r})") from None
+        owner = vertex_owner(segments, members)
+        order = np.argsort(owner, kind="stable")
+        splits = np.searchsorted(owner[order], np.arange(len(groups) + 1))
+        return [
+            (object_id + 1, label, self._class_of.get(label, label), order[splits[k] : splits[k + 1]])
+            for k, (object_id, label) in enumerate(zip(ids, labels))
+        ]
+
+    @cached_property
+    def _descriptions(self) -> dict[int, str]:
+        path = self.root / f"{self.name}_descriptions.json"
+        if not path.is_file():
+            return {}
+        return {int(key) + 1: str(text) for key, text in read_json(path).items()}
+
+    def instances(self) -> list[Instance]:
+        xyz = np.column_stack([self._vertices[axis] for axis in "xyz"]).astype(np.float64)
+        return [
+            Instance(object_id, class_name, self._descriptions.get(object_id, description_template(class_name)), xyz[vertices])
+            for object_id, _, class_name, vertices in self._objects
+        ]
+
+    def object_classes(self) -> dict[int, str]:
+        return {object_id: name for object_id, _, name, _ in self._objects if name not in STRUCTURE_CLASSES}
+
+    def scene_cloud(self) -> tuple[np.ndarray, np.ndarray]:
+        vertex = self._vertices
+        xyz = np.column_stack([vertex[axis] for axis in "xyz"]).astype(np.float64)
+        names = vertex.dtype.names
+        rgb = np.column_stack([vertex[c] for c in ("red", "green", "blue")]) if "red" in names else np.full((len(xyz), 3), 180)
+        return xyz, rgb.astype(np.uint8)
+
+
+def vertex_owner(segments: np.ndarray, members: list[np.ndarray]) -> np.ndarray:
+    """Index of the group owning each vertex's segment, or len(members) when none does."""
+    owner = np.full(len(segments), len(members), dtype=np.int64)
+    if not members:
+        return owner
+    member_segments = np.concatenate(members)
+    member_group = np.repeat(np.arange(len(members)), [len(m) for m in members])
+    order = np.argsort(member_segments, kind="stable")
+    sorted_segments = member_segments[order]
+    pos = np.clip(np.searchsorted(sorted_segments, segments), 0, len(sorted_segments) - 1)
+    found = sorted_segments[pos] == segments
+    owner[found] = member_group[order][pos[found]]
+    return owner
+
+
+def read_label_table(path: Path) -> dict[str, str]:
+    """raw_category -> nyu40class from ScanNet's `scannetv2-labels.combined.tsv`."""
+    with open(path, newline="") as handle:
+        reader = csv.DictReader(handle, delimiter="\t")
+        missing = {"raw_category", "nyu40class"} - set(reader.fieldnames or ())
+        if missing:
+            raise DatasetError(f"{path}: column {', '.join(sorted(missing))} missing; is this the ScanNet label table?")
+        return {row["raw_category"]: row["nyu40class"] for row in reader if row["raw_category"] and row["nyu40class"]}

@@ -1,0 +1,81 @@
+"""Default layouts, so a recording opens showing what a user needs: the scene framed, the camera
+with its overlays, the metrics over time and the run's description."""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun.blueprint as rrb
+
+MIN_FRAMED_EXTENT = 2.0  # metres: a tiny map is still seen from a sensible distance
+EYE_DIRECTION = np.array([-0.45, -0.8, 0.7])  # from a low corner, looking down onto the scene
+
+
+def framing(centers: np.ndarray) -> rrb.EyeControls3D:
+    """An orbit eye that sees every landmark (world frame is z-up)."""
+    if len(centers) == 0:
+        return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital)
+    low, high = centers.min(axis=0), centers.max(axis=0)
+    target = (low + high) / 2
+    extent = max(float(np.linalg.norm(high - low)), MIN_FRAMED_EXTENT)
+    return rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        position=target + extent * EYE_DIRECTION,
+        look_target=target,
+        eye_up=[0.0, 0.0, 1.0],
+    )
+
+
+def _panels(timeline: str | None = None) -> list:
+    return [
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="collapsed", timeline=timeline),
+    ]
+
+
+def map_blueprint(centers: np.ndarray) -> rrb.Blueprint:
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="map", origin="world", eye_controls=framing(centers)),
+            rrb.TextDocumentView(name="description", origin="description"),
+            column_shares=[3, 1],
+        ),
+        *_panels(),
+    )
+
+
+def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
+    """`centers`: what the 3D view must frame (landmarks and ground-truth camera positions)."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(
+                name="3D: map, cameras, matches",
+                origin="world",
+                contents=["+ $origin/**", "- /world/camera/gt/depth"],
+                eye_controls=framing(centers),
+            ),
+            rrb.Vertical(
+                rrb.Tabs(
+                    rrb.Spatial2DView(
+                        name="camera + detections",
+                        origin="world/camera/gt",
+                        contents=["+ $origin/rgb", "+ $origin/detections/**"],
+                    ),
+                    rrb.Spatial2DView(name="depth", origin="world/camera/gt", contents=["+ $origin/depth"]),
+                ),
+                rrb.Tabs(
+                    rrb.TimeSeriesView(name="errors", origin="metrics/error"),
+                    rrb.TimeSeriesView(name="counts", origin="metrics/count"),
+                    rrb.TimeSeriesView(name="time per stage (s)", origin="metrics/time"),
+                    rrb.TimeSeriesView(name="precision / recall", origin="metrics/match"),
+                ),
+                rrb.Tabs(
+                    rrb.TextDocumentView(name="description", origin="description"),
+                    rrb.TextLogView(name="frame log", origin="log"),
+                ),
+                row_shares=[4, 3, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        *_panels(timeline="frame"),
+    )

@@ -1,0 +1,110 @@
+"""Our arrays as Rerun archetypes: ellipsoids, cameras, compressed images, detection overlays."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import rerun as rr
+from PIL import Image
+from scipy.spatial.transform import Rotation
+
+from clipclique.types import Detections, Ellipsoids, Pose
+from clipclique.viz.style import annotation_ids
+
+JPEG_QUALITY = 85
+DEPTH_UNITS_PER_METRE = 1000  # depth stored as 16-bit PNG millimetres
+
+
+def ellipsoids3d(
+    ellipsoids: Ellipsoids,
+    class_ids: np.ndarray,
+    labels: list[str] | None = None,
+    colors: np.ndarray | None = None,
+    fill_mode: str = "TransparentFillMajorWireframe",
+    show_labels: bool = True,
+) -> rr.Ellipsoids3D:
+    """Ellipsoids coloured by class through the annotation context unless `colors` is given."""
+    return rr.Ellipsoids3D(
+        centers=ellipsoids.centers,
+        half_sizes=ellipsoids.axes,
+        quaternions=Rotation.from_matrix(ellipsoids.rotations).as_quat() if len(ellipsoids) else np.zeros((0, 4)),
+        class_ids=annotation_ids(class_ids),
+        colors=colors,
+        labels=labels,
+        fill_mode=fill_mode,
+        show_labels=show_labels,
+    )
+
+
+def camera(
+    pose: Pose | None, intrinsics: np.ndarray, width: int, height: int, color: np.ndarray, plane: float
+) -> list:
+    """Transform3D (camera-to-world; cleared when the pose is unknown) + Pinhole, frustum `plane` m deep."""
+    return [
+        rr.Transform3D.cleared() if pose is None else rr.Transform3D(translation=pose.translation, mat3x3=pose.rotation),
+        rr.Pinhole(
+            image_from_camera=intrinsics,
+            resolution=[width, height],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=plane,
+            color=color,
+        ),
+    ]
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8)).save(buffer, format="JPEG", quality=quality)
+    return buffer.getvalue()
+
+
+def encode_depth_png(depth: np.ndarray) -> bytes:
+    """Metric depth as a lossless 16-bit PNG in millimetres (invalid pixels stay 0)."""
+    valid = np.isfinite(depth) & (depth > 0)
+    millimetres = np.where(valid, np.round(depth * DEPTH_UNITS_PER_METRE), 0).clip(0, np.iinfo(np.uint16).max)
+    buffer = io.BytesIO()
+    Image.fromarray(millimetres.astype(np.uint16)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def rgb_image(rgb: np.ndarray) -> rr.EncodedImage:
+    return rr.EncodedImage(contents=encode_jpeg(rgb), media_type="image/jpeg")
+
+
+def depth_image(depth: np.ndarray) -> rr.EncodedDepthImage:
+    return rr.EncodedDepthImage(encode_depth_png(depth), media_type="image/png", meter=DEPTH_UNITS_PER_METRE)
+
+
+def segmentation(detections: Detections, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) annotation ids of the detection masks (0 = none); where masks overlap the higher score
+    wins. uint8 while the ids fit, which halves the (uncompressed) image."""
+    if len(detections) == 0:
+        return np.zeros(shape, dtype=np.uint8)
+    order = np.argsort(detections.scores, kind="stable")
+    masks = detections.masks[order]
+    top = len(order) - 1 - np.argmax(masks[::-1], axis=0)  # highest-scoring mask covering each pixel
+    ids = annotation_ids(detections.class_ids[order])
+    return np.where(masks.any(axis=0), ids[top], 0).astype(np.min_scalar_type(ids.max()))
+
+
+def boxes2d(detections: Detections, class_names: list[str]) -> rr.Boxes2D:
+    labels = [f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)]
+    return rr.Boxes2D(
+        array=detections.boxes,
+        array_format=rr.Box2DFormat.XYXY,
+        class_ids=annotation_ids(detections.class_ids),
+        labels=labels,
+    )
+
+
+def voxel_downsample(
+    points: np.ndarray, colors: np.ndarray | None, voxel: float, max_points: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """One point per `voxel`-sized cell (the first), then an even subsample down to `max_points`."""
+    cells = np.floor(points / voxel).astype(np.int64)
+    _, keep = np.unique(cells, axis=0, return_index=True)
+    keep.sort()
+    if len(keep) > max_points:
+        keep = keep[np.linspace(0, len(keep) - 1, max_points).astype(np.int64)]
+    return points[keep], None if colors is None else colors[keep]

@@ -1,0 +1,227 @@
+"""The localization recording: every stage of every frame on the timeline `frame`, so a user can
+see where a failing frame lost the right answer (detections, observations, candidates, cliques, pose)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from clipclique.config import GraphConfig
+from clipclique.types import Detections, Frame, Map, Observations, Pose
+from clipclique.viz.blueprints import localization_blueprint
+from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
+from clipclique.viz.map_recording import log_map, map_summary
+from clipclique.viz.recording import RecordingFile
+from clipclique.viz.style import (
+    ESTIMATE_CAMERA,
+    GT_CAMERA,
+    correctness_colors,
+    match_correctness,
+)
+
+if TYPE_CHECKING:
+    from clipclique.metrics import FrameEvaluation
+    from clipclique.pipeline import LocalizationResult
+
+CAMERA = "world/camera/gt"  # holds the query images, so they hang in the ground-truth frustum
+UNIX_TIME_MIN = 1e9  # TUM stamps are Unix seconds (> 2001); ScanNet's are frame numbers
+GT_FRUSTUM_M = 0.4
+ESTIMATE_FRUSTUM_M = 0.25
+LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
+
+
+class LocalizationRecorder:
+    """Writes one `.rrd` for a localization run; use as a context manager or call `close`."""
+
+    def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
+        self.map = map
+        self._gt_positions: list[np.ndarray] = []
+        self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
+        self.stream = self._recording.stream
+        self._ranks_shown = 0
+        self._estimate_positions: list[np.ndarray] = []
+        self._estimate_correct: list[int] = []
+        log_map(self.stream, map, d_adj)
+        self.stream.log(
+            "description",
+            rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
+            static=True,
+        )
+
+    def log_frame(
+        self,
+        frame: Frame,
+        detections: Detections,
+        observations: Observations,
+        result: LocalizationResult,
+        evaluation: FrameEvaluation | None,
+    ) -> None:
+        self.stream.set_time("frame", sequence=frame.index)
+        if frame.timestamp >= UNIX_TIME_MIN:
+            self.stream.set_time("time", timestamp=frame.timestamp)
+        top1 = result.hypotheses[0].pose if result.hypotheses else None
+        self._log_images(frame, detections)
+        self._log_cameras(frame, result, evaluation)
+        self._log_observations(observations, frame.pose, top1)
+        self._log_matches(observations, result, frame.pose or top1)
+        self._log_metrics(observations, result, evaluation)
+        self._log_text(frame, observations, result, evaluation)
+        self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
+
+    def close(self) -> None:
+        self._recording.close()
+
+    def __enter__(self) -> LocalizationRecorder:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        self._recording.__exit__(kind, error, trace)
+
+    def _blueprint(self) -> rrb.Blueprint:
+        """The default layout, its 3D view framing the landmarks and the ground-truth trajectory."""
+        return localization_blueprint(np.vstack([self.map.ellipsoids.centers, *self._gt_positions]))
+
+    def _log_images(self, frame: Frame, detections: Detections) -> None:
+        height, width = frame.rgb.shape[:2]
+        self.stream.log(CAMERA, *camera(frame.pose, frame.intrinsics, width, height, GT_CAMERA, GT_FRUSTUM_M))
+        self.stream.log(f"{CAMERA}/rgb", rgb_image(frame.rgb))
+        self.stream.log(f"{CAMERA}/depth", depth_image(frame.depth))
+        self.stream.log(
+            f"{CAMERA}/detections/masks",
+            rr.SegmentationImage(segmentation(detections, (height, width)), opacity=0.45, draw_order=1.0),
+        )
+        self.stream.log(f"{CAMERA}/detections/boxes", boxes2d(detections, self.map.class_names))
+
+    def _log_cameras(self, frame: Frame, result: LocalizationResult, evaluation: FrameEvaluation | None) -> None:
+        height, width = frame.rgb.shape[:2]
+        for rank, hypothesis in enumerate(result.hypotheses, start=1):
+            color = np.append(ESTIMATE_CAMERA, 255 if rank == 1 else LOWER_RANK_ALPHA)
+            self.stream.log(
+                f"world/camera/estimate/{rank}",
+                *camera(hypothesis.pose, frame.intrinsics, width, height, color, ESTIMATE_FRUSTUM_M),
+            )
+        self._clear_ranks("world/camera/estimate", len(result.hypotheses))
+
+        if frame.pose is not None:
+            self._gt_positions.append(frame.pose.translation)
+            self.stream.log("world/trajectory/gt", rr.LineStrips3D([self._gt_positions], colors=GT_CAMERA))
+        if result.hypotheses:
+            success = evaluation.success.get(1) if evaluation is not None else None
+            self._estimate_positions.append(result.hypotheses[0].pose.translation)
+            self._estimate_correct.append(-1 if success is None else int(success))
+            self.stream.log(
+                "world/trajectory/estimate",
+                rr.Points3D(
+                    self._estimate_positions,
+                    colors=correctness_colors(np.array(self._estimate_correct)),
+                    radii=rr.Radius.ui_points(4.0),
+                ),
+            )
+
+    def _log_observations(self, observations: Observations, truth: Pose | None, estimate: Pose | None) -> None:
+        labels = [self.map.class_names[c] for c in observations.class_ids]
+        for name, pose, color in (("gt", truth, GT_CAMERA), ("estimate", estimate, ESTIMATE_CAMERA)):
+            path = f"world/observations/{name}"
+            if pose is None or len(observations) == 0:
+                self.stream.log(path, rr.Clear(recursive=False))
+                continue
+            placed = observations.ellipsoids.transformed(pose)
+            colors = np.broadcast_to(color, (len(observations), 3))
+            self.stream.log(
+                path,
+                # labels on hover only: the landmarks carry the visible ones
+                ellipsoids3d(placed, observations.class_ids, labels, colors, "MajorWireframe", show_labels=False),
+            )
+
+    def _log_matches(self, observations: Observations, result: LocalizationResult, placement: Pose | None) -> None:
+        """Candidates run from each observation (placed by ground truth, else the top-1 estimate) to its
+        landmark, so a correct match is short and green and a wrong one long and red. Each top-N
+        hypothesis fans out from its estimated camera to the landmarks of its clique."""
+        landmarks = self.map.ellipsoids.centers
+        candidates = np.asarray(result.candidates, dtype=np.int64).reshape(-1, 2)
+        if placement is None or len(candidates) == 0:
+            self.stream.log("world/correspondences/candidates", rr.Clear(recursive=False))
+        else:
+            observed = placement.apply(observations.ellipsoids.centers)
+            obs, lm = candidates.T
+            correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
+            self.stream.log(
+                "world/correspondences/candidates",
+                rr.LineStrips3D(
+                    np.stack((observed[obs], landmarks[lm]), axis=1),
+                    colors=correctness_colors(correct),
+                    radii=rr.Radius.ui_points(1.5),
+                ),
+                rr.AnyValues(similarity=np.asarray(result.candidate_scores, dtype=np.float64)),
+            )
+        for rank, hypothesis in enumerate(result.hypotheses, start=1):
+            obs, lm = np.asarray(hypothesis.correspondences, dtype=np.int64).reshape(-1, 2).T
+            correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
+            origin = np.broadcast_to(hypothesis.pose.translation, (len(lm), 3))
+            self.stream.log(
+                f"world/hypotheses/{rank}",
+                rr.LineStrips3D(
+                    np.stack((origin, landmarks[lm]), axis=1),
+                    colors=correctness_colors(correct),
+                    radii=rr.Radius.ui_points(2.5 if rank == 1 else 1.0),
+                ),
+                rr.AnyValues(score=float(hypothesis.score), correct=int((correct == 1).sum()), size=len(lm)),
+            )
+        self._clear_ranks("world/hypotheses", len(result.hypotheses))
+
+    def _log_metrics(
+        self, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
+    ) -> None:
+        scalars: dict[str, float] = {
+            "count/observations": len(observations),
+            "count/candidates": len(result.candidates),
+            "count/cliques": result.num_cliques,
+            "count/hypotheses": len(result.hypotheses),
+        }
+        scalars |= {f"time/{stage}": seconds for stage, seconds in result.timings.items()}
+        if evaluation is not None:
+            if evaluation.translation_error is not None:
+                scalars["error/translation_m"] = evaluation.translation_error
+                scalars["error/rotation_deg"] = math.degrees(evaluation.rotation_error)
+            if evaluation.precision is not None:
+                scalars["match/precision"] = evaluation.precision
+            scalars["match/recall"] = evaluation.recall
+        for name, value in scalars.items():
+            self.stream.log(f"metrics/{name}", rr.Scalars([float(value)]))
+
+    def _log_text(
+        self,
+        frame: Frame,
+        observations: Observations,
+        result: LocalizationResult,
+        evaluation: FrameEvaluation | None,
+    ) -> None:
+        line = (
+            f"frame {frame.index} {frame.name}: {len(observations)} observations, "
+            f"{len(result.candidates)} candidates, {result.num_cliques} cliques"
+        )
+        if evaluation is not None and evaluation.translation_error is not None:
+            line += (
+                f"; top-1 TE {evaluation.translation_error:.2f} m, "
+                f"RE {math.degrees(evaluation.rotation_error):.1f} deg"
+            )
+        self.stream.log("log", rr.TextLog(line, level=rr.TextLogLevel.INFO))
+        if result.failure is not None:
+            self.stream.log("log", rr.TextLog(f"no pose: {result.failure}", level=rr.TextLogLevel.WARN))
+        if result.cap_hit is not None:
+            self.stream.log("log", rr.TextLog(f"bound hit: {result.cap_hit}", level=rr.TextLogLevel.WARN))
+        for note in result.notes:
+            self.stream.log("log", rr.TextLog(note, level=rr.TextLogLevel.INFO))
+
+    def _clear_ranks(self, parent: str, shown: int) -> None:
+        """Remove ranks a previous frame drew but this one has no hypothesis for."""
+        for rank in range(shown + 1, self._ranks_shown + 1):
+            self.stream.log(f"{parent}/{rank}", rr.Clear(recursive=True))

@@ -1,0 +1,78 @@
+"""The map recording: landmarks, semantic graph, scene geometry and what built them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import scipy.sparse as sp
+
+from clipclique.config import GraphConfig
+from clipclique.graph import semantic_graph
+from clipclique.types import Map
+from clipclique.viz.blueprints import map_blueprint
+from clipclique.viz.convert import ellipsoids3d, voxel_downsample
+from clipclique.viz.recording import RecordingFile
+from clipclique.viz.style import annotation_context
+
+SCENE_VOXEL = 0.05  # metres: scene points kept per cell, bounds the file size of large scans
+SCENE_MAX_POINTS = 150_000
+GRAPH_COLOR = (200, 200, 200)
+
+
+def graph_edges(centers: np.ndarray, d_adj: float) -> np.ndarray:
+    """(E, 2) landmark index pairs (i < j) joined in the semantic graph."""
+    rows, cols = sp.triu(semantic_graph(centers, d_adj), k=1).nonzero()
+    return np.column_stack((rows, cols)).astype(np.int64)
+
+
+def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
+    """Static map entities shared by the map and localization recordings."""
+    stream.log("/", annotation_context(map.class_names), static=True)
+    stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    labels = [map.class_names[c] for c in map.class_ids]
+    stream.log(
+        "world/map/landmarks",
+        ellipsoids3d(map.ellipsoids, map.class_ids, labels=labels),
+        rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids)),
+        static=True,
+    )
+    edges = graph_edges(map.ellipsoids.centers, d_adj)
+    stream.log(
+        "world/map/graph",
+        rr.LineStrips3D(map.ellipsoids.centers[edges], colors=GRAPH_COLOR, radii=rr.Radius.ui_points(1.5)),
+        static=True,
+    )
+
+
+def map_summary(map: Map, d_adj: float) -> str:
+    classes = np.bincount(map.class_ids, minlength=len(map.class_names))
+    rows = "\n".join(f"| {name} | {count} |" for name, count in zip(map.class_names, classes) if count)
+    return (
+        f"## Map\n\n{len(map)} landmarks, {len(graph_edges(map.ellipsoids.centers, d_adj))} graph edges "
+        f"(d_adj = {d_adj} m), text encoder: `{map.encoder}`.\n\n| class | landmarks |\n|---|---|\n{rows}\n"
+    )
+
+
+def write_map_recording(
+    path: Path,
+    map: Map,
+    scene_points: np.ndarray | None,
+    scene_colors: np.ndarray | None,
+    description: str,
+    *,
+    d_adj: float = GraphConfig.d_adj,
+) -> None:
+    """Write `path` (.rrd): landmarks (hover for descriptions), graph edges, downsampled scene, description."""
+    with RecordingFile(path, "clipclique-map", lambda: map_blueprint(map.ellipsoids.centers)) as recording:
+        stream = recording.stream
+        log_map(stream, map, d_adj)
+        if scene_points is not None and len(scene_points):
+            points, colors = voxel_downsample(scene_points, scene_colors, SCENE_VOXEL, SCENE_MAX_POINTS)
+            stream.log("world/map/scene", rr.Points3D(points, colors=colors, radii=rr.Radius.ui_points(1.5)), static=True)
+        stream.log(
+            "description",
+            rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
+            static=True,
+        )

@@ -1,0 +1,256 @@
+"""Rerun recordings: the conversions they are made of, and each recording read back from disk."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+from PIL import Image
+from viz_scene import recorded_entities, rerun_cli, scene_points, synthetic_run
+
+from clipclique.graph import semantic_graph
+from clipclique.types import Detections
+from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
+from clipclique.viz.convert import encode_depth_png, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.map_recording import graph_edges
+from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness
+
+
+@pytest.fixture(scope="module")
+def run():
+    return synthetic_run(num_frames=6, top_n=3)
+
+
+@pytest.fixture(scope="module")
+def map_rrd(tmp_path_factory, run) -> Path:
+    path = tmp_path_factory.mktemp("map") / "room.map.rrd"
+    points, colors = scene_points()
+    write_map_recording(path, run[0], points, colors, "# Synthetic room\nbuilt for a test")
+    return path
+
+
+@pytest.fixture(scope="module")
+def loc_rrd(tmp_path_factory, run) -> Path:
+    path = tmp_path_factory.mktemp("loc") / "recording.rrd"
+    map, frames = run
+    with LocalizationRecorder(path, map, "# clipclique on a synthetic room\nsimulated detections") as recorder:
+        for f in frames:
+            recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+    return path
+
+
+def rgb_of(batch) -> np.ndarray:
+    """(N, 3) uint8 from a Rerun colour batch (packed 0xRRGGBBAA)."""
+    packed = batch.as_arrow_array().to_numpy(zero_copy_only=False).astype(np.uint32)
+    return np.column_stack([(packed >> shift) & 0xFF for shift in (24, 16, 8)]).astype(np.uint8)
+
+
+class LogSpy:
+    """Records what a recorder logs, while still writing it."""
+
+    def __init__(self, stream: rr.RecordingStream) -> None:
+        self.calls: list[tuple[str, tuple]] = []
+        self._log = stream.log
+        stream.log = self
+
+    def __call__(self, path: str, *archetypes, **kwargs) -> None:
+        self.calls.append((path, archetypes))
+        self._log(path, *archetypes, **kwargs)
+
+    def last(self, path: str) -> tuple:
+        return [archetypes for logged, archetypes in self.calls if logged == path][-1]
+
+
+def test_class_colors_are_deterministic_and_distinct():
+    names = [f"class{i}" for i in range(40)]
+    colors = class_colors(names)
+    assert colors.shape == (40, 3) and colors.dtype == np.uint8
+    np.testing.assert_array_equal(colors, class_colors(names))
+    np.testing.assert_array_equal(colors[:6], class_colors(names[:6]))  # a class keeps its colour
+    first = colors[:12].astype(float)
+    distances = np.linalg.norm(first[:, None] - first[None], axis=-1)[np.triu_indices(12, 1)]
+    assert distances.min() > 25  # the first dozen classes are told apart at a glance
+
+
+def test_segmentation_higher_score_wins_and_zero_is_background():
+    masks = np.zeros((2, 4, 5), dtype=bool)
+    masks[0, :, :3] = True
+    masks[1, :, 2:4] = True
+    detections = Detections(masks, np.zeros((2, 4)), np.array([0, 6]), np.array([0.9, 0.4]), np.array([1, 2]))
+    label = segmentation(detections, (4, 5))
+    np.testing.assert_array_equal(label[0], [1, 1, 1, 7, 0])  # column 2 overlaps: score 0.9 (class 0) wins
+    assert label.dtype == np.uint8
+    empty = Detections(np.zeros((0, 4, 5), bool), np.zeros((0, 4)), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
+    assert not segmentation(empty, (4, 5)).any()
+
+
+def test_depth_png_is_lossless_millimetres_and_jpeg_is_small():
+    depth = np.array([[0.0, 1.2345], [np.nan, 4.0]], dtype=np.float32)
+    decoded = np.asarray(Image.open(io.BytesIO(encode_depth_png(depth))))
+    np.testing.assert_array_equal(decoded, [[0, 1234], [0, 4000]])  # invalid -> 0, float32 1.2345 -> 1234 mm
+    rgb = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    rgb[:, :160] = 90  # half flat, as real images are
+    assert len(encode_jpeg(rgb)) < rgb.nbytes / 3
+
+
+def test_voxel_downsample_keeps_one_point_per_cell_and_caps():
+    points = np.array([[0.01, 0.01, 0.0], [0.02, 0.03, 0.0], [0.2, 0.0, 0.0], [0.0, 0.0, 0.31]])
+    colors = np.arange(12, dtype=np.uint8).reshape(4, 3)
+    kept, kept_colors = voxel_downsample(points, colors, voxel=0.05, max_points=10)
+    np.testing.assert_array_equal(kept, points[[0, 2, 3]])
+    np.testing.assert_array_equal(kept_colors, colors[[0, 2, 3]])
+    assert len(voxel_downsample(points, None, voxel=0.05, max_points=2)[0]) == 2
+
+
+def test_graph_edges_are_the_semantic_graph():
+    centers = np.random.default_rng(1).uniform(0, 3, (30, 3))
+    edges = graph_edges(centers, 0.8)
+    expected = {tuple(pair) for pair in np.argwhere(np.triu(semantic_graph(centers, 0.8).toarray(), 1))}
+    assert {tuple(edge) for edge in edges} == expected and len(expected) > 5
+    assert np.all(np.linalg.norm(centers[edges[:, 0]] - centers[edges[:, 1]], axis=1) < 0.8)
+
+
+def test_match_colors_green_right_red_wrong_grey_unknown():
+    correct = match_correctness(np.array([3, 3, -1]), np.array([3, 4, 3]))
+    np.testing.assert_array_equal(correct, [1, 0, -1])
+    np.testing.assert_array_equal(correctness_colors(correct), [CORRECT, WRONG, UNKNOWN])
+
+
+def test_map_recording_verifies_and_holds_every_entity(map_rrd, run):
+    verified = rerun_cli("rrd", "verify", str(map_rrd))
+    assert verified.returncode == 0, verified.stderr
+    entities = recorded_entities(map_rrd)
+    assert {"Ellipsoids3D:centers", "Ellipsoids3D:half_sizes", "Ellipsoids3D:quaternions", "Ellipsoids3D:labels",
+            "Ellipsoids3D:class_ids", "description", "instance_id"} <= entities["/world/map/landmarks"][1]
+    assert "LineStrips3D:strips" in entities["/world/map/graph"][1]
+    assert "Points3D:positions" in entities["/world/map/scene"][1]
+    assert "AnnotationContext:context" in entities["/"][1]
+    assert "TextDocument:text" in entities["/description"][1]
+    assert "EyeControls3D:look_target" in {c for _, columns in entities.values() for c in columns}  # blueprint
+    assert not map_rrd.with_name(map_rrd.name + ".partial").exists()
+
+
+def test_map_recording_scene_is_downsampled(tmp_path, run):
+    """120k input points on a 5 cm grid over 7 x 6 m of floor and 7 x 2.5 m of wall: about 24k kept."""
+    points, colors = scene_points()
+    full, light = tmp_path / "full.rrd", tmp_path / "light.rrd"
+    write_map_recording(light, run[0], points, colors, "x")
+    write_map_recording(full, run[0], None, None, "x")
+    scene_bytes = light.stat().st_size - full.stat().st_size
+    assert scene_bytes < 24_000 * 15 * 1.2  # 12 B position + 3 B colour per kept point, plus slack
+    assert scene_bytes > 24_000 * 15 * 0.3  # ... and the scene is there
+
+
+def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run):
+    verified = rerun_cli("rrd", "verify", str(loc_rrd))
+    assert verified.returncode == 0, verified.stderr
+    entities = recorded_entities(loc_rrd)
+    frames = len(run[1])
+    per_frame = {
+        "/world/camera/gt": "Pinhole:image_from_camera",
+        "/world/camera/gt/rgb": "EncodedImage:blob",
+        "/world/camera/gt/depth": "EncodedDepthImage:blob",
+        "/world/camera/gt/detections/masks": "SegmentationImage:buffer",
+        "/world/camera/gt/detections/boxes": "Boxes2D:class_ids",
+        "/world/camera/estimate/1": "Transform3D:translation",
+        "/world/observations/gt": "Ellipsoids3D:centers",
+        "/world/observations/estimate": "Ellipsoids3D:centers",
+        "/world/correspondences/candidates": "LineStrips3D:strips",
+        "/world/hypotheses/1": "LineStrips3D:strips",
+        "/world/hypotheses/3": "LineStrips3D:strips",
+        "/world/trajectory/gt": "LineStrips3D:strips",
+        "/world/trajectory/estimate": "Points3D:positions",
+        "/metrics/error/translation_m": "Scalars:scalars",
+        "/metrics/error/rotation_deg": "Scalars:scalars",
+        "/metrics/count/candidates": "Scalars:scalars",
+        "/metrics/count/cliques": "Scalars:scalars",
+        "/metrics/time/matching": "Scalars:scalars",
+        "/metrics/time/inliers": "Scalars:scalars",
+        "/metrics/match/recall": "Scalars:scalars",
+    }
+    for entity, column in per_frame.items():
+        rows, columns = entities[entity]
+        assert column in columns, entity
+        assert rows == frames, entity
+    assert "Transform3D:mat3x3" in entities["/world/camera/gt"][1]
+    assert "Ellipsoids3D:class_ids" in entities["/world/map/landmarks"][1]
+    assert entities["/log"][0] >= frames  # one line per frame at least
+    assert "TextDocument:text" in entities["/description"][1]
+
+
+def test_localization_recording_has_frame_and_tum_timelines(loc_rrd):
+    printed = rerun_cli("rrd", "print", "-vv", "--entity", "/metrics/count/cliques", str(loc_rrd))
+    assert "index_name: frame" in printed.stdout and "index_name: time" in printed.stdout
+
+
+def test_localization_recording_size_per_frame(tmp_path, loc_rrd, run):
+    """Compressed images keep a 320x240 frame far below its raw 400 kB (rgb + float depth + masks)."""
+    map, frames = run
+    with LocalizationRecorder(tmp_path / "empty.rrd", map, "# clipclique on a synthetic room\nsimulated detections"):
+        pass
+    per_frame = (loc_rrd.stat().st_size - (tmp_path / "empty.rrd").stat().st_size) / len(frames)
+    assert 5_000 < per_frame < 60_000
+
+
+def test_matches_are_coloured_by_ground_truth(tmp_path, run):
+    map, frames = run
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder.stream)
+    good, bad = frames[0], frames[2]  # frame 2's top-1 is a wrong clique (see viz_scene)
+    for f in (good, bad):
+        recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+        (strips, _), (top1, _) = spy.last("world/correspondences/candidates"), spy.last("world/hypotheses/1")
+        visible = len(f.observations)
+        candidate_colors = rgb_of(strips.colors)
+        assert (candidate_colors == CORRECT).all(axis=1).sum() == visible  # the true pairs
+        assert (candidate_colors == WRONG).all(axis=1).sum() == len(f.result.candidates) - visible
+        expected = CORRECT if f is good else WRONG
+        assert (rgb_of(top1.colors) == expected).all()
+    recorder.close()
+
+
+def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
+    map, frames = run
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder.stream)
+    first, second = frames[0], frames[1]
+    recorder.log_frame(first.frame, first.detections, first.observations, first.result, first.evaluation)
+    failed = dataclasses.replace(second.result, hypotheses=[], failure="fewer than 3 candidates")
+    recorder.log_frame(second.frame, second.detections, second.observations, failed, None)
+    for rank in (1, 2, 3):
+        (clear,) = spy.last(f"world/hypotheses/{rank}")
+        assert isinstance(clear, rr.Clear)
+        assert isinstance(spy.last(f"world/camera/estimate/{rank}")[0], rr.Clear)
+    assert isinstance(spy.last("world/observations/estimate")[0], rr.Clear)
+    assert not isinstance(spy.last("world/observations/gt")[0], rr.Clear)  # the truth still places them
+    warnings = [a[0] for path, a in spy.calls if path == "log" and "no pose" in str(a[0].text.as_arrow_array())]
+    assert len(warnings) == 1
+    recorder.close()
+    assert (tmp_path / "r.rrd").stat().st_size > 0
+
+
+def test_a_run_that_fails_leaves_no_recording(tmp_path, run):
+    map, frames = run
+    path = tmp_path / "broken.rrd"
+    with pytest.raises(RuntimeError), LocalizationRecorder(path, map, "x") as recorder:
+        f = frames[0]
+        recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+        raise RuntimeError("the run died")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_rotation_error_is_logged_in_degrees(tmp_path, run):
+    map, frames = run
+    f = frames[2]
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder.stream)
+    evaluation = dataclasses.replace(f.evaluation, rotation_error=math.pi / 2)
+    recorder.log_frame(f.frame, f.detections, f.observations, f.result, evaluation)
+    (scalar,) = spy.last("metrics/error/rotation_deg")
+    assert scalar.scalars.as_arrow_array().to_numpy(zero_copy_only=False)[0] == pytest.approx(90.0)
+    recorder.close()

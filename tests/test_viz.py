@@ -254,3 +254,21 @@ def test_rotation_error_is_logged_in_degrees(tmp_path, run):
     (scalar,) = spy.last("metrics/error/rotation_deg")
     assert scalar.scalars.as_arrow_array().to_numpy(zero_copy_only=False)[0] == pytest.approx(90.0)
     recorder.close()
+
+
+def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):
+    map, frames = run
+    f = frames[0]
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder.stream)
+    recorder.log_frame(dataclasses.replace(f.frame, pose=None), f.detections, f.observations, f.result, None)
+    transform = spy.last("world/camera/gt")[0]
+    assert len(transform.translation.as_arrow_array()) == 0  # cleared, not left at the last pose
+    assert len(transform.mat3x3.as_arrow_array()) == 0
+    assert isinstance(spy.last("world/observations/gt")[0], rr.Clear)
+    (placed,) = spy.last("world/observations/estimate")
+    expected = f.result.hypotheses[0].pose.apply(f.observations.ellipsoids.centers)
+    centers = np.array(placed.centers.as_arrow_array().to_pylist())
+    np.testing.assert_allclose(centers, expected, atol=1e-5)
+    assert not any(path == "world/trajectory/gt" for path, _ in spy.calls)
+    recorder.close()

@@ -7,7 +7,7 @@ import numpy as np
 import rerun.blueprint as rrb
 
 MIN_FRAMED_EXTENT = 2.0  # metres: a tiny map is still seen from a sensible distance
-EYE_DIRECTION = np.array([-0.45, -0.8, 0.7])  # from a low corner, looking down onto the scene
+EYE_DIRECTION = np.array([-0.4, -0.72, 0.65])  # from a low corner, looking down onto the scene
 
 
 def framing(centers: np.ndarray) -> rrb.EyeControls3D:
@@ -64,7 +64,8 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                     rrb.Spatial2DView(name="depth", origin="world/camera/gt", contents=["+ $origin/depth"]),
                 ),
                 rrb.Tabs(
-                    rrb.TimeSeriesView(name="errors", origin="metrics/error"),
+                    rrb.TimeSeriesView(name="translation error (m)", origin="metrics/error/translation_m"),
+                    rrb.TimeSeriesView(name="rotation error (deg)", origin="metrics/error/rotation_deg"),
                     rrb.TimeSeriesView(name="counts", origin="metrics/count"),
                     rrb.TimeSeriesView(name="time per stage (s)", origin="metrics/time"),
                     rrb.TimeSeriesView(name="precision / recall", origin="metrics/match"),

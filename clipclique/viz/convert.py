@@ -41,8 +41,12 @@ def camera(
     pose: Pose | None, intrinsics: np.ndarray, width: int, height: int, color: np.ndarray, plane: float
 ) -> list:
     """Transform3D (camera-to-world; cleared when the pose is unknown) + Pinhole, frustum `plane` m deep."""
+    if pose is None:
+        transform = rr.Transform3D.cleared()
+    else:
+        transform = rr.Transform3D(translation=pose.translation, mat3x3=pose.rotation)
     return [
-        rr.Transform3D.cleared() if pose is None else rr.Transform3D(translation=pose.translation, mat3x3=pose.rotation),
+        transform,
         rr.Pinhole(
             image_from_camera=intrinsics,
             resolution=[width, height],

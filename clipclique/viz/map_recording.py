@@ -70,7 +70,8 @@ def write_map_recording(
         log_map(stream, map, d_adj)
         if scene_points is not None and len(scene_points):
             points, colors = voxel_downsample(scene_points, scene_colors, SCENE_VOXEL, SCENE_MAX_POINTS)
-            stream.log("world/map/scene", rr.Points3D(points, colors=colors, radii=rr.Radius.ui_points(1.5)), static=True)
+            scene = rr.Points3D(points, colors=colors, radii=rr.Radius.ui_points(1.5))
+            stream.log("world/map/scene", scene, static=True)
         stream.log(
             "description",
             rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),

@@ -99,6 +99,41 @@ def _save_png(path: Path, image: np.ndarray) -> None:
     Image.fromarray(image).save(path, compress_level=3)
 
 
+def write_scannet_mesh(folder: Path, scene: str, room: Room) -> None:
+    """The scan's labelled mesh, segments, aggregation and our descriptions file.
+
+    The ply's `label` holds demo label ids (1 + the index of the category in the sorted list of
+    the room's categories), not ScanNet's; readers take classes from the aggregation.
+    """
+    from plyfile import PlyData, PlyElement
+
+    categories = sorted({o.category for o in room.objects})
+    label_of = np.array([categories.index(o.category) + 1 for o in room.objects], dtype=np.uint16)
+    vertex = np.empty(len(room.vertices), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
+    for k, axis in enumerate("xyz"):
+        vertex[axis] = room.vertices[:, k]
+    for k, channel in enumerate(("red", "green", "blue")):
+        vertex[channel] = room.vertex_colors[:, k]
+    vertex["alpha"] = 255
+    vertex["label"] = label_of[room.segment_objects[room.vertex_segments]]
+    face = np.empty(len(room.faces), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = room.faces
+    PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
+        str(folder / f"{scene}_vh_clean_2.labels.ply")
+    )
+    segs_name = f"{scene}_vh_clean_2.0.010000.segs.json"
+    segs = {"params": {"kThresh": "0.0001", "segMinVerts": "20", "minPoints": "750", "maxPoints": "30000", "thinThresh": "0.05", "flatThresh": "0.001", "minLength": "0.02", "maxLength": "1"}, "sceneId": scene, "segIndices": room.vertex_segments.tolist()}
+    (folder / segs_name).write_text(json.dumps(segs))
+    groups = [
+        {"id": o.object_id, "objectId": o.object_id, "segments": np.flatnonzero(room.segment_objects == o.object_id).tolist(), "label": o.category}
+        for o in room.objects
+    ]
+    aggregation = {"sceneId": f"scannet.{scene}", "appId": "Aggregator.v2", "segGroups": groups, "segmentsFile": f"scannet.{segs_name}"}
+    (folder / f"{scene}.aggregation.json").write_text(json.dumps(aggregation))
+    descriptions = {str(o.object_id): o.description for o in room.objects if o.category not in STRUCTURE_CLASSES}
+    (folder / f"{scene}_descriptions.json").write_text(json.dumps(descriptions, indent=1) + "\n")
+
+
 class ScanNetWriter:
     """Files as ScanNet ships a scan plus what the official SensReader exports."""
 
@@ -108,41 +143,11 @@ class ScanNetWriter:
     def start(self, intrinsics: np.ndarray) -> None:
         for sub in ("color", "depth", "pose", "intrinsic", "instance-filt"):
             (self.folder / sub).mkdir(parents=True, exist_ok=True)
-        self._write_mesh()
+        write_scannet_mesh(self.folder, self.scene, self.room)
         matrix = np.eye(4)
         matrix[:3, :3] = intrinsics
         for stem, value in (("intrinsic_depth", matrix), ("intrinsic_color", matrix), ("extrinsic_depth", np.eye(4)), ("extrinsic_color", np.eye(4))):
             np.savetxt(self.folder / "intrinsic" / f"{stem}.txt", value, fmt="%f")
-
-    def _write_mesh(self) -> None:
-        from plyfile import PlyData, PlyElement
-
-        room, scene = self.room, self.scene
-        categories = sorted({o.category for o in room.objects})
-        label_of = np.array([categories.index(o.category) + 1 for o in room.objects], dtype=np.uint16)
-        vertex = np.empty(len(room.vertices), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
-        for k, axis in enumerate("xyz"):
-            vertex[axis] = room.vertices[:, k]
-        for k, channel in enumerate(("red", "green", "blue")):
-            vertex[channel] = room.vertex_colors[:, k]
-        vertex["alpha"] = 255
-        vertex["label"] = label_of[room.segment_objects[room.vertex_segments]]
-        face = np.empty(len(room.faces), dtype=[("vertex_indices", "i4", (3,))])
-        face["vertex_indices"] = room.faces
-        PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
-            str(self.folder / f"{scene}_vh_clean_2.labels.ply")
-        )
-        segs_name = f"{scene}_vh_clean_2.0.010000.segs.json"
-        segs = {"params": {"kThresh": "0.0001", "segMinVerts": "20", "minPoints": "750", "maxPoints": "30000", "thinThresh": "0.05", "flatThresh": "0.001", "minLength": "0.02", "maxLength": "1"}, "sceneId": scene, "segIndices": room.vertex_segments.tolist()}
-        (self.folder / segs_name).write_text(json.dumps(segs))
-        groups = [
-            {"id": o.object_id, "objectId": o.object_id, "segments": np.flatnonzero(room.segment_objects == o.object_id).tolist(), "label": o.category}
-            for o in room.objects
-        ]
-        aggregation = {"sceneId": f"scannet.{scene}", "appId": "Aggregator.v2", "segGroups": groups, "segmentsFile": f"scannet.{segs_name}"}
-        (self.folder / f"{scene}.aggregation.json").write_text(json.dumps(aggregation))
-        descriptions = {str(o.object_id): o.description for o in room.objects if o.category not in STRUCTURE_CLASSES}
-        (self.folder / f"{scene}_descriptions.json").write_text(json.dumps(descriptions, indent=1) + "\n")
 
     def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose) -> None:
         from PIL import Image

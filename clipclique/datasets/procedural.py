@@ -59,6 +59,7 @@ PHRASES = {
     "trash can": "a {c} trash can",
     "door": "a {c} door",
     "picture": "a {c} picture on the wall",
+    "box": "a {c} storage box",
 }
 
 
@@ -273,8 +274,12 @@ class _Furniture:
                 self.block("book", pos, yaw + self.rng.uniform(-0.5, 0.5), color, (0.23, 0.16, 0.035))
 
 
-def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05) -> Room:
-    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed."""
+def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
+    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
+
+    `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
+    boxes in a row along the wall y = D, for scenes with more objects.
+    """
     rng = np.random.default_rng(seed)
     size = np.asarray(size, float)
     W, D, H = size
@@ -344,6 +349,9 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
     f.lamp(spot(7.4, D - 0.35, 0.05, 0.05), *f.colors(1), height=1.55)
     f.block("door", np.array([0.03, 4.8, 0.0]), np.pi / 2, *f.colors(1), (0.9, 0.04, 2.05))
     f.block("picture", np.array([2.8, D - 0.006, 1.3]), 0.0, *f.colors(1), (0.6, 0.01, 0.45))  # too flat to map
+
+    for k, color in enumerate(f.colors(min(boxes, 8))):
+        f.block("box", np.array([0.9 + 0.42 * k, D - 0.25, 0.0]), rng.uniform(-0.2, 0.2), color, (0.35, 0.3, 0.3))
 
     focus = [desk + [0, 0, 0.9], (0.3, 2.3, 1.0), dining + [0, 0, 0.7], sofa + [0, -0.8, 0.5], stand + [0, 0, 0.7], bed + [0.2, 0, 0.6], (4.2, 0.3, 0.6)]
     return b.build(size, focus)

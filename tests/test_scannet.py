@@ -148,3 +148,26 @@ def test_folder_path_and_data_root_environment(tmp_path, monkeypatch):
     assert open_sequence(str(folder)).name == SCENE
     monkeypatch.setenv("CLIPCLIQUE_DATA", str(tmp_path))
     assert len(open_sequence(SCENE)) == 2
+
+
+def test_frames_without_instance_images_project_the_labelled_mesh(tmp_path):
+    """A labelled quad 1.5 m in front of frame 0's camera shows up where the measured depth agrees."""
+    folder, parts = write_scene(tmp_path)
+    ply_path = folder / f"{SCENE}_vh_clean_2.labels.ply"
+    vertex = PlyData.read(str(ply_path))["vertex"].data
+    quad = np.zeros(4, dtype=vertex.dtype)
+    quad["x"], quad["y"], quad["z"] = [-0.5, 0.5, 0.5, -0.5], [0.0, 0.0, 1.0, 1.0], 2.7
+    face = np.zeros(2, dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = [[650, 651, 652], [650, 652, 653]]
+    PlyData([PlyElement.describe(np.concatenate([vertex, quad]), "vertex"), PlyElement.describe(face, "face")]).write(str(ply_path))
+    segs = folder / f"{SCENE}_vh_clean_2.0.010000.segs.json"
+    segs.write_text(json.dumps({"segIndices": json.loads(segs.read_text())["segIndices"] + [512] * 4}))  # the plain chair
+    depth = np.full((480, 640), 1500, np.uint16)
+    depth[:, 320:] = 3000  # right half measures 3 m where the mesh is at 1.5 m: the depth test fails
+    Image.fromarray(depth).save(folder / "depth" / "0.png")
+    (folder / "instance-filt" / "0.png").unlink()
+    instances = open_sequence(SCENE, tmp_path)[0].instances
+    # Camera at (0, 0.5, 1.2) looking along +z: the quad covers u, v = 319.5 +- 192 pixels.
+    assert instances[240, 200] == 2 and instances[100, 200] == 2
+    assert instances[20, 200] == 0 and instances[240, 20] == 0  # outside the quad
+    assert instances[240, 400] == 0  # measured depth disagrees with the mesh

@@ -7,6 +7,7 @@ Read from `scans/<scene>/`:
 - SensReader output: `color/N.jpg`, `depth/N.png` (uint16 mm), `pose/N.txt` (4x4 camera-to-world,
   `-inf` where tracking failed: those frames are skipped), `intrinsic/intrinsic_depth.txt`;
 - `instance-filt/N.png` when `<scene>_2d-instance-filt.zip` is unzipped (8-bit, objectId + 1);
+  without them, frames get the labelled mesh ray-cast into the view, kept where depth agrees;
 - `scannetv2-labels.combined.tsv` in the scene folder or up to two folders above it: raw
   categories become NYU40 classes (`nyu40class`); without it the raw categories are the classes;
 - `<scene>_descriptions.json` (ours, optional): `{"<objectId>": "a red office chair"}`.
@@ -35,6 +36,7 @@ from clipclique.datasets.base import (
     read_json,
     resize_rgb,
 )
+from clipclique.datasets.render import MeshRaycaster
 from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 
@@ -97,7 +99,6 @@ class ScanNetScene(Sequence):
         n = self.frame_numbers[i]
         depth = read_depth(self.root / "depth" / f"{n}.png", DEPTH_FACTOR)
         rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
-        instances = None
         instance_path = self.root / "instance-filt" / f"{n}.png"
         if instance_path.is_file():
             labels = read_image(instance_path)
@@ -106,19 +107,35 @@ class ScanNetScene(Sequence):
 
                 labels = np.asarray(Image.fromarray(labels).resize(depth.shape[::-1], Image.NEAREST))
             instances = labels.astype(np.int32)
+        else:
+            instances = self.project_instances(self.poses[i], depth)
         return Frame(i, float(n), rgb, depth, self.intrinsics, self.poses[i], instances, name=str(n))
+
+    def project_instances(self, pose: Pose, depth: np.ndarray, tolerance: float = 0.1) -> np.ndarray:
+        """Object ids of the labelled mesh rendered into a frame, kept where the measured depth agrees.
+
+        Stands in for the 2D instance images when `<scene>_2d-instance-filt.zip` is not unzipped.
+        """
+        raycaster, face_ids = self._projector
+        render = raycaster.render(self.intrinsics, pose, depth.shape)
+        agrees = (render.faces >= 0) & (depth > 0) & (np.abs(render.depth - depth) < tolerance)
+        return np.where(agrees, face_ids[np.maximum(render.faces, 0)], 0).astype(np.int32)
 
     # ---- objects ------------------------------------------------------------------------------
 
     @cached_property
-    def _vertices(self) -> np.ndarray:
-        """The labelled mesh's vertex table (x, y, z, red, green, blue, label, ...)."""
+    def _ply(self):
         from plyfile import PlyData
 
         try:
-            vertex = PlyData.read(str(self.mesh_path))["vertex"].data
+            return PlyData.read(str(self.mesh_path))
         except Exception as error:  # plyfile raises several types for a damaged file
             raise DatasetError(f"{self.mesh_path}: unreadable PLY mesh ({error})") from None
+
+    @cached_property
+    def _vertices(self) -> np.ndarray:
+        """The labelled mesh's vertex table (x, y, z, red, green, blue, label, ...)."""
+        vertex = self._ply["vertex"].data
         missing = {"x", "y", "z", "label"} - set(vertex.dtype.names or ())
         if missing:
             raise DatasetError(f"{self.mesh_path}: vertex property {', '.join(sorted(missing))} missing")
@@ -133,8 +150,8 @@ class ScanNetScene(Sequence):
         return {}
 
     @cached_property
-    def _objects(self) -> list[tuple[int, str, str, np.ndarray]]:
-        """(object id, raw category, class, vertex indices) per aggregation segGroup."""
+    def _grouping(self) -> tuple[list[int], list[str], np.ndarray]:
+        """Instance ids (objectId + 1) and raw categories of the segGroups, and each vertex's group index."""
         segments = np.asarray(read_json(self.segs_path).get("segIndices", []), dtype=np.int64)
         if len(segments) != len(self._vertices):
             raise DatasetError(
@@ -144,18 +161,34 @@ class ScanNetScene(Sequence):
         if not isinstance(groups, list):
             raise DatasetError(f"{self.aggregation_path}: no segGroups list")
         try:
-            ids = [int(g["objectId"]) for g in groups]
+            ids = [int(g["objectId"]) + 1 for g in groups]
             labels = [str(g["label"]) for g in groups]
             members = [np.asarray(g["segments"], dtype=np.int64) for g in groups]
         except (KeyError, TypeError, ValueError) as error:
             raise DatasetError(f"{self.aggregation_path}: malformed segGroup ({error!r})") from None
-        owner = vertex_owner(segments, members)
+        return ids, labels, vertex_owner(segments, members)
+
+    @cached_property
+    def _objects(self) -> list[tuple[int, str, str, np.ndarray]]:
+        """(instance id, raw category, class, vertex indices) per aggregation segGroup."""
+        ids, labels, owner = self._grouping
         order = np.argsort(owner, kind="stable")
-        splits = np.searchsorted(owner[order], np.arange(len(groups) + 1))
+        splits = np.searchsorted(owner[order], np.arange(len(ids) + 1))
         return [
-            (object_id + 1, label, self._class_of.get(label, label), order[splits[k] : splits[k + 1]])
+            (object_id, label, self._class_of.get(label, label), order[splits[k] : splits[k + 1]])
             for k, (object_id, label) in enumerate(zip(ids, labels))
         ]
+
+    @cached_property
+    def _projector(self) -> tuple[MeshRaycaster, np.ndarray]:
+        """Ray caster of the labelled mesh and the instance id of each face (by its first vertex)."""
+        if "face" not in self._ply:
+            raise DatasetError(f"{self.mesh_path}: no faces, cannot project objects into frames (unzip the 2D instances)")
+        faces = np.vstack(self._ply["face"].data["vertex_indices"]).astype(np.int32)
+        ids, _, owner = self._grouping
+        vertex_ids = np.append(ids, 0)[owner]  # owner == len(ids): in no group
+        xyz = np.column_stack([self._vertices[axis] for axis in "xyz"])
+        return MeshRaycaster(xyz, faces), vertex_ids[faces[:, 0]]
 
     @cached_property
     def _descriptions(self) -> dict[int, str]:

@@ -77,7 +77,7 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
         task = progress.add_task("fitting ellipsoids", total=None)
         map, report = build_map(sequence, loaded, progress=lambda done, total: progress.update(task, completed=done, total=total))
 
-    out = out or Path("outputs") / "maps" / f"{sequence.name}.map.npz"
+    out = out or Path("outputs") / "maps" / f"{Path(scene).name}.map.npz"  # the name typed, as clipclique-loc looks it up
     save_map(map, out)
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
     if rrd:

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from clipclique.datasets import STRUCTURE_CLASSES, open_sequence
-from clipclique.datasets.base import DEMO_MARKER
 from clipclique.datasets.demo import DEMO_SCENES, DemoSpec, ensure_demo, generate
 from clipclique.datasets.procedural import PALETTE, make_room, make_walk
 from clipclique.datasets.render import MeshRaycaster

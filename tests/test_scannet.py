@@ -110,7 +110,7 @@ def test_label_table_maps_raw_categories_to_nyu40(tmp_path):
 
 
 def test_scene_cloud_is_the_mesh(tmp_path):
-    _, parts = write_scene(tmp_path)
+    write_scene(tmp_path)
     points, colors = open_sequence(SCENE, tmp_path).scene_cloud()
     assert points.shape == (650, 3) and colors.dtype == np.uint8 and (colors[:, 0] == 200).all()
 
@@ -152,7 +152,7 @@ def test_folder_path_and_data_root_environment(tmp_path, monkeypatch):
 
 def test_frames_without_instance_images_project_the_labelled_mesh(tmp_path):
     """A labelled quad 1.5 m in front of frame 0's camera shows up where the measured depth agrees."""
-    folder, parts = write_scene(tmp_path)
+    folder, _ = write_scene(tmp_path)
     ply_path = folder / f"{SCENE}_vh_clean_2.labels.ply"
     vertex = PlyData.read(str(ply_path))["vertex"].data
     quad = np.zeros(4, dtype=vertex.dtype)

@@ -62,6 +62,7 @@ def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) ->
     staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=folder.parent))
     try:
         generate(staging, name, spec, progress)
+        staging.chmod(0o755)  # mkdtemp makes it private; the data folder is for everyone
         if folder.exists():  # an interrupted or older generation of ours
             shutil.rmtree(folder)
         os.replace(staging, folder)

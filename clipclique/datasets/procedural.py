@@ -9,7 +9,7 @@ around a table, cups, books, monitors), as in real rooms.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -365,7 +365,7 @@ class Walk:
     knots: np.ndarray  # (K,) seconds of the waypoints
     eyes: np.ndarray  # (K, 3)
     targets: np.ndarray  # (K, 3)
-    shake: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))  # (n, 3): freq, phase, amplitude
+    shake: np.ndarray  # (18, 3) sinusoids (rad/s, phase, amplitude): 9 for position (m), 9 for rotation (rad)
 
     def poses(self, times: np.ndarray) -> list[Pose]:
         """Camera-to-world poses at `times` (seconds): spline path and gaze, then hand shake."""

@@ -17,7 +17,7 @@ from clipclique.graph import semantic_graph
 from clipclique.types import Detections
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import encode_depth_png, encode_jpeg, segmentation, voxel_downsample
-from clipclique.viz.map_recording import graph_edges
+from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness
 
 
@@ -89,10 +89,11 @@ def test_segmentation_higher_score_wins_and_zero_is_background():
     assert not segmentation(empty, (4, 5)).any()
 
 
-def test_depth_png_is_lossless_millimetres_and_jpeg_is_small():
-    depth = np.array([[0.0, 1.2345], [np.nan, 4.0]], dtype=np.float32)
+def test_depth_png_is_subsampled_centimetres_and_jpeg_is_small():
+    depth = np.full((4, 6), 9.0, dtype=np.float32)
+    depth[0, 0], depth[0, 2], depth[2, 0], depth[2, 2] = 0.0, 1.234, np.nan, 4.0
     decoded = np.asarray(Image.open(io.BytesIO(encode_depth_png(depth))))
-    np.testing.assert_array_equal(decoded, [[0, 1234], [0, 4000]])  # invalid -> 0, float32 1.2345 -> 1234 mm
+    np.testing.assert_array_equal(decoded, [[0, 123, 900], [0, 400, 900]])  # every 2nd pixel; invalid -> 0
     rgb = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
     rgb[:, :160] = 90  # half flat, as real images are
     assert len(encode_jpeg(rgb)) < rgb.nbytes / 3
@@ -105,6 +106,16 @@ def test_voxel_downsample_keeps_one_point_per_cell_and_caps():
     np.testing.assert_array_equal(kept, points[[0, 2, 3]])
     np.testing.assert_array_equal(kept_colors, colors[[0, 2, 3]])
     assert len(voxel_downsample(points, None, voxel=0.05, max_points=2)[0]) == 2
+
+
+def test_ceiling_points_are_left_out(run):
+    map = run[0]
+    top = (map.ellipsoids.centers[:, 2] + map.ellipsoids.axes.max(axis=1)).max()  # the lamp, 0.7 + 0.7 m
+    heights = np.array([0.0, 1.0, top + CEILING_MARGIN - 0.01, top + CEILING_MARGIN + 0.01, 2.8])
+    points = np.column_stack((np.zeros(5), np.zeros(5), heights))
+    kept, colors = below_landmarks(map, points, np.arange(15).reshape(5, 3))
+    np.testing.assert_array_equal(kept[:, 2], heights[:3])
+    np.testing.assert_array_equal(colors[:, 0], [0, 3, 6])
 
 
 def test_graph_edges_are_the_semantic_graph():
@@ -154,7 +165,7 @@ def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run):
     per_frame = {
         "/world/camera/gt": "Pinhole:image_from_camera",
         "/world/camera/gt/rgb": "EncodedImage:blob",
-        "/world/camera/gt/depth": "EncodedDepthImage:blob",
+        "/depth": "EncodedDepthImage:blob",
         "/world/camera/gt/detections/masks": "SegmentationImage:buffer",
         "/world/camera/gt/detections/boxes": "Boxes2D:class_ids",
         "/world/camera/estimate/1": "Transform3D:translation",

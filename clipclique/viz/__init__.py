@@ -4,7 +4,8 @@ Entity paths (shared by both recordings, so a map and a run line up when opened 
 
 - `world/map/landmarks` ellipsoids, class colours, labels; hover shows description and instance id
 - `world/map/graph` semantic-graph edges; `world/map/scene` downsampled scene points
-- `world/camera/gt` ground-truth camera (Transform3D + Pinhole) holding `rgb`, `depth`, `detections`
+- `world/camera/gt` ground-truth camera (Transform3D + Pinhole) holding `rgb` and `detections/{masks,boxes}`
+- `depth` the query depth, subsampled, in its own 2D view
 - `world/camera/estimate/<rank>` top-N estimated cameras; `world/trajectory/{gt,estimate}`
 - `world/observations/{gt,estimate}` observed ellipsoids placed by either pose
 - `world/correspondences/candidates`, `world/hypotheses/<rank>` matches, coloured correct or wrong

@@ -51,7 +51,6 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
             rrb.Spatial3DView(
                 name="3D: map, cameras, matches",
                 origin="world",
-                contents=["+ $origin/**", "- /world/camera/gt/depth"],
                 eye_controls=framing(centers),
             ),
             rrb.Vertical(
@@ -61,7 +60,7 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                         origin="world/camera/gt",
                         contents=["+ $origin/rgb", "+ $origin/detections/**"],
                     ),
-                    rrb.Spatial2DView(name="depth", origin="world/camera/gt", contents=["+ $origin/depth"]),
+                    rrb.Spatial2DView(name="depth", origin="depth"),
                 ),
                 rrb.Tabs(
                     rrb.TimeSeriesView(name="translation error (m)", origin="metrics/error/translation_m"),

@@ -29,7 +29,8 @@ if TYPE_CHECKING:
     from clipclique.metrics import FrameEvaluation
     from clipclique.pipeline import LocalizationResult
 
-CAMERA = "world/camera/gt"  # holds the query images, so they hang in the ground-truth frustum
+CAMERA = "world/camera/gt"  # holds the query image and overlays, so they hang in the ground-truth frustum
+DEPTH = "depth"  # outside `world`: subsampled (see convert), shown in its own 2D view, not projected
 UNIX_TIME_MIN = 1e9  # TUM stamps are Unix seconds (> 2001); ScanNet's are frame numbers
 GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
@@ -93,7 +94,7 @@ class LocalizationRecorder:
         height, width = frame.rgb.shape[:2]
         self.stream.log(CAMERA, *camera(frame.pose, frame.intrinsics, width, height, GT_CAMERA, GT_FRUSTUM_M))
         self.stream.log(f"{CAMERA}/rgb", rgb_image(frame.rgb))
-        self.stream.log(f"{CAMERA}/depth", depth_image(frame.depth))
+        self.stream.log(DEPTH, depth_image(frame.depth))
         self.stream.log(
             f"{CAMERA}/detections/masks",
             rr.SegmentationImage(segmentation(detections, (height, width)), opacity=0.45, draw_order=1.0),

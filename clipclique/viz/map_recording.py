@@ -18,6 +18,7 @@ from clipclique.viz.style import annotation_context
 
 SCENE_VOXEL = 0.05  # metres: scene points kept per cell, bounds the file size of large scans
 SCENE_MAX_POINTS = 150_000
+CEILING_MARGIN = 0.3  # metres above the highest landmark top: scene points higher up are left out
 GRAPH_COLOR = (200, 200, 200)
 
 
@@ -25,6 +26,18 @@ def graph_edges(centers: np.ndarray, d_adj: float) -> np.ndarray:
     """(E, 2) landmark index pairs (i < j) joined in the semantic graph."""
     rows, cols = sp.triu(semantic_graph(centers, d_adj), k=1).nonzero()
     return np.column_stack((rows, cols)).astype(np.int64)
+
+
+def below_landmarks(
+    map: Map, points: np.ndarray, colors: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Scene points no higher than the landmarks (z-up): the ceiling would hide the room from the
+    default view, which looks down from above."""
+    if len(map) == 0:
+        return points, colors
+    top = (map.ellipsoids.centers[:, 2] + map.ellipsoids.axes.max(axis=1)).max() + CEILING_MARGIN
+    keep = points[:, 2] <= top
+    return points[keep], None if colors is None else colors[keep]
 
 
 def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
@@ -64,13 +77,15 @@ def write_map_recording(
     *,
     d_adj: float = GraphConfig.d_adj,
 ) -> None:
-    """Write `path` (.rrd): landmarks (hover for descriptions), graph edges, downsampled scene, description."""
+    """Write `path` (.rrd): landmarks (hover for descriptions), graph edges, the scene downsampled and
+    without its ceiling, and `description` (markdown) with a summary of the map."""
     with RecordingFile(path, "clipclique-map", lambda: map_blueprint(map.ellipsoids.centers)) as recording:
         stream = recording.stream
         log_map(stream, map, d_adj)
         if scene_points is not None and len(scene_points):
-            points, colors = voxel_downsample(scene_points, scene_colors, SCENE_VOXEL, SCENE_MAX_POINTS)
-            scene = rr.Points3D(points, colors=colors, radii=rr.Radius.ui_points(1.5))
+            points, colors = below_landmarks(map, scene_points, scene_colors)
+            points, colors = voxel_downsample(points, colors, SCENE_VOXEL, SCENE_MAX_POINTS)
+            scene = rr.Points3D(points, colors=colors, radii=rr.Radius.ui_points(1.0))
             stream.log("world/map/scene", scene, static=True)
         stream.log(
             "description",

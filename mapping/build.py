@@ -19,7 +19,7 @@ from datetime import datetime, timezone
 import numpy as np
 
 import clipclique
-from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence
+from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
 from clipclique.encoders import Encoder
 from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
 from clipclique.types import Map
@@ -55,7 +55,7 @@ def fit_landmarks(
     """The instances that became landmarks and their (center, axes, rotation) fits."""
     kept, fits = [], []
     for done, instance in enumerate(instances, start=1):
-        if instance.class_name in STRUCTURE_CLASSES:
+        if is_structure(instance.class_name):
             report.structure[instance.class_name] += 1
         elif (fit := fit_ellipsoid(instance.points, params)) is None:
             report.skip(skip_reason(instance, params), instance)

@@ -12,7 +12,7 @@ import os
 import re
 from pathlib import Path
 
-from clipclique.datasets.base import STRUCTURE_CLASSES, Instance, Sequence, description_template
+from clipclique.datasets.base import STRUCTURE_CLASSES, Instance, Sequence, description_template, is_structure
 from clipclique.errors import DatasetError
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "Instance",
     "Sequence",
     "description_template",
+    "is_structure",
     "open_sequence",
     "resolve_data_root",
 ]

@@ -15,6 +15,10 @@ from clipclique.types import Frame
 # Room structure, not landmarks: left out of maps and ground-truth detections.
 STRUCTURE_CLASSES = frozenset({"wall", "floor", "ceiling"})
 
+
+def is_structure(class_name: str) -> bool:
+    return class_name.strip().lower() in STRUCTURE_CLASSES
+
 # Marker the demo generator writes last into each demo scene folder.
 DEMO_MARKER = "clipclique_demo.json"
 

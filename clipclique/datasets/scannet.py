@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.datasets.base import (
-    STRUCTURE_CLASSES,
     Instance,
     Sequence,
     description_template,
     is_demo,
+    is_structure,
     read_depth,
     read_image,
     read_json,
@@ -205,7 +205,7 @@ class ScanNetScene(Sequence):
         ]
 
     def object_classes(self) -> dict[int, str]:
-        return {object_id: name for object_id, _, name, _ in self._objects if name not in STRUCTURE_CLASSES}
+        return {object_id: name for object_id, _, name, _ in self._objects if not is_structure(name)}
 
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         vertex = self._vertices

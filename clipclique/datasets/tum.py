@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.datasets.base import (
-    STRUCTURE_CLASSES,
     Instance,
     Sequence,
     description_template,
     is_demo,
+    is_structure,
     read_depth,
     read_image,
     resize_rgb,
@@ -221,4 +221,4 @@ class TumSequence(Sequence):
         ]
 
     def object_classes(self) -> dict[int, str]:
-        return {object_id: name for object_id, (name, _) in self._objects.items() if name not in STRUCTURE_CLASSES}
+        return {object_id: name for object_id, (name, _) in self._objects.items() if not is_structure(name)}

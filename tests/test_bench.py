@@ -1,0 +1,126 @@
+"""The benchmark suite (tools/bench.py, tools/report.py): a quick run on the demo, and the report's logic."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts that import each other, not a package
+
+import bench  # noqa: E402
+import report  # noqa: E402
+
+GROUP_LABELS = {group: [v.label for v in bench.variants() if v.group == group]
+                for group in ("methods", "descriptors", "inliers", "weights", "matching", "alpha")}
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory) -> Path:
+    """`tools/bench.py --sequences demo --quick` run from an empty folder (so it builds its own demo map)."""
+    cwd = tmp_path_factory.mktemp("bench")
+    env = os.environ | {"CLIPCLIQUE_DATA": str(ROOT / "data")}
+    subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--sequences", "demo", "--quick", "--out", "report"],
+                   cwd=cwd, env=env, check=True, capture_output=True, timeout=300)
+    return cwd / "report"
+
+
+def table_rows(markdown: str, label: str) -> list[list[str]]:
+    """Cells of every table row whose first (Table I, alpha) or second (ablations) cell is `label`,
+    starting at that cell; a † marks stochastic rows."""
+    rows = []
+    for line in markdown.splitlines():
+        cells = [c.strip().removesuffix(" †") for c in line.strip().strip("|").split("|")]
+        if line.startswith("|") and label in cells[:2]:
+            rows.append(cells[cells.index(label):])
+    return rows
+
+
+def section(markdown: str, heading: str) -> str:
+    return markdown.split(f"## {heading}")[1].split("\n## ")[0]
+
+
+def test_quick_report_has_every_row_with_numbers(quick_run):
+    text = (quick_run / "report.md").read_text()
+    tables = {"methods": section(text, "Table I"), **dict.fromkeys(("descriptors", "inliers", "weights", "matching"),
+                                                                    section(text, "Ablations"))}
+    for group, table in tables.items():
+        for label in GROUP_LABELS[group]:
+            rows = table_rows(table, label)
+            assert rows, f"no row for {group} / {label}"
+            assert 0.0 <= float(rows[0][5]) <= 100.0  # Top-1 [%]
+            assert 0.0 <= float(rows[0][1]) <= 1.0  # precision
+    alpha = section(text, "Alpha sweep")
+    assert [0.0 <= float(table_rows(alpha, label)[0][1]) <= 100.0 for label in GROUP_LABELS["alpha"]] == [True] * 11
+    assert "simulated: detector (simulated), CLIP (simulated-clip)" in text
+    assert "Quick mode" in text and "Not run: --quick skips it" in text
+
+
+def test_quick_report_matches_its_json(quick_run):
+    results = json.loads((quick_run / "results.json").read_text())
+    assert results["sequences"]["demo"]["frames"] == bench.QUICK_FRAMES
+    records = results["experiments"]["demo"]
+    assert [r["label"] for r in records] == [v.label for v in bench.variants()]
+    text = (quick_run / "report.md").read_text()
+    clipclique = next(r for r in records if r["group"] == "methods" and r["label"] == "CLIP-Clique")
+    row = table_rows(text, "CLIP-Clique")[0]
+    assert float(row[5]) == pytest.approx(100 * clipclique["summary"]["success@1"], abs=0.05)
+    assert float(row[1]) == pytest.approx(clipclique["summary"]["precision"], abs=0.005)
+    for record in records:
+        assert 0.0 <= record["summary"]["success@1"] <= record["summary"]["success@5"] <= 1.0
+        if record["stochastic"]:  # best of three seeds, and the spread spans them
+            top1 = [s["success@1"] for s in record["per_seed"]]
+            assert record["seeds"] == [0, 1, 2] and record["summary"]["success@1"] == max(top1)
+            assert record["spread"]["success@1"] == [min(top1), max(top1)]
+    for curve in results["scalability"].values():
+        assert [r["landmarks"] > 0 for r in curve["rows"]] == [True] * 3
+        assert curve["rows"][0]["landmarks"] < curve["rows"][-1]["landmarks"]
+
+
+def test_quick_plots_are_real_pngs(quick_run):
+    for name in ("methods.png", "alpha.png", "scalability.png"):
+        with Image.open(quick_run / name) as image:
+            assert image.format == "PNG" and image.width > 300 and image.height > 200
+            assert np.asarray(image.convert("L")).std() > 5  # not a blank canvas
+
+
+def test_curve_recovers_a_quadratic_through_the_papers_point():
+    rows = [{"landmarks": n, "median_ms": 1000.0 * (n / 410) ** 2, "median_total_ms": 1000.0 * (n / 410) ** 2}
+            for n in (50, 100, 200, 500, 1000)]
+    fitted = bench.curve(rows)
+    assert fitted["exponent_total"] == pytest.approx(2.0)
+    assert fitted["landmarks_at_1s"] == pytest.approx(410, rel=1e-6)
+    assert fitted["ms_at_paper_size"] == pytest.approx(1000.0)
+    assert report.global_claims({"scalability": {"scene": fitted}})[0][2] == "agrees"
+    slow = bench.curve([r | {"median_total_ms": 0.01 * r["landmarks"]} for r in rows])
+    assert slow["landmarks_at_1s"] is None and slow["exponent_total"] == pytest.approx(1.0)
+    assert report.global_claims({"scalability": {"scene": slow}})[0][2].startswith("**disagrees**")
+
+
+def test_claims_say_plainly_when_ours_disagree():
+    def record(group: str, label: str, top1: float, descriptor: str | None = None) -> dict:
+        summary = {"success@1": top1, "similarity_true_mean": {"clip": 0.41, "sh": 0.2}.get(descriptor, 0.5)}
+        return {"group": group, "label": label, "summary": summary,
+                "overrides": {"similarity.descriptor": descriptor} if descriptor else {}}
+
+    results = {"sequences": {"s": {"frames": 10}}, "experiments": {"s": [
+        record("methods", "CLIP-Clique", 0.5), record("methods", "SH", 0.7),
+        record("inliers", "Maximal cliques", 0.8), record("inliers", "RANSAC", 0.6),
+        record("weights", "w_sim * w_com", 0.5), record("weights", "none", 0.5),
+        record("descriptors", "SH", 0.1, "sh"), record("descriptors", "CLIP", 0.2, "clip"),
+        record("descriptors", "SH + CLIP", 0.3, "fused"),
+    ]}}
+    verdicts = {claim: verdict for claim, _, verdict in report.sequence_claims(results, "s")}
+    assert verdicts["CLIP-Clique beats every baseline"] == "**disagrees**"
+    assert verdicts["Maximal cliques beat RANSAC and PROSAC"] == "agrees"
+    assert verdicts["Pose weights help (w_sim * w_com best)"] == "ties"
+    assert verdicts["Adaptive matching is best"] == "–"  # the group did not run
+    assert verdicts["SH + CLIP beats either descriptor alone"] == "agrees"
+    assert verdicts["True pairs: CLIP similarity near 0.4, SH near 0.8"] == "**disagrees**"  # SH 0.2, not ~0.8

@@ -1,0 +1,394 @@
+"""`make bench`: the paper's experiments on every available sequence, written up as a report.
+
+    .venv/bin/python tools/bench.py                          # demo, demo_tum, real sequences with a map
+    .venv/bin/python tools/bench.py --sequences demo --quick --out /tmp/bench
+
+Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
+are cached and every configuration (Table I's four methods, the ablations, the alpha sweep)
+localizes the cached observations. The algorithm costs milliseconds per frame, the detector and
+the encoder far more, so this is what lets the suite finish in minutes.
+
+Stochastic configurations (RANSAC, PROSAC, X-View's random walks) run with three seeds; tables
+give the best seed, as the paper does, and the spread over the seeds. Scalability reuses
+`bench_core.scalability` (a synthetic room copied side by side). The GPU section times ViT-L-14
+and YOLOv8x-seg with random weights when CUDA is available, and says why not otherwise.
+Output: `outputs/bench/<UTC timestamp>/` with report.md, PNG plots and results.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("YOLO_AUTOINSTALL", "false")):
+    os.environ.setdefault(_variable, _value)
+
+import numpy as np  # noqa: E402
+from rich.console import Console  # noqa: E402
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
+
+from bench_core import ALGORITHM, growth_exponent, scalability  # noqa: E402
+from clipclique.config import METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
+from clipclique.datasets import demo, resolve_data_root  # noqa: E402
+from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
+from clipclique.pipeline import MapIndex, index_map, localize  # noqa: E402
+from clipclique.synthetic import duplicate_rooms  # noqa: E402
+from clipclique.types import Map, Observations, Pose  # noqa: E402
+from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
+
+import report  # noqa: E402
+from report import PAPER_LANDMARKS_AT_1S  # noqa: E402
+
+SEEDS = (0, 1, 2)  # stochastic configurations: best of three, as the paper
+ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))
+SCALABILITY_COUNTS = (50, 100, 200, 500, 1000, 2000, 5000)
+QUICK_COUNTS = (50, 200, 1000)
+SCENE_REPEAT = 3  # scene-copies scalability: each query's fastest of this many runs
+QUICK_FRAMES = 6
+Tick = Callable[[], None]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One configuration of the experiments: a method preset plus dotted-key overrides."""
+
+    group: str  # "methods" | "descriptors" | "inliers" | "weights" | "matching" | "alpha"
+    label: str
+    method: str = "clipclique"
+    overrides: tuple[tuple[str, Any], ...] = ()
+
+    def config(self, seed: int = 0) -> LocalizationConfig:
+        return make_config(self.method, overrides={**dict(self.overrides), "inliers.seed": seed,
+                                                   "graph.xview_seed": seed})
+
+    @property
+    def stochastic(self) -> bool:
+        config = self.config()
+        return config.inliers.method != "cliques" or config.similarity.descriptor == "xview"
+
+    @property
+    def needs_clip(self) -> bool:
+        return self.config().similarity.descriptor == "clip" or self.group == "alpha"
+
+
+def variants() -> list[Variant]:
+    """Table I, then each ablation changing one part of CLIP-Clique, then the alpha sweep."""
+    def one(group: str, key: str, settings: tuple[tuple[Any, str], ...]) -> list[Variant]:
+        return [Variant(group, label, overrides=((key, value),)) for value, label in settings]
+
+    return [
+        *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique")),
+        *one("descriptors", "similarity.descriptor", (("sh", "SH"), ("clip", "CLIP"), ("fused", "SH + CLIP"))),
+        *one("inliers", "inliers.method", (("ransac", "RANSAC"), ("prosac", "PROSAC"), ("cliques", "Maximal cliques"))),
+        *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"), ("both", "w_sim * w_com"))),
+        *one("matching", "matching.strategy", (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"), ("adaptive", "Adaptive"))),
+        *one("alpha", "similarity.alpha", tuple((a, f"{a:.1f}") for a in ALPHAS)),
+    ]
+
+
+@dataclass
+class CachedFrame:
+    index: int
+    observations: Observations
+    gt_pose: Pose | None
+
+
+@dataclass
+class CachedSequence:
+    """A sequence's map and query observations, computed once and localized by every configuration."""
+
+    name: str
+    map: Map
+    frames: list[CachedFrame]
+    description: dict[str, Any]  # data, detector, encoder, simulated parts: the report's provenance lines
+    query_ms: dict[str, float]  # median ms per frame of the detector, observation fit and encoder
+    indexes: dict[str, MapIndex] = field(default_factory=dict)
+    summaries: dict[str, tuple[dict[str, float], list[str]]] = field(default_factory=dict)
+
+    @property
+    def has_clip(self) -> bool:
+        return self.map.text_embeddings is not None and all(
+            f.observations.image_embeddings is not None for f in self.frames)
+
+
+def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
+    """The demos, plus every real ScanNet scene / TUM sequence under the data root whose map exists;
+    and the real ones left out, with why."""
+    names, skipped = list(demo.DEMO_SCENES), []
+    for folder in sorted([*(data_root / "scannet" / "scans").glob("scene*_*"), *(data_root / "tum").glob("rgbd_dataset_*")]):
+        if (MAP_DIR / f"{folder.name}.map.npz").is_file():
+            names.append(folder.name)
+        else:
+            skipped.append(f"{folder.name}: no map (build it with `clipclique-map build {folder.name}`)")
+    return names, skipped
+
+
+def ensure_demo_map(name: str, data_root: Path | None) -> None:
+    """Build a demo map with clipclique-map when it is missing (the demo data is generated on first use)."""
+    if name in demo.DEMO_SCENES and not (MAP_DIR / f"{name}.map.npz").is_file():
+        command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
+        subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), check=True,
+                       stdout=subprocess.DEVNULL)
+
+
+def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> tuple[CachedSequence, Run]:
+    """Detect, fit and embed the selected frames once; `frames` spreads that many over the sequence."""
+    run = prepare(RunSettings(name, data_root=data_root, record=False))
+    if frames is not None:
+        run.settings = dataclasses.replace(run.settings, stride=max(1, len(run.sequence) // frames), max_frames=frames)
+    selected = selected_frames(run)
+    cached, timings = [], []
+    for i in selected:
+        frame = run.sequence[i]
+        seen = observe(run, frame)
+        cached.append(CachedFrame(frame.index, seen.observations, frame.pose))
+        timings.append(seen.timings)
+        tick(len(selected))
+    description = {
+        "sequence": run.sequence.name,
+        "kind": run.sequence.kind,
+        "synthetic": run.sequence.synthetic,
+        "frames": len(cached),
+        "sequence_frames": len(run.sequence),
+        "stride": run.settings.stride,
+        "landmarks": len(run.map),
+        "classes": len(run.map.class_names),
+        "detector": {"name": run.detector.name, "simulated": run.detector.simulated},
+        "encoder": None if run.encoder is None else {"name": run.encoder.name, "simulated": run.encoder.simulated},
+        "notes": run.notes,
+    }
+    query_ms = {stage: 1e3 * float(np.median([t[stage] for t in timings])) for stage in QUERY_STAGES}
+    return CachedSequence(name, run.map, cached, description, query_ms), run
+
+
+def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> tuple[dict[str, float], list[str]]:
+    """`metrics.summarize` over the cached frames localized with `config`, plus the mean similarity of
+    true pairs (same object) and of all other pairs; and the pipeline's notes. Memoized per config."""
+    key = json.dumps(config.to_dict(), sort_keys=True)
+    if key not in sequence.summaries:
+        index_key = json.dumps([config.similarity.descriptor, dataclasses.asdict(config.graph)], sort_keys=True)
+        if index_key not in sequence.indexes:
+            sequence.indexes[index_key] = index_map(sequence.map, config)
+        index = sequence.indexes[index_key]
+        evaluations, true, other, notes = [], [], [], {}
+        for frame in sequence.frames:
+            result = localize(frame.observations, index, config)
+            evaluations.append(evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config, frame.index))
+            ids = frame.observations.instance_ids
+            same = (ids[:, None] >= 0) & (ids[:, None] == sequence.map.instance_ids[None])
+            true.append(result.similarity[same])
+            other.append(result.similarity[~same])
+            notes.update(dict.fromkeys(result.notes))
+        summary = summarize(evaluations)
+        summary["similarity_true_mean"] = _mean(np.concatenate(true))
+        summary["similarity_other_mean"] = _mean(np.concatenate(other))
+        sequence.summaries[key] = (summary, list(notes))
+    return sequence.summaries[key]
+
+
+def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[str, Any]:
+    """The variant's summary on the sequence: best of SEEDS when stochastic, with the spread."""
+    record: dict[str, Any] = {"group": variant.group, "label": variant.label, "method": variant.method,
+                              "overrides": dict(variant.overrides), "stochastic": variant.stochastic}
+    if variant.needs_clip and not sequence.has_clip:
+        tick()
+        return record | {"skipped": "no CLIP embeddings on this sequence (no encoder or a map without text embeddings)"}
+    seeds = SEEDS if variant.stochastic else SEEDS[:1]
+    runs = []
+    for seed in seeds:
+        runs.append(evaluate(sequence, variant.config(seed)))
+        tick()
+    summaries = [summary for summary, _ in runs]
+    best = max(range(len(runs)), key=lambda i: tuple(np.nan_to_num(summaries[i][f"success@{k}"], nan=-1.0) for k in (1, 3, 5)))
+    record |= {"seeds": list(seeds), "best_seed": seeds[best], "summary": summaries[best], "notes": runs[best][1]}
+    if len(runs) > 1:
+        record["spread"] = {column: [min(s[column] for s in summaries), max(s[column] for s in summaries)]
+                            for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m")}
+        record["per_seed"] = summaries
+    return record
+
+
+def run_scalability(counts: tuple[int, ...], frames: int, scene: CachedSequence, tick: Tick) -> dict[str, Any]:
+    """Latency against landmark count: bench_core's synthetic rooms, and `scene`'s own map copied
+    side by side and queried with its cached frames (the paper's set-up), each with its fit."""
+    rows = []
+    for count in counts:
+        rows.extend(scalability([count], "clipclique", room=50, frames=frames))
+        tick()
+    return {
+        "scene": curve(scene_scalability(scene, counts, frames, tick)) | {
+            "sequence": scene.name, "room_landmarks": len(scene.map), "frames_per_count": min(frames, len(scene.frames)),
+            "fastest_of": SCENE_REPEAT},
+        "synthetic": curve(rows) | {"room_landmarks": 50, "frames_per_count": frames},
+    }
+
+
+def scene_scalability(sequence: CachedSequence, counts: tuple[int, ...], frames: int, tick: Tick,
+                      repeat: int = SCENE_REPEAT) -> list[dict]:
+    """Per count: the sequence's map copied round(count / N) times side by side
+    (`synthetic.duplicate_rooms`), `frames` cached queries localized with CLIP-Clique, each the
+    fastest of `repeat` runs (which damps the noise of a shared machine)."""
+    config = make_config("clipclique")
+    queries = sequence.frames[:: max(1, len(sequence.frames) // frames)][:frames]
+    rows = []
+    for count in counts:
+        map = duplicate_rooms(sequence.map, max(1, round(count / len(sequence.map))))
+        index = index_map(map, config)
+        results = [min((localize(frame.observations, index, config) for _ in range(repeat)),
+                       key=lambda result: sum(result.timings.values())) for frame in queries]
+        rows.append({
+            "landmarks": len(map),
+            "median_ms": 1e3 * float(np.median([sum(r.timings[s] for s in ALGORITHM) for r in results])),
+            "median_total_ms": 1e3 * float(np.median([sum(r.timings.values()) for r in results])),
+            "candidates": float(np.median([len(r.candidates) for r in results])),
+            "cliques": float(np.median([r.num_cliques for r in results])),
+            "cap_hits": sum(r.cap_hit is not None for r in results),
+        })
+        tick()
+    return rows
+
+
+def curve(rows: list[dict]) -> dict[str, Any]:
+    """Rows with their fitted growth exponents, the size that takes 1 s and the latency at the paper's size."""
+    tail = rows[-3:]
+    x = np.log([r["landmarks"] for r in rows])
+    y = np.log([max(r["median_total_ms"], 1e-6) for r in rows])
+    reached = y[-1] >= math.log(1000.0)
+    return {
+        "rows": rows,
+        "exponent_algorithm": growth_exponent(rows),
+        "exponent_algorithm_tail": growth_exponent(tail),
+        "exponent_total": growth_exponent(rows, "median_total_ms"),
+        "exponent_total_tail": growth_exponent(tail, "median_total_ms"),
+        "landmarks_at_1s": float(np.exp(np.interp(math.log(1000.0), np.maximum.accumulate(y), x))) if reached else None,
+        "ms_at_paper_size": float(np.exp(np.interp(math.log(PAPER_LANDMARKS_AT_1S), x, y))),
+    }
+
+
+def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3) -> dict[str, Any]:
+    """Median ms per frame of YOLOv8x-seg and ViT-L-14 (random weights: timing only) and the CPU fit.
+
+    Random weights detect nothing useful, so the masks the observation fit and the encoder work on
+    are the sequence's own detector's; YOLO's output is timed and discarded.
+    """
+    import open_clip
+    import torch
+    from ultralytics import YOLO
+
+    from clipclique.encoders import ClipEncoder
+    from localization.detectors import YoloDetector
+    from localization.observations import extract_observations
+
+    model, _, preprocess = open_clip.create_model_and_transforms("ViT-L-14", pretrained=None, device=device)
+    encoder = ClipEncoder(model, preprocess, open_clip.get_tokenizer("ViT-L-14"), "open_clip:ViT-L-14/random", device)
+    yolo = YoloDetector(YOLO("yolov8x-seg.yaml"), run.map.class_names, device=device)
+    synchronize = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
+    times: dict[str, list[float]] = {"detector": [], "observations": [], "encoder": []}
+    for count, i in enumerate(list(selected_frames(run))[: frames + warmup]):
+        frame = run.sequence[i]
+        clock = time.perf_counter()
+        yolo.detect(frame)
+        synchronize()
+        detector_s = time.perf_counter() - clock
+        detections = run.detector.detect(frame)
+        clock = time.perf_counter()
+        extraction = extract_observations(frame, detections)
+        observations_s = time.perf_counter() - clock
+        clock = time.perf_counter()
+        encoder.encode_images(extraction.crops)
+        synchronize()
+        if count >= warmup:
+            for stage, seconds in zip(times, (detector_s, observations_s, time.perf_counter() - clock)):
+                times[stage].append(seconds)
+    return {"device": torch.cuda.get_device_name() if device.startswith("cuda") else device,
+            "frames": len(times["detector"]), "warmup": warmup,
+            "stage_ms": {stage: 1e3 * float(np.median(values)) for stage, values in times.items()}}
+
+
+def machine() -> dict[str, Any]:
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).parent).stdout.strip()
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "python": platform.python_version(), "commit": commit or None}
+
+
+def cuda_available() -> bool:
+    try:
+        import torch
+    except ImportError:
+        return False
+    return torch.cuda.is_available()
+
+
+def _mean(values: np.ndarray) -> float:
+    return float(values.mean()) if values.size else math.nan
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sequences", nargs="+", help="default: demo, demo_tum and every real sequence with a map")
+    parser.add_argument("--quick", action="store_true", help=f"{QUICK_FRAMES} frames per sequence, small scalability run, no GPU")
+    parser.add_argument("--frames", type=int, help="frames per sequence, spread evenly [default: all]")
+    parser.add_argument("--data-root", type=Path, help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]")
+    parser.add_argument("--out", type=Path, help="report folder [default: outputs/bench/<UTC timestamp>]")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    started = time.perf_counter()
+    stamp = datetime.now(timezone.utc)
+    out = args.out or Path("outputs") / "bench" / stamp.strftime("%Y%m%d-%H%M%S")
+    frames = QUICK_FRAMES if args.quick and args.frames is None else args.frames
+    counts = QUICK_COUNTS if args.quick else SCALABILITY_COUNTS
+    names, skipped = (args.sequences, []) if args.sequences else available_sequences(resolve_data_root(args.data_root))
+    experiments = variants()
+    results: dict[str, Any] = {"created": stamp.isoformat(timespec="seconds"), "command": " ".join(sys.argv),
+                               "quick": args.quick, "machine": machine(), "skipped_sequences": skipped,
+                               "sequences": {}, "experiments": {}}
+    console = Console(stderr=True)
+    columns = (TextColumn("{task.description:<34}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as progress:
+        cached: dict[str, tuple[CachedSequence, Run]] = {}
+        for name in names:
+            ensure_demo_map(name, args.data_root)
+            task = progress.add_task(f"{name}: detect, fit, embed", total=None)
+            cached[name] = cache_sequence(name, args.data_root, frames,
+                                          lambda total, task=task: progress.update(task, advance=1, total=total))
+            results["sequences"][name] = cached[name][0].description | {"query_ms": cached[name][0].query_ms}
+        for name, (sequence, _) in cached.items():
+            work = sum(len(SEEDS) if v.stochastic else 1 for v in experiments)
+            task = progress.add_task(f"{name}: {len(experiments)} configurations", total=work)
+            tick = lambda task=task: progress.update(task, advance=1)  # noqa: E731
+            results["experiments"][name] = [run_variant(sequence, v, tick) for v in experiments]
+        task = progress.add_task("scalability (rooms side by side)", total=2 * len(counts))
+        results["scalability"] = run_scalability(counts, 3 if args.quick else 20, cached[names[0]][0],
+                                                 lambda: progress.update(task, advance=1))
+        results["gpu"] = {"ran": False, "reason": "--quick skips it" if args.quick else
+                          "torch.cuda.is_available() is False on this machine (CPU only)"}
+        if not args.quick and cuda_available():
+            first = next(iter(cached.values()))
+            task = progress.add_task("GPU: ViT-L-14 + YOLOv8x-seg", total=None)
+            results["gpu"] = {"ran": True, "sequence": first[0].name, **gpu_stages(first[1], frames=50)}
+            clipclique = next(r for r in results["experiments"][first[0].name] if r["label"] == METHOD_TITLES["clipclique"])
+            results["gpu"]["stage_ms"]["algorithm"] = clipclique["summary"]["time_ms_median"]
+            progress.update(task, total=1, completed=1)
+    results["wall_time_s"] = time.perf_counter() - started
+    report.write(results, out)
+    console.print(f"report: {out / 'report.md'} ({results['wall_time_s']:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,396 @@
+"""The benchmark report: Markdown tables laid out like the paper's, PNG plots, raw numbers as JSON.
+
+`write(results, out)` takes the dictionary tools/bench.py builds. Every table names the data it
+ran on and the parts that were simulated; the claims section compares our numbers with the
+paper's qualitative claims and says plainly where they disagree. Files are written to a staging
+folder and moved into place one by one, so each file in `out` is whole.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from localization.results import _finite as json_safe  # noqa: E402  (NaN -> null, numpy -> Python)
+
+PAPER_LANDMARKS_AT_1S = 410  # the paper: about 410 landmarks localized within 1 s, growing quadratically
+CLAIM_SCALE = f"About {PAPER_LANDMARKS_AT_1S} landmarks within 1 s, quadratic growth"
+PAPER_SIMILARITY = {"clip": 0.4, "sh": 0.8}  # the paper: CLIP similarities near 0.4 where SH reaches ~0.8
+ABLATIONS = {
+    "descriptors": "Descriptors (similarity.descriptor)",
+    "inliers": "Inlier extraction (inliers.method)",
+    "weights": "Pose weights (pose.weights)",
+    "matching": "Initial matching (matching.strategy)",
+}
+COLUMNS: list[tuple[str, str, Callable[[float], str]]] = [
+    ("Precision", "precision", lambda v: f"{v:.2f}"),
+    ("Recall", "recall", lambda v: f"{v:.2f}"),
+    ("TE [m]", "te_median_m", lambda v: f"{v:.2f}"),
+    ("RE [deg]", "re_median_deg", lambda v: f"{v:.1f}"),
+    ("Top-1 [%]", "success@1", lambda v: f"{100 * v:.1f}"),
+    ("Top-3 [%]", "success@3", lambda v: f"{100 * v:.1f}"),
+    ("Top-5 [%]", "success@5", lambda v: f"{100 * v:.1f}"),
+    ("Time [ms]", "time_ms_median", lambda v: f"{v:.1f}"),
+]
+PAPER_TABLE_NOTE = (
+    "The paper's published Table I values are not available offline (no copy of the paper or its "
+    "tables in this environment), so no per-method paper numbers stand beside ours; the only "
+    f"published figures cited in this report are about {PAPER_LANDMARKS_AT_1S} landmarks localized within 1 s "
+    "with quadratic growth, and CLIP similarities near 0.4 where Semantic Histogram similarities reach ~0.8.")
+
+
+def write(results: dict[str, Any], out: Path) -> None:
+    """report.md, methods.png, alpha.png, scalability.png and results.json into `out`."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=".bench-", dir=out))
+    try:
+        plots = [name for name, plot in (("methods.png", plot_methods), ("alpha.png", plot_alpha),
+                                         ("scalability.png", plot_scalability)) if plot(results, staging / name)]
+        (staging / "results.json").write_text(json.dumps(json_safe(results), indent=1, allow_nan=False))
+        (staging / "report.md").write_text(markdown(results, plots))
+        for path in staging.iterdir():
+            os.replace(path, out / path.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------------------------- text
+
+
+def markdown(results: dict[str, Any], plots: list[str]) -> str:
+    sections = [header(results), data_section(results), table_one(results), ablations(results),
+                alpha_section(results, "alpha.png" in plots), scalability_section(results, "scalability.png" in plots),
+                gpu_section(results), claims_section(results)]
+    if "methods.png" in plots:
+        sections.insert(3, "![Top-k success of the four methods](methods.png)\n")
+    return "\n".join(sections)
+
+
+def header(results: dict[str, Any]) -> str:
+    host = results["machine"]
+    quick = " **Quick mode: a handful of frames per sequence; numbers are a smoke test, not results.**" if results["quick"] else ""
+    return (
+        "# CLIP-Clique benchmark: the paper's experiments on the available sequences\n\n"
+        f"Generated {results['created']} by `{results['command']}` (commit {host['commit']}) on "
+        f"{host['cores']} CPU cores ({host['cpu']}, Python {host['python']}); the whole suite took "
+        f"**{results['wall_time_s']:.0f} s**.{quick} Timings come from a shared machine and are noisy.\n\n"
+        "Each sequence's frames went through the detector, the observation fit and the encoder once; every "
+        "configuration then localized the same cached observations. Stochastic configurations (RANSAC, PROSAC, "
+        "X-View's random walks; marked †) ran with three seeds: tables give the best seed, as the paper does, "
+        "and the Top-1 range over the seeds.\n\n"
+        "Columns: precision and recall of the top-1 hypothesis's correspondences (by object id); TE/RE: median "
+        "translation/rotation error of the top-1 pose over frames with a pose; Top-k: frames with a pose within "
+        "1 m among the k best (frames without a pose count as failures); Time: median matching + inliers + pose "
+        "per query.\n\n" + PAPER_TABLE_NOTE + "\n"
+    )
+
+
+def provenance(description: dict[str, Any]) -> str:
+    """One line: what the data is and which parts were simulated."""
+    data = (f"synthetic {description['kind']}-layout demo scene (procedural, ray-cast)" if description["synthetic"]
+            else f"real {description['kind']} data")
+    simulated = [f"{role} ({part['name']})" for role, part in (("detector", description["detector"]),
+                                                               ("CLIP", description["encoder"])) if part and part["simulated"]]
+    clip = "no CLIP (Semantic Histograms only)" if description["encoder"] is None else ""
+    parts = "; ".join(filter(None, [data, f"simulated: {', '.join(simulated)}" if simulated else "nothing simulated", clip]))
+    return f"{description['sequence']}: {description['frames']} frames, {description['landmarks']} landmarks; {parts}"
+
+
+def data_section(results: dict[str, Any]) -> str:
+    lines = ["## Data\n", "| Sequence | Data | Frames used | Landmarks | Detector | CLIP encoder | Detector / fit / encoder [ms per frame] |",
+             "|---|---|---|---|---|---|---|"]
+    for name, d in results["sequences"].items():
+        data = f"synthetic ({d['kind']} layout)" if d["synthetic"] else f"real ({d['kind']})"
+        detector = d["detector"]["name"] + (" **(simulated)**" if d["detector"]["simulated"] else "")
+        encoder = "none" if d["encoder"] is None else d["encoder"]["name"] + (" **(simulated)**" if d["encoder"]["simulated"] else "")
+        stages = " / ".join(f"{d['query_ms'][s]:.1f}" for s in ("detector", "observations", "encoder"))
+        lines.append(f"| {name} | {data} | {d['frames']} of {d['sequence_frames']} (stride {d['stride']}) | "
+                     f"{d['landmarks']} ({d['classes']} classes) | {detector} | {encoder} | {stages} |")
+    if results["skipped_sequences"]:
+        lines += ["", "Left out: " + "; ".join(results["skipped_sequences"]) + "."]
+    if any(d["synthetic"] for d in results["sequences"].values()):
+        lines += ["", "On the demo the detector is the simulated one (ground-truth instances with seeded misses, false "
+                  "positives and class confusions) and CLIP is the simulated encoder (text and image embeddings "
+                  "of a documented model with known ground truth): their numbers test the pipeline, not CLIP or YOLO."]
+    return "\n".join(lines) + "\n"
+
+
+def rows_of(results: dict[str, Any], name: str, group: str) -> list[dict[str, Any]]:
+    return [r for r in results["experiments"][name] if r["group"] == group]
+
+
+def metric_row(record: dict[str, Any], first: list[str], extra: list[str] = ()) -> str:
+    """A table row of the paper's columns, or a row saying why the configuration did not run."""
+    label = record["label"] + (" †" if record["stochastic"] else "")
+    if "skipped" in record:
+        return "| " + " | ".join([*first, label, f"not run: {record['skipped']}", *[""] * (len(COLUMNS) + len(extra))]) + " |"
+    summary = record["summary"]
+    cells = [fmt(summary[key], style) for _, key, style in COLUMNS]
+    spread = record.get("spread", {}).get("success@1")
+    cells.append(f"{100 * spread[0]:.1f}–{100 * spread[1]:.1f}" if spread else "–")
+    return "| " + " | ".join([*first, label, *cells, *extra]) + " |"
+
+
+def table_head(first: list[str], extra: list[str] = ()) -> str:
+    names = [*first, *(title for title, _, _ in COLUMNS), "Top-1 over seeds [%]", *extra]
+    return "| " + " | ".join(names) + " |\n|" + "---|" * len(names)
+
+
+def table_one(results: dict[str, Any]) -> str:
+    parts = ["## Table I: CLIP-Clique and the baselines\n"]
+    for name, description in results["sequences"].items():
+        parts += [f"**{provenance(description)}.**\n", table_head(["Method"])]
+        parts += [metric_row(r, []) for r in rows_of(results, name, "methods")]
+        parts.append("")
+    return "\n".join(parts)
+
+
+def ablations(results: dict[str, Any]) -> str:
+    parts = ["## Ablations (one part of CLIP-Clique changed at a time)\n",
+             "Data: " + "; ".join(provenance(d) for d in results["sequences"].values()) + ".\n"]
+    for group, title in ABLATIONS.items():
+        similarity = group == "descriptors"
+        extra = ["Similarity, true pairs", "Similarity, other pairs"] if similarity else []
+        parts += [f"### {title}\n", table_head(["Sequence", "Setting"], extra)]
+        for name in results["sequences"]:
+            for record in rows_of(results, name, group):
+                values = [fmt(record["summary"][f"similarity_{k}_mean"], lambda v: f"{v:.2f}") for k in ("true", "other")] \
+                    if similarity and "summary" in record else [""] * len(extra)
+                parts.append(metric_row(record, [name], values))
+        parts.append("")
+    return "\n".join(parts)
+
+
+def alpha_section(results: dict[str, Any], plotted: bool) -> str:
+    names = list(results["sequences"])
+    lines = ["## Alpha sweep: S = alpha * S_clip + (1 - alpha) * S_sh\n",
+             "Top-1 success rate [%] of CLIP-Clique per sequence; the paper's default is alpha = 0.7. Data: "
+             + "; ".join(provenance(results["sequences"][n]) for n in names) + ".\n",
+             "| alpha | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    per_sequence = {n: rows_of(results, n, "alpha") for n in names}
+    for i, alpha in enumerate(r["label"] for r in per_sequence[names[0]]):
+        cells = [fmt(per_sequence[n][i].get("summary", {}).get("success@1", math.nan), lambda v: f"{100 * v:.1f}") for n in names]
+        lines.append(f"| {alpha} | " + " | ".join(cells) + " |")
+    if plotted:
+        lines += ["", "![Top-1 success against alpha](alpha.png)"]
+    return "\n".join(lines) + "\n"
+
+
+def scalability_section(results: dict[str, Any], plotted: bool) -> str:
+    scene, synthetic = results["scalability"]["scene"], results["scalability"]["synthetic"]
+    lines = [
+        "## Scalability\n",
+        "CLIP-Clique's latency per query as the map grows from 50 to 5,000 landmarks, two ways. Copies are placed as "
+        "separate rooms side by side along x, 2 m apart (`clipclique.synthetic.duplicate_rooms`, copy j's object ids "
+        "offset so none repeats); copies stacked in one place would make every mix of copies a clique. Since every "
+        "copy looks alike, each query's candidates and cliques multiply with the copies.\n",
+        f"- **Scene copies (the paper's set-up)**: the {scene['sequence']} map ({scene['room_landmarks']} landmarks; "
+        f"{provenance(results['sequences'][scene['sequence']])}) copied round(count / {scene['room_landmarks']}) times, "
+        f"queried with {scene['frames_per_count']} of its cached frames (each the fastest of {scene['fastest_of']} runs).",
+        f"- **Synthetic rooms**: a **simulated** room of {synthetic['room_landmarks']} random labelled ellipsoids "
+        "(5 x 5 x 1.5 m, 8 classes, simulated CLIP), queried with 10 of its landmarks plus 2 false detections "
+        f"(`clipclique.synthetic`, `tools/bench_core.py`), {synthetic['frames_per_count']} queries per count.\n",
+        "Medians over the queries; \"whole query\" adds the query graph, descriptors and similarity to matching + "
+        "inliers + pose.\n",
+        "| Set-up | Landmarks | Candidates | Cliques | Matching + inliers + pose [ms] | Whole query [ms] | Caps hit |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for title, data in (("scene copies", scene), ("synthetic rooms", synthetic)):
+        lines += [f"| {title} | {r['landmarks']} | {r['candidates']:.0f} | {r['cliques']:.0f} | {r['median_ms']:.2f} | "
+                  f"{r['median_total_ms']:.2f} | {r['cap_hits']} |" for r in data["rows"]]
+    lines.append("")
+    for title, data in (("Scene copies", scene), ("Synthetic rooms", synthetic)):
+        lines.append(f"- {title}: fitted growth exponent (log-log slope) **{data['exponent_total']:.2f}** for the whole "
+                     f"query ({data['exponent_total_tail']:.2f} over the last three counts), "
+                     f"{data['exponent_algorithm']:.2f} for matching + inliers + pose "
+                     f"({data['exponent_algorithm_tail']:.2f}); {one_second(data)}.")
+    lines += ["", f"The paper reports about {PAPER_LANDMARKS_AT_1S} landmarks localized within 1 s, growing quadratically."]
+    if scene["exponent_total"] < 1.6:
+        lines[-1] += (" Ours grows far more slowly: the compatibility graph is built from a KD-tree's reach instead of "
+                      "testing all pairs of candidates (`clipclique/inliers.py`), and at these sizes fixed per-query "
+                      "costs still weigh heavily.")
+    if plotted:
+        lines += ["", "![Latency per query against landmark count, log-log](scalability.png)"]
+    return "\n".join(lines) + "\n"
+
+
+def one_second(data: dict[str, Any]) -> str:
+    if data["landmarks_at_1s"] is not None:
+        return f"a query takes 1 s at about {data['landmarks_at_1s']:,.0f} landmarks"
+    largest = data["rows"][-1]
+    return (f"{data['ms_at_paper_size']:.1f} ms at {PAPER_LANDMARKS_AT_1S} landmarks and "
+            f"{largest['median_total_ms']:.1f} ms at {largest['landmarks']:,}: never near 1 s")
+
+
+def gpu_section(results: dict[str, Any]) -> str:
+    gpu = results["gpu"]
+    lines = ["## GPU: end-to-end frames per second\n"]
+    if not gpu["ran"]:
+        return "\n".join(lines + [f"Not run: {gpu['reason']}. On a machine with CUDA, `make bench` times YOLOv8x-seg "
+                                  "and CLIP ViT-L-14 built with random weights (timing only) stage by stage; the "
+                                  "CPU timings of the stages that ran here are in the Data table."]) + "\n"
+    stages = dict(gpu["stage_ms"])
+    total = sum(stages.values())
+    lines += [f"On {gpu['device']}, {gpu['frames']} frames of {gpu['sequence']} after {gpu['warmup']} warm-up frames. "
+              "YOLOv8x-seg and ViT-L-14 have **random weights** (timing only): YOLO's output is discarded and the "
+              "observation fit and the encoder work on the sequence's own (simulated) detections. The algorithm row is "
+              "CLIP-Clique's median matching + inliers + pose from Table I (CPU).\n",
+              "| Stage | Median [ms per frame] |", "|---|---|"]
+    lines += [f"| {stage} | {ms:.1f} |" for stage, ms in stages.items()]
+    lines += [f"| **total** | **{total:.1f}** ({1000 / total:.1f} frames per second) |"]
+    return "\n".join(lines) + "\n"
+
+
+def claims_section(results: dict[str, Any]) -> str:
+    lines = ["## The paper's claims against our numbers\n",
+             "Top-1 success decides each comparison (ties are reported as ties). On the demo the detector and CLIP are "
+             "simulated, so an agreement or a disagreement here says how our implementation behaves on that data, "
+             "not whether the paper's results hold on ScanNet or TUM.\n",
+             "| Claim | Sequence | Ours | Verdict |", "|---|---|---|---|"]
+    for name in results["sequences"]:
+        for claim, ours, verdict in sequence_claims(results, name):
+            lines.append(f"| {claim} | {name} | {ours} | {verdict} |")
+    for claim, ours, verdict in global_claims(results):
+        lines.append(f"| {claim} | {results['scalability']['scene']['sequence']} copies | {ours} | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def sequence_claims(results: dict[str, Any], name: str) -> list[tuple[str, str, str]]:
+    checks = [
+        ("CLIP-Clique beats every baseline", "methods", "CLIP-Clique"),
+        ("Maximal cliques beat RANSAC and PROSAC", "inliers", "Maximal cliques"),
+        ("Pose weights help (w_sim * w_com best)", "weights", "w_sim * w_com"),
+        ("Adaptive matching is best", "matching", "Adaptive"),
+        ("SH + CLIP beats either descriptor alone", "descriptors", "SH + CLIP"),
+    ]
+    out = []
+    for claim, group, winner in checks:
+        top1 = {r["label"]: r["summary"]["success@1"] for r in rows_of(results, name, group) if "summary" in r}
+        if winner not in top1 or len(top1) < 2:
+            out.append((claim, "not testable here (a configuration did not run)", "–"))
+            continue
+        rivals = {label: v for label, v in top1.items() if label != winner}
+        best_rival = max(rivals, key=rivals.get)
+        ours = f"{winner} {100 * top1[winner]:.1f}% vs {best_rival} {100 * rivals[best_rival]:.1f}% (Top-1)"
+        frames = results["sequences"][name]["frames"]
+        gap = round(frames * abs(top1[winner] - rivals[best_rival]))
+        ours += f", {gap} of {frames} frames apart" if gap else ""
+        out.append((claim, ours, verdict(top1[winner], rivals[best_rival])))
+    sims = {r["overrides"]["similarity.descriptor"]: r["summary"] for r in rows_of(results, name, "descriptors") if "summary" in r}
+    if {"clip", "sh"} <= sims.keys():
+        clip, sh = sims["clip"]["similarity_true_mean"], sims["sh"]["similarity_true_mean"]
+        agrees = abs(clip - PAPER_SIMILARITY["clip"]) < 0.15 and abs(sh - PAPER_SIMILARITY["sh"]) < 0.15
+        out.append(("True pairs: CLIP similarity near 0.4, SH near 0.8", f"CLIP {clip:.2f}, SH {sh:.2f} (mean over true pairs)",
+                    "agrees" if agrees else "**disagrees**"))
+    return out
+
+
+def global_claims(results: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The scalability claim against the scene-copies curve (the paper's set-up)."""
+    scene = results["scalability"]["scene"]
+    near = scene["landmarks_at_1s"] is not None and 0.5 <= scene["landmarks_at_1s"] / PAPER_LANDMARKS_AT_1S <= 2
+    quadratic = 1.6 <= scene["exponent_total"] <= 2.4
+    faster = scene["ms_at_paper_size"] < 500
+    ours = f"{one_second(scene)}; exponent {scene['exponent_total']:.2f}"
+    if near and quadratic:
+        return [(CLAIM_SCALE, ours, "agrees")]
+    return [(CLAIM_SCALE, ours, "**disagrees**" + (" (ours is faster and grows more slowly)" if faster and not quadratic else ""))]
+
+
+def verdict(ours: float, rival: float) -> str:
+    if math.isnan(ours) or math.isnan(rival):
+        return "–"
+    if math.isclose(ours, rival):
+        return "ties"
+    return "agrees" if ours > rival else "**disagrees**"
+
+
+def fmt(value: float | None, style: Callable[[float], str]) -> str:
+    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else style(value)
+
+
+# --------------------------------------------------------------------------------------------- plots
+
+
+def plot_methods(results: dict[str, Any], path: Path) -> bool:
+    """Grouped bars: Top-1/3/5 success of each method, one panel per sequence."""
+    names = list(results["sequences"])
+    figure, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 3.6), squeeze=False, sharey=True)
+    for axis, name in zip(axes[0], names):
+        rows = [r for r in rows_of(results, name, "methods") if "summary" in r]
+        x = np.arange(len(rows))
+        for offset, k in zip((-0.27, 0.0, 0.27), (1, 3, 5)):
+            axis.bar(x + offset, [100 * np.nan_to_num(r["summary"][f"success@{k}"]) for r in rows], 0.26, label=f"Top-{k}")
+        axis.set_xticks(x, [r["label"] for r in rows])
+        axis.set_title(f"{name} ({simulated_tag(results['sequences'][name])})", fontsize=9)
+        axis.set_ylim(0, 100)
+        axis.grid(axis="y", alpha=0.3)
+    axes[0][0].set_ylabel("success rate [%]")
+    axes[0][0].legend(fontsize=8)
+    return save(figure, path)
+
+
+def plot_alpha(results: dict[str, Any], path: Path) -> bool:
+    figure, axis = plt.subplots(figsize=(5.5, 3.6))
+    plotted = False
+    for name, description in results["sequences"].items():
+        rows = [r for r in rows_of(results, name, "alpha") if "summary" in r]
+        if rows:
+            axis.plot([float(r["label"]) for r in rows], [100 * np.nan_to_num(r["summary"]["success@1"]) for r in rows],
+                      marker="o", label=f"{name} ({simulated_tag(description)})")
+            plotted = True
+    if not plotted:
+        plt.close(figure)
+        return False
+    axis.axvline(0.7, color="grey", linestyle=":", label="paper default 0.7")
+    axis.set(xlabel="alpha (0 = SH only, 1 = CLIP only)", ylabel="Top-1 success [%]", ylim=(0, 100), xlim=(-0.02, 1.02))
+    axis.grid(alpha=0.3)
+    axis.legend(fontsize=8)
+    return save(figure, path)
+
+
+def plot_scalability(results: dict[str, Any], path: Path) -> bool:
+    """Whole-query latency of both set-ups on log axes, with the paper's quadratic for reference."""
+    figure, axis = plt.subplots(figsize=(6, 4))
+    for key, label in (("scene", f"{results['scalability']['scene']['sequence']} copies"), ("synthetic", "synthetic rooms (simulated)")):
+        data = results["scalability"][key]
+        n = [r["landmarks"] for r in data["rows"]]
+        axis.loglog(n, [r["median_total_ms"] for r in data["rows"]], marker="o",
+                    label=f"{label}, whole query (slope {data['exponent_total']:.2f})")
+        axis.loglog(n, [r["median_ms"] for r in data["rows"]], marker=".", linestyle=":",
+                    label=f"{label}, matching + inliers + pose (slope {data['exponent_algorithm']:.2f})")
+    n = np.geomspace(50, 5000, 20)
+    axis.loglog(n, 1000.0 * (n / PAPER_LANDMARKS_AT_1S) ** 2, "k--", alpha=0.5,
+                label=f"quadratic through the paper's ~{PAPER_LANDMARKS_AT_1S} landmarks at 1 s")
+    axis.plot([PAPER_LANDMARKS_AT_1S], [1000.0], "k*", markersize=10)
+    axis.set(xlabel="landmarks in the map", ylabel="median latency per query [ms]")
+    axis.set_title("CLIP-Clique scalability: copies side by side", fontsize=9)
+    axis.grid(which="both", alpha=0.3)
+    axis.legend(fontsize=6.5)
+    return save(figure, path)
+
+
+def simulated_tag(description: dict[str, Any]) -> str:
+    parts = [role for role, part in (("detector", description["detector"]), ("CLIP", description["encoder"]))
+             if part and part["simulated"]]
+    return f"simulated {' + '.join(parts)}" if parts else "nothing simulated"
+
+
+def save(figure: plt.Figure, path: Path) -> bool:
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
+    return True

@@ -17,6 +17,7 @@ from clipclique.graph import semantic_graph
 from clipclique.types import Detections
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import encode_depth_png, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.localization_recording import thinned
 from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness
 
@@ -124,6 +125,13 @@ def test_graph_edges_are_the_semantic_graph():
     expected = {tuple(pair) for pair in np.argwhere(np.triu(semantic_graph(centers, 0.8).toarray(), 1))}
     assert {tuple(edge) for edge in edges} == expected and len(expected) > 5
     assert np.all(np.linalg.norm(centers[edges[:, 0]] - centers[edges[:, 1]], axis=1) < 0.8)
+
+
+def test_trajectories_are_thinned_to_a_bound():
+    np.testing.assert_array_equal(thinned(4, limit=10), [0, 1, 2, 3])
+    many = thinned(1001, limit=300)
+    assert len(many) == 300 and many[0] == 0 and many[-1] == 1000
+    assert np.diff(many).max() <= 4  # evenly spread: no gap much over 1000 / 300
 
 
 def test_match_colors_green_right_red_wrong_grey_unknown():

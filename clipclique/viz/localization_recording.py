@@ -35,6 +35,7 @@ UNIX_TIME_MIN = 1e9  # TUM stamps are Unix seconds (> 2001); ScanNet's are frame
 GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
 LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
+TRAJECTORY_POINTS = 300  # trajectories are re-logged each frame, thinned to this many points
 
 
 class LocalizationRecorder:
@@ -42,12 +43,12 @@ class LocalizationRecorder:
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
         self.map = map
+        self._ranks_shown = 0  # hypotheses drawn by some earlier frame
         self._gt_positions: list[np.ndarray] = []
+        self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
+        self._estimate_correct: list[int] = []  # match_correctness code of each estimate
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
-        self._ranks_shown = 0
-        self._estimate_positions: list[np.ndarray] = []
-        self._estimate_correct: list[int] = []
         log_map(self.stream, map, d_adj)
         self.stream.log(
             "description",
@@ -63,6 +64,7 @@ class LocalizationRecorder:
         result: LocalizationResult,
         evaluation: FrameEvaluation | None,
     ) -> None:
+        """Log one localized frame; `evaluation` is None without ground truth."""
         self.stream.set_time("frame", sequence=frame.index)
         if frame.timestamp >= UNIX_TIME_MIN:
             self.stream.set_time("time", timestamp=frame.timestamp)
@@ -113,16 +115,18 @@ class LocalizationRecorder:
 
         if frame.pose is not None:
             self._gt_positions.append(frame.pose.translation)
-            self.stream.log("world/trajectory/gt", rr.LineStrips3D([self._gt_positions], colors=GT_CAMERA))
+            path = np.array(self._gt_positions)[thinned(len(self._gt_positions))]
+            self.stream.log("world/trajectory/gt", rr.LineStrips3D([path], colors=GT_CAMERA))
         if result.hypotheses:
             success = evaluation.success.get(1) if evaluation is not None else None
             self._estimate_positions.append(result.hypotheses[0].pose.translation)
             self._estimate_correct.append(-1 if success is None else int(success))
+            keep = thinned(len(self._estimate_positions))
             self.stream.log(
                 "world/trajectory/estimate",
                 rr.Points3D(
-                    self._estimate_positions,
-                    colors=correctness_colors(np.array(self._estimate_correct)),
+                    np.array(self._estimate_positions)[keep],
+                    colors=correctness_colors(np.array(self._estimate_correct)[keep]),
                     radii=rr.Radius.ui_points(4.0),
                 ),
             )
@@ -226,3 +230,9 @@ class LocalizationRecorder:
         """Remove ranks a previous frame drew but this one has no hypothesis for."""
         for rank in range(shown + 1, self._ranks_shown + 1):
             self.stream.log(f"{parent}/{rank}", rr.Clear(recursive=True))
+
+
+def thinned(count: int, limit: int = TRAJECTORY_POINTS) -> np.ndarray:
+    """Indices of at most `limit` of `count` trajectory points, evenly spread, first and last kept:
+    a trajectory re-logged every frame then costs O(frames), not O(frames^2)."""
+    return np.unique(np.linspace(0, count - 1, min(count, limit)).round().astype(np.int64))

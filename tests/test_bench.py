@@ -60,7 +60,7 @@ def test_quick_report_has_every_row_with_numbers(quick_run):
     alpha = section(text, "Alpha sweep")
     assert [0.0 <= float(table_rows(alpha, label)[0][1]) <= 100.0 for label in GROUP_LABELS["alpha"]] == [True] * 11
     assert "simulated: detector (simulated), CLIP (simulated-clip)" in text
-    assert "Quick mode" in text and "Not run: --quick skips it" in text
+    assert "Quick mode" in text and "Not run: --quick skips it" in text and "checks agree" in text
 
 
 def test_quick_report_matches_its_json(quick_run):
@@ -124,3 +124,19 @@ def test_claims_say_plainly_when_ours_disagree():
     assert verdicts["Adaptive matching is best"] == "–"  # the group did not run
     assert verdicts["SH + CLIP beats either descriptor alone"] == "agrees"
     assert verdicts["True pairs: CLIP similarity near 0.4, SH near 0.8"] == "**disagrees**"  # SH 0.2, not ~0.8
+
+
+def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    for folder in ("data/scannet/scans/scene0001_00", "data/scannet/scans/scene0002_00", "data/tum/rgbd_dataset_freiburg2_desk"):
+        (tmp_path / folder).mkdir(parents=True)
+    (tmp_path / "outputs" / "maps").mkdir(parents=True)
+    (tmp_path / "outputs" / "maps" / "scene0002_00.map.npz").touch()
+    names, skipped = bench.available_sequences(Path("data"))
+    assert names == ["demo", "demo_tum", "scene0002_00"]
+    assert [s.split(":")[0] for s in skipped] == ["scene0001_00", "rgbd_dataset_freiburg2_desk"]
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(["--sequences", "scene0001_00", "--quick", "--out", "report"])
+    assert exit_info.value.code == 2
+    assert "no map of scene0001_00; build it with `clipclique-map build scene0001_00`" in capsys.readouterr().err
+    assert not (tmp_path / "report").exists()

@@ -42,6 +42,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from bench_core import ALGORITHM, growth_exponent, scalability  # noqa: E402
 from clipclique.config import METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
 from clipclique.datasets import demo, resolve_data_root  # noqa: E402
+from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
 from clipclique.pipeline import MapIndex, index_map, localize  # noqa: E402
 from clipclique.synthetic import duplicate_rooms  # noqa: E402
@@ -135,12 +136,17 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     return names, skipped
 
 
-def ensure_demo_map(name: str, data_root: Path | None) -> None:
-    """Build a demo map with clipclique-map when it is missing (the demo data is generated on first use)."""
-    if name in demo.DEMO_SCENES and not (MAP_DIR / f"{name}.map.npz").is_file():
-        command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
-        subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), check=True,
-                       stdout=subprocess.DEVNULL)
+def ensure_map(name: str, data_root: Path | None) -> None:
+    """Build a missing demo map with clipclique-map (the demo data is generated on first use);
+    a missing map of any other sequence is the user's to build."""
+    path = MAP_DIR / f"{Path(name).name}.map.npz"
+    if path.is_file():
+        return
+    if name not in demo.DEMO_SCENES:
+        raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
+    command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
+    subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), check=True,
+                   stdout=subprocess.DEVNULL)
 
 
 def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> tuple[CachedSequence, Run]:
@@ -347,7 +353,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the suite; a user mistake (unknown sequence, missing map) is one line on stderr and exit 2."""
     args = parse_args(argv)
+    try:
+        run_suite(args)
+    except ClipcliqueError as error:
+        print(f"bench: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def run_suite(args: argparse.Namespace) -> None:
     started = time.perf_counter()
     stamp = datetime.now(timezone.utc)
     out = args.out or Path("outputs") / "bench" / stamp.strftime("%Y%m%d-%H%M%S")
@@ -363,7 +378,7 @@ def main(argv: list[str] | None = None) -> None:
     with Progress(*columns, console=console) as progress:
         cached: dict[str, tuple[CachedSequence, Run]] = {}
         for name in names:
-            ensure_demo_map(name, args.data_root)
+            ensure_map(name, args.data_root)
             task = progress.add_task(f"{name}: detect, fit, embed", total=None)
             cached[name] = cache_sequence(name, args.data_root, frames,
                                           lambda total, task=task: progress.update(task, advance=1, total=total))

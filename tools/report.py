@@ -71,11 +71,11 @@ def write(results: dict[str, Any], out: Path) -> None:
 
 
 def markdown(results: dict[str, Any], plots: list[str]) -> str:
-    sections = [header(results), data_section(results), table_one(results), ablations(results),
+    sections = [header(results), summary_section(results), data_section(results), table_one(results), ablations(results),
                 alpha_section(results, "alpha.png" in plots), scalability_section(results, "scalability.png" in plots),
                 gpu_section(results), claims_section(results)]
     if "methods.png" in plots:
-        sections.insert(3, "![Top-k success of the four methods](methods.png)\n")
+        sections.insert(4, "![Top-k success of the four methods](methods.png)\n")
     return "\n".join(sections)
 
 
@@ -96,6 +96,26 @@ def header(results: dict[str, Any]) -> str:
         "1 m among the k best (frames without a pose count as failures); Time: median matching + inliers + pose "
         "per query.\n\n" + PAPER_TABLE_NOTE + "\n"
     )
+
+
+def summary_section(results: dict[str, Any]) -> str:
+    """The headline: CLIP-Clique against the best method per sequence, and how the paper's claims fared."""
+    lines = ["## Summary\n"]
+    for name, description in results["sequences"].items():
+        methods = {r["label"]: r["summary"] for r in rows_of(results, name, "methods") if "summary" in r}
+        best = max(methods, key=lambda label: np.nan_to_num(methods[label]["success@1"], nan=-1.0))
+        ours = methods.get("CLIP-Clique")
+        headline = "CLIP-Clique did not run" if ours is None else (
+            f"CLIP-Clique Top-1 {100 * ours['success@1']:.1f}%, Top-5 {100 * ours['success@5']:.1f}%, median TE "
+            f"{fmt(ours['te_median_m'], lambda v: f'{v:.2f}')} m, {ours['time_ms_median']:.1f} ms per query; "
+            f"best Top-1: {best} {100 * methods[best]['success@1']:.1f}%")
+        lines.append(f"- **{name}** ({simulated_tag(description)}): {headline}.")
+    verdicts = [v for name in results["sequences"] for _, _, v in sequence_claims(results, name)]
+    verdicts += [v for _, _, v in global_claims(results)]
+    counts = {word: sum(v.removeprefix("**").startswith(word) for v in verdicts) for word in ("agrees", "disagrees", "ties")}
+    lines.append(f"- The paper's claims (see the last section): {counts['agrees']} checks agree, "
+                 f"**{counts['disagrees']} disagree**, {counts['ties']} tie.")
+    return "\n".join(lines) + "\n"
 
 
 def provenance(description: dict[str, Any]) -> str:

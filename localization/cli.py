@@ -63,13 +63,13 @@ def run(
 
     from localization.results import run_and_save
     from localization.run import RunSettings
-    from localization.tables import print_documents
+    from localization.tables import make_console, print_documents
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd)
-    console = Console()
+    console = make_console()
     with _user_errors(), Progress(console=Console(stderr=True), transient=True) as progress:
         task = progress.add_task(f"{sequence} / {method.value}", total=None)
         document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
@@ -83,14 +83,12 @@ def run(
 @app.command()
 def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
     """One table of several runs (e.g. outputs/loc/demo/*)."""
-    from rich.console import Console
-
     from localization.results import read_results
-    from localization.tables import print_documents
+    from localization.tables import make_console, print_documents
 
     with _user_errors():
         documents = [read_results(p / "results.json" if p.is_dir() else p) for p in results]
-    print_documents(Console(), documents)
+    print_documents(make_console(), documents)
 
 
 class _user_errors:

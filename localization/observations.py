@@ -28,7 +28,7 @@ class ObservationParams:
     max_depth: float = 8.0  # metres: farther depth is unreliable on consumer RGB-D sensors
     border_px: int = 8  # a mask is truncated when it comes this close to the image border
     max_border_fraction: float = 0.5  # ... and dropped when more of it lies in that band (a sliver)
-    fit: FitParams = field(default_factory=FitParams)
+    fit: FitParams = field(default_factory=lambda: FitParams(max_points=5000))  # one view is dense: 5000 suffice
 
 
 @dataclass
@@ -49,7 +49,7 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     band[params.border_px:height - params.border_px, params.border_px:width - params.border_px] = False
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated = [], [], []
-    for k, mask in enumerate(detections.masks):
+    for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
         pixels = int(mask.sum())
         in_band = int((mask & band).sum())
         if pixels < params.min_mask_pixels:
@@ -58,8 +58,7 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
         if in_band > params.max_border_fraction * pixels:
             dropped["border sliver"] += 1
             continue
-        eroded = ndimage.binary_erosion(mask, iterations=params.erode_px) if params.erode_px else mask
-        points = backproject(depth, frame.intrinsics, eroded if eroded.sum() >= params.min_mask_pixels else mask)
+        points = backproject(*_masked_window(depth, frame.intrinsics, mask, box, params))
         if len(points) < params.fit.min_points:
             dropped["invalid depth"] += 1
             continue
@@ -75,6 +74,20 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
                                 detections.instance_ids[index], index)
     crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
     return Extraction(observations, crops, np.array(truncated, bool), dict(dropped))
+
+
+def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,
+                   params: ObservationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(depth, intrinsics, eroded mask) cut to the detection's box: erosion over the box, not the image."""
+    height, width = depth.shape
+    pad = params.erode_px + 1
+    x0, y0 = np.clip(np.floor(box[:2]).astype(int) - pad, 0, None)
+    x1, y1 = np.minimum(np.ceil(box[2:]).astype(int) + pad, (width, height))
+    window = mask[y0:y1, x0:x1]
+    eroded = ndimage.binary_erosion(window, iterations=params.erode_px) if params.erode_px else window
+    shifted = intrinsics.copy()
+    shifted[:2, 2] -= (x0, y0)
+    return depth[y0:y1, x0:x1], shifted, eroded if eroded.sum() >= params.min_mask_pixels else window
 
 
 def crop(rgb: np.ndarray, box: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import Sequence, open_sequence
 from clipclique.encoders import Encoder, load_encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
+from clipclique.mapfile import load_map
 from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.types import Detections, Frame, Map, Observations, Pose
@@ -93,8 +94,6 @@ def prepare(settings: RunSettings) -> Run:
     if not map_path.is_file():
         raise MapFileError(f"{map_path}: no map; build it with `clipclique-map build {settings.sequence}` "
                            "or pass --map PATH")
-    from clipclique.mapfile import load_map
-
     map = load_map(map_path)
     sequence = open_sequence(settings.sequence, settings.data_root)
     notes: list[str] = []
@@ -109,9 +108,6 @@ def prepare(settings: RunSettings) -> Run:
     if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
-    for part in (detector, encoder):
-        if part is not None and part.simulated:
-            notes.append(f"{part.name} is simulated (a stand-in with known ground truth)")
     return Run(settings, config, sequence, map, detector, encoder, notes)
 
 

@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from localization.results import ALL_STAGES
+
+
+def make_console() -> Console:
+    """A console that does not squeeze the tables to 80 columns when output goes to a file or pipe."""
+    return Console() if sys.stdout.isatty() else Console(width=200)
 
 
 def _number(value: float | None, digits: int = 2, scale: float = 1.0) -> str:
@@ -19,7 +26,7 @@ def results_table(documents: list[dict[str, Any]], title: str = "Localization") 
     table = Table(title=title)
     for column in ("Sequence", "Method", "Frames", "Precision", "Recall", "TE [m]", "RE [deg]", "Top-1 [%]",
                    "Top-3 [%]", "Top-5 [%]", "Time [ms]"):
-        table.add_column(column, justify="left" if column in ("Sequence", "Method") else "right")
+        table.add_column(escape(column), justify="left" if column in ("Sequence", "Method") else "right")
     for document in documents:
         run, summary = document["run"], document["summary"]
         table.add_row(
@@ -36,7 +43,7 @@ def results_table(documents: list[dict[str, Any]], title: str = "Localization") 
 
 def stage_table(documents: list[dict[str, Any]]) -> Table:
     """Median milliseconds per frame of every stage, detector and encoder included."""
-    table = Table(title="Median time per frame [ms]")
+    table = Table(title=escape("Median time per frame [ms]"))
     table.add_column("Sequence")
     table.add_column("Method")
     for stage in ALL_STAGES:

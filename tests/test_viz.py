@@ -14,9 +14,9 @@ from PIL import Image
 from viz_scene import recorded_entities, rerun_cli, scene_points, synthetic_run
 
 from clipclique.graph import semantic_graph
-from clipclique.types import Detections
+from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
-from clipclique.viz.convert import encode_depth_png, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.convert import ellipsoids3d, encode_depth_png, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
 from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness
@@ -76,6 +76,14 @@ def test_class_colors_are_deterministic_and_distinct():
     first = colors[:12].astype(float)
     distances = np.linalg.norm(first[:, None] - first[None], axis=-1)[np.triu_indices(12, 1)]
     assert distances.min() > 25  # the first dozen classes are told apart at a glance
+
+
+def test_ellipsoids_carry_rerun_quaternions_and_annotation_ids():
+    quarter_turn = np.array([[[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])  # 90 deg about z
+    archetype = ellipsoids3d(Ellipsoids(np.ones((1, 3)), np.array([[0.3, 0.2, 0.1]]), quarter_turn), np.array([4]))
+    quaternion = archetype.quaternions.as_arrow_array().to_pylist()[0]
+    np.testing.assert_allclose(quaternion, [0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-7)  # x y z w
+    assert archetype.class_ids.as_arrow_array().to_pylist() == [5]  # 0 is the background id
 
 
 def test_segmentation_higher_score_wins_and_zero_is_background():

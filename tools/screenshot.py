@@ -104,7 +104,7 @@ def _connect(port: int, viewer: subprocess.Popen, deadline: float, log: IO[bytes
             client = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
             client.get_state()
             return client
-        except Exception:  # not listening yet
+        except ConnectionError:  # not listening yet
             _check_time(deadline, "starting the viewer")
             time.sleep(0.3)
 

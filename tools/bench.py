@@ -23,14 +23,16 @@ import json
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("YOLO_AUTOINSTALL", "false")):
     os.environ.setdefault(_variable, _value)
@@ -99,6 +101,12 @@ def variants() -> list[Variant]:
     ]
 
 
+class Evaluated(NamedTuple):
+    summary: dict[str, float]  # metrics.summarize, plus the mean similarity of true and of other pairs
+    notes: list[str]  # the pipeline's notes (e.g. CLIP missing: alpha = 0)
+    failures: dict[str, int]  # frames without a pose, by reason (counts in parentheses dropped)
+
+
 @dataclass
 class CachedFrame:
     index: int
@@ -116,7 +124,7 @@ class CachedSequence:
     description: dict[str, Any]  # data, detector, encoder, simulated parts: the report's provenance lines
     query_ms: dict[str, float]  # median ms per frame of the detector, observation fit and encoder
     indexes: dict[str, MapIndex] = field(default_factory=dict)
-    summaries: dict[str, tuple[dict[str, float], list[str]]] = field(default_factory=dict)
+    evaluated: dict[str, Evaluated] = field(default_factory=dict)
 
     @property
     def has_clip(self) -> bool:
@@ -170,6 +178,7 @@ def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: 
         "sequence_frames": len(run.sequence),
         "stride": run.settings.stride,
         "landmarks": len(run.map),
+        "frames_with_3_mapped": sum(int(mapped_pairs(f.observations, run.map).any(axis=1).sum()) >= 3 for f in cached),
         "classes": len(run.map.class_names),
         "detector": {"name": run.detector.name, "simulated": run.detector.simulated},
         "encoder": None if run.encoder is None else {"name": run.encoder.name, "simulated": run.encoder.simulated},
@@ -179,29 +188,35 @@ def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: 
     return CachedSequence(name, run.map, cached, description, query_ms), run
 
 
-def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> tuple[dict[str, float], list[str]]:
-    """`metrics.summarize` over the cached frames localized with `config`, plus the mean similarity of
-    true pairs (same object) and of all other pairs; and the pipeline's notes. Memoized per config."""
+def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> Evaluated:
+    """Every cached frame localized with `config` and scored; memoized per config."""
     key = json.dumps(config.to_dict(), sort_keys=True)
-    if key not in sequence.summaries:
+    if key not in sequence.evaluated:
         index_key = json.dumps([config.similarity.descriptor, dataclasses.asdict(config.graph)], sort_keys=True)
         if index_key not in sequence.indexes:
             sequence.indexes[index_key] = index_map(sequence.map, config)
         index = sequence.indexes[index_key]
-        evaluations, true, other, notes = [], [], [], {}
+        evaluations, true, other, notes, failures = [], [], [], {}, Counter()
         for frame in sequence.frames:
             result = localize(frame.observations, index, config)
             evaluations.append(evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config, frame.index))
-            ids = frame.observations.instance_ids
-            same = (ids[:, None] >= 0) & (ids[:, None] == sequence.map.instance_ids[None])
+            same = mapped_pairs(frame.observations, sequence.map)
             true.append(result.similarity[same])
             other.append(result.similarity[~same])
             notes.update(dict.fromkeys(result.notes))
+            if result.failure:
+                failures[re.sub(r" \(\d+\)$", "", result.failure)] += 1
         summary = summarize(evaluations)
         summary["similarity_true_mean"] = _mean(np.concatenate(true))
         summary["similarity_other_mean"] = _mean(np.concatenate(other))
-        sequence.summaries[key] = (summary, list(notes))
-    return sequence.summaries[key]
+        sequence.evaluated[key] = Evaluated(summary, list(notes), dict(failures.most_common()))
+    return sequence.evaluated[key]
+
+
+def mapped_pairs(observations: Observations, map: Map) -> np.ndarray:
+    """(K, N) bool: observation k is landmark n's object (ground-truth instance ids)."""
+    ids = observations.instance_ids[:, None]
+    return (ids >= 0) & (ids == map.instance_ids[None])
 
 
 def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[str, Any]:
@@ -216,9 +231,10 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
     for seed in seeds:
         runs.append(evaluate(sequence, variant.config(seed)))
         tick()
-    summaries = [summary for summary, _ in runs]
+    summaries = [run.summary for run in runs]
     best = max(range(len(runs)), key=lambda i: tuple(np.nan_to_num(summaries[i][f"success@{k}"], nan=-1.0) for k in (1, 3, 5)))
-    record |= {"seeds": list(seeds), "best_seed": seeds[best], "summary": summaries[best], "notes": runs[best][1]}
+    record |= {"seeds": list(seeds), "best_seed": seeds[best], "summary": summaries[best], "notes": runs[best].notes,
+               "failures": runs[best].failures}
     if len(runs) > 1:
         record["spread"] = {column: [min(s[column] for s in summaries), max(s[column] for s in summaries)]
                             for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m")}

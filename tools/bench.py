@@ -123,6 +123,7 @@ class CachedSequence:
     frames: list[CachedFrame]
     description: dict[str, Any]  # data, detector, encoder, simulated parts: the report's provenance lines
     query_ms: dict[str, float]  # median ms per frame of the detector, observation fit and encoder
+    run: Run  # the sequence, detector and encoder the observations came from
     indexes: dict[str, MapIndex] = field(default_factory=dict)
     evaluated: dict[str, Evaluated] = field(default_factory=dict)
 
@@ -157,7 +158,7 @@ def ensure_map(name: str, data_root: Path | None) -> None:
                    stdout=subprocess.DEVNULL)
 
 
-def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> tuple[CachedSequence, Run]:
+def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> CachedSequence:
     """Detect, fit and embed the selected frames once; `frames` spreads that many over the sequence."""
     run = prepare(RunSettings(name, data_root=data_root, record=False))
     if frames is not None:
@@ -185,7 +186,7 @@ def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: 
         "notes": run.notes,
     }
     query_ms = {stage: 1e3 * float(np.median([t[stage] for t in timings])) for stage in QUERY_STAGES}
-    return CachedSequence(name, run.map, cached, description, query_ms), run
+    return CachedSequence(name, run.map, cached, description, query_ms, run)
 
 
 def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> Evaluated:
@@ -236,7 +237,7 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
     record |= {"seeds": list(seeds), "best_seed": seeds[best], "summary": summaries[best], "notes": runs[best].notes,
                "failures": runs[best].failures}
     if len(runs) > 1:
-        record["spread"] = {column: [min(s[column] for s in summaries), max(s[column] for s in summaries)]
+        record["spread"] = {column: spread([s[column] for s in summaries])
                             for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m")}
         record["per_seed"] = summaries
     return record
@@ -346,12 +347,26 @@ def machine() -> dict[str, Any]:
             "python": platform.python_version(), "commit": commit or None}
 
 
-def cuda_available() -> bool:
+def gpu_unavailable() -> str | None:
+    """Why the GPU section cannot run here, or None when it can."""
     try:
         import torch
     except ImportError:
-        return False
-    return torch.cuda.is_available()
+        return "torch is not installed (the 'models' extra)"
+    return None if torch.cuda.is_available() else "torch.cuda.is_available() is False on this machine (CPU only)"
+
+
+def run_gpu(sequence: CachedSequence, record: dict[str, Any], frames: int = 50) -> dict[str, Any]:
+    """gpu_stages on `sequence`, with CLIP-Clique's algorithm time from its Table I `record`."""
+    timed = gpu_stages(sequence.run, frames)
+    timed["stage_ms"]["algorithm"] = record["summary"]["time_ms_median"]
+    return {"ran": True, "sequence": sequence.name, **timed}
+
+
+def spread(values: list[float]) -> list[float]:
+    """[min, max] of the values that exist (NaN where none does)."""
+    finite = [v for v in values if not math.isnan(v)]
+    return [min(finite), max(finite)] if finite else [math.nan, math.nan]
 
 
 def _mean(values: np.ndarray) -> float:
@@ -392,29 +407,28 @@ def run_suite(args: argparse.Namespace) -> None:
     console = Console(stderr=True)
     columns = (TextColumn("{task.description:<34}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console) as progress:
-        cached: dict[str, tuple[CachedSequence, Run]] = {}
+        cached: dict[str, CachedSequence] = {}
         for name in names:
             ensure_map(name, args.data_root)
             task = progress.add_task(f"{name}: detect, fit, embed", total=None)
             cached[name] = cache_sequence(name, args.data_root, frames,
                                           lambda total, task=task: progress.update(task, advance=1, total=total))
-            results["sequences"][name] = cached[name][0].description | {"query_ms": cached[name][0].query_ms}
-        for name, (sequence, _) in cached.items():
+            results["sequences"][name] = cached[name].description | {"query_ms": cached[name].query_ms}
+        for name, sequence in cached.items():
             work = sum(len(SEEDS) if v.stochastic else 1 for v in experiments)
             task = progress.add_task(f"{name}: {len(experiments)} configurations", total=work)
             tick = lambda task=task: progress.update(task, advance=1)  # noqa: E731
             results["experiments"][name] = [run_variant(sequence, v, tick) for v in experiments]
+        first = cached[names[0]]
         task = progress.add_task("scalability (rooms side by side)", total=2 * len(counts))
-        results["scalability"] = run_scalability(counts, 3 if args.quick else 20, cached[names[0]][0],
+        results["scalability"] = run_scalability(counts, 3 if args.quick else 20, first,
                                                  lambda: progress.update(task, advance=1))
-        results["gpu"] = {"ran": False, "reason": "--quick skips it" if args.quick else
-                          "torch.cuda.is_available() is False on this machine (CPU only)"}
-        if not args.quick and cuda_available():
-            first = next(iter(cached.values()))
+        reason = "--quick skips it" if args.quick else gpu_unavailable()
+        results["gpu"] = {"ran": False, "reason": reason}
+        if reason is None:
             task = progress.add_task("GPU: ViT-L-14 + YOLOv8x-seg", total=None)
-            results["gpu"] = {"ran": True, "sequence": first[0].name, **gpu_stages(first[1], frames=50)}
-            clipclique = next(r for r in results["experiments"][first[0].name] if r["label"] == METHOD_TITLES["clipclique"])
-            results["gpu"]["stage_ms"]["algorithm"] = clipclique["summary"]["time_ms_median"]
+            clipclique = next(r for r in results["experiments"][first.name] if r["label"] == METHOD_TITLES["clipclique"])
+            results["gpu"] = run_gpu(first, clipclique)
             progress.update(task, total=1, completed=1)
     results["wall_time_s"] = time.perf_counter() - started
     report.write(results, out)

@@ -7,12 +7,12 @@ the simulated stand-ins, and every table and recording says so.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
+from clipclique.datasets import resolve_data_root
 from localization.results import run_and_save
-from mapping.cli import run_build
 from localization.run import MAP_DIR, RunSettings
 from localization.tables import make_console, print_documents
+from mapping.cli import run_build
 
 SEQUENCES = ("demo", "demo_tum")
 METHODS = ("clipclique", "sh", "xview", "cliploc")
@@ -37,8 +37,9 @@ def main() -> None:
         console.print(f"  {'map':<12}{MAP_DIR / f'{sequence}.map.rrd'}")
         for method in METHODS:
             console.print(f"  {method:<12}{RunSettings(sequence, method).out_dir() / 'recording.rrd'}")
-    console.print("results per run: results.json, poses.tum (TUM format, e.g. "
-                  "`evo_ape tum groundtruth.txt poses.tum`), config.json beside each recording")
+    tum_truth = resolve_data_root(None) / "demo" / "demo_tum" / "groundtruth.txt"
+    console.print("beside each recording: results.json, config.json and poses.tum (TUM format; score it with evo, "
+                  f"e.g. `evo_ape tum {tum_truth} {RunSettings('demo_tum', 'clipclique').out_dir() / 'poses.tum'}`)")
 
 
 if __name__ == "__main__":

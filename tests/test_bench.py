@@ -60,7 +60,7 @@ def test_quick_report_has_every_row_with_numbers(quick_run):
     alpha = section(text, "Alpha sweep")
     assert [0.0 <= float(table_rows(alpha, label)[0][1]) <= 100.0 for label in GROUP_LABELS["alpha"]] == [True] * 11
     assert "simulated: detector (simulated), CLIP (simulated-clip)" in text
-    assert "Quick mode" in text and "Not run: --quick skips it" in text and "checks agree" in text
+    assert "Quick mode" in text and "Not run: --quick skips it" in text and "checks)." in text
 
 
 def test_quick_report_matches_its_json(quick_run):
@@ -82,6 +82,20 @@ def test_quick_report_matches_its_json(quick_run):
     for curve in results["scalability"].values():
         assert [r["landmarks"] > 0 for r in curve["rows"]] == [True] * 3
         assert curve["rows"][0]["landmarks"] < curve["rows"][-1]["landmarks"]
+
+
+def test_cached_observations_give_the_numbers_clipclique_loc_gives(quick_run):
+    from clipclique.datasets.demo import DEMO_SCENES
+    from localization.run import RunSettings, execute, prepare
+
+    settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz", data_root=ROOT / "data",
+                           stride=DEMO_SCENES["demo"].num_frames // bench.QUICK_FRAMES, max_frames=bench.QUICK_FRAMES,
+                           record=False)
+    direct = execute(prepare(settings)).summary()
+    records = json.loads((quick_run / "results.json").read_text())["experiments"]["demo"]
+    cached = next(r for r in records if r["label"] == "CLIP-Clique")["summary"]
+    for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m", "re_median_deg"):
+        assert cached[column] == pytest.approx(direct[column]), column
 
 
 def test_quick_plots_are_real_pngs(quick_run):

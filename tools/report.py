@@ -113,8 +113,8 @@ def summary_section(results: dict[str, Any]) -> str:
     verdicts = [v for name in results["sequences"] for _, _, v in sequence_claims(results, name)]
     verdicts += [v for _, _, v in global_claims(results)]
     counts = {word: sum(v.removeprefix("**").startswith(word) for v in verdicts) for word in ("agrees", "disagrees", "ties")}
-    lines.append(f"- The paper's claims (see the last section): {counts['agrees']} checks agree, "
-                 f"**{counts['disagrees']} disagree**, {counts['ties']} tie.")
+    lines.append(f"- The paper's claims, checked in the last section: agree {counts['agrees']}, "
+                 f"**disagree {counts['disagrees']}**, tie {counts['ties']} (of {len(verdicts)} checks).")
     return "\n".join(lines) + "\n"
 
 

@@ -317,6 +317,11 @@ def sequence_claims(results: dict[str, Any], name: str) -> list[tuple[str, str, 
         gap = round(frames * abs(top1[winner] - rivals[best_rival]))
         ours += f", {gap} of {frames} frames apart" if gap else ""
         out.append((claim, ours, verdict(top1[winner], rivals[best_rival])))
+    te = {r["label"]: r["summary"]["te_median_m"] for r in rows_of(results, name, "weights") if "summary" in r}
+    if {"none", "w_sim * w_com"} <= te.keys():  # weights move the pose more than they move success
+        both, none = te["w_sim * w_com"], te["none"]
+        out.append(("Pose weights lower the error (median TE, w_sim * w_com vs none)", f"{both:.3f} m vs {none:.3f} m",
+                    verdict(-both, -none, resolution=5e-4)))
     sims = {r["overrides"]["similarity.descriptor"]: r["summary"] for r in rows_of(results, name, "descriptors") if "summary" in r}
     if {"clip", "sh"} <= sims.keys():
         clip, sh = sims["clip"]["similarity_true_mean"], sims["sh"]["similarity_true_mean"]
@@ -338,10 +343,11 @@ def global_claims(results: dict[str, Any]) -> list[tuple[str, str, str]]:
     return [(CLAIM_SCALE, ours, "**disagrees**" + (" (ours is faster and grows more slowly)" if faster and not quadratic else ""))]
 
 
-def verdict(ours: float, rival: float) -> str:
+def verdict(ours: float, rival: float, resolution: float = 0.0) -> str:
+    """Whether ours is higher; values closer than the `resolution` they are printed with tie."""
     if math.isnan(ours) or math.isnan(rival):
         return "–"
-    if math.isclose(ours, rival):
+    if math.isclose(ours, rival) or abs(ours - rival) < resolution:
         return "ties"
     return "agrees" if ours > rival else "**disagrees**"
 

@@ -12,6 +12,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from clipclique.config import make_config
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts that import each other, not a package
 
@@ -156,3 +158,18 @@ def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
     assert exit_info.value.code == 2
     assert "no map of scene0001_00; build it with `clipclique-map build scene0001_00`" in capsys.readouterr().err
     assert not (tmp_path / "report").exists()
+
+
+def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stochastic_ones():
+    def flat(tree: dict, prefix: str = "") -> dict:
+        return {k: v for key, value in tree.items()
+                for k, v in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
+
+    default = flat(make_config("clipclique").to_dict())
+    for variant in bench.variants():
+        if variant.group == "methods":
+            continue
+        changed = {k for k, v in flat(variant.config().to_dict()).items() if v != default[k]}
+        assert changed <= {key for key, _ in variant.overrides}, variant
+    stochastic = {v.label for v in bench.variants() if v.stochastic}
+    assert stochastic == {"X-View", "SH", "CLIP-Loc", "RANSAC", "PROSAC"}

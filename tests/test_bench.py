@@ -173,3 +173,34 @@ def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stocha
         assert changed <= {key for key, _ in variant.overrides}, variant
     stochastic = {v.label for v in bench.variants() if v.stochastic}
     assert stochastic == {"X-View", "SH", "CLIP-Loc", "RANSAC", "PROSAC"}
+
+
+def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, monkeypatch):
+    monkeypatch.chdir(quick_run.parent)  # its outputs/maps holds the demo map the quick run built
+    sequence = bench.cache_sequence("demo", ROOT / "data", 3, lambda total: None)
+    for frame in sequence.frames:
+        frame.observations.image_embeddings = None
+    records = [bench.run_variant(sequence, variant, lambda: None) for variant in bench.variants()]
+    skipped = {r["label"] for r in records if "skipped" in r}
+    assert skipped == {"CLIP-Loc", "CLIP", *GROUP_LABELS["alpha"]}
+    fused = next(r for r in records if r["label"] == "CLIP-Clique")
+    assert fused["notes"] and "SH only" in fused["notes"][0]
+    sh = next(r for r in records if r["label"] == "SH" and r["group"] == "descriptors")
+    assert fused["summary"]["success@1"] == sh["summary"]["success@1"]  # fused without CLIP is SH
+    results = {"sequences": {"demo": sequence.description}, "experiments": {"demo": records}}
+    table_one = report.table_one(results)
+    assert "| CLIP-Loc † | not run: no CLIP embeddings" in table_one
+    for text in (table_one, report.ablations(results), report.alpha_section(results, plotted=False)):
+        for table in tables_of(text):
+            assert len({line.count("|") for line in table}) == 1, table
+
+
+def tables_of(markdown: str) -> list[list[str]]:
+    """Runs of consecutive table lines."""
+    tables: list[list[str]] = [[]]
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            tables[-1].append(line)
+        elif tables[-1]:
+            tables.append([])
+    return [t for t in tables if t]

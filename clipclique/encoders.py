@@ -13,14 +13,18 @@ synthetic data whose true object descriptions are known. Its model, in unit vect
   direction shared by all texts. So descriptions sharing words are similar ("a black office
   chair" . "a purple office chair" ~ 0.83) and unrelated ones still sit near 0.5, as CLIP's
   text embeddings of object phrases do.
-- Image: a crop of an object whose true description is d gives
-  normalize(q * text(d) + n), n a random unit vector seeded by (crop bytes, d, seed), so its
-  cosine with text(d) is about q / sqrt(1 + q^2). The signal q = q_max * size * visible:
+- Image: a crop shows its object and whatever else falls in its box (`CropTruth`: each
+  labelled thing's description and share of the box's pixels; background and structure count
+  as the shared direction g). Its embedding is normalize(q * c + n), c = normalize(sum of
+  share * text(description)), n a random unit vector seeded by (crop bytes, contents, seed);
+  an object filling its box has cosine about q / sqrt(1 + q^2) with its own text, and every
+  neighbour in the box pulls the embedding towards that neighbour's text, as the context of
+  a crop does to real CLIP. The signal q = q_max * size * visible:
   size = min(1, sqrt(area / 96^2)) weakens small crops, visible = 0.6 for an object cut by the
   image border. With q_max = 0.45 the correct similarity is at best ~0.41 and its margin over a
   wrong description shrinks with shared words: CLIP as the paper reports it, weakly
   discriminative (best similarities near 0.4 where Semantic Histograms reach 0.8).
-  A crop with no true description (a false detection) carries only the shared direction g.
+  A false detection's box holds no object of its own, only what lies behind it.
 
 Everything is deterministic: the same crop, description and seed give the same embedding.
 """
@@ -32,6 +36,7 @@ import os
 import re
 import socket
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -46,6 +51,25 @@ SIMULATED_NAME = "simulated-clip"
 _STOP_WORDS = frozenset({"a", "an", "the", "of", "on", "in", "with", "and", "photo", "this", "is"})
 
 
+@dataclass(frozen=True)
+class CropTruth:
+    """What a crop really shows, for the simulated encoder: every labelled thing inside the box.
+
+    `contents` pairs a description (None: unlabelled background or structure) with its share
+    of the crop's pixels; the detected object is one of them, its neighbours the others.
+    """
+
+    contents: tuple[tuple[str | None, float], ...]
+    truncated: bool = False  # the object is cut by the image border
+
+    @staticmethod
+    def of(description: str | None) -> CropTruth:
+        return CropTruth(((description, 1.0),))
+
+
+Truth = CropTruth | str | None  # a plain description means the crop shows that object alone
+
+
 class Encoder(Protocol):
     """What mapping (text) and localization (images) need from CLIP."""
 
@@ -56,16 +80,11 @@ class Encoder(Protocol):
         """(N, D) float32, L2-normalized."""
         ...
 
-    def encode_images(
-        self,
-        crops: list[np.ndarray],
-        truth: list[str | None] | None = None,
-        truncated: Sequence[bool] | None = None,
-    ) -> np.ndarray:
+    def encode_images(self, crops: list[np.ndarray], truth: Sequence[Truth] | None = None) -> np.ndarray:
         """(K, D) float32, L2-normalized, from (h, w, 3) uint8 crops.
 
-        `truth` (each crop's true description) and `truncated` (the object is cut by the image
-        border) are read by the simulated encoder only; real CLIP sees pixels alone.
+        `truth` (what each crop really shows) is read by the simulated encoder only; real CLIP
+        sees pixels alone.
         """
         ...
 
@@ -115,25 +134,20 @@ class SimulatedClipEncoder:
         size = min(1.0, float(np.sqrt(crop_shape[0] * crop_shape[1])) / self.ref_side)
         return self.q_max * size * (self.truncated_visibility if truncated else 1.0)
 
-    def encode_images(
-        self,
-        crops: list[np.ndarray],
-        truth: list[str | None] | None = None,
-        truncated: Sequence[bool] | None = None,
-    ) -> np.ndarray:
+    def encode_images(self, crops: list[np.ndarray], truth: Sequence[Truth] | None = None) -> np.ndarray:
         if not crops:
             return np.zeros((0, self.dim), np.float32)
         truth = truth if truth is not None else [None] * len(crops)
-        truncated = truncated if truncated is not None else [False] * len(crops)
-        if not len(truth) == len(truncated) == len(crops):
-            raise ValueError("crops, truth and truncated must have the same length")
+        if len(truth) != len(crops):
+            raise ValueError(f"{len(crops)} crops but {len(truth)} truths")
         out = []
-        for crop, description, cut in zip(crops, truth, truncated):
+        for crop, seen in zip(crops, truth):
+            seen = seen if isinstance(seen, CropTruth) else CropTruth.of(seen)
             crop = np.ascontiguousarray(crop)
-            target = self._text(description) if description is not None else self._shared
-            rng = np.random.default_rng(_seed(str(self.seed), crop.tobytes(), str(crop.shape), description or ""))
+            target = _normalize(sum(share * (self._shared if d is None else self._text(d)) for d, share in seen.contents))
+            rng = np.random.default_rng(_seed(str(self.seed), crop.tobytes(), str(crop.shape), repr(seen.contents)))
             noise = _normalize(rng.standard_normal(self.dim))
-            out.append(self.signal(crop.shape, cut) * target + noise)
+            out.append(self.signal(crop.shape, seen.truncated) * target + noise)
         return _normalize(np.stack(out))
 
 
@@ -185,12 +199,7 @@ class ClipEncoder:
                 chunks.append(self.model.encode_text(tokens).float().cpu().numpy())
         return _normalize(np.concatenate(chunks))
 
-    def encode_images(
-        self,
-        crops: list[np.ndarray],
-        truth: list[str | None] | None = None,
-        truncated: Sequence[bool] | None = None,
-    ) -> np.ndarray:
+    def encode_images(self, crops: list[np.ndarray], truth: Sequence[Truth] | None = None) -> np.ndarray:
         import torch
         from PIL import Image
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
-from clipclique.encoders import Encoder
+from clipclique.encoders import CropTruth, Encoder
 from clipclique.geometry import FitParams, backproject, fit_ellipsoid, stack_ellipsoids
 from clipclique.types import Detections, Frame, Observations
 
@@ -38,6 +38,7 @@ class Extraction:
     observations: Observations
     crops: list[np.ndarray]  # (h, w, 3) uint8, one per observation
     truncated: np.ndarray  # (K,) bool: the mask touches the image border
+    contents: list[tuple[tuple[int, float], ...]]  # per crop: (object id, share of its pixels), 0 = unlabelled
     dropped: dict[str, int]  # detections lost, by reason (keys: DROP_REASONS)
 
 
@@ -73,7 +74,8 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
                                 detections.instance_ids[index], index)
     crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
-    return Extraction(observations, crops, np.array(truncated, bool), dict(dropped))
+    contents = [crop_contents(frame, detections.boxes[k], int(detections.instance_ids[k])) for k in kept]
+    return Extraction(observations, crops, np.array(truncated, bool), contents, dict(dropped))
 
 
 def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,
@@ -90,21 +92,31 @@ def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, 
     return depth[y0:y1, x0:x1], shifted, eroded if eroded.sum() >= params.min_mask_pixels else window
 
 
-def crop(rgb: np.ndarray, box: np.ndarray) -> np.ndarray:
+def crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:
     """The pixels of an xyxy box, clipped to the image, at least one pixel."""
-    height, width = rgb.shape[:2]
+    height, width = image.shape[:2]
     x0, y0 = np.clip(np.floor(box[:2]).astype(int), 0, (width - 1, height - 1))
     x1, y1 = np.clip(np.ceil(box[2:]).astype(int), (x0 + 1, y0 + 1), (width, height))
-    return rgb[y0:y1, x0:x1]
+    return image[y0:y1, x0:x1]
+
+
+def crop_contents(frame: Frame, box: np.ndarray, instance_id: int) -> tuple[tuple[int, float], ...]:
+    """Ground-truth object ids inside a box with their pixel shares (the detection alone without an instance image)."""
+    if frame.instances is None:
+        return ((instance_id, 1.0),)
+    ids, counts = np.unique(crop(frame.instances, box), return_counts=True)
+    return tuple(zip(ids.tolist(), (counts / counts.sum()).tolist()))
 
 
 def embed(extraction: Extraction, encoder: Encoder | None, descriptions: dict[int, str]) -> Observations:
     """The observations with CLIP image embeddings of their crops (None without an encoder).
 
-    `descriptions` (object id -> true description) reaches only a simulated encoder.
+    `descriptions` (object id -> true description) reaches only a simulated encoder, as what
+    each crop shows (`CropTruth`); objects without one count as background.
     """
     observations = extraction.observations
     if encoder is not None:
-        truth = [descriptions.get(int(i)) for i in observations.instance_ids]
-        observations.image_embeddings = encoder.encode_images(extraction.crops, truth, extraction.truncated)
+        truth = [CropTruth(tuple((descriptions.get(i), share) for i, share in contents), bool(cut))
+                 for contents, cut in zip(extraction.contents, extraction.truncated)]
+        observations.image_embeddings = encoder.encode_images(extraction.crops, truth)
     return observations

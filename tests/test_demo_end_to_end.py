@@ -21,16 +21,16 @@ from mapping.build import build_map
 
 pytestmark = pytest.mark.slow
 METHODS = ("clipclique", "sh", "xview", "cliploc")
-FRAMES = 40
+FRAMES = 60
 
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory) -> Path:
-    """The demo scene, 40 frames at 320 x 240 (same room and walk), and its map."""
+    """The demo scene with 60 instead of 120 frames along the same walk, and its map."""
     root = tmp_path_factory.mktemp("data")
     folder = root / "demo" / "demo"
     folder.mkdir(parents=True)
-    generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=FRAMES, width=320, height=240))
+    generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=FRAMES))
     map, _ = build_map(open_sequence("demo", root), load_encoder("simulated"))
     save_map(map, root / "demo.map.npz")
     return root
@@ -63,13 +63,13 @@ def test_every_method_scores_every_frame(runs):
 def test_clipclique_leads(runs):
     success = {m: read_results(f / "results.json")["summary"]["success@1"] for m, f in runs.items()}
     # A random position lands within 1 m of the truth in the ~8 x 6 m room about 7 % of the time.
-    assert success["clipclique"] >= 0.6
+    assert success["clipclique"] >= 0.5
     assert success["clipclique"] >= success["sh"] + 0.1
-    assert success["clipclique"] >= success["xview"] + 0.05
-    # Against CLIP-Loc the lead is not robust: on the full 120-frame demo CLIP-Loc's PROSAC
-    # verification beats the summed-similarity clique ranking (77.5 % vs 70.8 % top-1); here
-    # they must stay within 10 points so a regression on either side shows.
-    assert success["clipclique"] >= success["cliploc"] - 0.1
+    assert success["clipclique"] >= success["xview"]
+    # Against CLIP-Loc the lead is not robust: on the full demos the two are within a few
+    # points either way (demo 66.7 % vs 67.5 %, demo_tum 75.8 % vs 73.3 %); a drop of more
+    # than 5 points below CLIP-Loc is a regression.
+    assert success["clipclique"] >= success["cliploc"] - 0.05
 
 
 def test_frames_without_enough_observations_are_failures_not_dropped(runs):

@@ -7,7 +7,7 @@ import copy
 import numpy as np
 import pytest
 
-from clipclique.encoders import ClipEncoder, SimulatedClipEncoder, load_encoder
+from clipclique.encoders import ClipEncoder, CropTruth, SimulatedClipEncoder, load_encoder
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 
 
@@ -46,10 +46,23 @@ def test_simulated_signal_drops_for_small_and_truncated_crops():
     target = encoder.encode_text(["a wooden table"])[0]
     def mean_sim(side: int, truncated: bool) -> float:
         crops = _crops(15, side=side, seed=side)
-        return float((encoder.encode_images(crops, ["a wooden table"] * 15, [truncated] * 15) @ target).mean())
+        truth = [CropTruth((("a wooden table", 1.0),), truncated)] * 15
+        return float((encoder.encode_images(crops, truth) @ target).mean())
     full, cut, small = mean_sim(128, False), mean_sim(128, True), mean_sim(24, False)
     assert full > cut + 0.1 and full > small + 0.2
     assert encoder.signal((24, 24, 3), False) == pytest.approx(0.45 * 24 / 96)
+
+
+def test_simulated_crop_context_pulls_towards_neighbours():
+    encoder = SimulatedClipEncoder()
+    chair, desk = encoder.encode_text(["a black office chair", "a white desk"])
+    crops = _crops(30)
+    alone = encoder.encode_images(crops, ["a black office chair"] * 30)
+    crowded = encoder.encode_images(crops, [CropTruth((("a black office chair", 0.5), ("a white desk", 0.4),
+                                                        (None, 0.1)))] * 30)
+    assert (alone @ chair).mean() > (crowded @ chair).mean() + 0.02
+    assert (crowded @ desk).mean() > (alone @ desk).mean() + 0.1
+    assert ((crowded @ chair) > (crowded @ desk)).mean() > 0.6  # the larger share still tends to win
 
 
 def test_simulated_images_are_deterministic_and_depend_on_content():

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from clipclique.encoders import SimulatedClipEncoder
 from clipclique.types import Detections, Frame, Pose
 from localization.detectors import mask_boxes
-from localization.observations import crop, embed, extract_observations
+from localization.observations import crop, crop_contents, embed, extract_observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
@@ -86,9 +87,24 @@ def test_crop_is_clipped_and_never_empty():
     assert crop(rgb, np.array([19.5, 9.5, 19.5, 9.5])).shape == (1, 1, 3)
 
 
-def test_embed_passes_true_descriptions_to_the_simulated_encoder():
+def test_crop_contents_are_pixel_shares_of_the_objects_in_the_box():
+    frame, mask = sphere_frame()
+    frame.instances = np.where(mask, 5, 0).astype(np.int32)
+    frame.instances[:, 200:] = np.where(mask[:, 200:], 5, 8)
+    box = np.array([150.0, 0.0, 250.0, 100.0])
+    contents = dict(crop_contents(frame, box, 5))
+    assert set(contents) == {0, 5, 8}
+    assert contents[8] == pytest.approx((~mask[:100, 200:250]).sum() / 100**2)
+    assert sum(contents.values()) == pytest.approx(1.0)
+    assert contents[5] == pytest.approx(mask[:100, 150:250].mean())
+    frame.instances = None
+    assert crop_contents(frame, box, 5) == ((5, 1.0),)
+
+
+def test_embed_passes_what_each_crop_shows_to_the_simulated_encoder():
     frame, mask = sphere_frame()
     extraction = extract_observations(frame, detections_of([mask, mask], [5, -1]))
+    assert extraction.contents == [((5, 1.0),), ((-1, 1.0),)]  # no instance image: the detection alone
     encoder = SimulatedClipEncoder()
     observations = embed(extraction, encoder, {5: "a red ball"})
     assert observations.image_embeddings.shape == (2, 512)

@@ -102,7 +102,7 @@ def variants() -> list[Variant]:
 
 
 class Evaluated(NamedTuple):
-    summary: dict[str, float]  # metrics.summarize, plus the mean similarity of true and of other pairs
+    summary: dict[str, float]  # metrics.summarize, plus similarity statistics of true and of other pairs
     notes: list[str]  # the pipeline's notes (e.g. CLIP missing: alpha = 0)
     failures: dict[str, int]  # frames without a pose, by reason (counts in parentheses dropped)
 
@@ -208,8 +208,10 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> Evaluated:
             if result.failure:
                 failures[re.sub(r" \(\d+\)$", "", result.failure)] += 1
         summary = summarize(evaluations)
-        summary["similarity_true_mean"] = _mean(np.concatenate(true))
-        summary["similarity_other_mean"] = _mean(np.concatenate(other))
+        true, other = np.concatenate(true), np.concatenate(other)
+        summary["similarity_true_mean"] = float(true.mean()) if true.size else math.nan
+        summary["similarity_true_p90"] = float(np.percentile(true, 90)) if true.size else math.nan
+        summary["similarity_other_mean"] = float(other.mean()) if other.size else math.nan
         sequence.evaluated[key] = Evaluated(summary, list(notes), dict(failures.most_common()))
     return sequence.evaluated[key]
 
@@ -377,10 +379,6 @@ def spread(values: list[float]) -> list[float]:
     """[min, max] of the values that exist (NaN where none does)."""
     finite = [v for v in values if not math.isnan(v)]
     return [min(finite), max(finite)] if finite else [math.nan, math.nan]
-
-
-def _mean(values: np.ndarray) -> float:
-    return float(values.mean()) if values.size else math.nan
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -190,15 +190,20 @@ def ablations(results: dict[str, Any]) -> str:
              "Data: " + "; ".join(provenance(d) for d in results["sequences"].values()) + ".\n"]
     for group, title in ABLATIONS.items():
         similarity = group == "descriptors"
-        extra = ["Similarity, true pairs", "Similarity, other pairs"] if similarity else []
+        extra = ["Similarity, true pairs: mean / 90th pct.", "Similarity, other pairs: mean"] if similarity else []
         parts += [f"### {title}\n", table_head(["Sequence", "Setting"], extra)]
         for name in results["sequences"]:
             for record in rows_of(results, name, group):
-                values = [fmt(record["summary"][f"similarity_{k}_mean"], lambda v: f"{v:.2f}") for k in ("true", "other")] \
-                    if similarity and "summary" in record else [""] * len(extra)
+                values = similarity_cells(record["summary"]) if similarity and "summary" in record else [""] * len(extra)
                 parts.append(metric_row(record, [name], values))
         parts.append("")
     return "\n".join(parts)
+
+
+def similarity_cells(summary: dict[str, float]) -> list[str]:
+    two = lambda v: f"{v:.2f}"  # noqa: E731
+    return [f"{fmt(summary['similarity_true_mean'], two)} / {fmt(summary['similarity_true_p90'], two)}",
+            fmt(summary["similarity_other_mean"], two)]
 
 
 def alpha_section(results: dict[str, Any], plotted: bool) -> str:
@@ -324,9 +329,11 @@ def sequence_claims(results: dict[str, Any], name: str) -> list[tuple[str, str, 
                     verdict(-both, -none, resolution=5e-4)))
     sims = {r["overrides"]["similarity.descriptor"]: r["summary"] for r in rows_of(results, name, "descriptors") if "summary" in r}
     if {"clip", "sh"} <= sims.keys():
-        clip, sh = sims["clip"]["similarity_true_mean"], sims["sh"]["similarity_true_mean"]
-        agrees = abs(clip - PAPER_SIMILARITY["clip"]) < 0.15 and abs(sh - PAPER_SIMILARITY["sh"]) < 0.15
-        out.append(("True pairs: CLIP similarity near 0.4, SH near 0.8", f"CLIP {clip:.2f}, SH {sh:.2f} (mean over true pairs)",
+        clip, sh = sims["clip"], sims["sh"]
+        agrees = all(abs(sims[d]["similarity_true_p90"] - PAPER_SIMILARITY[d]) < 0.15 for d in PAPER_SIMILARITY)
+        out.append(("True pairs: CLIP similarity reaches about 0.4 where SH reaches about 0.8",
+                    f"90th percentile CLIP {clip['similarity_true_p90']:.2f}, SH {sh['similarity_true_p90']:.2f} "
+                    f"(means {clip['similarity_true_mean']:.2f}, {sh['similarity_true_mean']:.2f})",
                     "agrees" if agrees else "**disagrees**"))
     return out
 

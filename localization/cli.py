@@ -35,25 +35,26 @@ class DetectorKind(str, Enum):
 def run(
     sequence: Annotated[str, typer.Argument(help="demo, demo_tum, scene0002_00, fr2, fr3, or a sequence folder")],
     method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
-    top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame [default: 5]", rich_help_panel=ALGORITHM)] = None,
+    top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
                                                       rich_help_panel=ALGORITHM)] = None,
-    map_path: Annotated[Optional[Path], typer.Option("--map", help="map file [default: outputs/maps/SEQUENCE.map.npz]",
+    map_path: Annotated[Optional[Path], typer.Option("--map", help="map file \\[default: outputs/maps/SEQUENCE.map.npz]",
                                                      rich_help_panel=INPUTS)] = None,
-    data_root: Annotated[Optional[Path], typer.Option(help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]",
+    data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[DetectorKind], typer.Option(
-        help="[default: simulated on the demo, gt on ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+        help="\\[default: simulated on the demo, gt on ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(
         help="auto | simulated | none | open_clip:MODEL/PRETRAINED | checkpoint file "
-             "[default: simulated on the demo, else the map's CLIP if available, else none (SH only)]",
+             "\\[default: the encoder of the map's text embeddings (simulated on the demo) if available, else none: "
+             "SH only]",
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    out: Annotated[Optional[Path], typer.Option(help="[default: outputs/loc/SEQUENCE/METHOD]",
+    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/loc/SEQUENCE/METHOD]",
                                                 rich_help_panel=OUTPUT)] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
 ) -> None:

@@ -39,7 +39,7 @@ class RunSettings:
     map_path: Path | None = None  # default outputs/maps/<SEQUENCE>.map.npz
     data_root: Path | None = None
     detector: str | None = None  # default: simulated on the demo, gt on ScanNet, annotations on TUM
-    encoder: str | None = None  # default: simulated on the demo, else the map's CLIP if here, else none
+    encoder: str | None = None  # default: the map's encoder (simulated on the demo) if here, else none
     yolo_weights: str = "yolov8x-seg.pt"
     stride: int = 1
     max_frames: int | None = None
@@ -75,7 +75,7 @@ class Run:
     map: Map
     detector: Detector
     encoder: Encoder | None
-    notes: list[str]  # run-wide facts the user must see (simulated parts, alpha forced to 0, ...)
+    notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
 
     @cached_property
@@ -100,11 +100,11 @@ def prepare(settings: RunSettings) -> Run:
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed)
-    encoder = choose_encoder(settings.encoder, sequence, map, notes)
+    encoder = choose_encoder(settings.encoder, map, notes)
     if config.similarity.descriptor == "clip" and (encoder is None or map.text_embeddings is None):
-        raise ModelUnavailableError(
-            f"method {settings.method} ranks by CLIP alone but {'no encoder is available' if encoder is None else f'{map_path} has no text embeddings'}"
-            "; pass --encoder (e.g. open_clip:ViT-L-14/openai) or choose --method clipclique / sh / xview")
+        missing = "no encoder is available" if encoder is None else f"{map_path} has no text embeddings"
+        raise ModelUnavailableError(f"method {settings.method} ranks by CLIP alone but {missing}; pass --encoder "
+                                    "(e.g. open_clip:ViT-L-14/openai) or choose --method clipclique / sh / xview")
     if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
@@ -117,19 +117,16 @@ def default_detector(sequence: Sequence) -> str:
     return "gt" if sequence.kind == "scannet" else "annotations"
 
 
-def choose_encoder(spec: str | None, sequence: Sequence, map: Map, notes: list[str]) -> Encoder | None:
-    """The requested encoder, else one that matches the map's text embeddings, else none."""
+def choose_encoder(spec: str | None, map: Map, notes: list[str]) -> Encoder | None:
+    """The requested encoder, else the one that made the map's text embeddings when it is here, else none."""
     if spec is None:
-        if sequence.synthetic:
-            spec = "simulated"
-        elif map.encoder.startswith("open_clip:"):
-            try:
-                return load_encoder(map.encoder)
-            except ModelUnavailableError as error:
-                notes.append(f"the map's encoder is not available here ({error})")
-                return None
-        else:
-            spec = "auto"
+        if map.text_embeddings is None:
+            return None
+        try:
+            return load_encoder(map.encoder)
+        except ModelUnavailableError as error:
+            notes.append(f"the map's encoder is not available here ({error})")
+            return None
     encoder = load_encoder(spec)
     if encoder is not None and map.text_embeddings is not None and map.encoder != encoder.name:
         raise ClipcliqueError(f"the map's text embeddings come from {map.encoder} but the query encoder is "

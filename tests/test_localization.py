@@ -11,8 +11,10 @@ from rich.text import Text
 from typer.testing import CliRunner
 
 from clipclique.geometry import random_rotation
-from clipclique.types import Pose
+from clipclique.errors import ClipcliqueError
+from clipclique.types import Ellipsoids, Map, Pose
 from localization.cli import app
+from localization.run import choose_encoder
 from localization.results import _finite, atomic_write, read_results, tum_line
 from localization.tables import results_table, run_banner
 
@@ -75,3 +77,20 @@ def test_cli_help_and_missing_map(tmp_path):
     assert not (tmp_path / "results.json").exists()
     bad = RUNNER.invoke(app, ["run", "demo", "--set", "inliers.nope=1", "--map", str(tmp_path / "m.npz")])
     assert bad.exit_code == 2 and "inliers.nope" in bad.output
+
+
+def _map(encoder: str, embeddings: bool) -> Map:
+    text = np.eye(3, 512, dtype=np.float32) if embeddings else None
+    return Map(Ellipsoids(np.zeros((3, 3)), np.ones((3, 3)), np.tile(np.eye(3), (3, 1, 1))), np.zeros(3, int),
+               ["chair"], ["a chair"] * 3, np.arange(1, 4), text, encoder)
+
+
+def test_encoder_choice_follows_the_map():
+    notes: list[str] = []
+    assert choose_encoder(None, _map("simulated-clip", True), notes).name == "simulated-clip"
+    assert choose_encoder(None, _map("none", False), notes) is None and not notes
+    assert choose_encoder(None, _map("open_clip:ViT-B-32/no-such-tag", True), notes) is None
+    assert notes and "not available" in notes[0]
+    assert choose_encoder("none", _map("simulated-clip", True), notes) is None
+    with pytest.raises(ClipcliqueError, match="not comparable"):
+        choose_encoder("simulated", _map("open_clip:ViT-L-14/openai", True), notes)

@@ -26,7 +26,7 @@ synthetic data whose true object descriptions are known. Its model, in unit vect
   discriminative (best similarities near 0.4 where Semantic Histograms reach 0.8).
   A false detection's box holds no object of its own, only what lies behind it.
 
-Everything is deterministic: the same crop, description and seed give the same embedding.
+Everything is deterministic: the same crop, contents and seed give the same embedding.
 """
 
 from __future__ import annotations

@@ -439,7 +439,10 @@ def run_suite(args: argparse.Namespace) -> None:
         if reason is None:
             task = progress.add_task("GPU: ViT-L-14 + YOLOv8x-seg", total=None)
             clipclique = next(r for r in results["experiments"][first.name] if r["label"] == METHOD_TITLES["clipclique"])
-            results["gpu"] = run_gpu(first, clipclique)
+            try:
+                results["gpu"] = run_gpu(first, clipclique)
+            except Exception as error:  # noqa: BLE001  a failed GPU section (out of memory, driver) must not lose the report
+                results["gpu"]["reason"] = f"it failed: {type(error).__name__}: {error}"
             progress.update(task, total=1, completed=1)
     results["wall_time_s"] = time.perf_counter() - started
     report.write(results, out)

@@ -204,3 +204,19 @@ def tables_of(markdown: str) -> list[list[str]]:
         elif tables[-1]:
             tables.append([])
     return [t for t in tables if t]
+
+
+@pytest.mark.models
+def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkeypatch):
+    """The GPU section's code path, on the CPU with the smallest models of the same families."""
+    from localization.run import RunSettings, prepare
+
+    monkeypatch.chdir(quick_run.parent)
+    run = prepare(RunSettings("demo", data_root=ROOT / "data", max_frames=2, record=False))
+    timed = bench.gpu_stages(run, frames=1, device="cpu", warmup=1, clip_model="ViT-B-32", yolo_config="yolov8n-seg.yaml")
+    assert timed["frames"] == 1 and set(timed["stage_ms"]) == {"detector", "observations", "encoder"}
+    assert all(ms > 0 for ms in timed["stage_ms"].values())
+    results = {"gpu": {"ran": True, "sequence": "demo", **timed}}
+    results["gpu"]["stage_ms"]["algorithm"] = 0.5
+    text = report.gpu_section(results)
+    assert "ViT-B-32 (random weights)" in text and "frames per second" in text

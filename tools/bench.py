@@ -305,7 +305,8 @@ def curve(rows: list[dict]) -> dict[str, Any]:
     }
 
 
-def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3) -> dict[str, Any]:
+def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3, clip_model: str = "ViT-L-14",
+               yolo_config: str = "yolov8x-seg.yaml") -> dict[str, Any]:
     """Median ms per frame of YOLOv8x-seg and ViT-L-14 (random weights: timing only) and the CPU fit.
 
     Random weights detect nothing useful, so the masks the observation fit and the encoder work on
@@ -319,9 +320,9 @@ def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3) -> 
     from localization.detectors import YoloDetector
     from localization.observations import extract_observations
 
-    model, _, preprocess = open_clip.create_model_and_transforms("ViT-L-14", pretrained=None, device=device)
-    encoder = ClipEncoder(model, preprocess, open_clip.get_tokenizer("ViT-L-14"), "open_clip:ViT-L-14/random", device)
-    yolo = YoloDetector(YOLO("yolov8x-seg.yaml"), run.map.class_names, device=device)
+    model, _, preprocess = open_clip.create_model_and_transforms(clip_model, pretrained=None, device=device)
+    encoder = ClipEncoder(model, preprocess, open_clip.get_tokenizer(clip_model), f"open_clip:{clip_model}/random", device)
+    yolo = YoloDetector(YOLO(yolo_config), run.map.class_names, device=device)
     synchronize = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     times: dict[str, list[float]] = {"detector": [], "observations": [], "encoder": []}
     for count, i in enumerate(list(selected_frames(run))[: frames + warmup]):
@@ -341,6 +342,7 @@ def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3) -> 
             for stage, seconds in zip(times, (detector_s, observations_s, time.perf_counter() - clock)):
                 times[stage].append(seconds)
     return {"device": torch.cuda.get_device_name() if device.startswith("cuda") else device,
+            "models": [f"{clip_model} (random weights)", f"{yolo_config} (random weights)"],
             "frames": len(times["detector"]), "warmup": warmup,
             "stage_ms": {stage: 1e3 * float(np.median(values)) for stage, values in times.items()}}
 

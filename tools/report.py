@@ -279,8 +279,8 @@ def gpu_section(results: dict[str, Any]) -> str:
                                   "CPU timings of the stages that ran here are in the Data table."]) + "\n"
     stages = dict(gpu["stage_ms"])
     total = sum(stages.values())
-    lines += [f"On {gpu['device']}, {gpu['frames']} frames of {gpu['sequence']} after {gpu['warmup']} warm-up frames. "
-              "YOLOv8x-seg and ViT-L-14 have **random weights** (timing only): YOLO's output is discarded and the "
+    lines += [f"On {gpu['device']}, {gpu['frames']} frames of {gpu['sequence']} after {gpu['warmup']} warm-up frames, "
+              f"with {' and '.join(gpu['models'])}. **Random weights** serve for timing only: YOLO's output is discarded and the "
               "observation fit and the encoder work on the sequence's own (simulated) detections. The algorithm row is "
               "CLIP-Clique's median matching + inliers + pose from Table I (CPU).\n",
               "| Stage | Median [ms per frame] |", "|---|---|"]

@@ -9,9 +9,10 @@ localizes the cached observations. The algorithm costs milliseconds per frame, t
 the encoder far more, so this is what lets the suite finish in minutes.
 
 Stochastic configurations (RANSAC, PROSAC, X-View's random walks) run with three seeds; tables
-give the best seed, as the paper does, and the spread over the seeds. Scalability reuses
-`bench_core.scalability` (a synthetic room copied side by side). The GPU section times ViT-L-14
-and YOLOv8x-seg with random weights when CUDA is available, and says why not otherwise.
+give the best seed, as the paper does, and the spread over the seeds. Scalability copies the first
+sequence's map side by side (the paper's set-up) and reruns `bench_core.scalability` (a synthetic
+room copied the same way). The GPU section times ViT-L-14 and YOLOv8x-seg with random weights
+when CUDA is available, and says why not otherwise.
 Output: `outputs/bench/<UTC timestamp>/` with report.md, PNG plots and results.json.
 """
 
@@ -307,7 +308,7 @@ def curve(rows: list[dict]) -> dict[str, Any]:
 
 def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3, clip_model: str = "ViT-L-14",
                yolo_config: str = "yolov8x-seg.yaml") -> dict[str, Any]:
-    """Median ms per frame of YOLOv8x-seg and ViT-L-14 (random weights: timing only) and the CPU fit.
+    """Median ms per frame of YOLO-seg and CLIP (random weights: timing only) and the CPU fit.
 
     Random weights detect nothing useful, so the masks the observation fit and the encoder work on
     are the sequence's own detector's; YOLO's output is timed and discarded.
@@ -393,7 +394,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--frames", type=int, help="frames per sequence, spread evenly [default: all]")
     parser.add_argument("--data-root", type=Path, help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]")
     parser.add_argument("--out", type=Path, help="report folder [default: outputs/bench/<UTC timestamp>]")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.frames is not None and args.frames < 1:
+        parser.error("--frames must be at least 1")
+    return args
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -90,6 +90,8 @@ def test_yolo_random_weights_output_shapes_and_class_mapping(monkeypatch):
     ultralytics = pytest.importorskip("ultralytics")
     from ultralytics.utils import ROOT, YAML
 
+    torch = pytest.importorskip("torch")
+    torch.manual_seed(0)  # random weights: seeded, or the detections depend on what ran before
     model = ultralytics.YOLO("yolov8n-seg.yaml")  # built from its config: random weights, no download
     model.model.names = YAML.load(ROOT / "cfg/datasets/coco.yaml")["names"]
     detector = YoloDetector(model, ["chair", "table", "person"], confidence=0.0, device="cpu")

@@ -65,6 +65,9 @@ def load_map(path: Path) -> Map:
     path = Path(path)
     if not path.is_file():
         raise MapFileError(f"{path}: map file not found (build one with: clipclique-map build SCENE)")
+    if not zipfile.is_zipfile(path):
+        # np.load would take any other file for a pickle and say so in a confusing way
+        raise MapFileError(f"{path}: not a readable map file (not an .npz archive, or a truncated one)")
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [name for name in REQUIRED_ARRAYS if name not in data.files]

@@ -130,3 +130,10 @@ def test_save_refuses_an_inconsistent_map(tmp_path):
     with pytest.raises(MapFileError, match="encoder is 'none'"):
         save_map(broken, tmp_path / "m.npz")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_file_that_is_not_an_archive_is_named_as_such(tmp_path):
+    path = tmp_path / "notes.map.npz"
+    path.write_text("these are not arrays\n")
+    with pytest.raises(MapFileError, match=r"notes\.map\.npz: not a readable map file \(not an \.npz archive"):
+        load_map(path)

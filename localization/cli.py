@@ -5,6 +5,7 @@ Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help
 
 from __future__ import annotations
 
+import os
 import sys
 from enum import Enum
 from pathlib import Path
@@ -108,6 +109,9 @@ class _user_errors:
 
 
 def main() -> None:
+    # A query's matrices are tiny: BLAS threads only wait for busy cores (up to ~10 ms a query
+    # on 2 cores, tools/bench.py). numpy is not imported yet, so this takes effect.
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     app()
 
 

@@ -69,7 +69,7 @@ def run_description(run: Run) -> dict[str, Any]:
 def results_document(run: Run) -> dict[str, Any]:
     summary = dict(run.summary())
     summary["stage_ms_median"] = stage_medians(run.frames)
-    return _finite({
+    return json_safe({
         "format": RESULTS_FORMAT,
         "version": RESULTS_VERSION,
         "run": run_description(run),
@@ -147,12 +147,12 @@ def read_results(path: Path) -> dict[str, Any]:
     return document
 
 
-def _finite(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
     """The same tree with NaN/inf floats as None and numpy scalars as Python ones."""
     if isinstance(value, dict):
-        return {str(k): _finite(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, (np.floating, float)):
         return float(value) if math.isfinite(value) else None
     if isinstance(value, np.integer):

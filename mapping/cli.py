@@ -125,3 +125,7 @@ def print_summary(map, report, out: Path, recording: Path | None, spec: str) -> 
 
 def main() -> None:
     app()
+
+
+if __name__ == "__main__":
+    main()

@@ -15,7 +15,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
 from localization.cli import app
 from localization.run import choose_encoder
-from localization.results import _finite, atomic_write, read_results, tum_line
+from localization.results import json_safe, atomic_write, read_results, tum_line
 from localization.tables import results_table, run_banner
 
 RUNNER = CliRunner()
@@ -34,7 +34,7 @@ def test_tum_line_round_trips_the_pose():
 
 def test_finite_replaces_nan_and_numpy_scalars():
     tree = {"a": np.float64("nan"), "b": [np.int64(3), np.float32(0.5), float("inf")], 4: np.bool_(True)}
-    cleaned = _finite(tree)
+    cleaned = json_safe(tree)
     assert cleaned == {"a": None, "b": [3, 0.5, None], "4": True}
     json.dumps(cleaned, allow_nan=False)
 

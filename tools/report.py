@@ -23,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from localization.results import _finite as json_safe  # noqa: E402  (NaN -> null, numpy -> Python)
+from localization.results import json_safe  # noqa: E402
 
 PAPER_LANDMARKS_AT_1S = 410  # the paper: about 410 landmarks localized within 1 s, growing quadratically
 CLAIM_SCALE = f"About {PAPER_LANDMARKS_AT_1S} landmarks within 1 s, quadratic growth"

@@ -21,6 +21,7 @@ import numpy as np
 import clipclique
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
 from clipclique.encoders import Encoder
+from clipclique.errors import DatasetError
 from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
 from clipclique.types import Map
 
@@ -73,7 +74,11 @@ def build_map(
     params: FitParams = FitParams(),
     progress: Progress | None = None,
 ) -> tuple[Map, BuildReport]:
-    """The landmark map of a scene and the report of how each instance fared."""
+    """The landmark map of a scene and the report of how each instance fared.
+
+    A scene none of whose objects becomes a landmark is a DatasetError saying why (a map of
+    nothing would localize nothing, and with an encoder it would not even be a valid map file).
+    """
     report = BuildReport(encoder=encoder.name if encoder else "none")
     start = time.perf_counter()
     instances = sequence.instances()
@@ -82,12 +87,14 @@ def build_map(
     start = time.perf_counter()
     kept, fits = fit_landmarks(instances, params, report, progress)
     report.timings["fit"] = time.perf_counter() - start
+    if not kept:
+        raise DatasetError(f"{sequence.root}: no landmarks to map: {_nothing_kept(instances, report)}")
     class_names = sorted({i.class_name for i in kept})
     report.landmarks_per_class.update(i.class_name for i in kept)
 
     descriptions = [i.description for i in kept]
     embeddings = None
-    if encoder is not None and kept:
+    if encoder is not None:
         start = time.perf_counter()
         embeddings = np.asarray(encoder.encode_text(descriptions), dtype=np.float32)
         report.timings["encode"] = time.perf_counter() - start
@@ -113,3 +120,12 @@ def build_map(
         provenance=provenance,
     )
     return map, report
+
+
+def _nothing_kept(instances: list[Instance], report: BuildReport) -> str:
+    """Why no instance of a scene became a landmark, for the error a user reads."""
+    if not instances:
+        return "the scene has no annotated objects (a TUM sequence needs annotations/objects.csv and annotations/instances/)"
+    parts = [f"{sum(report.structure.values())} left out as structure"] if report.structure else []
+    parts += [f"{len(items)} skipped, {reason}" for reason, items in report.skipped.items()]
+    return f"none of its {len(instances)} objects could be fitted ({'; '.join(parts)})"

@@ -122,3 +122,26 @@ def test_cli_user_errors_are_one_line_exit_2(tmp_path, data_root, args, message)
     assert result.exit_code == 2
     assert message in result.output and "Traceback" not in result.output
     assert not (tmp_path / "x.npz").exists()
+
+
+class _Scene:
+    """A stand-in Sequence with given instances (build_map reads only these attributes)."""
+
+    name, kind, synthetic = "stub", "tum", True
+
+    def __init__(self, root, instances):
+        self.root, self._instances = root, instances
+
+    def instances(self):
+        return self._instances
+
+
+def test_a_scene_without_landmarks_is_a_user_error_not_an_invalid_map(tmp_path):
+    from clipclique.encoders import load_encoder
+    from clipclique.errors import DatasetError
+
+    floor = Instance(1, "floor", "", np.random.default_rng(0).normal(size=(500, 3)))
+    with pytest.raises(DatasetError, match="no landmarks to map: none of its 1 objects.*1 left out as structure"):
+        build_map(_Scene(tmp_path, [floor]), load_encoder("simulated"))
+    with pytest.raises(DatasetError, match="no annotated objects.*annotations/objects.csv"):
+        build_map(_Scene(tmp_path, []), encoder=None)

@@ -77,7 +77,10 @@ def synthetic_query(
     embedding_noise: float = 0.5,
 ) -> tuple[Observations, Pose]:
     """Observations of the `num_visible` landmarks nearest a random map point, seen from a random
-    camera pose, plus `num_outliers` false detections (instance id -1). Returns (observations, camera-to-map pose)."""
+    camera pose, plus `num_outliers` false detections (instance id -1). Returns (observations, camera-to-map pose).
+
+    A map of fewer than `num_visible` landmarks is seen whole."""
+    num_visible = min(num_visible, len(map))
     anchor = map.ellipsoids.centers[rng.integers(len(map))]
     visible = np.argsort(np.linalg.norm(map.ellipsoids.centers - anchor, axis=1))[:num_visible]
     pose = Pose(random_rotation(rng), anchor + rng.normal(scale=2.0, size=3))

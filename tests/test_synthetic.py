@@ -23,3 +23,11 @@ def test_duplicated_rooms_are_shifted_copies_with_new_instance_ids():
     np.testing.assert_allclose(shift, np.tile([np.ptp(map.ellipsoids.centers[:, 0]) + 2.0, 0, 0], (10, 1)))
     np.testing.assert_array_equal(rooms.class_ids[20:], map.class_ids)
     np.testing.assert_array_equal(rooms.text_embeddings[20:], map.text_embeddings)
+
+
+def test_a_map_smaller_than_the_view_is_seen_whole():
+    map = synthetic_map(np.random.default_rng(0), num_landmarks=5)
+    observations, _ = synthetic_query(map, np.random.default_rng(1), num_visible=10, num_outliers=2)
+    assert len(observations) == 7 and observations.image_embeddings.shape == (7, 32)
+    assert sorted(observations.instance_ids[:5]) == sorted(map.instance_ids)
+    np.testing.assert_array_equal(observations.detection_index, np.arange(7))

@@ -185,8 +185,14 @@ def validate(config: LocalizationConfig) -> None:
         section, key = dotted.split(".")
         if getattr(getattr(config, section), key) <= 0:
             raise ConfigError(f"{dotted} must be positive")
-    if config.top_n < 1 or config.matching.k < 1 or config.graph.walk_length < 1:
-        raise ConfigError("top_n, matching.k and graph.walk_length must be at least 1")
+    if config.success_threshold_m <= 0:
+        raise ConfigError("success_threshold_m must be positive")
+    for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
+        value: Any = config
+        for part in dotted.split("."):
+            value = getattr(value, part)
+        if value < 1:
+            raise ConfigError(f"{dotted} = {value}; must be at least 1")
 
 
 def _field_names(obj: Any) -> set[str]:

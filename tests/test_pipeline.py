@@ -3,7 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clipclique.config import make_config
+from clipclique.config import ConfigError, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
@@ -155,3 +155,13 @@ def test_empty_map_or_frame_fails_cleanly(method):
     )
     result = localize(empty_frame, index_map(map, config), config)
     assert result.similarity.shape == (0, len(map)) and result.failure == "fewer than 3 observations (0)"
+
+
+@pytest.mark.parametrize(
+    "override",
+    ["graph.xview_walks=-1", "inliers.max_cliques=0", "inliers.ransac_iterations=0", "top_n=0", "success_threshold_m=0"],
+)
+def test_counts_and_thresholds_out_of_range_are_config_errors(override):
+    # xview_walks=-1 crashed numpy; max_cliques <= 0 reported a cap hit with no clique looked at
+    with pytest.raises(ConfigError, match=override.split("=")[0]):
+        make_config("xview", overrides=[override])

@@ -40,6 +40,7 @@ class MapIndex:
     adjacency: sp.csr_matrix  # (N, N) semantic graph
     histograms: sp.csr_matrix | None  # (N, C^s) Semantic Histograms, when the descriptor uses them
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
+    text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
 
 
 @dataclass
@@ -59,7 +60,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
     adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config)
-    return MapIndex(map, _index_key(config), adjacency, histograms, walks)
+    text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
+    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -138,11 +140,11 @@ def _similarity(
     if descriptor == "clip":
         if missing:
             raise ClipcliqueError(f"descriptor 'clip' needs CLIP embeddings, but {missing}")
-        return similarity.clip_similarity(observations.image_embeddings, index.map.text_embeddings), []
+        return similarity.clip_similarity(observations.image_embeddings, index.text_embeddings), []
     sh = similarity.histogram_similarity(histograms, index.histograms)
     if missing:
         return sh, [f"no CLIP embeddings ({missing}): alpha = 0 (SH only)"]
-    clip = similarity.clip_similarity(observations.image_embeddings, index.map.text_embeddings)
+    clip = similarity.clip_similarity(observations.image_embeddings, index.text_embeddings)
     return similarity.fuse(clip, sh, config.similarity.alpha), []
 
 

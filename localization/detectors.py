@@ -160,12 +160,17 @@ class YoloDetector:
     @classmethod
     def load(cls, weights: str | Path, class_names: list[str], confidence: float = 0.25,
              device: str | None = None) -> YoloDetector:
-        """Weights from a local file, or a model name ultralytics downloads when online."""
-        if "YOLO_OFFLINE" not in os.environ:
-            os.environ["YOLO_OFFLINE"] = "0" if host_reachable("github.com") else "1"
-        os.environ.setdefault("YOLO_AUTOINSTALL", "false")
+        """Weights from a local file, or a model name ultralytics downloads when online.
+
+        Unless the user set YOLO_OFFLINE, ultralytics is kept offline (no update checks, no usage
+        analytics) except when the weights must be downloaded and github.com is reachable.
+        """
         weights = str(weights)
-        if not Path(weights).is_file() and os.environ["YOLO_OFFLINE"].lower() not in ("0", "false"):
+        local = Path(weights).is_file()
+        if "YOLO_OFFLINE" not in os.environ:
+            os.environ["YOLO_OFFLINE"] = "1" if local or not host_reachable("github.com") else "0"
+        os.environ.setdefault("YOLO_AUTOINSTALL", "false")
+        if not local and _env_true("YOLO_OFFLINE"):
             raise ModelUnavailableError(
                 f"--yolo-weights {weights}: no such file and no network to download it; pass a local "
                 "YOLO-seg checkpoint (e.g. --yolo-weights path/to/yolov8x-seg.pt) or use --detector gt")
@@ -192,6 +197,11 @@ class YoloDetector:
         masks = result.masks.data.cpu().numpy()[keep] > 0.5
         return Detections(masks, result.boxes.xyxy.cpu().numpy()[keep].astype(float), classes[keep],
                           result.boxes.conf.cpu().numpy()[keep].astype(float), np.full(int(keep.sum()), -1))
+
+
+def _env_true(name: str) -> bool:
+    """An environment flag read as ultralytics reads it (1, true, yes, on, y, t)."""
+    return os.environ.get(name, "").strip().lower() in ("1", "true", "yes", "on", "y", "t")
 
 
 def coco_to_vocabulary(model_names: dict[int, str], class_names: list[str]) -> np.ndarray:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -75,6 +77,32 @@ def test_make_detector_rejects_unknown_and_missing_yolo_weights(monkeypatch, tmp
     monkeypatch.setenv("YOLO_OFFLINE", "1")
     with pytest.raises(ModelUnavailableError, match="--yolo-weights"):
         make_detector("yolo", OBJECTS, CLASSES, yolo_weights=tmp_path / "missing-seg.pt")
+
+
+def test_local_yolo_weights_keep_ultralytics_offline(monkeypatch, tmp_path):
+    """A checkpoint on disk needs no network: no probe, and ultralytics starts with YOLO_OFFLINE=1
+    (online, it would send usage analytics on every predict)."""
+    import sys
+    import types
+
+    import localization.detectors as detectors
+
+    seen = {}
+
+    class FakeYolo:
+        task = "segment"
+        names = {0: "chair"}
+
+        def __init__(self, weights: str) -> None:
+            seen["offline"] = os.environ.get("YOLO_OFFLINE")
+
+    monkeypatch.delenv("YOLO_OFFLINE", raising=False)
+    monkeypatch.setattr(detectors, "host_reachable", lambda host: pytest.fail(f"probed {host}"))
+    monkeypatch.setitem(sys.modules, "ultralytics", types.SimpleNamespace(YOLO=FakeYolo))
+    weights = tmp_path / "mine-seg.pt"
+    weights.write_bytes(b"checkpoint")
+    detector = YoloDetector.load(weights, CLASSES)
+    assert seen["offline"] == "1" and detector.class_map.tolist() == [0]
 
 
 def test_coco_classes_map_to_the_vocabulary():

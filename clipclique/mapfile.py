@@ -48,13 +48,19 @@ def save_map(map: Map, path: Path) -> None:
     }
     if map.text_embeddings is not None:
         arrays["text_embeddings"] = np.asarray(map.text_embeddings, np.float32)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as error:
+        raise MapFileError(f"{path}: cannot write the map file ({error.strerror or error})") from None
     try:
         with os.fdopen(handle, "wb") as stream:
             np.savez_compressed(stream, **arrays)
         os.chmod(temp, 0o644)  # mkstemp makes it private; a map is an ordinary output file
         os.replace(temp, path)
+    except OSError as error:  # e.g. the path is a folder, or the disk is full
+        Path(temp).unlink(missing_ok=True)
+        raise MapFileError(f"{path}: cannot write the map file ({error.strerror or error})") from None
     except BaseException:
         Path(temp).unlink(missing_ok=True)
         raise
@@ -131,6 +137,9 @@ def validate_map(map: Map, where: str) -> None:
         fail("class_names must be distinct strings")
     if n and (np.min(map.class_ids) < 0 or np.max(map.class_ids) >= len(map.class_names)):
         fail(f"class_ids outside the vocabulary of {len(map.class_names)} classes")
+    for name, values in (("centers", e.centers), ("axes", e.axes), ("rotations", e.rotations)):
+        if np.asarray(values).dtype.kind not in "fiu":
+            fail(f"{name} should be numbers, got {np.asarray(values).dtype}")
     if not (np.isfinite(e.centers).all() and np.isfinite(e.rotations).all() and np.isfinite(e.axes).all()):
         fail("non-finite ellipsoid values")
     if n and np.min(e.axes) <= 0:
@@ -144,7 +153,7 @@ def validate_map(map: Map, where: str) -> None:
         return
     if map.encoder == "none":
         fail("text embeddings stored but encoder is 'none'")
-    if np.ndim(embeddings) != 2 or len(embeddings) != n:
-        fail(f"text_embeddings shape {np.shape(embeddings)} does not match {n} landmarks")
+    if np.ndim(embeddings) != 2 or len(embeddings) != n or np.asarray(embeddings).dtype.kind not in "fiu":
+        fail(f"text_embeddings {np.asarray(embeddings).dtype} {np.shape(embeddings)} should be numbers, one row per landmark ({n})")
     if not np.isfinite(embeddings).all() or (n and not np.allclose(np.linalg.norm(embeddings, axis=1), 1.0, atol=1e-3)):
         fail("text embeddings must be finite and L2-normalized")

@@ -137,3 +137,20 @@ def test_a_file_that_is_not_an_archive_is_named_as_such(tmp_path):
     path.write_text("these are not arrays\n")
     with pytest.raises(MapFileError, match=r"notes\.map\.npz: not a readable map file \(not an \.npz archive"):
         load_map(path)
+
+
+@pytest.mark.parametrize("name", ["centers", "text_embeddings"])
+def test_text_where_numbers_belong_is_a_map_file_error(tmp_path, name):
+    path = tmp_path / "m.npz"
+    save_map(make_map(), path)
+    with np.load(path) as data:
+        rewrite(path, **{name: data[name].astype(str)})
+    with pytest.raises(MapFileError, match=f"m.npz: {name}.*should be numbers"):  # was numpy's TypeError
+        load_map(path)
+
+
+def test_an_unwritable_output_is_a_map_file_error(tmp_path):
+    (tmp_path / "taken.npz").mkdir()
+    with pytest.raises(MapFileError, match=r"taken\.npz: cannot write the map file"):  # was IsADirectoryError
+        save_map(make_map(), tmp_path / "taken.npz")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.npz"]

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from clipclique.config import METHOD_TITLES
+from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import STAGES
 from clipclique.types import Pose
@@ -136,8 +137,6 @@ def tum_line(timestamp: float, pose: Pose) -> str:
 
 def read_results(path: Path) -> dict[str, Any]:
     """A results.json, checked to be one."""
-    from clipclique.errors import ClipcliqueError
-
     try:
         document = json.loads(Path(path).read_text())
     except (OSError, json.JSONDecodeError) as error:
@@ -165,7 +164,7 @@ def json_safe(value: Any) -> Any:
 def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Prepare, localize every selected frame, write results (and the .rrd); the results document."""
     run = prepare(settings)
-    out_dir = settings.out_dir()
+    out_dir = writable_folder(settings.out_dir())
     if settings.record:
         from clipclique.viz import LocalizationRecorder
 
@@ -176,6 +175,18 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
         execute(run, None, progress)
     write_results(run, out_dir)
     return results_document(run)
+
+
+def writable_folder(out_dir: Path) -> Path:
+    """`out_dir`, created; a folder that cannot be written is a user error before the run, not a
+    traceback after it."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ClipcliqueError(f"--out {out_dir}: cannot create the folder ({error.strerror})") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise ClipcliqueError(f"--out {out_dir}: the folder is not writable")
+    return out_dir
 
 
 def recording_description(run: Run) -> str:

@@ -79,6 +79,19 @@ def test_cli_help_and_missing_map(tmp_path):
     assert bad.exit_code == 2 and "inliers.nope" in bad.output
 
 
+def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
+    """Found before the frames are localized, as one line naming --out (it was a traceback after the run)."""
+    import localization.results as results
+    from localization.run import RunSettings
+
+    monkeypatch.setattr(results, "prepare", lambda settings: None)
+    monkeypatch.setattr(results, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    with pytest.raises(ClipcliqueError, match="--out .*a-file/out"):
+        results.run_and_save(RunSettings("demo", out=blocker / "out", record=False))
+
+
 def _map(encoder: str, embeddings: bool) -> Map:
     text = np.eye(3, 512, dtype=np.float32) if embeddings else None
     return Map(Ellipsoids(np.zeros((3, 3)), np.ones((3, 3)), np.tile(np.eye(3), (3, 1, 1))), np.zeros(3, int),

@@ -171,3 +171,18 @@ def test_frames_without_instance_images_project_the_labelled_mesh(tmp_path):
     assert instances[240, 200] == 2 and instances[100, 200] == 2
     assert instances[20, 200] == 0 and instances[240, 20] == 0  # outside the quad
     assert instances[240, 400] == 0  # measured depth disagrees with the mesh
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        (f"{SCENE}_descriptions.json", '{"chair": "a red chair"}', "keys must be ScanNet objectIds"),
+        (f"{SCENE}_descriptions.json", '["a red chair"]', "expected a JSON object"),
+        (f"{SCENE}.aggregation.json", "[]", "expected a JSON object"),
+    ],
+)
+def test_malformed_json_files_name_the_file(tmp_path, name, text, message):
+    folder, _ = write_scene(tmp_path)
+    (folder / name).write_text(text)  # were ValueError / AttributeError tracebacks
+    with pytest.raises(DatasetError, match=f"{name}: {message}"):
+        open_sequence(SCENE, tmp_path).instances()

@@ -78,12 +78,16 @@ def is_demo(folder: Path) -> bool:
 
 
 def read_json(path: Path) -> dict:
+    """A JSON file holding an object, with a DatasetError naming the file otherwise."""
     try:
-        return json.loads(path.read_text())
+        data = json.loads(path.read_text())
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise DatasetError(f"{path}: not valid JSON ({error})") from None
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a JSON object {{...}}, got a {type(data).__name__}")
+    return data
 
 
 def read_image(path: Path, mode: str | None = None) -> np.ndarray:

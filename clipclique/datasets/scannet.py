@@ -195,7 +195,10 @@ class ScanNetScene(Sequence):
         path = self.root / f"{self.name}_descriptions.json"
         if not path.is_file():
             return {}
-        return {int(key) + 1: str(text) for key, text in read_json(path).items()}
+        try:
+            return {int(key) + 1: str(text) for key, text in read_json(path).items()}
+        except ValueError:
+            raise DatasetError(f'{path}: keys must be ScanNet objectIds, e.g. {{"0": "a red office chair"}}') from None
 
     def instances(self) -> list[Instance]:
         xyz = np.column_stack([self._vertices[axis] for axis in "xyz"]).astype(np.float64)

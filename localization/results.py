@@ -31,11 +31,14 @@ RESULTS_VERSION = 1
 ALL_STAGES = QUERY_STAGES + STAGES
 
 
-def write_results(run: Run, out_dir: Path) -> None:
+def write_results(run: Run, out_dir: Path) -> dict[str, Any]:
+    """Write results.json, poses.tum and config.json into `out_dir`; the results document."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write(out_dir / "results.json", json.dumps(results_document(run), indent=1, allow_nan=False))
+    document = results_document(run)
+    atomic_write(out_dir / "results.json", json.dumps(document, indent=1, allow_nan=False))
     atomic_write(out_dir / "poses.tum", tum_trajectory(run.frames))
     atomic_write(out_dir / "config.json", json.dumps(run.config.to_dict(), indent=1, allow_nan=False))
+    return document
 
 
 def atomic_write(path: Path, text: str) -> None:
@@ -173,8 +176,7 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
             execute(run, recorder, progress)
     else:
         execute(run, None, progress)
-    write_results(run, out_dir)
-    return results_document(run)
+    return write_results(run, out_dir)
 
 
 def writable_folder(out_dir: Path) -> Path:

@@ -169,9 +169,12 @@ class TumSequence(Sequence):
             raise DatasetError(f"{path}: object id {unknown[0]} is not in annotations/objects.csv")
         return ids
 
+    def _depth(self, i: int) -> np.ndarray:
+        return read_depth(self.root / self.depth_files[i], DEPTH_FACTOR)
+
     def __getitem__(self, i: int) -> Frame:
         i = self._check_index(i)
-        depth = read_depth(self.root / self.depth_files[i], DEPTH_FACTOR)
+        depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
         return Frame(i, float(self.timestamps[i]), rgb, depth, self.intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
 
@@ -205,12 +208,13 @@ class TumSequence(Sequence):
         for i, pose in enumerate(self.poses):
             if pose is None or not self._annotation_path(i).is_file():
                 continue
-            frame = self[i]
-            sample = np.zeros(frame.depth.shape, bool)
+            depth = self._depth(i)  # the colour image is not needed here
+            instances = self._annotation(i, depth.shape)
+            sample = np.zeros(depth.shape, bool)
             sample[::ANNOTATION_STRIDE, ::ANNOTATION_STRIDE] = True
-            valid = sample & (frame.instances > 0) & (frame.depth > 0)
-            points = pose.apply(backproject(frame.depth, frame.intrinsics, valid))
-            ids = frame.instances[valid]  # same row-major order as backproject's pixels
+            valid = sample & (instances > 0) & (depth > 0)
+            points = pose.apply(backproject(depth, self.intrinsics, valid))
+            ids = instances[valid]  # same row-major order as backproject's pixels
             order = np.argsort(ids, kind="stable")
             unique, starts = np.unique(ids[order], return_index=True)
             for object_id, chunk in zip(unique, np.split(points[order], starts[1:])):

@@ -7,11 +7,15 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
 from rich.table import Table
+
+if TYPE_CHECKING:  # the real imports stay inside the command, so that --help is instant
+    from clipclique.types import Map
+    from mapping.build import BuildReport
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich", help=__doc__)
 console = Console(stderr=True)
@@ -90,7 +94,7 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
     return out
 
 
-def describe(map, scene: str) -> str:
+def describe(map: Map, scene: str) -> str:
     """The recording's text document: what the map is and what made it."""
     source = map.provenance.get("source", {})
     simulated = " (simulated CLIP: a stand-in for real CLIP on synthetic data)" if map.provenance.get("encoder_simulated") else ""
@@ -101,7 +105,8 @@ def describe(map, scene: str) -> str:
     )
 
 
-def print_summary(map, report, out: Path, recording: Path | None, spec: str) -> None:
+def print_summary(map: Map, report: BuildReport, out: Path, recording: Path | None, spec: str) -> None:
+    """The landmarks per class, what was left out or skipped and why, the encoder, times and outputs."""
     table = Table(title=f"{len(map)} landmarks", title_justify="left")
     table.add_column("class")
     table.add_column("landmarks", justify="right")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Protocol
 
@@ -82,13 +83,18 @@ class InstanceDetector:
     min_pixels: int = 1
     simulated: bool = False
 
+    @cached_property
+    def _map_class(self) -> dict[int, int]:
+        """Dataset object id -> map class id (-1: not in the map's vocabulary), fixed for the run."""
+        vocabulary = vocabulary_index(self.class_names)
+        return {i: vocabulary.get(name.lower(), -1) for i, name in self.object_classes.items()}
+
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
         if frame.instances is None:
             return empty_detections(height, width)
-        vocabulary = vocabulary_index(self.class_names)
         ids, counts = np.unique(frame.instances[frame.instances > 0], return_counts=True)
-        classes = np.array([vocabulary.get(self.object_classes.get(int(i), "").lower(), -1) for i in ids], int)
+        classes = np.array([self._map_class.get(int(i), -1) for i in ids], int)
         keep = (classes >= 0) & (counts >= self.min_pixels)
         ids, classes = ids[keep], classes[keep]
         masks = frame.instances[None] == ids[:, None, None]

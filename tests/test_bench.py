@@ -160,6 +160,16 @@ def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "report").exists()
 
 
+def test_a_failed_demo_map_build_is_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(bench.subprocess, "run", lambda *args, **kwargs: subprocess.CompletedProcess(args, 2, ""))
+    with pytest.raises(SystemExit) as exit_info:
+        bench.main(["--sequences", "demo", "--quick", "--out", "report"])
+    assert exit_info.value.code == 2
+    assert "building the map of demo failed" in capsys.readouterr().err
+    assert not (tmp_path / "report").exists()
+
+
 def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stochastic_ones():
     def flat(tree: dict, prefix: str = "") -> dict:
         return {k: v for key, value in tree.items()

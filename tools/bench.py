@@ -158,8 +158,9 @@ def ensure_map(name: str, data_root: Path | None) -> None:
     if name not in demo.DEMO_SCENES:
         raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
     command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
-    subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), check=True,
-                   stdout=subprocess.DEVNULL)
+    built = subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), stdout=subprocess.DEVNULL)
+    if built.returncode != 0:  # clipclique-map has printed why on stderr
+        raise MapFileError(f"{path}: building the map of {name} failed (clipclique-map exit status {built.returncode})")
 
 
 def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> CachedSequence:

@@ -2,7 +2,8 @@
 
 Aggregation choices: translation/rotation errors are summarized by the median over the frames
 that have both a top-1 pose and a ground-truth pose (all of them, not only the successes);
-success rates divide by every evaluated frame (no pose = failure); precision averages over
+success rates divide by every frame with a ground-truth pose (no estimated pose = failure; a
+frame without ground truth cannot be scored, so it counts neither way); precision averages over
 frames with a top-1 hypothesis, recall over frames where some observed object is in the map.
 """
 
@@ -33,6 +34,7 @@ class FrameEvaluation:
     failure: str | None
     time_s: float  # matching + inliers + pose (the algorithm), seconds
     num_in_map: int = 0  # observations whose object is in the map (recall's denominator)
+    has_ground_truth: bool = True  # False: no ground-truth pose, so success is undefined (left out of success@k)
 
 
 def evaluate_frame(
@@ -70,6 +72,7 @@ def evaluate_frame(
         failure=result.failure,
         time_s=sum(result.timings.get(stage, 0.0) for stage in ("matching", "inliers", "pose")),
         num_in_map=num_in_map,
+        has_ground_truth=gt_pose is not None,
     )
 
 
@@ -80,7 +83,7 @@ def summarize(evaluations: list[FrameEvaluation]) -> dict[str, float]:
     re = [e.rotation_error for e in evaluations if e.rotation_error is not None]
     summary = {"frames": float(len(evaluations))}
     for k in TOP_K:
-        summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations])
+        summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])

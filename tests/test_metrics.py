@@ -75,3 +75,12 @@ def test_summarize_aggregates_as_documented():
     assert summary["re_median_deg"] == pytest.approx(np.degrees(0.2))
     assert summary["time_ms_mean"] == pytest.approx(15.0) and summary["time_ms_median"] == pytest.approx(10.0)
     assert math.isnan(summarize([])["precision"])
+
+
+def test_frames_without_ground_truth_do_not_count_in_success():
+    scored = evaluate_frame(result_with([TRUTH], np.array([[0, 0]])), OBSERVATIONS, MAP, TRUTH, make_config(), 0)
+    unscored = evaluate_frame(result_with([TRUTH], np.array([[0, 0]])), OBSERVATIONS, MAP, None, make_config(), 1)
+    assert scored.has_ground_truth and not unscored.has_ground_truth
+    summary = summarize([scored, unscored])  # a perfect pose and one that cannot be scored: 100 %, not 50 %
+    assert summary["success@1"] == 1.0 and summary["frames"] == 2 and summary["localized"] == 1.0
+    assert math.isnan(summarize([unscored])["success@1"])

@@ -230,3 +230,10 @@ def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkey
     results["gpu"]["stage_ms"]["algorithm"] = 0.5
     text = report.gpu_section(results)
     assert "ViT-B-32 (random weights)" in text and "frames per second" in text
+
+
+def test_bench_loc_user_mistakes_are_one_line(tmp_path):
+    for args, expected in ((["nosuch"], "no map"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
+        done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=120)
+        assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr

@@ -15,21 +15,33 @@ import os
 
 import numpy as np
 
+from clipclique.config import METHOD_PRESETS
+from clipclique.errors import ClipcliqueError
 from clipclique.pipeline import STAGES, index_map, localize
 from localization.run import QUERY_STAGES, RunSettings, observe, prepare, selected_frames
 
 ALGORITHM_STAGES = ("matching", "inliers", "pose")
 
 
+def positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequence", nargs="?", default="demo")
-    parser.add_argument("--method", default="clipclique")
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--max-frames", type=int, default=None)
+    parser.add_argument("--method", default="clipclique", choices=list(METHOD_PRESETS))
+    parser.add_argument("--repeat", type=positive, default=3)
+    parser.add_argument("--max-frames", type=positive, default=None)
     args = parser.parse_args()
 
-    run = prepare(RunSettings(args.sequence, args.method, max_frames=args.max_frames, record=False))
+    try:
+        run = prepare(RunSettings(args.sequence, args.method, max_frames=args.max_frames, record=False))
+    except ClipcliqueError as error:  # a missing map or sequence: one line, as clipclique-loc says it
+        parser.exit(2, f"bench_loc: error: {error}\n")
     index = index_map(run.map, run.config)
     rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *STAGES, "algorithm")}
     for i in selected_frames(run):

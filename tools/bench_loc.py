@@ -13,12 +13,14 @@ from __future__ import annotations
 import argparse
 import os
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (localization/cli.py), before numpy loads
 
-from clipclique.config import METHOD_PRESETS
-from clipclique.errors import ClipcliqueError
-from clipclique.pipeline import STAGES, index_map, localize
-from localization.run import QUERY_STAGES, RunSettings, observe, prepare, selected_frames
+import numpy as np  # noqa: E402
+
+from clipclique.config import METHOD_PRESETS  # noqa: E402
+from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.pipeline import STAGES, index_map, localize  # noqa: E402
+from localization.run import QUERY_STAGES, RunSettings, observe, prepare, selected_frames  # noqa: E402
 
 ALGORITHM_STAGES = ("matching", "inliers", "pose")
 

@@ -133,9 +133,14 @@ def main() -> None:
     parser.add_argument("--size", default="1280x960", help="window size in points, WxH")
     parser.add_argument("--frame", type=int, help="frame to show (default: the last)")
     args = parser.parse_args()
+    if not args.recording.is_file():
+        parser.error(f"{args.recording}: no such recording")
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        parser.error(f"--size {args.size}: expected WIDTHxHEIGHT, e.g. 1280x960")
     if not software_vulkan_available():
         parser.exit(2, "no Vulkan driver: install Mesa's (apt-get install mesa-vulkan-drivers)\n")
-    width, height = (int(v) for v in args.size.lower().split("x"))
     shot = render(args.recording, (width, height), args.frame)
     args.output.parent.mkdir(parents=True, exist_ok=True)
     partial = args.output.with_name(args.output.name + ".partial")

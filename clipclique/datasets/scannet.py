@@ -142,6 +142,11 @@ class ScanNetScene(Sequence):
         return vertex
 
     @cached_property
+    def _xyz(self) -> np.ndarray:
+        """(V, 3) float64 mesh vertex positions."""
+        return np.column_stack([self._vertices[axis] for axis in "xyz"]).astype(np.float64)
+
+    @cached_property
     def _class_of(self) -> dict[str, str]:
         """Raw category -> class: NYU40 names from the label table when one is found, else identity."""
         for folder in (self.root, self.root.parent, self.root.parent.parent):
@@ -187,8 +192,7 @@ class ScanNetScene(Sequence):
         faces = np.vstack(self._ply["face"].data["vertex_indices"]).astype(np.int32)
         ids, _, owner = self._grouping
         vertex_ids = np.append(ids, 0)[owner]  # owner == len(ids): in no group
-        xyz = np.column_stack([self._vertices[axis] for axis in "xyz"])
-        return MeshRaycaster(xyz, faces), vertex_ids[faces[:, 0]]
+        return MeshRaycaster(self._xyz, faces), vertex_ids[faces[:, 0]]
 
     @cached_property
     def _descriptions(self) -> dict[int, str]:
@@ -201,9 +205,8 @@ class ScanNetScene(Sequence):
             raise DatasetError(f'{path}: keys must be ScanNet objectIds, e.g. {{"0": "a red office chair"}}') from None
 
     def instances(self) -> list[Instance]:
-        xyz = np.column_stack([self._vertices[axis] for axis in "xyz"]).astype(np.float64)
         return [
-            Instance(object_id, class_name, self._descriptions.get(object_id, description_template(class_name)), xyz[vertices])
+            Instance(object_id, class_name, self._descriptions.get(object_id, description_template(class_name)), self._xyz[vertices])
             for object_id, _, class_name, vertices in self._objects
         ]
 
@@ -212,10 +215,9 @@ class ScanNetScene(Sequence):
 
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         vertex = self._vertices
-        xyz = np.column_stack([vertex[axis] for axis in "xyz"]).astype(np.float64)
         names = vertex.dtype.names
-        rgb = np.column_stack([vertex[c] for c in ("red", "green", "blue")]) if "red" in names else np.full((len(xyz), 3), 180)
-        return xyz, rgb.astype(np.uint8)
+        rgb = np.column_stack([vertex[c] for c in ("red", "green", "blue")]) if "red" in names else np.full((len(vertex), 3), 180)
+        return self._xyz, rgb.astype(np.uint8)
 
 
 def vertex_owner(segments: np.ndarray, members: list[np.ndarray]) -> np.ndarray:

@@ -46,6 +46,7 @@ def atomic_write(path: Path, text: str) -> None:
     try:
         with os.fdopen(handle, "w") as file:
             file.write(text)
+        os.chmod(temporary, 0o644)  # mkstemp makes it private; results are ordinary output files
         os.replace(temporary, path)
     except BaseException:
         Path(temporary).unlink(missing_ok=True)

@@ -45,6 +45,11 @@ def test_atomic_write_leaves_no_partial_file(tmp_path):
     assert target.read_text() == "{}" and [p.name for p in tmp_path.iterdir()] == ["results.json"]
 
 
+def test_atomic_write_gives_an_ordinary_readable_file(tmp_path):
+    atomic_write(tmp_path / "results.json", "{}")
+    assert (tmp_path / "results.json").stat().st_mode & 0o777 == 0o644  # not mkstemp's private 0o600
+
+
 def test_read_results_rejects_other_files(tmp_path):
     (tmp_path / "x.json").write_text('{"format": "something else"}')
     with pytest.raises(Exception, match="not a version 1"):

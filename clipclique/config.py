@@ -166,6 +166,7 @@ def apply_overrides(config: LocalizationConfig, values: dict[str, Any], source: 
 
 
 def validate(config: LocalizationConfig) -> None:
+    """ConfigError naming the first key whose value is out of its range or not one of its choices."""
     allowed = {
         "similarity.descriptor": Descriptor,
         "matching.strategy": MatchingStrategy,
@@ -173,26 +174,26 @@ def validate(config: LocalizationConfig) -> None:
         "pose.weights": PoseWeights,
     }
     for dotted, literal in allowed.items():
-        section, key = dotted.split(".")
-        value = getattr(getattr(config, section), key)
+        value = _get(config, dotted)
         if value not in literal.__args__:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
     if not 0.0 <= config.similarity.alpha <= 1.0:
         raise ConfigError(f"similarity.alpha = {config.similarity.alpha}; must be within [0, 1]")
     if config.inliers.min_clique_size < 3:
         raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
-    for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold"):
-        section, key = dotted.split(".")
-        if getattr(getattr(config, section), key) <= 0:
+    for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):
+        if _get(config, dotted) <= 0:
             raise ConfigError(f"{dotted} must be positive")
-    if config.success_threshold_m <= 0:
-        raise ConfigError("success_threshold_m must be positive")
     for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
-        value: Any = config
-        for part in dotted.split("."):
-            value = getattr(value, part)
-        if value < 1:
+        if (value := _get(config, dotted)) < 1:
             raise ConfigError(f"{dotted} = {value}; must be at least 1")
+
+
+def _get(config: LocalizationConfig, dotted: str) -> Any:
+    value: Any = config
+    for part in dotted.split("."):
+        value = getattr(value, part)
+    return value
 
 
 def _field_names(obj: Any) -> set[str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,9 @@ STRUCTURE_CLASSES = frozenset({"wall", "floor", "ceiling"})
 
 
 def is_structure(class_name: str) -> bool:
+    """True for room structure (wall, floor, ceiling; any case), which never becomes a landmark."""
     return class_name.strip().lower() in STRUCTURE_CLASSES
+
 
 # Marker the demo generator writes last into each demo scene folder.
 DEMO_MARKER = "clipclique_demo.json"
@@ -64,7 +67,7 @@ class Sequence(ABC):
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""
         return None
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))
 
     def _check_index(self, i: int) -> int:
@@ -74,6 +77,7 @@ class Sequence(ABC):
 
 
 def is_demo(folder: Path) -> bool:
+    """True for a folder the demo generator wrote (its marker file is there)."""
     return (folder / DEMO_MARKER).is_file()
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES
 from clipclique.datasets.procedural import Room, Walk, make_room, make_walk
 from clipclique.datasets.render import MeshRaycaster, shade, sensor_depth
+from clipclique.types import Pose
 
 GENERATOR_VERSION = 1
 Progress = Callable[[int, int], None]
@@ -150,7 +151,7 @@ class ScanNetWriter:
         for stem, value in (("intrinsic_depth", matrix), ("intrinsic_color", matrix), ("extrinsic_depth", np.eye(4)), ("extrinsic_color", np.eye(4))):
             np.savetxt(self.folder / "intrinsic" / f"{stem}.txt", value, fmt="%f")
 
-    def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose) -> None:
+    def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose: Pose) -> None:
         from PIL import Image
 
         Image.fromarray(rgb).save(self.folder / "color" / f"{i}.jpg", quality=92)
@@ -184,7 +185,7 @@ class TumWriter:
         ]
         (self.folder / "annotations" / "objects.csv").write_text("\n".join(rows) + "\n")
 
-    def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose) -> None:
+    def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose: Pose) -> None:
         # The Kinect's colour and depth streams are not synchronized: a few ms apart.
         rgb_stamp = f"{self.START + t + self.rng.uniform(0.0, 0.004):.6f}"
         depth_stamp = f"{self.START + t + self.rng.uniform(0.006, 0.014):.6f}"

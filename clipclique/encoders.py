@@ -116,15 +116,18 @@ class SimulatedClipEncoder:
         self.truncated_visibility = truncated_visibility
         self.seed = seed
         self._shared = self._direction("<shared>")
+        self._texts: dict[str, np.ndarray] = {}  # text -> embedding: a run embeds the map's few descriptions again and again
 
     def _direction(self, key: str) -> np.ndarray:
         rng = np.random.default_rng(_seed(str(self.seed), key))
         return _normalize(rng.standard_normal(self.dim))
 
     def _text(self, text: str) -> np.ndarray:
-        words = [w for w in re.findall(r"[a-z0-9]+", text.lower()) if w not in _STOP_WORDS]
-        content = _normalize(np.sum([self._direction(w) for w in words], axis=0)) if words else 0.0
-        return _normalize(self._shared + content)
+        if text not in self._texts:
+            words = [w for w in re.findall(r"[a-z0-9]+", text.lower()) if w not in _STOP_WORDS]
+            content = _normalize(np.sum([self._direction(w) for w in words], axis=0)) if words else 0.0
+            self._texts[text] = _normalize(self._shared + content)
+        return self._texts[text]
 
     def encode_text(self, texts: list[str]) -> np.ndarray:
         return np.stack([self._text(t) for t in texts]) if texts else np.zeros((0, self.dim), np.float32)

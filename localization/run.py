@@ -11,6 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import Sequence, open_sequence
@@ -22,6 +23,9 @@ from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localiz
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from localization.detectors import Detector, make_detector
 from localization.observations import ObservationParams, embed, extract_observations
+
+if TYPE_CHECKING:
+    from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records
 
 MAP_DIR = Path("outputs/maps")
 LOC_DIR = Path("outputs/loc")
@@ -112,6 +116,7 @@ def prepare(settings: RunSettings) -> Run:
 
 
 def default_detector(sequence: Sequence) -> str:
+    """The `--detector` a sequence gets unless asked: simulated (demo), gt (ScanNet), annotations (TUM)."""
     if sequence.synthetic:
         return "simulated"
     return "gt" if sequence.kind == "scannet" else "annotations"
@@ -160,6 +165,7 @@ def observe(run: Run, frame: Frame, params: ObservationParams = ObservationParam
 
 
 def localize_frame(run: Run, frame: Frame, index: MapIndex) -> tuple[FrameOutcome, Seen]:
+    """Observe, localize and score one frame."""
     seen = observe(run, frame)
     result = localize(seen.observations, index, run.config)
     evaluation = evaluate_frame(result, seen.observations, run.map, frame.pose, run.config, frame.index)
@@ -176,8 +182,9 @@ def selected_frames(run: Run) -> range:
     return selected
 
 
-def execute(run: Run, recorder=None, progress: Callable[[int, int], None] | None = None) -> Run:
-    """Localize the selected frames; log each to `recorder` (a LocalizationRecorder) when given."""
+def execute(run: Run, recorder: LocalizationRecorder | None = None,
+            progress: Callable[[int, int], None] | None = None) -> Run:
+    """Localize the selected frames; log each to `recorder` when given."""
     index = index_map(run.map, run.config)
     selected = selected_frames(run)
     for count, i in enumerate(selected, start=1):

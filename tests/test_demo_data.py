@@ -121,3 +121,14 @@ def test_depth_has_sensor_noise_and_holes(tmp_path):
 def test_spec_intrinsics_scale_with_the_image():
     full, half = DemoSpec("scannet", 0), DemoSpec("scannet", 0, width=320, height=240)
     np.testing.assert_allclose(half.intrinsics()[:2], full.intrinsics()[:2] / 2)
+
+
+def test_ensure_demo_never_deletes_a_folder_it_did_not_write(tmp_path):
+    from clipclique.errors import DatasetError
+
+    mine = tmp_path / "demo" / "demo"
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("a user's file")
+    with pytest.raises(DatasetError, match="exists but is not a generated demo scene"):  # it was deleted
+        ensure_demo("demo", tmp_path)
+    assert (mine / "notes.txt").read_text() == "a user's file"

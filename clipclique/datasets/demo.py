@@ -27,6 +27,7 @@ import numpy as np
 from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES
 from clipclique.datasets.procedural import Room, Walk, make_room, make_walk
 from clipclique.datasets.render import MeshRaycaster, shade, sensor_depth
+from clipclique.errors import DatasetError
 from clipclique.types import Pose
 
 GENERATOR_VERSION = 1
@@ -57,19 +58,32 @@ def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) ->
     spec = DEMO_SCENES[name]
     folder = Path(data_root) / "demo" / name
     marker = folder / DEMO_MARKER
-    if marker.is_file() and json.loads(marker.read_text()).get("version") == GENERATOR_VERSION:
+    if marker.is_file() and _marker_version(marker) == GENERATOR_VERSION:
         return folder
+    if folder.exists() and not marker.is_file():  # not ours (ours are moved into place whole): never delete it
+        raise DatasetError(
+            f"{folder}: exists but is not a generated demo scene (no {DEMO_MARKER}); move it away, "
+            f"or point --data-root elsewhere, and the demo is generated there"
+        )
     folder.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=folder.parent))
     try:
         generate(staging, name, spec, progress)
         staging.chmod(0o755)  # mkdtemp makes it private; the data folder is for everyone
-        if folder.exists():  # an interrupted or older generation of ours
+        if folder.exists():  # an older generation of ours
             shutil.rmtree(folder)
         os.replace(staging, folder)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return folder
+
+
+def _marker_version(marker: Path) -> object:
+    """The generator version a demo marker records (None when unreadable: regenerate)."""
+    try:
+        return json.loads(marker.read_text()).get("version")
+    except (ValueError, AttributeError, OSError):
+        return None
 
 
 def generate(folder: Path, name: str, spec: DemoSpec, progress: Progress | None = None) -> None:

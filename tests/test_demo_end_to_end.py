@@ -119,3 +119,24 @@ def test_a_second_run_is_identical(runs, demo, tmp_path):
             del frame["timings_ms"]
     assert first == second
     assert (runs["clipclique"] / "poses.tum").read_text() == (tmp_path / "poses.tum").read_text()
+
+
+def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys):
+    """tools/demo.py: a ClipcliqueError (here an --out folder that cannot be made) is one line and exit 2."""
+    import importlib.util
+
+    from clipclique.errors import ClipcliqueError
+
+    spec = importlib.util.spec_from_file_location("demo_tool", Path(__file__).resolve().parents[1] / "tools" / "demo.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    monkeypatch.setattr(tool, "run_build", lambda *args, **kwargs: None)
+
+    def blocked(settings):
+        raise ClipcliqueError(f"--out {settings.out_dir()}: cannot create the folder (Not a directory)")
+
+    monkeypatch.setattr(tool, "run_and_save", blocked)
+    with pytest.raises(SystemExit) as exit_info:
+        tool.main()
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err == "demo: error: --out outputs/loc/demo/clipclique: cannot create the folder (Not a directory)\n"

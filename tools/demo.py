@@ -6,9 +6,11 @@ the simulated stand-ins, and every table and recording says so.
 
 from __future__ import annotations
 
+import sys
 import time
 
 from clipclique.datasets import resolve_data_root
+from clipclique.errors import ClipcliqueError
 from localization.results import run_and_save
 from localization.run import MAP_DIR, RunSettings
 from localization.tables import make_console, print_documents
@@ -19,6 +21,15 @@ METHODS = ("clipclique", "sh", "xview", "cliploc")
 
 
 def main() -> None:
+    """Run the demo; a ClipcliqueError (data that cannot be written, a broken map) is one line and exit 2."""
+    try:
+        run_demo()
+    except ClipcliqueError as error:
+        print(f"demo: error: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def run_demo() -> None:
     console = make_console()
     start = time.perf_counter()
     for sequence in SEQUENCES:

@@ -162,6 +162,19 @@ def test_map_recording_verifies_and_holds_every_entity(map_rrd, run):
     assert not map_rrd.with_name(map_rrd.name + ".partial").exists()
 
 
+def test_a_map_without_landmarks_records_without_warnings(tmp_path, run):
+    import warnings
+
+    empty = dataclasses.replace(run[0], ellipsoids=Ellipsoids.empty(), class_ids=np.zeros(0, int), descriptions=[],
+                                instance_ids=np.zeros(0, int))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # rerun warned: "AnyValues: No valid component batches to return"
+        write_map_recording(tmp_path / "empty.rrd", empty, None, None, "x")
+        with LocalizationRecorder(tmp_path / "loc.rrd", empty, "x"):
+            pass
+    assert (tmp_path / "empty.rrd").is_file() and (tmp_path / "loc.rrd").is_file()
+
+
 def test_map_recording_scene_is_downsampled(tmp_path, run):
     """120k input points on a 5 cm grid over 7 x 6 m of floor and 7 x 2.5 m of wall: about 24k kept."""
     points, colors = scene_points()

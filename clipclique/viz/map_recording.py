@@ -45,12 +45,9 @@ def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
     stream.log("/", annotation_context(map.class_names), static=True)
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     labels = [map.class_names[c] for c in map.class_ids]
-    stream.log(
-        "world/map/landmarks",
-        ellipsoids3d(map.ellipsoids, map.class_ids, labels=labels),
-        rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids)),
-        static=True,
-    )
+    # hover values; rerun warns about an AnyValues with nothing in it, so a map without landmarks has none
+    hover = [rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids))] if len(map) else []
+    stream.log("world/map/landmarks", ellipsoids3d(map.ellipsoids, map.class_ids, labels=labels), *hover, static=True)
     edges = graph_edges(map.ellipsoids.centers, d_adj)
     stream.log(
         "world/map/graph",

@@ -92,7 +92,8 @@ class Run:
 
 
 def prepare(settings: RunSettings) -> Run:
-    """Open the sequence and map, choose the detector and encoder, settle the config."""
+    """Open the sequence and map, choose the detector and encoder (none when the descriptor does not use
+    CLIP), settle the config."""
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
     if not map_path.is_file():
@@ -104,7 +105,13 @@ def prepare(settings: RunSettings) -> Run:
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed)
-    encoder = choose_encoder(settings.encoder, map, notes)
+    if config.similarity.descriptor in ("clip", "fused"):
+        encoder = choose_encoder(settings.encoder, map, notes)
+    else:  # SH and X-View never read CLIP: no model to load, no crops to embed every frame
+        encoder = None
+        if settings.encoder not in (None, "none"):
+            notes.append(f"--encoder {settings.encoder} not used: the {config.similarity.descriptor} descriptor "
+                         "does not read CLIP")
     if config.similarity.descriptor == "clip" and (encoder is None or map.text_embeddings is None):
         missing = "no encoder is available" if encoder is None else f"{map_path} has no text embeddings"
         raise ModelUnavailableError(f"method {settings.method} ranks by CLIP alone but {missing}; pass --encoder "

@@ -54,7 +54,11 @@ def test_every_method_scores_every_frame(runs):
         assert document["run"]["method"] == method
         assert len(document["frames"]) == FRAMES and document["summary"]["frames"] == FRAMES
         assert document["run"]["detector"] == {"name": "simulated", "simulated": True}
-        assert document["run"]["encoder"] == {"name": "simulated-clip", "simulated": True}
+        if method in ("clipclique", "cliploc"):
+            assert document["run"]["encoder"] == {"name": "simulated-clip", "simulated": True}
+        else:  # SH and X-View do not read CLIP: no encoder runs
+            assert document["run"]["encoder"] is None
+            assert document["summary"]["stage_ms_median"]["encoder"] < 0.05
         assert json.loads((folder / "config.json").read_text())["method"] == method
     assert (runs["clipclique"] / "recording.rrd").stat().st_size > 100_000
     assert not (runs["sh"] / "recording.rrd").exists()

@@ -284,6 +284,17 @@ def test_a_run_that_fails_leaves_no_recording(tmp_path, run):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_recording_whose_layout_fails_leaves_nothing(tmp_path):
+    from clipclique.viz.recording import RecordingFile
+
+    def broken_blueprint():
+        raise ValueError("no layout")
+
+    with pytest.raises(ValueError), RecordingFile(tmp_path / "r.rrd", "test", broken_blueprint):
+        pass
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_rotation_error_is_logged_in_degrees(tmp_path, run):
     map, frames = run
     f = frames[2]

@@ -30,8 +30,12 @@ class RecordingFile:
         self.blueprint = blueprint
 
     def close(self) -> None:
-        self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
-        self.stream.flush()
+        try:
+            self.stream.send_blueprint(self.blueprint(), make_active=True, make_default=True)
+            self.stream.flush()
+        except BaseException:
+            self.abort()  # no .partial left behind when the layout cannot be made
+            raise
         self.stream.disconnect()
         os.replace(self._partial, self.path)
 

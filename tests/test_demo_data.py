@@ -132,3 +132,12 @@ def test_ensure_demo_never_deletes_a_folder_it_did_not_write(tmp_path):
     with pytest.raises(DatasetError, match="exists but is not a generated demo scene"):  # it was deleted
         ensure_demo("demo", tmp_path)
     assert (mine / "notes.txt").read_text() == "a user's file"
+
+
+def test_an_unwritable_data_root_is_a_clear_error(tmp_path):
+    from clipclique.errors import DatasetError
+
+    not_a_folder = tmp_path / "data"
+    not_a_folder.write_text("a file where the data root should be")
+    with pytest.raises(DatasetError, match=r"data/demo: cannot write the demo scene there .*--data-root"):
+        ensure_demo("demo", not_a_folder)

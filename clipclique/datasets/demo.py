@@ -65,8 +65,14 @@ def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) ->
             f"{folder}: exists but is not a generated demo scene (no {DEMO_MARKER}); move it away, "
             f"or point --data-root elsewhere, and the demo is generated there"
         )
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=folder.parent))
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=folder.parent))
+    except OSError as error:
+        raise DatasetError(
+            f"{folder.parent}: cannot write the demo scene there ({error.strerror}); point --data-root or "
+            "$CLIPCLIQUE_DATA at a writable folder"
+        ) from None
     try:
         generate(staging, name, spec, progress)
         staging.chmod(0o755)  # mkdtemp makes it private; the data folder is for everyone

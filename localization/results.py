@@ -117,7 +117,7 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         "evaluation": {
             "translation_error_m": evaluation.translation_error,
             "rotation_error_deg": None if evaluation.rotation_error is None else math.degrees(evaluation.rotation_error),
-            "success": {str(k): v for k, v in evaluation.success.items()},
+            "success": {str(k): v for k, v in evaluation.success.items()} if evaluation.has_ground_truth else None,
             "precision": evaluation.precision,
             "recall": evaluation.recall,
             "observations_in_map": evaluation.num_in_map,

@@ -112,3 +112,25 @@ def test_encoder_choice_follows_the_map():
     assert choose_encoder("none", _map("simulated-clip", True), notes) is None
     with pytest.raises(ClipcliqueError, match="not comparable"):
         choose_encoder("simulated", _map("open_clip:ViT-L-14/openai", True), notes)
+
+
+def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
+    from clipclique.config import make_config
+    from clipclique.metrics import evaluate_frame
+    from clipclique.pipeline import index_map, localize
+    from clipclique.synthetic import synthetic_map, synthetic_query
+    from localization.results import frame_record
+    from localization.run import FrameOutcome
+
+    rng = np.random.default_rng(3)
+    map = synthetic_map(rng)
+    observations, truth = synthetic_query(map, rng)
+    config = make_config("clipclique")
+    result = localize(observations, index_map(map, config), config)
+    records = {}
+    for gt_pose in (truth, None):
+        evaluation = evaluate_frame(result, observations, map, gt_pose, config, 0)
+        outcome = FrameOutcome(0, 0.0, "0", gt_pose, len(observations), {}, result, evaluation, {})
+        records[gt_pose is None] = frame_record(outcome)["evaluation"]
+    assert records[False]["success"] == {"1": True, "3": True, "5": True}
+    assert records[True]["success"] is None and records[True]["translation_error_m"] is None

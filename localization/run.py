@@ -22,7 +22,7 @@ from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from localization.detectors import Detector, make_detector
-from localization.observations import ObservationParams, embed, extract_observations
+from clipclique.observations import ObservationParams, embed, extract_observations
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records

@@ -8,7 +8,7 @@ import pytest
 from clipclique.encoders import SimulatedClipEncoder
 from clipclique.types import Detections, Frame, Pose
 from localization.detectors import mask_boxes
-from localization.observations import crop, crop_contents, embed, extract_observations
+from clipclique.observations import crop, crop_contents, embed, extract_observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3

@@ -320,7 +320,7 @@ def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3, cli
 
     from clipclique.encoders import ClipEncoder
     from localization.detectors import YoloDetector
-    from localization.observations import extract_observations
+    from clipclique.observations import extract_observations
 
     torch.manual_seed(0)  # the random weights, so what YOLO detects (and NMS costs) repeats
     model, _, preprocess = open_clip.create_model_and_transforms(clip_model, pretrained=None, device=device)

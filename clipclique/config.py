@@ -36,6 +36,12 @@ class GraphConfig:
 class SimilarityConfig:
     descriptor: Descriptor = "fused"
     alpha: float = 0.7  # S = alpha * S_clip + (1 - alpha) * S_sh
+    # Beyond the paper (0 = the paper's literal SH): S_sh <- w * S_class + (1 - w) * S_sh, so an
+    # object with no neighbour within d_adj (an empty histogram) still matches by its class.
+    class_weight: float = 0.3
+    # Beyond the paper (0 = exact labels): weight of a look-alike class (clipclique.lookalikes) in the
+    # class term and the query's Semantic Histograms, so a cup detected as "bottle" still finds cups.
+    lookalike_weight: float = 0.6
 
 
 @dataclass
@@ -50,6 +56,12 @@ class MatchingConfig:
 class InlierConfig:
     method: InlierMethod = "cliques"
     d_comp: float = 0.3  # metres: rigid distance test of the compatibility graph
+    # Beyond the paper (0 = the literal test): a candidate whose observed ellipsoid is smaller than
+    # its landmark (a part of a couch, a bed, a counter) has its centre displaced by up to the
+    # difference of their semi-axes; the pair test is widened by this fraction of each candidate's
+    # largest semi-axis deficit (when it is at least d_comp), at most max_slack metres per candidate.
+    partial_slack: float = 1.0
+    max_slack: float = 0.6  # metres
     min_clique_size: int = 3  # fewer cannot fix a 6-DoF pose
     max_cliques: int = 100_000  # enumeration stops here and says so
     time_limit_s: float = 1.0  # enumeration stops here and says so
@@ -79,21 +91,28 @@ class LocalizationConfig:
 
 
 # The paper's Table I: each method is the one pipeline with parts swapped.
+# The baselines keep the paper's literal descriptors (no class term, exact labels).
+LITERAL = {"similarity.class_weight": 0.0, "similarity.lookalike_weight": 0.0, "inliers.partial_slack": 0.0}
+
 METHOD_PRESETS: dict[str, dict[str, Any]] = {
     "clipclique": {},
+    "clipclique-paper": LITERAL,
     "sh": {
+        **LITERAL,
         "similarity.descriptor": "sh",
         "matching.strategy": "one_to_one",
         "inliers.method": "ransac",
         "pose.weights": "none",
     },
     "xview": {
+        **LITERAL,
         "similarity.descriptor": "xview",
         "matching.strategy": "one_to_one",
         "inliers.method": "ransac",
         "pose.weights": "none",
     },
     "cliploc": {
+        **LITERAL,
         "similarity.descriptor": "clip",
         "matching.strategy": "knn",
         "inliers.method": "prosac",
@@ -101,7 +120,7 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
-METHOD_TITLES = {"clipclique": "CLIP-Clique", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
+METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
 
 
 def make_config(
@@ -177,8 +196,12 @@ def validate(config: LocalizationConfig) -> None:
         value = _get(config, dotted)
         if value not in literal.__args__:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
-    if not 0.0 <= config.similarity.alpha <= 1.0:
-        raise ConfigError(f"similarity.alpha = {config.similarity.alpha}; must be within [0, 1]")
+    for dotted in ("similarity.alpha", "similarity.class_weight", "similarity.lookalike_weight"):
+        if not 0.0 <= (value := _get(config, dotted)) <= 1.0:
+            raise ConfigError(f"{dotted} = {value}; must be within [0, 1]")
+    for dotted in ("inliers.partial_slack", "inliers.max_slack"):
+        if not (value := _get(config, dotted)) >= 0.0:
+            raise ConfigError(f"{dotted} = {value}; must be at least 0")
     if config.inliers.min_clique_size < 3:
         raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
     for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import graph, inliers, matching, similarity
+from clipclique import graph, inliers, lookalikes, matching, similarity
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
@@ -41,6 +41,7 @@ class MapIndex:
     histograms: sp.csr_matrix | None  # (N, C^s) Semantic Histograms, when the descriptor uses them
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
     text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
+    class_kernel: sp.csr_matrix | None = None  # (C, C) class similarity (lookalikes.class_kernel)
 
 
 @dataclass
@@ -61,7 +62,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
-    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text)
+    kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
+    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text, kernel)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -82,7 +84,10 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
 
     centers = observations.ellipsoids.centers
     query_graph = graph.semantic_graph(centers, config.graph.d_adj)
-    histograms, walks = _graph_descriptors(query_graph, observations.class_ids, len(index.map.class_names), config)
+    soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
+    histograms, walks = _graph_descriptors(
+        query_graph, observations.class_ids, len(index.map.class_names), config, soft
+    )
     lap("descriptors")
     scores, notes = _similarity(observations, index, histograms, walks, config)
     lap("similarity")
@@ -106,16 +111,21 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
 
 
 def _index_key(config: LocalizationConfig) -> tuple:
-    return (config.similarity.descriptor, dataclasses.replace(config.graph))
+    return (config.similarity.descriptor, config.similarity.lookalike_weight, dataclasses.replace(config.graph))
 
 
 def _graph_descriptors(
-    adjacency: sp.csr_matrix, class_ids: np.ndarray, num_classes: int, config: LocalizationConfig
+    adjacency: sp.csr_matrix,
+    class_ids: np.ndarray,
+    num_classes: int,
+    config: LocalizationConfig,
+    kernel: sp.csr_matrix | None = None,
 ) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
+    """The graph descriptors of one side; `kernel` softens labels (the query side only: the map is not confused)."""
     descriptor = config.similarity.descriptor
     histograms = walks = None
     if descriptor in ("fused", "sh"):
-        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length)
+        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length, kernel)
     if descriptor == "xview":
         rng = np.random.default_rng(config.graph.xview_seed)
         walks = graph.random_walk_descriptors(
@@ -135,17 +145,29 @@ def _similarity(
     if descriptor == "xview":
         return similarity.walk_similarity(walks, index.walks), []
     if descriptor == "sh":
-        return similarity.histogram_similarity(histograms, index.histograms), []
+        return _histogram_similarity(observations, index, histograms, config), []
     missing = _missing_embeddings(observations, index.map)
     if descriptor == "clip":
         if missing:
             raise ClipcliqueError(f"descriptor 'clip' needs CLIP embeddings, but {missing}")
         return similarity.clip_similarity(observations.image_embeddings, index.text_embeddings), []
-    sh = similarity.histogram_similarity(histograms, index.histograms)
+    sh = _histogram_similarity(observations, index, histograms, config)
     if missing:
         return sh, [f"no CLIP embeddings ({missing}): alpha = 0 (SH only)"]
     clip = similarity.clip_similarity(observations.image_embeddings, index.text_embeddings)
     return similarity.fuse(clip, sh, config.similarity.alpha), []
+
+
+def _histogram_similarity(
+    observations: Observations, index: MapIndex, histograms: sp.csr_matrix, config: LocalizationConfig
+) -> np.ndarray:
+    """S_sh, with the class term when `similarity.class_weight` > 0."""
+    sh = similarity.histogram_similarity(histograms, index.histograms)
+    weight = config.similarity.class_weight
+    if weight == 0:
+        return sh
+    classes = similarity.class_similarity(observations.class_ids, index.map.class_ids, index.class_kernel)
+    return similarity.with_class_term(sh, classes, weight)
 
 
 def _missing_embeddings(observations: Observations, map: Map) -> str | None:
@@ -173,8 +195,13 @@ def _check_classes(observations: Observations, map: Map) -> None:
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
     """Maximal cliques of the compatibility graph ranked by summed similarity, one pose each."""
     settings = config.inliers
+    pairs = result.candidates
+    slack = inliers.partial_view_slack(
+        observations.ellipsoids.axes[pairs[:, 0]], map.ellipsoids.axes[pairs[:, 1]], settings.partial_slack,
+        settings.max_slack, settings.d_comp,
+    )
     edges = inliers.compatibility_graph(
-        observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, settings.d_comp
+        observations.ellipsoids.centers, map.ellipsoids.centers, pairs, settings.d_comp, slack
     )
     cliques, result.cap_hit = inliers.maximal_cliques(
         edges, len(result.candidates), settings.min_clique_size, settings.max_cliques, settings.time_limit_s

@@ -25,6 +25,19 @@ def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix)
     return (query_counts @ present.T).toarray() / np.maximum(walks, 1.0)[:, None]
 
 
+def class_similarity(query_classes: np.ndarray, landmark_classes: np.ndarray, kernel: sp.csr_matrix) -> np.ndarray:
+    """(K, N) the class kernel between each observation's class and each landmark's: 1 for the same
+    class, the look-alike weight for classes a detector confuses, 0 otherwise."""
+    return kernel[query_classes][:, landmark_classes].toarray()
+
+
+def with_class_term(histogram: np.ndarray, classes: np.ndarray, weight: float) -> np.ndarray:
+    """`weight * S_class + (1 - weight) * S_sh`: an object with no neighbour within d_adj has an
+    empty Semantic Histogram, so without the class term it matches nothing; with it a lone chair
+    still matches the map's chairs (and, more weakly, its look-alikes)."""
+    return weight * classes + (1.0 - weight) * histogram
+
+
 def fuse(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> np.ndarray:
     """S = alpha * S_clip + (1 - alpha) * S_sh."""
     return alpha * clip + (1.0 - alpha) * histogram

@@ -82,7 +82,7 @@ def test_missing_embeddings_fall_back_to_sh_for_fused_and_fail_for_clip():
     config = make_config("clipclique")
     result = localize(observations, index_map(blind, config), config)
     assert result.notes == ["no CLIP embeddings (the map has no text embeddings): alpha = 0 (SH only)"]
-    sh = make_config("sh", overrides=["matching.strategy=adaptive", "inliers.method=cliques", "pose.weights=both"])
+    sh = make_config("clipclique", overrides=["similarity.descriptor=sh"])
     np.testing.assert_allclose(result.similarity, localize(observations, index_map(blind, sh), sh).similarity)
     with pytest.raises(ClipcliqueError, match="needs CLIP embeddings"):
         cliploc = make_config("cliploc")

@@ -20,6 +20,7 @@ ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
 
 class Method(str, Enum):
     clipclique = "clipclique"
+    clipclique_paper = "clipclique-paper"
     sh = "sh"
     xview = "xview"
     cliploc = "cliploc"

@@ -31,6 +31,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -50,15 +51,17 @@ from clipclique.config import METHOD_TITLES, LocalizationConfig, make_config  # 
 from clipclique.datasets import demo, resolve_data_root  # noqa: E402
 from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
-from clipclique.pipeline import MapIndex, index_map, localize  # noqa: E402
+from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize  # noqa: E402
 from clipclique.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
 from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
 
+import literal_reference  # noqa: E402
 import report  # noqa: E402
 from report import PAPER_LANDMARKS_AT_1S  # noqa: E402
 
 SEEDS = (0, 1, 2)  # stochastic configurations: best of three, as the paper
+LITERAL_REFERENCE = report.LITERAL
 ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))
 SCALABILITY_COUNTS = (50, 100, 200, 500, 1000, 2000, 5000)
 QUICK_COUNTS = (50, 200, 1000)
@@ -71,10 +74,11 @@ Tick = Callable[[], None]
 class Variant:
     """One configuration of the experiments: a method preset plus dotted-key overrides."""
 
-    group: str  # "methods" | "descriptors" | "inliers" | "weights" | "matching" | "alpha"
+    group: str  # "methods" | "fixes" | "descriptors" | "inliers" | "weights" | "matching" | "alpha"
     label: str
     method: str = "clipclique"
     overrides: tuple[tuple[str, Any], ...] = ()
+    reference: bool = False  # tools/literal_reference.py instead of the pipeline (config: its alpha only)
 
     def config(self, seed: int = 0) -> LocalizationConfig:
         return make_config(self.method, overrides={**dict(self.overrides), "inliers.seed": seed,
@@ -95,8 +99,15 @@ def variants() -> list[Variant]:
     def one(group: str, key: str, settings: tuple[tuple[Any, str], ...]) -> list[Variant]:
         return [Variant(group, label, overrides=((key, value),)) for value, label in settings]
 
+    fixes = (("similarity.class_weight", 0.0, "without the class term"),
+             ("similarity.lookalike_weight", 0.0, "without look-alike classes"),
+             ("inliers.partial_slack", 0.0, "without partial-view slack"))
     return [
-        *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique")),
+        *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique-paper", "clipclique")),
+        Variant("methods", LITERAL_REFERENCE, "clipclique-paper", reference=True),
+        Variant("fixes", "CLIP-Clique (all fixes)"),
+        *(Variant("fixes", label, overrides=((key, value),)) for key, value, label in fixes),
+        Variant("fixes", "CLIP-Clique (paper: none)", "clipclique-paper"),
         *one("descriptors", "similarity.descriptor", (("sh", "SH"), ("clip", "CLIP"), ("fused", "SH + CLIP"))),
         *one("inliers", "inliers.method", (("ransac", "RANSAC"), ("prosac", "PROSAC"), ("cliques", "Maximal cliques"))),
         *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"), ("both", "w_sim * w_com"))),
@@ -194,17 +205,19 @@ def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: 
     return CachedSequence(name, run.map, cached, description, query_ms, run)
 
 
-def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> Evaluated:
-    """Every cached frame localized with `config` and scored; memoized per config."""
-    key = json.dumps(config.to_dict(), sort_keys=True)
+def evaluate(sequence: CachedSequence, config: LocalizationConfig, reference: bool = False) -> Evaluated:
+    """Every cached frame localized with `config` (or by the literal reference) and scored; memoized."""
+    key = json.dumps([config.to_dict(), reference], sort_keys=True)
     if key not in sequence.evaluated:
-        index_key = json.dumps([config.similarity.descriptor, dataclasses.asdict(config.graph)], sort_keys=True)
-        if index_key not in sequence.indexes:
+        index_key = json.dumps([config.similarity.descriptor, config.similarity.lookalike_weight,
+                                dataclasses.asdict(config.graph)], sort_keys=True)
+        if not reference and index_key not in sequence.indexes:
             sequence.indexes[index_key] = index_map(sequence.map, config)
-        index = sequence.indexes[index_key]
+        localizer = (partial(literal_localize, map=sequence.map, alpha=config.similarity.alpha) if reference
+                     else partial(localize, index=sequence.indexes[index_key], config=config))
         evaluations, true, other, notes, failures = [], [], [], {}, Counter()
         for frame in sequence.frames:
-            result = localize(frame.observations, index, config)
+            result = localizer(frame.observations)
             evaluations.append(evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config, frame.index))
             same = mapped_pairs(frame.observations, sequence.map)
             true.append(result.similarity[same])
@@ -219,6 +232,17 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig) -> Evaluated:
         summary["similarity_other_mean"] = float(other.mean()) if other.size else math.nan
         sequence.evaluated[key] = Evaluated(summary, list(notes), dict(failures.most_common()))
     return sequence.evaluated[key]
+
+
+def literal_localize(observations: Observations, map: Map, alpha: float) -> LocalizationResult:
+    """tools/literal_reference.py on one frame, wrapped as the pipeline's result so it is scored alike
+    (its similarity matrix is not exposed: the similarity statistics of this row are NaN)."""
+    start = time.perf_counter()
+    hypotheses = literal_reference.localize(observations, map, alpha=alpha)
+    elapsed = time.perf_counter() - start
+    no_pairs = np.zeros((0, 2), dtype=np.int64)
+    return LocalizationResult(hypotheses, no_pairs, np.zeros(0), np.full((len(observations), len(map)), np.nan), 0,
+                              None, None if hypotheses else "no pose", timings={"matching": elapsed})
 
 
 def mapped_pairs(observations: Observations, map: Map) -> np.ndarray:
@@ -237,7 +261,7 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
     seeds = SEEDS if variant.stochastic else SEEDS[:1]
     runs = []
     for seed in seeds:
-        runs.append(evaluate(sequence, variant.config(seed)))
+        runs.append(evaluate(sequence, variant.config(seed), variant.reference))
         tick()
     summaries = [run.summary for run in runs]
     best = max(range(len(runs)), key=lambda i: tuple(np.nan_to_num(summaries[i][f"success@{k}"], nan=-1.0) for k in (1, 3, 5)))

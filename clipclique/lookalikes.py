@@ -1,8 +1,8 @@
 """Classes a detector confuses with each other, and the class-similarity kernel built from them.
 
 Real detectors mislabel look-alike objects far more often than others: on TUM fr2/desk a third
-of YOLO's detections of mapped objects carry another class, nearly all from the pairs below
-(../shared/REAL_SCENES.md; COCO names, plus their NYU40 / ScanNet counterparts). An exact-label
+of YOLO's detections of mapped objects carry another class, nearly all from the first pairs
+below (COCO names; the rest are their NYU40 / ScanNet-category counterparts). An exact-label
 descriptor treats such an observation as matching nothing; the kernel lets it still vote, with a
 reduced weight, for the landmarks whose class it resembles. The map side is never softened: the
 map was built from annotations, only the query detector confuses.

@@ -27,6 +27,7 @@ class ConfigError(ClipcliqueError):
 @dataclass
 class GraphConfig:
     d_adj: float = 0.8  # metres: landmarks closer than this are neighbours
+    max_degree: int = 64  # neighbours kept per node at most (memory bound; real scenes stay under ~30)
     walk_length: int = 3  # Semantic Histogram path length s (nodes per walk)
     xview_walks: int = 100  # X-View: random walks per node
     xview_seed: int = 0
@@ -207,7 +208,7 @@ def validate(config: LocalizationConfig) -> None:
     for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):
         if _get(config, dotted) <= 0:
             raise ConfigError(f"{dotted} must be positive")
-    for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
+    for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.max_degree", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
         if (value := _get(config, dotted)) < 1:
             raise ConfigError(f"{dotted} = {value}; must be at least 1")
 

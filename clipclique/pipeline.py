@@ -42,6 +42,7 @@ class MapIndex:
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
     text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
     class_kernel: sp.csr_matrix | None = None  # (C, C) class similarity (lookalikes.class_kernel)
+    capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
 
 
 @dataclass
@@ -59,11 +60,12 @@ class LocalizationResult:
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
-    adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj)
+    adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj, config.graph.max_degree)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
-    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text, kernel)
+    capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
+    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text, kernel, capped)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -83,13 +85,16 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         clock = now
 
     centers = observations.ellipsoids.centers
-    query_graph = graph.semantic_graph(centers, config.graph.d_adj)
+    query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
     soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
     histograms, walks = _graph_descriptors(
         query_graph, observations.class_ids, len(index.map.class_names), config, soft
     )
     lap("descriptors")
     scores, notes = _similarity(observations, index, histograms, walks, config)
+    if index.capped_nodes:
+        notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
+                     f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap("similarity")
     candidates, candidate_scores = matching.match(scores, config.matching)
     lap("matching")

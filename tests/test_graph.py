@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from clipclique.graph import random_walk_descriptors, semantic_graph, semantic_histograms
+from clipclique.graph import capped_nodes, random_walk_descriptors, semantic_graph, semantic_histograms
 
 A, B, C = 0, 1, 2
 # Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.
@@ -65,3 +65,38 @@ def test_random_walks_follow_edges_and_are_seeded():
     assert ((counts[:4] > 0) <= (hand[:4] > 0)).all()  # every random walk is one of the walks counted by hand
     assert counts[3, bin_of(C, A, C)] > 0 and counts[3, bin_of(C, A, A)] > 0
     assert counts[4, bin_of(B, B, B)] == 50  # an isolated node stays on itself
+
+
+def test_histograms_equal_walk_enumeration_of_the_literal_reference():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    import literal_reference
+
+    rng = np.random.default_rng(5)
+    centers = rng.uniform(0, 2.5, size=(60, 3))
+    classes = rng.integers(0, 7, 60)
+    ours = semantic_histograms(semantic_graph(centers, 0.8), classes, 7).toarray()
+    for node, counts in enumerate(literal_reference.semantic_histograms(centers, classes, 0.8)):
+        expected = np.zeros(7**3)
+        for (a, b, c), count in counts.items():
+            expected[a * 49 + b * 7 + c] = count
+        norm = np.linalg.norm(expected)
+        np.testing.assert_allclose(ours[node], expected / norm if norm else expected, atol=1e-12)
+
+
+def test_degree_cap_keeps_real_graphs_and_bounds_degenerate_ones():
+    rng = np.random.default_rng(2)
+    desk = rng.normal(0, 0.5, size=(47, 3))  # a cluttered desk: degree up to ~30
+    assert (semantic_graph(desk, 0.8, max_degree=64) != semantic_graph(desk, 0.8)).nnz == 0
+    assert capped_nodes(desk, 0.8, semantic_graph(desk, 0.8, max_degree=64)) == 0
+    pile = np.zeros((3000, 3))  # 3,000 landmarks in one spot: 4.5 million edges uncapped
+    capped = semantic_graph(pile, 0.8, max_degree=16)
+    degree = np.diff(capped.indptr)
+    assert degree.max() <= 16 and (capped != capped.T).nnz == 0 and capped.diagonal().sum() == 0
+    assert capped_nodes(pile, 0.8, capped) == 3000
+    near = semantic_graph(desk, 0.8, max_degree=3)
+    for node in range(47):  # what a node keeps are among its 3 nearest
+        nearest = set(np.argsort(np.linalg.norm(desk - desk[node], axis=1))[1:4].tolist())
+        assert set(near[node].indices.tolist()) <= nearest

@@ -21,7 +21,7 @@ import bench  # noqa: E402
 import report  # noqa: E402
 
 GROUP_LABELS = {group: [v.label for v in bench.variants() if v.group == group]
-                for group in ("methods", "descriptors", "inliers", "weights", "matching", "alpha")}
+                for group in ("methods", "fixes", "descriptors", "inliers", "weights", "matching", "alpha")}
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +51,7 @@ def section(markdown: str, heading: str) -> str:
 
 def test_quick_report_has_every_row_with_numbers(quick_run):
     text = (quick_run / "report.md").read_text()
-    tables = {"methods": section(text, "Table I"), **dict.fromkeys(("descriptors", "inliers", "weights", "matching"),
+    tables = {"methods": section(text, "Table I"), **dict.fromkeys(("fixes", "descriptors", "inliers", "weights", "matching"),
                                                                     section(text, "Ablations"))}
     for group, table in tables.items():
         for label in GROUP_LABELS[group]:

@@ -47,7 +47,7 @@ from rich.console import Console  # noqa: E402
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
 
 from bench_core import ALGORITHM, growth_exponent, scalability  # noqa: E402
-from clipclique.config import METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
+from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
 from clipclique.datasets import demo, resolve_data_root  # noqa: E402
 from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
@@ -107,7 +107,7 @@ def variants() -> list[Variant]:
         Variant("methods", LITERAL_REFERENCE, "clipclique-paper", reference=True),
         Variant("fixes", "CLIP-Clique (all fixes)"),
         *(Variant("fixes", label, overrides=((key, value),)) for key, value, label in fixes),
-        Variant("fixes", "CLIP-Clique (paper: none)", "clipclique-paper"),
+        Variant("fixes", "CLIP-Clique (paper: none)", overrides=tuple(LITERAL.items())),
         *one("descriptors", "similarity.descriptor", (("sh", "SH"), ("clip", "CLIP"), ("fused", "SH + CLIP"))),
         *one("inliers", "inliers.method", (("ransac", "RANSAC"), ("prosac", "PROSAC"), ("cliques", "Maximal cliques"))),
         *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"), ("both", "w_sim * w_com"))),

@@ -137,7 +137,7 @@ def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys):
     monkeypatch.setattr(tool, "run_build", lambda *args, **kwargs: None)
 
     def blocked(settings):
-        raise ClipcliqueError(f"--out {settings.out_dir()}: cannot create the folder (Not a directory)")
+        raise ClipcliqueError(f"--out {settings.out_dir('demo')}: cannot create the folder (Not a directory)")
 
     monkeypatch.setattr(tool, "run_and_save", blocked)
     with pytest.raises(SystemExit) as exit_info:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -67,7 +68,7 @@ def _document(method: str, success: float, simulated: bool) -> dict:
 def test_tables_show_the_papers_columns_and_flag_simulated_parts():
     table = results_table([_document("CLIP-Clique", 0.8, True), _document("SH", 0.25, True)])
     headers = [Text.from_markup(c.header).plain for c in table.columns]
-    assert headers[3:] == ["Precision", "Recall", "TE [m]", "RE [deg]", "Top-1 [%]", "Top-3 [%]", "Top-5 [%]", "Time [ms]"]
+    assert headers[3:] == ["Prec.", "Rec.", "TE [m]", "RE [°]", "Top-1", "Top-3", "Top-5", "ms"]
     top1 = list(table.columns[7].cells)
     assert top1 == ["80.0", "25.0"] and list(table.columns[5].cells) == ["-", "-"]
     assert run_banner(_document("SH", 0.2, True)).splitlines() == [
@@ -89,7 +90,7 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     import localization.results as results
     from localization.run import RunSettings
 
-    monkeypatch.setattr(results, "prepare", lambda settings: None)
+    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
     monkeypatch.setattr(results, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")

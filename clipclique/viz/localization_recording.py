@@ -16,11 +16,12 @@ from clipclique.config import GraphConfig
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
-from clipclique.viz.map_recording import log_map, map_summary
+from clipclique.viz.map_recording import MAP_LEGEND, log_map, map_summary
 from clipclique.viz.recording import RecordingFile
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
+    WRONG,
     correctness_colors,
     match_correctness,
 )
@@ -36,6 +37,16 @@ GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
 LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
 TRAJECTORY_POINTS = 300  # trajectories are re-logged each frame, thinned to this many points
+NO_POSE = "metrics/error/no_pose"  # a red cross at 0 on the error plots for each frame without a pose
+ERRORS = ("metrics/error/translation_m", "metrics/error/rotation_deg")  # cleared (a gap) where there is none
+LEGEND = (
+    "**Legend.** White: the ground-truth camera, its trajectory and the observations placed by it. "
+    "Yellow: the top-1 estimated camera (ranks 2-5 faded) and the observations placed by it. "
+    "Thin lines from observations to landmarks: candidate matches; thick lines from an estimated camera: its "
+    "clique. Lines and dots are green when correct, red when wrong, grey without a ground-truth object. "
+    "Dots: top-1 positions so far (green within 1 m of the truth). Error plots: gaps and red crosses at 0 "
+    f"where a frame has no pose. {MAP_LEGEND.removeprefix('**Legend.** ')}"
+)
 
 
 class LocalizationRecorder:
@@ -50,6 +61,9 @@ class LocalizationRecorder:
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
         log_map(self.stream, map, d_adj)
+        self.stream.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True)
+        self.stream.log(NO_POSE, rr.SeriesPoints(colors=WRONG, markers="cross", names="no pose", marker_sizes=4.0),
+                        static=True)
         self.stream.log(
             "description",
             rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
@@ -201,6 +215,11 @@ class LocalizationRecorder:
             scalars["match/recall"] = evaluation.recall
         for name, value in scalars.items():
             self.stream.log(f"metrics/{name}", rr.Scalars([float(value)]))
+        if "error/translation_m" not in scalars:  # no line drawn across a frame without a pose
+            for path in ERRORS:
+                self.stream.log(path, rr.Clear(recursive=False))
+            if not result.hypotheses:
+                self.stream.log(NO_POSE, rr.Scalars([0.0]))
 
     def _log_text(
         self,

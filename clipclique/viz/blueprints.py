@@ -55,7 +55,7 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                     eye_controls=framing(centers),
                 ),
                 rrb.TextDocumentView(name="legend", origin="legend"),
-                row_shares=[6, 1],
+                row_shares=[5, 1],
             ),
             rrb.Vertical(
                 rrb.Tabs(

@@ -16,7 +16,7 @@ from clipclique.config import GraphConfig
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
-from clipclique.viz.map_recording import MAP_LEGEND, log_map, map_summary
+from clipclique.viz.map_recording import log_map, map_summary
 from clipclique.viz.recording import RecordingFile
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
@@ -40,12 +40,11 @@ TRAJECTORY_POINTS = 300  # trajectories are re-logged each frame, thinned to thi
 NO_POSE = "metrics/error/no_pose"  # a red cross at 0 on the error plots for each frame without a pose
 ERRORS = ("metrics/error/translation_m", "metrics/error/rotation_deg")  # cleared (a gap) where there is none
 LEGEND = (
-    "**Legend.** White: the ground-truth camera, its trajectory and the observations placed by it. "
-    "Yellow: the top-1 estimated camera (ranks 2-5 faded) and the observations placed by it. "
-    "Thin lines from observations to landmarks: candidate matches; thick lines from an estimated camera: its "
-    "clique. Lines and dots are green when correct, red when wrong, grey without a ground-truth object. "
-    "Dots: top-1 positions so far (green within 1 m of the truth). Error plots: gaps and red crosses at 0 "
-    f"where a frame has no pose. {MAP_LEGEND.removeprefix('**Legend.** ')}"
+    "**White** ground truth: camera, trajectory, observations placed by it · **Yellow** the top-1 estimate "
+    "(ranks 2-5 faded), observations placed by it · **Lines** thin: candidate matches, thick: an estimated "
+    "camera's clique; green correct, red wrong, grey no ground-truth object · **Dots** top-1 positions so far, "
+    "green within 1 m · **Ellipsoids** landmarks in class colours (hover for any label) · **Cyan** semantic-graph "
+    "edges · **Error plots** a gap and a red cross where a frame has no pose"
 )
 
 

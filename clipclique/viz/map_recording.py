@@ -21,7 +21,7 @@ SCENE_VOXEL = 0.05  # metres: scene points kept per cell, bounds the file size o
 SCENE_MAX_POINTS = 150_000
 CEILING_MARGIN = 0.3  # metres above the highest landmark top: scene points higher up are left out
 GRAPH_COLOR = (0, 230, 255)  # cyan, in no class colour's shade: it stands out over the scene's points
-LABEL_SPACING = 0.6  # metres: a landmark closer than this to a larger labelled one is labelled on hover only
+LABEL_SPACING = 0.8  # metres: a landmark closer than this to a larger labelled one is labelled on hover only
 MAP_LEGEND = (
     "**Legend.** Ellipsoids: landmarks in their class colour (the same in every map), labelled where they are "
     "not crowded (hover any for its class, description and instance id). Cyan lines: semantic-graph edges "

@@ -94,9 +94,13 @@ def run(
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, force=force)
     console = make_console()
-    with _user_errors(), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-        task = progress.add_task(f"{sequence} / {method.value}", total=None)
-        document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
+    try:
+        with _user_errors(), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
+            task = progress.add_task(f"{sequence} / {method.value}", total=None)
+            document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
+    except KeyboardInterrupt:
+        print("clipclique-loc: interrupted", file=sys.stderr)
+        raise typer.Exit(130) from None
     if verbose:
         print_frames(console, document)
     if not quiet:

@@ -74,6 +74,9 @@ def build(
     except ClipcliqueError as error:
         console.print(f"[bold red]error:[/] {error}", soft_wrap=True, highlight=False)
         raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        console.print("clipclique-map: interrupted", highlight=False)
+        raise typer.Exit(130) from None
 
 
 def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec: str | None, rrd: bool,

@@ -37,7 +37,7 @@ SKIPPED = {
     "evo_ape tum outputs/loc/demo_tum/clipclique/groundtruth.tum outputs/loc/demo_tum/clipclique/poses.tum":
         "evo is not a dependency (`pip install evo`); its input files are checked by test_evo_files_pair_up",
     "rerun outputs/loc/demo/clipclique/recording.rrd": "opens the viewer's window",
-    "make docs": "reruns the benchmark and the demo (minutes); test_benchmark_report checks its output",
+    "make docs": "reruns the demo and the benchmark (minutes); tests/test_bench.py checks what it wrote",
     "make test": "runs this test suite",
 }
 

@@ -106,9 +106,11 @@ def run(
     if not quiet:
         print_documents(console, [document])
     out_dir = settings.out_dir(document["run"]["sequence"])
-    console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False)
+    console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
+                  soft_wrap=True)
     if settings.record:
-        console.print(f"recording: {out_dir}/recording.rrd ({rerun_hint(out_dir / 'recording.rrd')})", highlight=False)
+        console.print(f"recording: {out_dir}/recording.rrd ({rerun_hint(out_dir / 'recording.rrd')})", highlight=False,
+                      soft_wrap=True)
 
 
 @app.command()

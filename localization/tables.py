@@ -22,8 +22,9 @@ STAGE_HEADERS = {"detector": "detect", "observations": "fit", "encoder": "encode
 
 
 def make_console() -> Console:
-    """A console for the tables; output to a file or pipe is 80 columns, without breaking long lines (paths)."""
-    return Console() if sys.stdout.isatty() else Console(width=80, soft_wrap=True)
+    """A console for the tables: the terminal's width, 80 columns into a file or pipe (print paths with
+    soft_wrap=True, so that they are never broken over two lines)."""
+    return Console() if sys.stdout.isatty() else Console(width=80)
 
 
 def _number(value: float | None, digits: int = 2, scale: float = 1.0) -> str:
@@ -128,4 +129,4 @@ def print_frames(console: Console, document: dict[str, Any]) -> None:
         outcome = (f"no pose: {frame['failure']}" if frame["failure"] is not None else
                    "pose (no ground truth)" if error is None else f"TE {error:.2f} m")
         console.print(f"frame {frame['index']} {escape(frame['name'])}: {frame['observations']} observations, "
-                      f"{escape(outcome)}", highlight=False)
+                      f"{escape(outcome)}", highlight=False, soft_wrap=True)

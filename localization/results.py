@@ -193,7 +193,7 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
     Ctrl-C) leaves no folder it made empty behind."""
     run = prepare(settings)
     out_dir = settings.out_dir(run.sequence.name)
-    existed = out_dir.exists()
+    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
     writable_folder(out_dir)
     try:
         if settings.record:
@@ -206,8 +206,9 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
             execute(run, None, progress)
         return write_results(run, out_dir)
     except BaseException:
-        if not existed and not any(out_dir.iterdir()):
-            out_dir.rmdir()
+        for folder in made:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
         raise
 
 

@@ -99,6 +99,23 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
         results.run_and_save(RunSettings("demo", out=blocker / "out", record=False))
 
 
+def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
+    """Ctrl-C (or an error) during the frames: the folders the run created are gone, others stay."""
+    import localization.results as results
+    from localization.run import RunSettings
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(results, "execute", interrupted)
+    (tmp_path / "kept").mkdir()
+    for out in (tmp_path / "new" / "run", tmp_path / "kept"):
+        with pytest.raises(KeyboardInterrupt):
+            results.run_and_save(RunSettings("demo", out=out, record=False))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+
+
 def _map(encoder: str, embeddings: bool) -> Map:
     text = np.eye(3, 512, dtype=np.float32) if embeddings else None
     return Map(Ellipsoids(np.zeros((3, 3)), np.ones((3, 3)), np.tile(np.eye(3), (3, 1, 1))), np.zeros(3, int),
@@ -208,3 +225,15 @@ def test_version_short_help_and_no_developer_notes():
         assert short.exit_code == 0 and short.output == long.output
         assert "Heavy modules" not in long.output and "imported" not in long.output
     assert "--quiet" in RUNNER.invoke(app, ["run", "-h"]).output
+
+
+def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):
+    import localization.results as results
+
+    def interrupted(settings, progress):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "run_and_save", interrupted)
+    result = RUNNER.invoke(app, ["run", "demo", "--no-rrd"])
+    assert result.exit_code == 130
+    assert result.stderr.strip() == "clipclique-loc: interrupted"  # one line, no traceback

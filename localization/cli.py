@@ -80,8 +80,7 @@ def run(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print one line per frame",
                                           rich_help_panel=OUTPUT)] = False,
 ) -> None:
-    """Localize each frame; print the paper's table; write results.json, poses.tum, groundtruth.tum, config.json,
-    recording.rrd into outputs/loc/SEQUENCE/RUN."""
+    """Localize each frame; print the paper's table; write results, TUM poses and a recording to the run's folder."""
     from rich.console import Console
     from rich.progress import Progress
 

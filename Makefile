@@ -1,6 +1,8 @@
 # Two commands set up everything on a fresh machine:
 #   make demo   build the demo maps, localize the demo sequences with all four methods
 #   make test   run the test suite
+# and one regenerates every figure the repository commits:
+#   make docs   make demo, the benchmark into docs/benchmark/ and the README's figures, docs/*.png
 # Both create .venv and install the project with its models extra and the system
 # libraries it needs (open3d: libusb; headless screenshots: Mesa's Vulkan driver).
 
@@ -15,7 +17,7 @@ export YOLO_OFFLINE ?= 1
 export YOLO_AUTOINSTALL ?= false
 export HF_HUB_OFFLINE ?= 1
 
-.PHONY: install sysdeps demo test bench clean
+.PHONY: install sysdeps demo test bench docs clean
 
 install: $(STAMP)
 
@@ -46,6 +48,11 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) tools/bench.py
+
+docs: demo
+	$(PY) tools/bench.py --docs
+	$(PY) tools/screenshot.py outputs/maps/demo.map.rrd docs/map_recording.png
+	$(PY) tools/screenshot.py outputs/loc/demo/clipclique/recording.rrd docs/localization_recording.png --frame 102
 
 clean:
 	rm -rf $(VENV) outputs

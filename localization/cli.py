@@ -13,9 +13,24 @@ from typing import Annotated, Optional
 
 import typer
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0])
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
+                  context_settings={"help_option_names": ["-h", "--help"]})
 
 ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        print(f"clipclique-loc {version('clipclique')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                help="print the version and exit")] = False) -> None:
+    """clipclique-loc: localize RGB-D frames against a landmark map (CLIP-Clique and its baselines)."""
 
 
 class Method(str, Enum):
@@ -56,36 +71,52 @@ def run(
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/loc/SEQUENCE/METHOD]",
-                                                rich_help_panel=OUTPUT)] = None,
+    force: Annotated[bool, typer.Option("--force", help="use a map built from another scene", rich_help_panel=INPUTS)] = False,
+    out: Annotated[Optional[Path], typer.Option(
+        help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
+             "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the results are",
+                                        rich_help_panel=OUTPUT)] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print one line per frame",
+                                          rich_help_panel=OUTPUT)] = False,
 ) -> None:
-    """Localize each frame; print the paper's table; write results.json, poses.tum, config.json, recording.rrd."""
+    """Localize each frame; print the paper's table; write results, TUM poses and a recording to the run's folder."""
     from rich.console import Console
     from rich.progress import Progress
 
+    from clipclique.commands import rerun_hint
     from localization.results import run_and_save
     from localization.run import RunSettings
-    from localization.tables import make_console, print_documents
+    from localization.tables import make_console, print_documents, print_frames
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd)
+                           record=not no_rrd, force=force)
     console = make_console()
-    with _user_errors(), Progress(console=Console(stderr=True), transient=True) as progress:
-        task = progress.add_task(f"{sequence} / {method.value}", total=None)
-        document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
-    print_documents(console, [document])
-    out_dir = settings.out_dir()
-    console.print(f"results: {out_dir}/results.json, {out_dir}/poses.tum, {out_dir}/config.json")
+    try:
+        with _user_errors(), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
+            task = progress.add_task(f"{sequence} / {method.value}", total=None)
+            document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
+    except KeyboardInterrupt:
+        print("clipclique-loc: interrupted", file=sys.stderr)
+        raise typer.Exit(130) from None
+    if verbose:
+        print_frames(console, document)
+    if not quiet:
+        print_documents(console, [document])
+    out_dir = settings.out_dir(document["run"]["sequence"])
+    console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
+                  soft_wrap=True)
     if settings.record:
-        console.print(f"recording: rerun {out_dir}/recording.rrd")
+        console.print(f"recording: {out_dir}/recording.rrd ({rerun_hint(out_dir / 'recording.rrd')})", highlight=False,
+                      soft_wrap=True)
 
 
 @app.command()
 def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
-    """One table of several runs (e.g. outputs/loc/demo/*)."""
+    """One table of several runs (e.g. outputs/loc/demo/*); each names the settings that set it apart."""
     from localization.results import read_results
     from localization.tables import make_console, print_documents
 

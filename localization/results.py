@@ -3,7 +3,9 @@
 Each file is written to a temporary name and moved into place, so a file that exists is whole.
 JSON holds no NaN: a value that does not exist (no pose, nothing to average) is null.
 poses.tum holds the top-1 pose of each localized frame as `timestamp tx ty tz qx qy qz qw`
-(camera-to-world, the TUM format evo reads); frames without a pose are left out.
+(camera-to-world, the TUM format evo reads); frames without a pose are left out. groundtruth.tum
+beside it holds the ground-truth pose of every frame that has one, on the same timestamps, so
+`evo_ape tum groundtruth.tum poses.tum` scores any run.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.config import METHOD_TITLES
+from clipclique.config import METHOD_TITLES, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import STAGES
@@ -32,11 +34,12 @@ ALL_STAGES = QUERY_STAGES + STAGES
 
 
 def write_results(run: Run, out_dir: Path) -> dict[str, Any]:
-    """Write results.json, poses.tum and config.json into `out_dir`; the results document."""
+    """Write results.json, poses.tum, groundtruth.tum and config.json into `out_dir`; the results document."""
     out_dir.mkdir(parents=True, exist_ok=True)
     document = results_document(run)
     atomic_write(out_dir / "results.json", json.dumps(document, indent=1, allow_nan=False))
     atomic_write(out_dir / "poses.tum", tum_trajectory(run.frames))
+    atomic_write(out_dir / "groundtruth.tum", tum_ground_truth(run.frames))
     atomic_write(out_dir / "config.json", json.dumps(run.config.to_dict(), indent=1, allow_nan=False))
     return document
 
@@ -68,7 +71,20 @@ def run_description(run: Run) -> dict[str, Any]:
         "stride": settings.stride,
         "max_frames": settings.max_frames,
         "sequence_frames": len(run.sequence),
+        "name": settings.run_name(),
+        "changed": changed_settings(run.config.to_dict(), make_config(settings.method).to_dict()),
     }
+
+
+def changed_settings(config: dict[str, Any], preset: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Dotted keys whose value differs from the method's preset (overrides, a config file, alpha forced to 0)."""
+    changed: dict[str, Any] = {}
+    for key, value in config.items():
+        if isinstance(value, dict):
+            changed |= changed_settings(value, preset.get(key, {}), f"{prefix}{key}.")
+        elif value != preset.get(key):
+            changed[f"{prefix}{key}"] = value
+    return changed
 
 
 def results_document(run: Run) -> dict[str, Any]:
@@ -134,6 +150,12 @@ def tum_trajectory(frames: list[FrameOutcome]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def tum_ground_truth(frames: list[FrameOutcome]) -> str:
+    lines = ["# timestamp tx ty tz qx qy qz qw (ground-truth camera-to-world pose of each frame that has one)"]
+    lines += [tum_line(f.timestamp, f.gt_pose) for f in frames if f.gt_pose is not None]
+    return "\n".join(lines) + "\n"
+
+
 def tum_line(timestamp: float, pose: Pose) -> str:
     quaternion = Rotation.from_matrix(pose.rotation).as_quat()  # x, y, z, w
     return " ".join(f"{v:.6f}" for v in (timestamp, *pose.translation, *quaternion))
@@ -166,18 +188,28 @@ def json_safe(value: Any) -> Any:
 
 
 def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
-    """Prepare, localize every selected frame, write results (and the .rrd); the results document."""
+    """Prepare, localize every selected frame, write results (and the .rrd) into
+    `settings.out_dir(sequence name)`; the results document. A run that stops half-way (an error,
+    Ctrl-C) leaves no folder it made empty behind."""
     run = prepare(settings)
-    out_dir = writable_folder(settings.out_dir())
-    if settings.record:
-        from clipclique.viz import LocalizationRecorder
+    out_dir = settings.out_dir(run.sequence.name)
+    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
+    writable_folder(out_dir)
+    try:
+        if settings.record:
+            from clipclique.viz import LocalizationRecorder
 
-        with LocalizationRecorder(out_dir / "recording.rrd", run.map, recording_description(run),
-                                  d_adj=run.config.graph.d_adj) as recorder:
-            execute(run, recorder, progress)
-    else:
-        execute(run, None, progress)
-    return write_results(run, out_dir)
+            with LocalizationRecorder(out_dir / "recording.rrd", run.map, recording_description(run),
+                                      d_adj=run.config.graph.d_adj) as recorder:
+                execute(run, recorder, progress)
+        else:
+            execute(run, None, progress)
+        return write_results(run, out_dir)
+    except BaseException:
+        for folder in made:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
 
 
 def writable_folder(out_dir: Path) -> Path:

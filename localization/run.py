@@ -6,6 +6,8 @@ Which detector and encoder ran, and whether they are simulated, travels with the
 
 from __future__ import annotations
 
+import hashlib
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -13,6 +15,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from clipclique.commands import command
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import Sequence, open_sequence
 from clipclique.encoders import Encoder, load_encoder
@@ -30,6 +33,7 @@ if TYPE_CHECKING:
 MAP_DIR = Path("outputs/maps")
 LOC_DIR = Path("outputs/loc")
 QUERY_STAGES = ("detector", "observations", "encoder")  # before the pipeline's own STAGES
+MAX_RUN_NAME = 100  # characters of a run folder's name; longer ones end in a hash
 
 
 @dataclass
@@ -47,12 +51,30 @@ class RunSettings:
     yolo_weights: str = "yolov8x-seg.pt"
     stride: int = 1
     max_frames: int | None = None
-    out: Path | None = None  # default outputs/loc/<SEQUENCE>/<method>
+    out: Path | None = None  # default outputs/loc/<sequence name>/<run_name()>
     record: bool = True
     seed: int = 0  # the simulated detector's
+    force: bool = False  # accept a map built from another scene
 
-    def out_dir(self) -> Path:
-        return self.out or LOC_DIR / Path(self.sequence).name / self.method
+    def out_dir(self, sequence_name: str) -> Path:
+        """`--out`, else outputs/loc/<the sequence's resolved name>/<run_name()>."""
+        return self.out or LOC_DIR / sequence_name / self.run_name()
+
+    def run_name(self) -> str:
+        """The method, then every setting given that changes the results (`clipclique+inliers.d_comp=0.4`):
+        two ablations never share a folder, and the same command again replaces its own (identical) results."""
+        parts = [self.method]
+        if self.config_file is not None:  # the file's content, not just its name, decides the results
+            content = self.config_file.read_bytes() if self.config_file.is_file() else b""
+            parts.append(f"{self.config_file.stem}-{hashlib.sha1(content).hexdigest()[:6]}")
+        parts += self.overrides
+        given = {"map": self.map_path and self.map_path.name.removesuffix(".map.npz"), "detector": self.detector,
+                 "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
+                 "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
+                 "max_frames": self.max_frames}
+        parts += [f"{key}={value}" for key, value in given.items() if value is not None]
+        name = re.sub(r"[^\w.,=+-]", "_", "+".join(parts))
+        return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
     def resolved_map_path(self) -> Path:
         return self.map_path or MAP_DIR / f"{Path(self.sequence).name}.map.npz"
@@ -97,11 +119,12 @@ def prepare(settings: RunSettings) -> Run:
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
     if not map_path.is_file():
-        raise MapFileError(f"{map_path}: no map; build it with `clipclique-map build {settings.sequence}` "
+        raise MapFileError(f"{map_path}: no map; build it with `{command('clipclique-map')} build {settings.sequence}` "
                            "or pass --map PATH")
     map = load_map(map_path)
     sequence = open_sequence(settings.sequence, settings.data_root)
     notes: list[str] = []
+    check_map_source(map, map_path, sequence.name, settings, notes)
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed)
@@ -120,6 +143,17 @@ def prepare(settings: RunSettings) -> Run:
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
     return Run(settings, config, sequence, map, detector, encoder, notes)
+
+
+def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
+    """A map built from another scene gives poses in the wrong world: refused unless forced (then noted)."""
+    source = map.provenance.get("source", {}).get("name")
+    if source is None or source == sequence_name:
+        return
+    if not settings.force:
+        raise ClipcliqueError(f"{map_path}: a map of {source}, not of {sequence_name}; its poses would be meaningless "
+                              f"(build it with `{command('clipclique-map')} build {settings.sequence}`, or pass --force)")
+    notes.append(f"the map is of {source}, not of {sequence_name} (--force)")
 
 
 def default_detector(sequence: Sequence) -> str:

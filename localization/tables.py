@@ -1,57 +1,101 @@
-"""Terminal tables of results documents: the paper's columns, and where each frame's time went."""
+"""Terminal tables of results documents: the paper's columns, and where each frame's time went.
+
+Both fit an 80-column terminal. Runs that differ in more than the method (an override, a config
+file, another detector) are marked (a), (b), ... and the settings of each mark are listed below.
+"""
 
 from __future__ import annotations
 
 import sys
+from string import ascii_lowercase
 from typing import Any
 
+from rich import box
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
 from localization.results import ALL_STAGES
 
+STAGE_HEADERS = {"detector": "detect", "observations": "fit", "encoder": "encode", "descriptors": "descr.",
+                 "similarity": "simil.", "matching": "match"}  # short headers keep 80 columns
+
 
 def make_console() -> Console:
-    """A console that does not squeeze the tables to 80 columns when output goes to a file or pipe."""
-    return Console() if sys.stdout.isatty() else Console(width=200)
+    """A console for the tables: the terminal's width, 80 columns into a file or pipe (print paths with
+    soft_wrap=True, so that they are never broken over two lines)."""
+    return Console() if sys.stdout.isatty() else Console(width=80)
 
 
 def _number(value: float | None, digits: int = 2, scale: float = 1.0) -> str:
     return "-" if value is None else f"{scale * value:.{digits}f}"
 
 
+def _compact(title: str) -> Table:
+    """A table with one space between columns and no side borders."""
+    return Table(title=escape(title), box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, padding=(0, 0))
+
+
+def _inputs(run: dict[str, Any]) -> dict[str, Any]:
+    return {"detector": run["detector"]["name"], "encoder": (run["encoder"] or {}).get("name"),
+            "map": run.get("map"), "stride": run.get("stride"), "max_frames": run.get("max_frames")}
+
+
+def run_settings(document: dict[str, Any], documents: list[dict[str, Any]]) -> str:
+    """What sets a run apart: its settings changed from the method's preset, and the inputs (detector,
+    encoder, map, frames) in which it differs from runs of the same method and sequence in the table."""
+    run = document["run"]
+    changed = [f"{key}={value}" for key, value in run.get("changed", {}).items()]
+    peers = [d["run"] for d in documents if (d["run"]["sequence"], d["run"]["method_title"])
+             == (run["sequence"], run["method_title"])]
+    for key, value in _inputs(run).items():
+        if any(_inputs(peer).get(key) != value for peer in peers):
+            changed.append(f"{key}={value}")
+    return " ".join(changed)
+
+
+def _marks(documents: list[dict[str, Any]]) -> tuple[list[str], list[str]]:
+    """Per document its method title with a mark for its settings, e.g. `CLIP-Clique (a)`; and the legend."""
+    settings = [run_settings(d, documents) for d in documents]
+    letters = {s: ascii_lowercase[i % 26] for i, s in enumerate(dict.fromkeys(s for s in settings if s))}
+    titles = [d["run"]["method_title"] + (f" ({letters[s]})" if s else "") for d, s in zip(documents, settings)]
+    return titles, [f"({letter}) {s}" for s, letter in letters.items()]
+
+
 def results_table(documents: list[dict[str, Any]], title: str = "Localization") -> Table:
     """One row per run: precision, recall, median TE/RE, success top-1/3/5 (%), time per query."""
-    table = Table(title=title)
-    for column in ("Sequence", "Method", "Frames", "Precision", "Recall", "TE [m]", "RE [deg]", "Top-1 [%]",
-                   "Top-3 [%]", "Top-5 [%]", "Time [ms]"):
-        table.add_column(escape(column), justify="left" if column in ("Sequence", "Method") else "right")
-    for document in documents:
-        run, summary = document["run"], document["summary"]
+    table = _compact(title)
+    for column in ("Sequence", "Method", "Frames", "Prec.", "Rec.", "TE [m]", "RE [°]", "Top-1", "Top-3", "Top-5",
+                   "ms"):
+        table.add_column(escape(column), justify="left" if column in ("Sequence", "Method") else "right",
+                         no_wrap=True)
+    titles, _ = _marks(documents)
+    for document, method in zip(documents, titles):
+        summary = document["summary"]
         table.add_row(
-            run["sequence"], run["method_title"], str(int(summary["frames"])),
+            document["run"]["sequence"], method, str(int(summary["frames"])),
             _number(summary["precision"]), _number(summary["recall"]),
             _number(summary["te_median_m"]), _number(summary["re_median_deg"], 1),
             *(_number(summary[f"success@{k}"], 1, 100.0) for k in (1, 3, 5)),
             _number(summary["time_ms_median"], 1),
         )
-    table.caption = ("TE/RE: medians over frames with a pose; Top-k: frames with a pose within "
-                     "1 m among the k best (frames without one count as failures); time: matching + inliers + pose")
+    table.caption = ("TE/RE: medians over frames with a pose. Top-k [%]: frames with a pose within 1 m among the "
+                     "k best (frames without one count as failures). ms: matching + inliers + pose per query.")
     return table
 
 
 def stage_table(documents: list[dict[str, Any]]) -> Table:
     """Median milliseconds per frame of every stage, detector and encoder included."""
-    table = Table(title=escape("Median time per frame [ms]"))
-    table.add_column("Sequence")
-    table.add_column("Method")
+    table = _compact("Median time per frame [ms]")
+    table.add_column("Sequence", no_wrap=True)
+    table.add_column("Method", no_wrap=True)
     for stage in ALL_STAGES:
-        table.add_column(stage, justify="right")
-    for document in documents:
+        table.add_column(STAGE_HEADERS.get(stage, stage), justify="right", no_wrap=True)
+    titles, _ = _marks(documents)
+    for document, method in zip(documents, titles):
         medians = document["summary"]["stage_ms_median"]
-        table.add_row(document["run"]["sequence"], document["run"]["method_title"],
-                      *(_number(medians[stage], 1) for stage in ALL_STAGES))
+        table.add_row(document["run"]["sequence"], method, *(_number(medians[stage], 1) for stage in ALL_STAGES))
+    table.caption = "fit: observed ellipsoids from the detections; descr.: descriptors; simil.: similarity"
     return table
 
 
@@ -74,3 +118,15 @@ def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
         console.print(banner)
     console.print(results_table(documents))
     console.print(stage_table(documents))
+    for line in _marks(documents)[1]:
+        console.print(line, highlight=False, markup=False)
+
+
+def print_frames(console: Console, document: dict[str, Any]) -> None:
+    """One line per frame: observations, and the top-1 translation error or why there is no pose."""
+    for frame in document["frames"]:
+        error = frame["evaluation"]["translation_error_m"]
+        outcome = (f"no pose: {frame['failure']}" if frame["failure"] is not None else
+                   "pose (no ground truth)" if error is None else f"TE {error:.2f} m")
+        console.print(f"frame {frame['index']} {escape(frame['name'])}: {frame['observations']} observations, "
+                      f"{escape(outcome)}", highlight=False, soft_wrap=True)

@@ -5,7 +5,9 @@ Heavy modules (open3d, torch, rerun) are imported inside the command, so `--help
 
 from __future__ import annotations
 
+import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -14,18 +16,30 @@ from rich.console import Console
 from rich.table import Table
 
 if TYPE_CHECKING:  # the real imports stay inside the command, so that --help is instant
+    from rich.progress import Progress
+
     from clipclique.types import Map
     from mapping.build import BuildReport
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich", help=__doc__)
-console = Console(stderr=True)
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
+                  context_settings={"help_option_names": ["-h", "--help"]})
+console = Console(stderr=True, soft_wrap=not sys.stderr.isatty())  # piped: a path is never broken over two lines
 
 DATA_PANEL = "Data"
 OUTPUT_PANEL = "Output"
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        print(f"clipclique-map {version('clipclique')}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _tool() -> None:
+def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+                                                help="print the version and exit")] = False) -> None:
     """clipclique-map: build object landmark maps of ScanNet scenes, TUM RGB-D sequences and the demo."""
 
 
@@ -49,21 +63,29 @@ def build(
         ),
     ] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
     from clipclique.errors import ClipcliqueError
 
     try:
-        run_build(scene, data_root, out, encoder, not no_rrd)
+        run_build(scene, data_root, out, encoder, not no_rrd, verbosity=verbose - quiet)
     except ClipcliqueError as error:
         console.print(f"[bold red]error:[/] {error}", soft_wrap=True, highlight=False)
         raise typer.Exit(2) from None
+    except KeyboardInterrupt:
+        console.print("clipclique-map: interrupted", highlight=False)
+        raise typer.Exit(130) from None
 
 
-def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec: str | None, rrd: bool) -> Path:
-    """Open the scene, fit the landmarks, embed the descriptions, write the map (and .rrd)."""
+def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec: str | None, rrd: bool,
+              verbosity: int = 0) -> Path:
+    """Open the scene, fit the landmarks, embed the descriptions, write the map (and .rrd).
+    `verbosity` -1 prints only the outputs, 1 adds every landmark."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from clipclique.commands import rerun_hint
     from clipclique.datasets import demo, open_sequence, resolve_data_root
     from clipclique.encoders import load_encoder
     from clipclique.mapfile import save_map
@@ -71,10 +93,9 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
 
     started = time.perf_counter()
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as progress:
+    with Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
         if scene in demo.DEMO_SCENES:
-            task = progress.add_task(f"generating the {scene} data (first use)", total=None)
-            demo.ensure_demo(scene, resolve_data_root(data_root), lambda done, total: progress.update(task, completed=done, total=total))
+            demo.ensure_demo(scene, resolve_data_root(data_root), _bar_on_first_call(progress, f"generating the {scene} data (first use)"))
         sequence = open_sequence(scene, data_root)
         spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
         loaded = load_encoder(spec)
@@ -90,8 +111,25 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
         cloud = sequence.scene_cloud()
         write_map_recording(recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
     report.timings["total"] = time.perf_counter() - started
-    print_summary(map, report, out, recording if rrd else None, spec)
+    if verbosity >= 0:
+        print_summary(map, report, spec)
+    if verbosity > 0:
+        print_landmarks(map)
+    console.print(f"map: {out}" + (f"\nrecording: {recording}  ({rerun_hint(recording)})" if rrd else ""), highlight=False)
     return out
+
+
+def _bar_on_first_call(progress: Progress, description: str) -> Callable[[int, int], None]:
+    """A progress callback whose bar appears only once there is work (the demo data may exist already)."""
+    task = None
+
+    def update(done: int, total: int) -> None:
+        nonlocal task
+        if task is None:
+            task = progress.add_task(description, total=total)
+        progress.update(task, completed=done, total=total)
+
+    return update
 
 
 def describe(map: Map, scene: str) -> str:
@@ -105,8 +143,8 @@ def describe(map: Map, scene: str) -> str:
     )
 
 
-def print_summary(map: Map, report: BuildReport, out: Path, recording: Path | None, spec: str) -> None:
-    """The landmarks per class, what was left out or skipped and why, the encoder, times and outputs."""
+def print_summary(map: Map, report: BuildReport, spec: str) -> None:
+    """The landmarks per class, what was left out or skipped and why, the encoder and times."""
     table = Table(title=f"{len(map)} landmarks", title_justify="left")
     table.add_column("class")
     table.add_column("landmarks", justify="right")
@@ -125,7 +163,15 @@ def print_summary(map: Map, report: BuildReport, out: Path, recording: Path | No
         console.print(f"text embeddings: {map.encoder}{simulated}")
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
     console.print(f"time: {timings}")
-    console.print(f"map: {out}" + (f"\nrecording: {recording}  (open with: rerun {recording})" if recording else ""), highlight=False)
+
+
+def print_landmarks(map: Map) -> None:
+    """Every landmark: instance id, class, centre and semi-axes (m), description."""
+    for i in range(len(map)):
+        center = " ".join(f"{v:.2f}" for v in map.ellipsoids.centers[i])
+        axes = " ".join(f"{v:.2f}" for v in map.ellipsoids.axes[i])
+        console.print(f"{map.instance_ids[i]:>4} {map.class_names[map.class_ids[i]]}: centre {center}, "
+                      f"semi-axes {axes}, {map.descriptions[i]!r}", highlight=False, markup=False)
 
 
 def main() -> None:

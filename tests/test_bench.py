@@ -237,3 +237,35 @@ def test_bench_loc_user_mistakes_are_one_line(tmp_path):
         done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_readme_figures_are_the_committed_reports():
+    """The README's generated figures are those of docs/benchmark/results.json (`make docs` writes both)."""
+    committed = json.loads((ROOT / "docs" / "benchmark" / "results.json").read_text())
+    readme = (ROOT / "README.md").read_text()
+    assert report.update_readme(readme, report.readme_figures(committed)) == readme
+    assert "<!-- figures:benchmark -->\nMeasured by `make docs`" in readme
+
+
+def test_update_readme_replaces_only_its_regions():
+    text = "a\n<!-- figures:benchmark -->\nold\n<!-- /figures -->\nb\n"
+    assert report.update_readme(text, {"benchmark": "new\n"}) == "a\n<!-- figures:benchmark -->\nnew\n<!-- /figures -->\nb\n"
+    with pytest.raises(ValueError, match="do not match"):
+        report.update_readme("no region\n", {"benchmark": "new\n"})
+
+
+@pytest.mark.slow
+def test_committed_report_reproduces_table_one_on_the_demo(tmp_path, monkeypatch):
+    """A fresh run of Table I on the demo gives the committed report's accuracy (timings are not
+    reproducible and not compared). Fails when the algorithm changed without `make docs`."""
+    committed = json.loads((ROOT / "docs" / "benchmark" / "results.json").read_text())
+    monkeypatch.chdir(tmp_path)  # builds its own demo map, as `make docs` does from a clean outputs/
+    bench.ensure_map("demo", ROOT / "data")
+    sequence = bench.cache_sequence("demo", ROOT / "data", None, lambda total: None)
+    assert sequence.description["frames"] == committed["sequences"]["demo"]["frames"]
+    expected = {r["label"]: r for r in committed["experiments"]["demo"] if r["group"] == "methods"}
+    for variant in (v for v in bench.variants() if v.group == "methods"):
+        fresh = bench.run_variant(sequence, variant, lambda: None)
+        for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m"):
+            assert fresh["summary"][column] == pytest.approx(expected[variant.label]["summary"][column]), \
+                (variant.label, column)

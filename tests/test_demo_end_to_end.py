@@ -111,6 +111,30 @@ def test_results_and_poses_read_back(runs, demo):
         assert all(len(pair) == 2 for h in frame["hypotheses"] for pair in h["correspondences"])
     success = np.mean([f["evaluation"]["success"]["1"] for f in document["frames"]])
     assert document["summary"]["success@1"] == pytest.approx(success)
+    truth = [line.split() for line in (runs["clipclique"] / "groundtruth.tum").read_text().splitlines()
+             if not line.startswith("#")]
+    assert [float(line[0]) for line in truth] == [f["timestamp"] for f in document["frames"]]  # evo pairs them
+    for frame, line in zip(document["frames"], truth):
+        np.testing.assert_allclose(np.array(line[1:4], float), np.array(frame["gt_pose"])[:3, 3], atol=1e-5)
+
+
+def test_two_ablations_keep_their_folders_and_compare_tells_them_apart(demo, tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from localization.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    for overrides in ([], ["inliers.d_comp=0.6"]):
+        run_and_save(RunSettings("demo", overrides=overrides, map_path=demo / "demo.map.npz", data_root=demo,
+                                 max_frames=4, record=False))
+    folders = sorted((tmp_path / "outputs" / "loc" / "demo").iterdir())
+    assert [f.name for f in folders] == ["clipclique+inliers.d_comp=0.6+map=demo+max_frames=4",
+                                         "clipclique+map=demo+max_frames=4"]
+    assert [read_results(f / "results.json")["run"]["changed"] for f in folders] == [{"inliers.d_comp": 0.6}, {}]
+    shown = CliRunner().invoke(app, ["compare", *map(str, folders)])
+    assert shown.exit_code == 0
+    assert "CLIP-Clique (a)" in shown.output and "\n(a) inliers.d_comp=0.6\n" in shown.output
+    assert max(len(line) for line in shown.output.splitlines()) <= 80  # piped: 80 columns
 
 
 def test_a_second_run_is_identical(runs, demo, tmp_path):
@@ -137,7 +161,7 @@ def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys):
     monkeypatch.setattr(tool, "run_build", lambda *args, **kwargs: None)
 
     def blocked(settings):
-        raise ClipcliqueError(f"--out {settings.out_dir()}: cannot create the folder (Not a directory)")
+        raise ClipcliqueError(f"--out {settings.out_dir('demo')}: cannot create the folder (Not a directory)")
 
     monkeypatch.setattr(tool, "run_and_save", blocked)
     with pytest.raises(SystemExit) as exit_info:

@@ -9,14 +9,8 @@ import pytest
 
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
-from localization.detectors import (
-    InstanceDetector,
-    SimulatedDetector,
-    YoloDetector,
-    coco_to_vocabulary,
-    make_detector,
-    mask_boxes,
-)
+from clipclique.detectors import InstanceDetector, SimulatedDetector, mask_boxes
+from localization.detectors import YoloDetector, coco_to_vocabulary, make_detector
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
 OBJECTS = {3: "chair", 7: "table", 9: "plant", 12: "chair"}  # 9 is not in the map's vocabulary

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +17,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
 from localization.cli import app
 from localization.run import choose_encoder
-from localization.results import json_safe, atomic_write, read_results, tum_line
+from localization.results import ALL_STAGES, json_safe, atomic_write, read_results, tum_line
 from localization.tables import results_table, run_banner
 
 RUNNER = CliRunner()
@@ -67,7 +69,7 @@ def _document(method: str, success: float, simulated: bool) -> dict:
 def test_tables_show_the_papers_columns_and_flag_simulated_parts():
     table = results_table([_document("CLIP-Clique", 0.8, True), _document("SH", 0.25, True)])
     headers = [Text.from_markup(c.header).plain for c in table.columns]
-    assert headers[3:] == ["Precision", "Recall", "TE [m]", "RE [deg]", "Top-1 [%]", "Top-3 [%]", "Top-5 [%]", "Time [ms]"]
+    assert headers[3:] == ["Prec.", "Rec.", "TE [m]", "RE [°]", "Top-1", "Top-3", "Top-5", "ms"]
     top1 = list(table.columns[7].cells)
     assert top1 == ["80.0", "25.0"] and list(table.columns[5].cells) == ["-", "-"]
     assert run_banner(_document("SH", 0.2, True)).splitlines() == [
@@ -89,12 +91,29 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     import localization.results as results
     from localization.run import RunSettings
 
-    monkeypatch.setattr(results, "prepare", lambda settings: None)
+    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
     monkeypatch.setattr(results, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     with pytest.raises(ClipcliqueError, match="--out .*a-file/out"):
         results.run_and_save(RunSettings("demo", out=blocker / "out", record=False))
+
+
+def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
+    """Ctrl-C (or an error) during the frames: the folders the run created are gone, others stay."""
+    import localization.results as results
+    from localization.run import RunSettings
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(results, "execute", interrupted)
+    (tmp_path / "kept").mkdir()
+    for out in (tmp_path / "new" / "run", tmp_path / "kept"):
+        with pytest.raises(KeyboardInterrupt):
+            results.run_and_save(RunSettings("demo", out=out, record=False))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
 
 
 def _map(encoder: str, embeddings: bool) -> Map:
@@ -134,3 +153,87 @@ def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
         records[gt_pose is None] = frame_record(outcome)["evaluation"]
     assert records[False]["success"] == {"1": True, "3": True, "5": True}
     assert records[True]["success"] is None and records[True]["translation_error_m"] is None
+
+
+def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
+    from localization.run import RunSettings
+
+    assert RunSettings("demo").out_dir("demo") == Path("outputs/loc/demo/clipclique")
+    assert RunSettings("fr2", "sh").out_dir("rgbd_dataset_freiburg2_desk").parts[-2:] == (
+        "rgbd_dataset_freiburg2_desk", "sh")  # the resolved name, not the alias typed
+    ablation = RunSettings("demo", overrides=["inliers.d_comp=0.4", "top_n=3"], stride=2, detector="gt")
+    assert ablation.run_name() == "clipclique+inliers.d_comp=0.4+top_n=3+detector=gt+stride=2"
+    config = tmp_path / "my.toml"
+    config.write_text("[inliers]\nd_comp = 0.4\n")
+    first = RunSettings("demo", config_file=config).run_name()
+    config.write_text("[inliers]\nd_comp = 0.5\n")
+    assert first.startswith("clipclique+my-") and RunSettings("demo", config_file=config).run_name() != first
+    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["x=" + "9" * 200]).run_name()
+    assert "/" not in odd and len(odd) == 100
+    assert RunSettings("demo", out=tmp_path / "here").out_dir("demo") == tmp_path / "here"
+
+
+def test_compare_marks_runs_that_differ_and_fits_80_columns():
+    from rich.console import Console
+
+    from localization.tables import print_documents
+
+    def document(sequence: str, method: str, changed: dict) -> dict:
+        base = _document(method, 0.7, True)
+        base["run"] |= {"sequence": sequence, "changed": changed, "map": f"outputs/maps/{sequence}.map.npz",
+                        "stride": 1, "max_frames": None}
+        base["summary"]["stage_ms_median"] = dict.fromkeys(ALL_STAGES, 123.4)
+        return base
+
+    documents = [document("demo_tum", "CLIP-Clique", {}),
+                 document("demo_tum", "CLIP-Clique", {"inliers.d_comp": 0.6, "matching.strategy": "knn"}),
+                 document("demo_tum", "CLIP-Clique", {"inliers.d_comp": 0.6, "matching.strategy": "knn"}),
+                 document("demo_tum", "CLIP-Loc", {"similarity.alpha": 0.0})]
+    console = Console(width=80, record=True)
+    print_documents(console, documents)
+    text = console.export_text()
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 80 and "…" not in text
+    rows = [line for line in lines if line.startswith("demo_tum")]
+    assert [row.split("  ")[0].split(" ", 1)[1].strip() for row in rows[:4]] == [
+        "CLIP-Clique", "CLIP-Clique (a)", "CLIP-Clique (a)", "CLIP-Loc (b)"]
+    assert "(a) inliers.d_comp=0.6 matching.strategy=knn" in lines and "(b) similarity.alpha=0.0" in lines
+
+
+def test_a_map_of_another_scene_is_refused_unless_forced():
+    from localization.run import RunSettings, check_map_source
+
+    map = _map("simulated-clip", True)
+    map.provenance = {"source": {"name": "demo"}}
+    notes: list[str] = []
+    with pytest.raises(ClipcliqueError, match="a map of demo, not of demo_tum.*--force"):
+        check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum"), notes)
+    check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum", force=True), notes)
+    assert notes == ["the map is of demo, not of demo_tum (--force)"]
+    check_map_source(map, Path("demo.map.npz"), "demo", RunSettings("demo"), notes)  # its own scene: fine
+    assert len(notes) == 1
+
+
+def test_version_short_help_and_no_developer_notes():
+    from importlib.metadata import version
+
+    from mapping.cli import app as map_app
+
+    for tool, name in ((app, "clipclique-loc"), (map_app, "clipclique-map")):
+        assert RUNNER.invoke(tool, ["--version"]).output == f"{name} {version('clipclique')}\n"
+        short, long = RUNNER.invoke(tool, ["-h"]), RUNNER.invoke(tool, ["--help"])
+        assert short.exit_code == 0 and short.output == long.output
+        assert "Heavy modules" not in long.output and "imported" not in long.output
+    assert "--quiet" in RUNNER.invoke(app, ["run", "-h"]).output
+
+
+def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):
+    import localization.results as results
+
+    def interrupted(settings, progress):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "run_and_save", interrupted)
+    result = RUNNER.invoke(app, ["run", "demo", "--no-rrd"])
+    assert result.exit_code == 130
+    assert result.stderr.strip() == "clipclique-loc: interrupted"  # one line, no traceback

@@ -107,6 +107,30 @@ def test_cli_tum_demo_without_encoder_or_recording(data_root, tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.map.npz"]
 
 
+def test_cli_quiet_and_verbose(data_root, tmp_path):
+    """-q: where the map is, nothing else; -v: every landmark too."""
+    out = tmp_path / "q.map.npz"
+    quiet = runner.invoke(app, ["build", "demo", "--data-root", str(data_root), "--out", str(out), "--no-rrd", "-q"])
+    assert quiet.exit_code == 0 and quiet.output == f"map: {out}\n"
+    verbose = runner.invoke(app, ["build", "demo", "--data-root", str(data_root), "--out", str(out), "--no-rrd", "-v"])
+    landmarks = [line for line in verbose.output.splitlines() if ": centre " in line]
+    assert verbose.exit_code == 0 and len(landmarks) == len(load_map(out))
+
+
+def test_the_generating_bar_appears_only_when_there_is_work():
+    """Demo data that exists is not 'generating the demo data (first use) 0/?'."""
+    from rich.progress import Progress
+
+    from mapping.cli import _bar_on_first_call
+
+    progress = Progress()
+    update = _bar_on_first_call(progress, "generating")
+    assert progress.tasks == []
+    update(1, 4)
+    update(2, 4)
+    assert [(t.description, t.completed, t.total) for t in progress.tasks] == [("generating", 2, 4)]
+
+
 @pytest.mark.parametrize(
     "args, message",
     [

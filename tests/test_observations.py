@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from clipclique.detectors import mask_boxes
 from clipclique.encoders import SimulatedClipEncoder
 from clipclique.types import Detections, Frame, Pose
-from localization.detectors import mask_boxes
 from clipclique.observations import crop, crop_contents, embed, extract_observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])

@@ -13,13 +13,15 @@ import rerun as rr
 from PIL import Image
 from viz_scene import recorded_entities, rerun_cli, scene_points, synthetic_run
 
+from clipclique.config import LocalizationConfig
 from clipclique.graph import semantic_graph
+from clipclique.metrics import evaluate_frame
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import ellipsoids3d, encode_depth_png, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
-from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges
-from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness
+from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges, spread_labels
+from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness, palette
 
 
 @pytest.fixture(scope="module")
@@ -67,15 +69,29 @@ class LogSpy:
         return [archetypes for logged, archetypes in self.calls if logged == path][-1]
 
 
-def test_class_colors_are_deterministic_and_distinct():
+def test_class_colors_follow_the_class_name_not_the_vocabulary():
     names = [f"class{i}" for i in range(40)]
     colors = class_colors(names)
     assert colors.shape == (40, 3) and colors.dtype == np.uint8
     np.testing.assert_array_equal(colors, class_colors(names))
-    np.testing.assert_array_equal(colors[:6], class_colors(names[:6]))  # a class keeps its colour
-    first = colors[:12].astype(float)
-    distances = np.linalg.norm(first[:, None] - first[None], axis=-1)[np.triu_indices(12, 1)]
-    assert distances.min() > 25  # the first dozen classes are told apart at a glance
+    # the same class, the same colour, whatever else the map holds and in whatever order (was vocabulary order)
+    np.testing.assert_array_equal(class_colors(["sofa", "chair"]), class_colors(["tv", "chair", "lamp", "sofa"])[[3, 1]])
+    np.testing.assert_array_equal(class_colors(["Sofa "]), class_colors(["sofa"]))
+    shades = palette().astype(float)
+    assert len(np.unique(shades, axis=0)) == len(shades) == 48
+    assert all(any((color == shade).all() for shade in shades) for color in colors.astype(float))
+    distances = np.linalg.norm(shades[:, None] - shades[None], axis=-1)[np.triu_indices(len(shades), 1)]
+    assert distances.min() > 20  # two classes share a colour or are told apart
+    luminance = shades / 255 @ np.array([0.2126, 0.7152, 0.0722])
+    assert luminance.min() >= 0.49  # readable as label text on the viewer's dark background (no dark purple)
+
+
+def test_labels_are_spread_over_crowded_landmarks():
+    """A table with chairs around it and cups on it shows the table's and the far chairs' labels only."""
+    centers = np.array([[0, 0, 0.4], [0.1, 0.1, 0.8], [-0.1, 0.0, 0.8], [0.9, 0, 0.45], [-0.9, 0, 0.45], [3, 3, 0.4]])
+    sizes = np.array([1.0, 0.001, 0.001, 0.1, 0.1, 0.1])
+    np.testing.assert_array_equal(spread_labels(centers, sizes), [True, False, False, True, True, True])
+    assert spread_labels(np.zeros((0, 3)), np.zeros(0)).shape == (0,)
 
 
 def test_ellipsoids_carry_rerun_quaternions_and_annotation_ids():
@@ -271,6 +287,23 @@ def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
     warnings = [a[0] for path, a in spy.calls if path == "log" and "no pose" in str(a[0].text.as_arrow_array())]
     assert len(warnings) == 1
     recorder.close()
+
+
+def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
+    """A Clear is a hole in rerun's time series: no line bridges the failed frame to the next success."""
+    map, frames = run
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder.stream)
+    for i, f in enumerate(frames[:3]):
+        result = dataclasses.replace(f.result, hypotheses=[], failure="fewer than 3 candidates") if i == 1 else f.result
+        evaluation = evaluate_frame(result, f.observations, map, f.frame.pose, LocalizationConfig(), i)
+        recorder.log_frame(f.frame, f.detections, f.observations, result, evaluation)
+    recorder.close()
+    logged = [(path, type(a[0]).__name__) for path, a in spy.calls if path.startswith("metrics/error")]
+    assert logged == [("metrics/error/translation_m", "Scalars"), ("metrics/error/rotation_deg", "Scalars"),
+                      ("metrics/error/translation_m", "Clear"), ("metrics/error/rotation_deg", "Clear"),
+                      ("metrics/error/no_pose", "Scalars"),
+                      ("metrics/error/translation_m", "Scalars"), ("metrics/error/rotation_deg", "Scalars")]
     assert (tmp_path / "r.rrd").stat().st_size > 0
 
 

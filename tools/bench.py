@@ -13,7 +13,8 @@ give the best seed, as the paper does, and the spread over the seeds. Scalabilit
 sequence's map side by side (the paper's set-up) and reruns `bench_core.scalability` (a synthetic
 room copied the same way). The GPU section times ViT-L-14 and YOLOv8x-seg with random weights
 when CUDA is available, and says why not otherwise.
-Output: `outputs/bench/<UTC timestamp>/` with report.md, PNG plots and results.json.
+Output: `outputs/bench/<UTC timestamp>/` with report.md, PNG plots and results.json. `--docs` (what
+`make docs` runs) writes them to docs/benchmark/ instead and regenerates the README's figures from them.
 """
 
 from __future__ import annotations
@@ -60,6 +61,8 @@ import literal_reference  # noqa: E402
 import report  # noqa: E402
 from report import PAPER_LANDMARKS_AT_1S  # noqa: E402
 
+DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
+README = DOCS.parents[1] / "README.md"
 SEEDS = (0, 1, 2)  # stochastic configurations: best of three, as the paper
 LITERAL_REFERENCE = report.LITERAL
 ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))
@@ -420,7 +423,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--frames", type=int, help="frames per sequence, spread evenly [default: all]")
     parser.add_argument("--data-root", type=Path, help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]")
     parser.add_argument("--out", type=Path, help="report folder [default: outputs/bench/<UTC timestamp>]")
+    parser.add_argument("--docs", action="store_true",
+                        help="the committed run: write to docs/benchmark/ and regenerate the README's figures")
     args = parser.parse_args(argv)
+    if args.docs and (args.quick or args.frames or args.sequences or args.out):
+        parser.error("--docs is the full run on every sequence: no --quick, --frames, --sequences or --out")
     if args.frames is not None and args.frames < 1:
         parser.error("--frames must be at least 1")
     return args
@@ -439,7 +446,7 @@ def main(argv: list[str] | None = None) -> None:
 def run_suite(args: argparse.Namespace) -> None:
     started = time.perf_counter()
     stamp = datetime.now(timezone.utc)
-    out = args.out or Path("outputs") / "bench" / stamp.strftime("%Y%m%d-%H%M%S")
+    out = DOCS if args.docs else args.out or Path("outputs") / "bench" / stamp.strftime("%Y%m%d-%H%M%S")
     frames = QUICK_FRAMES if args.quick and args.frames is None else args.frames
     counts = QUICK_COUNTS if args.quick else SCALABILITY_COUNTS
     names, skipped = (args.sequences, []) if args.sequences else available_sequences(resolve_data_root(args.data_root))
@@ -448,7 +455,7 @@ def run_suite(args: argparse.Namespace) -> None:
                                "quick": args.quick, "machine": machine(), "skipped_sequences": skipped,
                                "sequences": {}, "experiments": {}}
     console = Console(stderr=True)
-    columns = (TextColumn("{task.description:<34}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    columns = (TextColumn("{task.description:<40}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console) as progress:
         cached: dict[str, CachedSequence] = {}
         for name in names:
@@ -459,7 +466,7 @@ def run_suite(args: argparse.Namespace) -> None:
             results["sequences"][name] = cached[name].description | {"query_ms": cached[name].query_ms}
         for name, sequence in cached.items():
             work = sum(len(SEEDS) if v.stochastic else 1 for v in experiments)
-            task = progress.add_task(f"{name}: {len(experiments)} configurations", total=work)
+            task = progress.add_task(f"{name}: {len(experiments)} configurations, {work} runs", total=work)
             tick = lambda task=task: progress.update(task, advance=1)  # noqa: E731
             results["experiments"][name] = [run_variant(sequence, v, tick) for v in experiments]
         first = cached[names[0]]
@@ -479,6 +486,9 @@ def run_suite(args: argparse.Namespace) -> None:
     results["wall_time_s"] = time.perf_counter() - started
     report.write(results, out)
     console.print(f"report: {out / 'report.md'} ({results['wall_time_s']:.0f} s)")
+    if args.docs:
+        README.write_text(report.update_readme(README.read_text(), report.readme_figures(results)))
+        console.print(f"figures regenerated in {README}")
 
 
 if __name__ == "__main__":

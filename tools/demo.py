@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
-from clipclique.datasets import resolve_data_root
+from clipclique.commands import command
 from clipclique.errors import ClipcliqueError
 from localization.results import run_and_save
 from localization.run import MAP_DIR, RunSettings
@@ -35,22 +36,26 @@ def run_demo() -> None:
     for sequence in SEQUENCES:
         console.print(f"[bold]building the map of {sequence}[/bold]")
         run_build(sequence, data_root=None, out=None, encoder_spec=None, rrd=True)
+    folders: dict[tuple[str, str], Path] = {}
     documents = []
     for sequence in SEQUENCES:
         for method in METHODS:
             console.print(f"localizing {sequence} with {method} ...")
-            documents.append(run_and_save(RunSettings(sequence, method)))
+            settings = RunSettings(sequence, method)
+            documents.append(run_and_save(settings))
+            folders[sequence, method] = settings.out_dir(documents[-1]["run"]["sequence"])
     console.rule("CLIP-Clique and the baselines on the demo")
     print_documents(console, documents)
-    console.print(f"\nfinished in {time.perf_counter() - start:.0f} s; recordings (open with `rerun FILE`, "
-                  "several at once to compare):")
+    console.print(f"\nfinished in {time.perf_counter() - start:.0f} s; recordings (open with `{command('rerun')} FILE`, "
+                  "several at once to compare):", highlight=False, soft_wrap=True)
     for sequence in SEQUENCES:
-        console.print(f"  {'map':<12}{MAP_DIR / f'{sequence}.map.rrd'}")
+        console.print(f"  {'map':<12}{MAP_DIR / f'{sequence}.map.rrd'}", highlight=False, soft_wrap=True)
         for method in METHODS:
-            console.print(f"  {method:<12}{RunSettings(sequence, method).out_dir() / 'recording.rrd'}")
-    tum_truth = resolve_data_root(None) / "demo" / "demo_tum" / "groundtruth.txt"
-    console.print("beside each recording: results.json, config.json and poses.tum (TUM format; score it with evo, "
-                  f"e.g. `evo_ape tum {tum_truth} {RunSettings('demo_tum', 'clipclique').out_dir() / 'poses.tum'}`)")
+            console.print(f"  {method:<12}{folders[sequence, method] / 'recording.rrd'}", highlight=False, soft_wrap=True)
+    example = folders["demo_tum", "clipclique"]
+    console.print("beside each recording: results.json, config.json, poses.tum and groundtruth.tum (TUM format; "
+                  f"score with evo: `evo_ape tum {example / 'groundtruth.tum'} {example / 'poses.tum'}`)",
+                  highlight=False, soft_wrap=True)
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -460,3 +461,44 @@ def save(figure: plt.Figure, path: Path) -> bool:
     figure.savefig(path, dpi=120)
     plt.close(figure)
     return True
+
+
+# ------------------------------------------------------------------------------------ README figures
+
+README_REGION = re.compile(r"(<!-- figures:(\w+) -->\n)(.*?)(<!-- /figures -->)", re.DOTALL)
+
+
+def readme_figures(results: dict[str, Any]) -> dict[str, str]:
+    """The README's generated regions (`<!-- figures:NAME -->` ... `<!-- /figures -->`) from a suite run."""
+    host = results["machine"]
+    where = (f"Measured by `make docs` ({results['created'][:10]}, commit {host['commit']}) on {host['cores']} "
+             f"CPU cores ({host['cpu']}); the suite took {results['wall_time_s']:.0f} s.")
+    names = list(results["sequences"])
+    lines = [where, "", "| method | " + " | ".join(names) + " | matching + inliers + pose per query |",
+             "|---|" + "---|" * (len(names) + 1)]
+    for label in ("X-View", "SH", "CLIP-Loc", "CLIP-Clique"):
+        records = [next(r for r in rows_of(results, name, "methods") if r["label"] == label) for name in names]
+        cells = [f"{100 * r['summary']['success@1']:.1f}%" if "summary" in r else "not run" for r in records]
+        times = [r["summary"]["time_ms_median"] for r in records if "summary" in r]
+        time = "-" if not times else f"{min(times):.1f}-{max(times):.1f} ms" if max(times) - min(times) >= 0.05 else \
+            f"{times[0]:.1f} ms"
+        title = f"**{label}**" if label == "CLIP-Clique" else label
+        lines.append(f"| {title} | " + " | ".join(cells) + f" | {time} |")
+    scene = results["scalability"]["scene"]
+    rows = scene["rows"]
+    shown = sorted({0, min(range(len(rows)), key=lambda i: abs(rows[i]["landmarks"] - 1000)), len(rows) - 1})
+    lines += ["", f"Scalability (the {scene['sequence']} map copied as rooms side by side), matching + inliers + "
+              "pose per query: "
+              + ", ".join(f"{rows[i]['landmarks']:,} landmarks {rows[i]['median_ms']:.1f} ms (whole query "
+                          f"{rows[i]['median_total_ms']:.1f} ms)" for i in shown)
+              + f"; growth exponent {scene['exponent_total']:.2f} (the paper: ~{PAPER_LANDMARKS_AT_1S} landmarks "
+              "within 1 s, quadratic)."]
+    return {"benchmark": "\n".join(lines) + "\n"}
+
+
+def update_readme(text: str, figures: dict[str, str]) -> str:
+    """`text` with each generated region replaced; a region the README lacks, or one without figures, is an error."""
+    found = README_REGION.findall(text)
+    if sorted(name for _, name, _, _ in found) != sorted(figures):
+        raise ValueError(f"README regions {[name for _, name, _, _ in found]} do not match the figures {list(figures)}")
+    return README_REGION.sub(lambda m: m.group(1) + figures[m.group(2)] + m.group(4), text)

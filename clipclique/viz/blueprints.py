@@ -48,10 +48,14 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
     """`centers`: what the 3D view must frame (landmarks and ground-truth camera positions)."""
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(
-                name="3D: map, cameras, matches",
-                origin="world",
-                eye_controls=framing(centers),
+            rrb.Vertical(
+                rrb.Spatial3DView(
+                    name="3D: map, cameras, matches",
+                    origin="world",
+                    eye_controls=framing(centers),
+                ),
+                rrb.TextDocumentView(name="legend", origin="legend"),
+                row_shares=[5, 1],
             ),
             rrb.Vertical(
                 rrb.Tabs(
@@ -63,8 +67,10 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                     rrb.Spatial2DView(name="depth", origin="depth"),
                 ),
                 rrb.Tabs(
-                    rrb.TimeSeriesView(name="translation error (m)", origin="metrics/error/translation_m"),
-                    rrb.TimeSeriesView(name="rotation error (deg)", origin="metrics/error/rotation_deg"),
+                    rrb.TimeSeriesView(name="translation error (m)", origin="metrics/error",
+                                       contents=["$origin/translation_m", "$origin/no_pose"]),
+                    rrb.TimeSeriesView(name="rotation error (deg)", origin="metrics/error",
+                                       contents=["$origin/rotation_deg", "$origin/no_pose"]),
                     rrb.TimeSeriesView(name="counts", origin="metrics/count"),
                     rrb.TimeSeriesView(name="time per stage (s)", origin="metrics/time"),
                     rrb.TimeSeriesView(name="precision / recall", origin="metrics/match"),

@@ -21,6 +21,7 @@ from clipclique.viz.recording import RecordingFile
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
+    WRONG,
     correctness_colors,
     match_correctness,
 )
@@ -36,6 +37,15 @@ GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
 LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
 TRAJECTORY_POINTS = 300  # trajectories are re-logged each frame, thinned to this many points
+NO_POSE = "metrics/error/no_pose"  # a red cross at 0 on the error plots for each frame without a pose
+ERRORS = ("metrics/error/translation_m", "metrics/error/rotation_deg")  # cleared (a gap) where there is none
+LEGEND = (
+    "**White** ground truth: camera, trajectory, observations placed by it · **Yellow** the top-1 estimate "
+    "(ranks 2-5 faded), observations placed by it · **Lines** thin: candidate matches, thick: an estimated "
+    "camera's clique; green correct, red wrong, grey no ground-truth object · **Dots** top-1 positions so far, "
+    "green within 1 m · **Ellipsoids** landmarks in class colours (hover for any label) · **Cyan** semantic-graph "
+    "edges · **Error plots** a gap and a red cross where a frame has no pose"
+)
 
 
 class LocalizationRecorder:
@@ -50,6 +60,9 @@ class LocalizationRecorder:
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
         log_map(self.stream, map, d_adj)
+        self.stream.log("legend", rr.TextDocument(LEGEND, media_type=rr.MediaType.MARKDOWN), static=True)
+        self.stream.log(NO_POSE, rr.SeriesPoints(colors=WRONG, markers="cross", names="no pose", marker_sizes=4.0),
+                        static=True)
         self.stream.log(
             "description",
             rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
@@ -201,6 +214,11 @@ class LocalizationRecorder:
             scalars["match/recall"] = evaluation.recall
         for name, value in scalars.items():
             self.stream.log(f"metrics/{name}", rr.Scalars([float(value)]))
+        if "error/translation_m" not in scalars:  # no line drawn across a frame without a pose
+            for path in ERRORS:
+                self.stream.log(path, rr.Clear(recursive=False))
+            if not result.hypotheses:
+                self.stream.log(NO_POSE, rr.Scalars([0.0]))
 
     def _log_text(
         self,

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from clipclique.config import GraphConfig
 from clipclique.graph import semantic_graph
@@ -19,7 +20,13 @@ from clipclique.viz.style import annotation_context
 SCENE_VOXEL = 0.05  # metres: scene points kept per cell, bounds the file size of large scans
 SCENE_MAX_POINTS = 150_000
 CEILING_MARGIN = 0.3  # metres above the highest landmark top: scene points higher up are left out
-GRAPH_COLOR = (200, 200, 200)
+GRAPH_COLOR = (0, 230, 255)  # cyan, in no class colour's shade: it stands out over the scene's points
+LABEL_SPACING = 0.8  # metres: a landmark closer than this to a larger labelled one is labelled on hover only
+MAP_LEGEND = (
+    "**Legend.** Ellipsoids: landmarks in their class colour (the same in every map), labelled where they are "
+    "not crowded (hover any for its class, description and instance id). Cyan lines: semantic-graph edges "
+    "(centres closer than d_adj)."
+)
 
 
 def graph_edges(centers: np.ndarray, d_adj: float) -> np.ndarray:
@@ -44,16 +51,29 @@ def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
     """Static map entities shared by the map and localization recordings."""
     stream.log("/", annotation_context(map.class_names), static=True)
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    labels = [map.class_names[c] for c in map.class_ids]
+    shown = spread_labels(map.ellipsoids.centers, map.ellipsoids.axes.prod(axis=1))
+    labels = [map.class_names[c] if keep else "" for c, keep in zip(map.class_ids, shown)]
     # hover values; rerun warns about an AnyValues with nothing in it, so a map without landmarks has none
     hover = [rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids))] if len(map) else []
     stream.log("world/map/landmarks", ellipsoids3d(map.ellipsoids, map.class_ids, labels=labels), *hover, static=True)
     edges = graph_edges(map.ellipsoids.centers, d_adj)
     stream.log(
         "world/map/graph",
-        rr.LineStrips3D(map.ellipsoids.centers[edges], colors=GRAPH_COLOR, radii=rr.Radius.ui_points(1.5)),
+        rr.LineStrips3D(map.ellipsoids.centers[edges], colors=GRAPH_COLOR, radii=rr.Radius.ui_points(2.0)),
         static=True,
     )
+
+
+def spread_labels(centers: np.ndarray, sizes: np.ndarray, spacing: float = LABEL_SPACING) -> np.ndarray:
+    """(N,) bool: which landmarks show their label. Largest first, a label is kept when no kept one is
+    within `spacing`, so a dining table with its chairs, cups and books shows a few labels, not a heap."""
+    shown = np.zeros(len(centers), bool)
+    if len(centers) == 0:
+        return shown
+    neighbours = cKDTree(centers).query_ball_point(centers, spacing)
+    for i in np.argsort(-sizes, kind="stable"):
+        shown[i] = not shown[neighbours[i]].any()
+    return shown
 
 
 def map_summary(map: Map, d_adj: float) -> str:
@@ -86,6 +106,7 @@ def write_map_recording(
             stream.log("world/map/scene", scene, static=True)
         stream.log(
             "description",
-            rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
+            rr.TextDocument(f"{description}\n\n{MAP_LEGEND}\n\n{map_summary(map, d_adj)}",
+                            media_type=rr.MediaType.MARKDOWN),
             static=True,
         )

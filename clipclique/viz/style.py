@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 import rerun as rr
 from matplotlib.colors import hsv_to_rgb
 
-_GOLDEN = 0.618033988749895  # hue step: consecutive classes land far apart on the colour wheel
+MIN_LUMINANCE = 0.5  # class colours are at least this light: labels are drawn in them on the viewer's dark background
+PALETTE_HUES = 16  # class colours: 16 hues, each in 3 shades; two classes share a colour or differ visibly
+PALETTE_SHADES = ((0.8, 1.0), (0.45, 0.95), (0.6, 0.75))  # (saturation, value)
 
 CORRECT = np.array([60, 200, 80], dtype=np.uint8)
 WRONG = np.array([230, 50, 50], dtype=np.uint8)
@@ -16,12 +20,25 @@ ESTIMATE_CAMERA = np.array([255, 200, 0], dtype=np.uint8)
 
 
 def class_colors(class_names: list[str]) -> np.ndarray:
-    """(C, 3) uint8 colours, one per class, deterministic in the vocabulary order."""
-    index = np.arange(len(class_names))
-    hsv = np.column_stack(
-        ((0.08 + index * _GOLDEN) % 1.0, np.where(index % 2, 0.55, 0.8), np.where(index % 3 == 2, 0.75, 0.95))
-    )
-    return np.round(hsv_to_rgb(hsv) * 255).astype(np.uint8).reshape(-1, 3)
+    """(C, 3) uint8 colours picked from `palette()` by a hash of each class name: a class has the same colour
+    in every map and recording, whatever the vocabulary around it."""
+    slots = [int.from_bytes(hashlib.blake2b(name.strip().lower().encode(), digest_size=4).digest(), "little")
+             for name in class_names]
+    colors = palette()
+    return colors[np.array(slots, dtype=np.int64) % len(colors)].reshape(-1, 3)
+
+
+def palette() -> np.ndarray:
+    """(PALETTE_HUES * len(PALETTE_SHADES), 3) uint8: evenly spaced hues in each shade, lightened where needed
+    so that labels drawn in them stay readable on the viewer's dark background (dark blues and purples)."""
+    hues = np.arange(PALETTE_HUES) / PALETTE_HUES
+    hsv = np.vstack([np.column_stack(((hues + k / (len(PALETTE_SHADES) * PALETTE_HUES)) % 1.0,
+                                      np.full(PALETTE_HUES, saturation), np.full(PALETTE_HUES, value)))
+                     for k, (saturation, value) in enumerate(PALETTE_SHADES)])
+    rgb = hsv_to_rgb(hsv)
+    luminance = rgb @ np.array([0.2126, 0.7152, 0.0722])
+    whiten = np.clip((MIN_LUMINANCE - luminance) / (1.0 - luminance), 0.0, 1.0)[:, None]
+    return np.round((rgb + whiten * (1.0 - rgb)) * 255).astype(np.uint8)
 
 
 def annotation_ids(class_ids: np.ndarray) -> np.ndarray:

@@ -1,0 +1,136 @@
+"""The README as a new user runs it: every `sh` block as written, the library snippet, the TOML example.
+
+Blocks run in order in one scratch folder that looks like the repository root (tools/, tests/,
+.venv/ and pyproject.toml linked in), with `CLIPCLIQUE_DATA` pointing at demo scenes shortened to 12 frames, so every
+command runs as written in a minute or two in all. Blocks that cannot run here are listed in
+SKIPPED with the reason; a block that is neither run nor listed fails the test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from clipclique.config import make_config
+from clipclique.datasets.demo import DEMO_SCENES, generate
+
+pytestmark = pytest.mark.slow
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+FRAMES = 12
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.MULTILINE | re.DOTALL)
+
+# first line of a block -> why the test does not run it
+SKIPPED = {
+    "make demo": "installs the project and runs the full demo (minutes); its steps are the blocks below",
+    "sudo apt-get install libusb-1.0-0 libgomp1": "installs system packages",
+    "clipclique-map build scene0002_00 --data-root /datasets": "needs the ScanNet and TUM RGB-D datasets",
+    "clipclique-loc run scene0002_00 --encoder open_clip:ViT-L-14/openai": "needs real datasets and model weights",
+    "evo_ape tum outputs/loc/demo_tum/clipclique/groundtruth.tum outputs/loc/demo_tum/clipclique/poses.tum":
+        "evo is not a dependency (`pip install evo`); its input files are checked by test_evo_files_pair_up",
+    "rerun outputs/loc/demo/clipclique/recording.rrd": "opens the viewer's window",
+    "make docs": "reruns the demo and the benchmark (minutes); tests/test_bench.py checks what it wrote",
+    "make test": "runs this test suite",
+}
+
+
+def blocks(language: str) -> list[str]:
+    return [body for lang, body in FENCE.findall(README) if lang == language]
+
+
+def block_id(block: str) -> str:
+    return block.strip().splitlines()[0].split("#")[0].strip()
+
+
+SH_BLOCKS = blocks("sh")
+
+
+def test_every_code_block_says_what_it_is():
+    """An untagged block could be a command nobody tests: each is sh, text, python or toml."""
+    languages = [lang for lang, _ in FENCE.findall(README)]
+    assert set(languages) <= {"sh", "text", "python", "toml"}, languages
+    assert set(SKIPPED) <= {block_id(b) for b in SH_BLOCKS}  # the list names blocks that exist
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """A scratch repository root: tools, tests and .venv linked, shortened demo data beside it."""
+    root = tmp_path_factory.mktemp("readme")
+    for name in ("tools", "tests", ".venv", "pyproject.toml"):
+        (root / name).symlink_to(ROOT / name)
+    data = root.parent / f"{root.name}-data"
+    for name in DEMO_SCENES:
+        folder = data / "demo" / name
+        folder.mkdir(parents=True)
+        generate(folder, name, dataclasses.replace(DEMO_SCENES[name], num_frames=FRAMES))
+    env = os.environ | {"CLIPCLIQUE_DATA": str(data), "TERM": "dumb"}
+    env.pop("VIRTUAL_ENV", None)
+    env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep) if not p.startswith(str(ROOT / ".venv")))
+    return root, env
+
+
+def run_shell(script: str, root: Path, env: dict[str, str]) -> subprocess.CompletedProcess:
+    return subprocess.run(["bash", "-euo", "pipefail", "-c", script], cwd=root, env=env, capture_output=True,
+                          text=True, timeout=600)
+
+
+@pytest.mark.parametrize("block", SH_BLOCKS, ids=[block_id(b) for b in SH_BLOCKS])
+def test_readme_block_runs(block, workspace):
+    if block_id(block) in SKIPPED:
+        pytest.skip(SKIPPED[block_id(block)])
+    root, env = workspace
+    # as the README says first: `. .venv/bin/activate` in the repository root
+    done = run_shell(f". .venv/bin/activate\n{block}", root, env)
+    assert done.returncode == 0, f"{block}\n--- stdout\n{done.stdout}\n--- stderr\n{done.stderr}"
+    assert "Traceback" not in done.stderr
+
+
+def test_library_snippet_prints_a_pose(workspace):
+    root, env = workspace
+    (snippet,) = [b for b in blocks("python") if "localize(" in b]
+    if not (root / "outputs" / "maps" / "demo.map.npz").is_file():
+        run_shell(". .venv/bin/activate\nclipclique-map build demo -q --no-rrd", root, env)
+    done = subprocess.run([sys.executable, "-c", snippet], cwd=root, env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    pose = [line for line in lines if line.startswith("pose")]
+    assert pose, done.stdout
+    start = lines.index(pose[0]) + 1
+    rows = [re.findall(r"-?\d+\.\d*", line) for line in lines[start:start + 4]]
+    assert [len(row) for row in rows] == [4, 4, 4, 4]  # the 4 x 4 camera-to-world matrix
+    assert [float(v) for v in rows[3]] == [0.0, 0.0, 0.0, 1.0]
+    assert any(line.startswith("seconds per stage") for line in lines)
+
+
+def test_toml_example_is_a_valid_configuration(tmp_path):
+    (example,) = blocks("toml")
+    tomllib.loads(example)
+    path = tmp_path / "my.toml"
+    path.write_text(example)
+    config = make_config("clipclique", path)
+    assert config.inliers.d_comp == tomllib.loads(example)["inliers"]["d_comp"]
+
+
+def test_evo_files_pair_up(workspace):
+    """What the skipped evo block reads: groundtruth.tum and poses.tum share their timestamps."""
+    root, env = workspace
+    folder = root / "outputs" / "loc" / "demo_tum" / "clipclique"
+    if not (folder / "poses.tum").is_file():
+        run_shell(". .venv/bin/activate\nclipclique-loc run demo_tum -q --no-rrd", root, env)
+    stamps = {name: [line.split()[0] for line in (folder / name).read_text().splitlines() if not line.startswith("#")]
+              for name in ("groundtruth.tum", "poses.tum")}
+    assert len(stamps["groundtruth.tum"]) == FRAMES
+    assert set(stamps["poses.tum"]) <= set(stamps["groundtruth.tum"]) and stamps["poses.tum"]
+    if shutil.which("evo_ape"):
+        done = subprocess.run(["evo_ape", "tum", folder / "groundtruth.tum", folder / "poses.tum"], capture_output=True,
+                              text=True)
+        assert done.returncode == 0, done.stderr

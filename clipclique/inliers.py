@@ -84,7 +84,7 @@ def affordable_candidates(
     """Indices (sorted) of the candidates `compatibility_graph` may test without testing more
     than `max_pairs` pairs: all of them when they fit, else the best-scored first (ties by row)
     while their pairs within reach fit. Counting takes memory linear in the candidates."""
-    if len(candidates) < 2:
+    if len(candidates) * (len(candidates) - 1) // 2 <= max_pairs:
         return np.arange(len(candidates))
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[candidates[:, 1]]

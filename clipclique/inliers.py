@@ -81,19 +81,30 @@ def affordable_candidates(
     slack: np.ndarray | None = None,
     max_pairs: int = MAX_PAIRS,
 ) -> np.ndarray:
-    """Indices (sorted) of the candidates `compatibility_graph` may test without testing more
-    than `max_pairs` pairs: all of them when they fit, else the best-scored first (ties by row)
-    while their pairs within reach fit. Counting takes memory linear in the candidates."""
+    """Indices (sorted) of the candidates `compatibility_graph` may test without holding more
+    than `max_pairs` pairs: all of them when they fit, else the longest best-scored run (ties by
+    row) that fits, found by bisection on pair counts (a KD-tree's dual-tree count: no pairs
+    are materialized, memory stays linear in the candidates)."""
     if len(candidates) * (len(candidates) - 1) // 2 <= max_pairs:
         return np.arange(len(candidates))
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
+    reach = _reach(observed, d_comp, slack)
     points = landmark_centers[candidates[:, 1]]
-    within = cKDTree(points).query_ball_point(points, _reach(observed, d_comp, slack), return_length=True) - 1
-    if within.sum() // 2 <= max_pairs:
-        return np.arange(len(candidates))
     best = np.argsort(-scores, kind="stable")
-    fits = np.cumsum(within[best]) // 2 <= max_pairs  # pairs among the kept are at most half their counts
-    return np.sort(best[fits])
+    fits, too_many = 0, len(candidates) + 1  # bisection bounds on the run's length
+    while too_many - fits > 1:
+        middle = (fits + too_many) // 2
+        if _pairs_within(points[best[:middle]], reach) <= max_pairs:
+            fits = middle
+        else:
+            too_many = middle
+    return np.sort(best[:fits])
+
+
+def _pairs_within(points: np.ndarray, reach: float) -> int:
+    """Pairs of distinct points at most `reach` apart, counted without listing them."""
+    tree = cKDTree(points)
+    return (int(tree.count_neighbors(tree, reach)) - len(points)) // 2
 
 
 def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:

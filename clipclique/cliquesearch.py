@@ -118,7 +118,20 @@ def _prepare(edges, num_nodes, weights, groups, count):
         fill[a] += 1
         indices[fill[b]] = a
         fill[b] += 1
-    order = np.argsort(degree, kind="mergesort")
+    # Most promising first: the weight a vertex's cliques can reach at most, heaviest first, so
+    # that the N-th best rises early and later vertices are cut before their neighbourhood is built.
+    potential = np.zeros(num_nodes)
+    best_in_group = np.zeros(groups.max() + 1 if num_nodes else 1)
+    for v in range(num_nodes):
+        potential[v] = max(weights[v], 0.0)
+        for k in range(indptr[v], indptr[v + 1]):
+            g = groups[indices[k]]
+            best_in_group[g] = max(best_in_group[g], weights[indices[k]])
+        for k in range(indptr[v], indptr[v + 1]):
+            g = groups[indices[k]]
+            potential[v] += best_in_group[g]
+            best_in_group[g] = 0.0
+    order = np.argsort(-potential, kind="mergesort")
     position = np.empty(num_nodes, np.int64)
     position[order] = np.arange(num_nodes)
     width = degree.max() + 1 if num_nodes else 1

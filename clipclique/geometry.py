@@ -59,33 +59,25 @@ def fit_ellipsoid_depth(
     More than `params.max_points` pixels: every s-th row and column (s the smallest stride
     that fits), the image analogue of `fit_ellipsoid`'s even subsampling.
     """
-    valid = mask & np.isfinite(depth) & (depth > 0)
-    stride = max(1, math.ceil(math.sqrt(np.count_nonzero(valid) / params.max_points)))
+    stride = max(1, math.ceil(math.sqrt(np.count_nonzero(mask) / params.max_points)))
     if stride > 1:
-        depth, valid = depth[::stride, ::stride], valid[::stride, ::stride]
+        depth, mask = depth[::stride, ::stride], mask[::stride, ::stride]
         intrinsics = intrinsics.copy()
         intrinsics[:2] /= stride
-    if np.count_nonzero(valid) < params.min_points:
-        return None
     radius = math.ceil((math.sqrt(params.outlier_neighbors + 1) - 1) / 2)  # a window holding k neighbours
-    points, spread = _depth_points(depth.astype(np.float64), valid, intrinsics.astype(np.float64), params.outlier_neighbors, radius)
+    points, spread = _depth_points(depth, mask, intrinsics.astype(np.float64), params.outlier_neighbors, radius)
+    if len(points) < params.min_points:
+        return None
     return _box(points, spread, params)
 
 
 def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The PCA box of the points whose neighbour distance `spread` is not an outlier."""
-    finite = np.isfinite(spread)
-    if np.count_nonzero(finite) < params.min_points:
+    kept, mean, scatter = _inlier_moments(points, spread, params.outlier_std_ratio)
+    if kept < params.min_points:
         return None
-    limit = spread[finite].mean() + params.outlier_std_ratio * spread[finite].std()
-    kept = points[spread <= limit]
-    if len(kept) < params.min_points:
-        return None
-    mean = kept.mean(axis=0)
-    centred = kept - mean
-    _, rotation = np.linalg.eigh(centred.T @ centred)
-    projected = centred @ rotation
-    low, high = projected.min(axis=0), projected.max(axis=0)
+    _, rotation = np.linalg.eigh(scatter)
+    low, high = _extents(points, spread, mean, rotation, params.outlier_std_ratio)
     center = mean + rotation @ ((low + high) / 2)
     axes = (high - low) / 2
     if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < params.min_axis:
@@ -98,11 +90,68 @@ def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.
 
 
 @njit(cache=True)
-def _depth_points(depth: np.ndarray, valid: np.ndarray, intrinsics: np.ndarray, k: int, radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """(P, 3) camera-frame points of the valid pixels (row-major) and (P,) the mean 3D distance of
-    each to its k nearest valid pixels within `radius` pixels (fewer where fewer exist; inf for
-    a pixel with none)."""
-    height, width = valid.shape
+def _outlier_limit(spread: np.ndarray, ratio: float) -> float:
+    """Mean plus `ratio` standard deviations of the finite spreads (inf with none)."""
+    count, total, square = 0, 0.0, 0.0
+    for value in spread:
+        if math.isfinite(value):
+            count += 1
+            total += value
+    if count == 0:
+        return np.inf
+    mean = total / count
+    for value in spread:
+        if math.isfinite(value):
+            square += (value - mean) ** 2
+    return mean + ratio * math.sqrt(square / count)
+
+
+@njit(cache=True)
+def _inlier_moments(points: np.ndarray, spread: np.ndarray, ratio: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """(count, mean, 3 x 3 scatter matrix) of the points within the outlier limit, in one pass each."""
+    limit = _outlier_limit(spread, ratio)
+    count, mean, scatter = 0, np.zeros(3), np.zeros((3, 3))
+    for i in range(len(points)):
+        if spread[i] <= limit:
+            count += 1
+            mean += points[i]
+    if count == 0:
+        return 0, mean, scatter
+    mean /= count
+    for i in range(len(points)):
+        if spread[i] <= limit:
+            d = points[i] - mean
+            for r in range(3):
+                for c in range(3):
+                    scatter[r, c] += d[r] * d[c]
+    return count, mean, scatter
+
+
+@njit(cache=True)
+def _extents(points: np.ndarray, spread: np.ndarray, mean: np.ndarray, rotation: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest coordinate of the inliers along each principal axis (about `mean`)."""
+    limit = _outlier_limit(spread, ratio)
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for i in range(len(points)):
+        if spread[i] <= limit:
+            for axis in range(3):
+                value = ((points[i, 0] - mean[0]) * rotation[0, axis] + (points[i, 1] - mean[1]) * rotation[1, axis]
+                         + (points[i, 2] - mean[2]) * rotation[2, axis])
+                low[axis] = min(low[axis], value)
+                high[axis] = max(high[axis], value)
+    return low, high
+
+
+@njit(cache=True)
+def _depth_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) camera-frame points of the pixels of `mask` with a finite positive depth (row-major),
+    and (P,) the mean 3D distance of each to its k nearest such pixels within `radius` pixels
+    (fewer where fewer exist; inf for a pixel with none)."""
+    height, width = mask.shape
+    valid = np.zeros((height, width), np.bool_)
+    for v in range(height):
+        for u in range(width):
+            valid[v, u] = mask[v, u] and math.isfinite(depth[v, u]) and depth[v, u] > 0
     fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
     grid = np.empty((height, width, 3))
     index = np.full((height, width), -1, np.int64)

@@ -216,6 +216,7 @@ def main() -> None:
     parser.add_argument("--desk-frames", type=int, default=30, help="queries per landmark count (desk scene)")
     parser.add_argument("--method", default="clipclique", choices=list(METHOD_PRESETS))
     parser.add_argument("--json", type=Path, help="also write the tables here (scalability plot data)")
+    parser.add_argument("--plot", type=Path, help="also draw the scalability plot here (PNG)")
     parser.add_argument("--degenerate", type=int, metavar="N",
                         help="only localize one query against N identical overlapping landmarks (peak memory: run under /usr/bin/time -v)")
     args = parser.parse_args()
@@ -260,6 +261,29 @@ def main() -> None:
     )
     if args.json:
         args.json.write_text(json.dumps({"desk": desk, "demo_like": rows}, indent=1))
+    if args.plot:
+        plot_scalability(desk, rows, args.plot)
+
+
+def plot_scalability(desk: list[dict], demo_like: list[dict], path: Path) -> None:
+    """Latency per query against landmarks, log-log: the desk scene now and before, the demo-like rooms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(6, 4))
+    for rows, key, label in ((desk, "median_ms", "desk scene, branch and bound"),
+                             (desk, "previous_ms", "desk scene, full enumeration (capped from 235 on)"),
+                             (demo_like, "median_ms", "demo-like rooms")):
+        axes.loglog([r["landmarks"] for r in rows], [r[key] for r in rows], "o-",
+                    label=f"{label}: exponent {growth_exponent(rows, key):.2f}")
+    axes.set_xlabel("landmarks")
+    axes.set_ylabel("matching + inliers + pose, median ms per query")
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":

@@ -148,7 +148,7 @@ def _prepare(edges, num_nodes, weights, groups, count):
             np.zeros((count, longest), np.int64))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _lowest_bit(x: np.uint64) -> int:
     """Index of the lowest set bit of a non-zero word."""
     index = 0
@@ -172,7 +172,7 @@ def _lowest_bit(x: np.uint64) -> int:
     return index
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _popcount(x: np.uint64) -> int:
     x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
     x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))

@@ -31,7 +31,7 @@ from numba import njit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
 RUNNING, DONE, COUNT_CAP = 0, 1, 2  # search status (state[STATUS])
-OUTER, LEVEL, REACHED, STATUS, FILLED, FRESH, STAMP, SIZE = range(8)  # slots of the int state array
+OUTER, LEVEL, REACHED, STATUS, FILLED, FRESH, STAMP = range(7)  # slots of the int state array
 TOLERANCE = 1e-9  # relative slack of the cut against float round-off
 
 
@@ -137,7 +137,7 @@ def _prepare(edges, num_nodes, weights, groups, count):
     position[order] = np.arange(num_nodes)
     width = degree.max() + 1 if num_nodes else 1
     words = (width + 63) // 64
-    state = np.zeros(8, np.int64)
+    state = np.zeros(7, np.int64)
     state[LEVEL] = -1
     longest = max(1, min(width, groups.max() + 1))
     return (indptr, indices, order, position, state, np.zeros(width), np.zeros(width, np.int64),

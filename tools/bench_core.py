@@ -199,7 +199,7 @@ def desk_scalability(counts: list[int], frames: int = 30, seed: int = 0) -> list
 def degenerate(count: int) -> LocalizationResult:
     """One query against `count` identical overlapping landmarks of one class: the worst case for
     memory (every candidate pair within reach). The caps must keep it bounded; says which one hit.
-    CLIP similarity only: the semantic histograms' walk expansion is a separate cost (graph.py)."""
+    CLIP similarity: the figure is the matching and clique stages' (the semantic graph has its own bound)."""
     config = make_config("clipclique", overrides={"similarity.descriptor": "clip"})
     rng = np.random.default_rng(0)
     base = synthetic_map(rng, num_landmarks=1, num_classes=1)

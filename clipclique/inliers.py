@@ -6,13 +6,15 @@ their observations equals the distance between their landmarks up to `d_comp`:
 `| |o_a - o_b| - |m_a - m_b| | < d_comp`, and they share neither the observation nor the
 landmark (one object cannot be two, so a clique is a one-to-one correspondence set).
 
-Maximal cliques are enumerated with igraph (Bron-Kerbosch with pivoting in C), which measured
-2-7x faster than networkx's `find_cliques` on the compatibility graphs of 50 to 5,000 landmark
-maps (tools/bench_core.py). Cliques of
-fewer than `min_clique_size` (>= 3) are never returned: fewer than 3 points cannot fix a 6-DoF
-pose. igraph's enumeration is not lazy, so it runs in rounds of growing `max_results`
-(1,000, then doubling) up to `max_cliques`; the time limit is checked between rounds, and the
-result reports which cap, if any, cut the enumeration short.
+The pipeline asks `cliquesearch.top_cliques` for the N heaviest maximal cliques (summed
+similarity): a branch-and-bound search in compiled code that cuts whatever cannot reach the
+N-th best, instead of enumerating every maximal clique and ranking them; same N cliques, same
+order. `maximal_cliques` (igraph: Bron-Kerbosch with pivoting in C) enumerates them all; with
+`rank_cliques` it is the reference the search is tested and benchmarked against.
+
+Memory is bounded whatever the map: `affordable_candidates` keeps the best-scored candidates
+whose landmark pairs within reach fit `max_pairs` (5,000 identical overlapping landmarks would
+otherwise ask for gigabytes of pairs), and the pipeline reports the cap it used.
 
 RANSAC / PROSAC (baselines) draw minimal sets of 3 candidates and verify each pose by an
 MSAC-style score, a cheaper stand-in for the paper's projected overlap: every observation whose
@@ -31,11 +33,14 @@ from dataclasses import dataclass
 
 import igraph
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
+from clipclique.cliquesearch import clique_total
 from clipclique.pose import fit_rigid_batch
 
 FIRST_ROUND = 1_000  # cliques asked for in the first enumeration round
+MAX_PAIRS = 2_000_000  # landmark pairs the compatibility test may hold in memory (about 100 MB)
 CHUNK = 256  # RANSAC hypotheses verified at once (bounds memory to CHUNK x C residuals)
 
 
@@ -48,11 +53,12 @@ def compatibility_graph(
 ) -> np.ndarray:
     """(E, 2) edges `i < j` between compatible candidates (rows of `candidates`).
 
-    `slack` (C,) widens the test per candidate: the pair a, b passes when the distances differ
-    by less than `d_comp + slack[a] + slack[b]` (None: the paper's test).
-    Two landmarks farther apart than the widest observation pair plus the widest tolerance cannot
-    pass, so only landmark pairs within that reach (a KD-tree query) are tested: the cost grows
-    with the candidates' neighbourhoods, not with the square of their number.
+    `slack` (C,) widens the test per candidate: pair (a, b) passes within
+    `d_comp + slack[a] + slack[b]` metres (None: `d_comp` for every pair).
+
+    Two landmarks farther apart than the widest observation pair plus the widest tolerance
+    cannot pass the test, so only landmark pairs within that reach (a KD-tree query) are tested:
+    the cost grows with the candidates' neighbourhoods, not with the square of their number.
     """
     if len(candidates) < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -60,13 +66,67 @@ def compatibility_graph(
     obs, lm = candidates[:, 0], candidates[:, 1]
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
-    reach = observed.max() + d_comp + 2 * slack.max()
-    pairs = cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64)
-    a, b = pairs[:, 0], pairs[:, 1]
-    mapped = np.linalg.norm(points[a] - points[b], axis=1)
-    tolerance = d_comp + slack[a] + slack[b]
-    keep = (np.abs(observed[obs[a], obs[b]] - mapped) < tolerance) & (obs[a] != obs[b]) & (lm[a] != lm[b])
+    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64)
+    slack = np.zeros(len(candidates)) if slack is None else np.asarray(slack, dtype=np.float64)
+    return _compatible(pairs, points, obs, lm, observed, d_comp, slack)
+
+
+@njit(cache=True)
+def _compatible(pairs, points, obs, lm, observed, d_comp, slack):
+    """The pairs that pass the rigid distance test, in one compiled pass (vectorized numpy made
+    six temporaries of the pair count: 10x slower at 300,000 pairs)."""
+    keep = np.zeros(len(pairs), np.bool_)
+    for p in range(len(pairs)):
+        a, b = pairs[p, 0], pairs[p, 1]
+        if obs[a] == obs[b] or lm[a] == lm[b]:
+            continue
+        mapped = math.sqrt((points[a, 0] - points[b, 0]) ** 2 + (points[a, 1] - points[b, 1]) ** 2
+                           + (points[a, 2] - points[b, 2]) ** 2)
+        keep[p] = abs(observed[obs[a], obs[b]] - mapped) < d_comp + slack[a] + slack[b]
     return pairs[keep]
+
+
+def affordable_candidates(
+    observed_centers: np.ndarray,
+    landmark_centers: np.ndarray,
+    candidates: np.ndarray,
+    scores: np.ndarray,
+    d_comp: float,
+    slack: np.ndarray | None = None,
+    max_pairs: int = MAX_PAIRS,
+) -> np.ndarray:
+    """Indices (sorted) of the candidates `compatibility_graph` may test without holding more
+    than `max_pairs` pairs: all of them when they fit, else the longest best-scored run (ties by
+    row) that fits, found by bisection on pair counts (a KD-tree's dual-tree count: no pairs
+    are materialized, memory stays linear in the candidates)."""
+    if len(candidates) * (len(candidates) - 1) // 2 <= max_pairs:
+        return np.arange(len(candidates))
+    observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
+    reach = _reach(observed, d_comp, slack)
+    points = landmark_centers[candidates[:, 1]]
+    if _pairs_within(points, reach) <= max_pairs:
+        return np.arange(len(candidates))
+    best = np.argsort(-scores, kind="stable")
+    fits, too_many = 0, len(candidates)  # bisection bounds on the run's length
+    while too_many - fits > 1:
+        middle = (fits + too_many) // 2
+        if _pairs_within(points[best[:middle]], reach) <= max_pairs:
+            fits = middle
+        else:
+            too_many = middle
+    return np.sort(best[:fits])
+
+
+def _pairs_within(points: np.ndarray, reach: float) -> int:
+    """Pairs of distinct points at most `reach` apart, counted without listing them."""
+    tree = cKDTree(points)
+    return (int(tree.count_neighbors(tree, reach)) - len(points)) // 2
+
+
+def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:
+    """Farthest landmark pair that can pass the test: the widest observation pair plus the widest tolerance."""
+    widest = 0.0 if slack is None or len(slack) == 0 else 2.0 * float(slack.max())
+    return float(observed.max()) + d_comp + widest
 
 
 def partial_view_slack(
@@ -110,9 +170,17 @@ def maximal_cliques(
 
 
 def rank_cliques(cliques: list[np.ndarray], scores: np.ndarray) -> list[np.ndarray]:
-    """Cliques sorted by summed similarity of their candidates, best first (stable)."""
-    totals = np.array([scores[c].sum() for c in cliques])
-    return [cliques[i] for i in np.argsort(-totals, kind="stable")]
+    """Cliques sorted by summed similarity (`clique_total`), best first; ties by the sorted member
+    lists, lexicographically smaller first: the order `top_cliques` returns."""
+    if not cliques:
+        return []
+    totals = clique_total(cliques, scores)
+    members = [np.sort(c) for c in cliques]
+    longest = max(len(c) for c in members)
+    padded = np.full((len(members), longest), -1)  # a shorter list that is a prefix ranks first
+    padded[np.arange(longest) < np.array([len(c) for c in members])[:, None]] = np.concatenate(members)
+    order = np.lexsort((*padded.T[::-1], -totals))
+    return [members[i] for i in order]
 
 
 @dataclass

@@ -1,8 +1,8 @@
 """Detections + an RGB-D frame -> observed ellipsoids in the camera frame, with their image crops.
 
 Each detection mask is eroded (depth at object edges mixes fore- and background), its valid
-depth back-projected with the frame's intrinsics, outliers cut and an open3d PCA box fitted
-(`geometry.fit_ellipsoid`). Detections that cannot give a trustworthy ellipsoid are dropped
+depth back-projected with the frame's intrinsics, outliers cut (neighbours from the image
+window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are dropped
 and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
 """
 
@@ -15,7 +15,7 @@ import numpy as np
 from scipy import ndimage
 
 from clipclique.encoders import CropTruth, Encoder
-from clipclique.geometry import FitParams, backproject, fit_ellipsoid, stack_ellipsoids
+from clipclique.geometry import FitParams, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
@@ -46,24 +46,23 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     """Fit one camera-frame ellipsoid per usable detection."""
     height, width = frame.depth.shape
     depth = np.where(frame.depth <= params.max_depth, frame.depth, 0.0)
-    band = np.ones((height, width), bool)
-    band[params.border_px:height - params.border_px, params.border_px:width - params.border_px] = False
+    inner = np.s_[params.border_px:height - params.border_px, params.border_px:width - params.border_px]
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated = [], [], []
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
-        pixels = int(mask.sum())
-        in_band = int((mask & band).sum())
+        pixels = np.count_nonzero(mask)
+        in_band = pixels - np.count_nonzero(mask[inner])
         if pixels < params.min_mask_pixels:
             dropped["tiny mask"] += 1
             continue
         if in_band > params.max_border_fraction * pixels:
             dropped["border sliver"] += 1
             continue
-        points = backproject(*_masked_window(depth, frame.intrinsics, mask, box, params))
-        if len(points) < params.fit.min_points:
+        window_depth, intrinsics, window_mask = _masked_window(depth, frame.intrinsics, mask, box, params)
+        if np.count_nonzero(window_mask & (window_depth > 0)) < params.fit.min_points:
             dropped["invalid depth"] += 1
             continue
-        fit = fit_ellipsoid(points, params.fit)
+        fit = fit_ellipsoid_depth(window_depth, intrinsics, window_mask, params.fit)
         if fit is None:
             dropped["degenerate fit"] += 1
             continue

@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import graph, inliers, lookalikes, matching, similarity
+from clipclique import cliquesearch, graph, inliers, lookalikes, matching, similarity
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
-from clipclique.types import Hypothesis, Map, Observations
+from clipclique.pose import correspondence_weights, fit_rigid_batch
+from clipclique.types import Hypothesis, Map, Observations, Pose
 
 STAGES = ("descriptors", "similarity", "matching", "inliers", "pose")
 
@@ -51,8 +51,8 @@ class LocalizationResult:
     candidates: np.ndarray  # (C, 2) int (observation index, landmark index) after initial matching
     candidate_scores: np.ndarray  # (C,) similarity of each candidate
     similarity: np.ndarray  # (K, N) the matrix the matching used
-    num_cliques: int  # maximal cliques (or RANSAC/PROSAC hypotheses) considered
-    cap_hit: str | None  # "max_cliques" | "time_limit" | None
+    num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
+    cap_hit: str | None  # "max_candidates" | "max_pairs" | "max_cliques" | "time_limit" | None (the first one hit)
     failure: str | None  # why there is no pose; None on success
     notes: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (STAGES)
@@ -81,7 +81,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     def lap(stage: str) -> None:
         nonlocal clock
         now = time.perf_counter()
-        timings[stage] = now - clock
+        timings[stage] = timings.get(stage, 0.0) + now - clock  # a stage may run in turns
         clock = now
 
     centers = observations.ellipsoids.centers
@@ -96,10 +96,10 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap("similarity")
-    candidates, candidate_scores = matching.match(scores, config.matching)
+    candidates, candidate_scores, capped = matching.cap(*matching.match(scores, config.matching))
     lap("matching")
 
-    result = LocalizationResult([], candidates, candidate_scores, scores, 0, None, None, notes, timings)
+    result = LocalizationResult([], candidates, candidate_scores, scores, 0, "max_candidates" if capped else None, None, notes, timings)
     if len(observations) < 3:
         result.failure = f"fewer than 3 observations ({len(observations)})"
     elif len(np.unique(candidates[:, 0])) < 3:
@@ -198,31 +198,39 @@ def _check_classes(observations: Observations, map: Map) -> None:
 
 
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
-    """Maximal cliques of the compatibility graph ranked by summed similarity, one pose each."""
+    """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each.
+
+    A degenerate clique gives no pose; the search is then asked for twice as many cliques
+    until top_n poses are found or the cliques run out (the first ones come back unchanged).
+    """
     settings = config.inliers
-    pairs = result.candidates
+    candidates, scores = result.candidates, result.candidate_scores
     slack = inliers.partial_view_slack(
-        observations.ellipsoids.axes[pairs[:, 0]], map.ellipsoids.axes[pairs[:, 1]], settings.partial_slack,
+        observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
         settings.max_slack, settings.d_comp,
     )
-    edges = inliers.compatibility_graph(
-        observations.ellipsoids.centers, map.ellipsoids.centers, pairs, settings.d_comp, slack
-    )
-    cliques, result.cap_hit = inliers.maximal_cliques(
-        edges, len(result.candidates), settings.min_clique_size, settings.max_cliques, settings.time_limit_s
-    )
-    result.num_cliques = len(cliques)
-    ranked = inliers.rank_cliques(cliques, result.candidate_scores)
-    lap("inliers")
-    for clique in ranked:
-        hypothesis = _hypothesis(result, observations, map, config, clique, float(result.candidate_scores[clique].sum()))
-        if hypothesis is not None:
-            result.hypotheses.append(hypothesis)
-            if len(result.hypotheses) == config.top_n:
-                break
-    if not cliques:
+    centers = observations.ellipsoids.centers, map.ellipsoids.centers
+    kept = inliers.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack)
+    if len(kept) < len(candidates):
+        result.cap_hit = result.cap_hit or "max_pairs"
+    edges = kept[inliers.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept])]
+    wanted, tried = config.top_n, 0
+    while True:
+        found = cliquesearch.top_cliques(
+            edges, len(candidates), scores, wanted, candidates[:, 0], settings.min_clique_size, settings.max_cliques, settings.time_limit_s
+        )
+        lap("inliers")
+        fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
+        result.hypotheses.extend(fitted[: config.top_n - len(result.hypotheses)])
+        lap("pose")
+        tried = len(found.cliques)
+        if len(result.hypotheses) == config.top_n or tried < wanted or found.cap is not None:
+            break
+        wanted *= 2
+    result.num_cliques = found.reached
+    result.cap_hit = result.cap_hit or found.cap
+    if not found.cliques:
         result.failure = f"no clique of {settings.min_clique_size} or more compatible correspondences"
-    lap("pose")
 
 
 def _solve_consensus(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
@@ -243,28 +251,32 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
     )
     result.num_cliques = consensus.num_hypotheses
     lap("inliers")
-    for members, score in zip(consensus.inlier_sets, consensus.scores):
-        hypothesis = _hypothesis(result, observations, map, config, members, score)
-        if hypothesis is not None:
-            result.hypotheses.append(hypothesis)
+    result.hypotheses.extend(_hypotheses(result, observations, map, config, consensus.inlier_sets, np.array(consensus.scores)))
     if not consensus.inlier_sets:
         result.failure = "no minimal set of 3 distinct, non-collinear correspondences"
     lap("pose")
 
 
-def _hypothesis(
-    result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, members: np.ndarray, score: float
-) -> Hypothesis | None:
-    """The weighted pose of a correspondence set, or None when the set is degenerate."""
+def _hypotheses(
+    result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, sets: list[np.ndarray], scores: np.ndarray
+) -> list[Hypothesis]:
+    """The weighted pose of each correspondence set, in order, fitted in one batch (shorter sets
+    padded with weight 0); a degenerate set (collinear, fewer than 3 positive weights) gives none."""
+    if not sets:
+        return []
+    sizes = np.array([len(members) for members in sets])
+    valid = np.arange(sizes.max()) < sizes[:, None]
+    members = np.zeros(valid.shape, np.int64)
+    members[valid] = np.concatenate(sets)
     pairs = result.candidates[members]
-    weights = correspondence_weights(
-        result.candidate_scores[members],
-        observations.ellipsoids.axes[pairs[:, 0]],
-        map.ellipsoids.axes[pairs[:, 1]],
+    weights = valid * correspondence_weights(
+        result.candidate_scores[members].ravel(),
+        observations.ellipsoids.axes[pairs[..., 0]].reshape(-1, 3),
+        map.ellipsoids.axes[pairs[..., 1]].reshape(-1, 3),
         config.pose.weights,
+    ).reshape(valid.shape)
+    rotation, translation, ok = fit_rigid_batch(
+        observations.ellipsoids.centers[pairs[..., 0]], map.ellipsoids.centers[pairs[..., 1]], weights
     )
-    try:
-        pose = fit_rigid(observations.ellipsoids.centers[pairs[:, 0]], map.ellipsoids.centers[pairs[:, 1]], weights)
-    except DegeneratePoseError:
-        return None
-    return Hypothesis(pose, pairs, score)
+    ok &= np.count_nonzero(weights, axis=1) >= 3
+    return [Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b])) for b in np.flatnonzero(ok)]

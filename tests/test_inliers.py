@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from clipclique.geometry import pose_errors, random_rotation
-from clipclique.inliers import compatibility_graph, maximal_cliques, rank_cliques, sample_consensus
+from clipclique.inliers import affordable_candidates, compatibility_graph, maximal_cliques, rank_cliques, sample_consensus
 from clipclique.pose import fit_rigid
 from clipclique.types import Pose
 
@@ -138,3 +138,31 @@ def test_too_few_candidates_give_no_consensus():
         iterations=10, threshold=0.2, rng=np.random.default_rng(0),
     )
     assert consensus.inlier_sets == [] and consensus.num_hypotheses == 0
+
+
+def test_slack_widens_the_test_per_candidate():
+    landmarks, observed, candidates, _, _ = outlier_heavy_problem(5)
+    obs, lm = candidates[:, 0], candidates[:, 1]
+    slack = np.random.default_rng(0).uniform(0, 0.4, len(candidates))
+    observed_distance = np.linalg.norm(observed[obs][:, None] - observed[obs][None], axis=-1)
+    mapped_distance = np.linalg.norm(landmarks[lm][:, None] - landmarks[lm][None], axis=-1)
+    tolerance = 0.3 + slack[:, None] + slack[None, :]
+    dense = (np.abs(observed_distance - mapped_distance) < tolerance) & (obs[:, None] != obs) & (lm[:, None] != lm)
+    edges = compatibility_graph(observed, landmarks, candidates, d_comp=0.3, slack=slack)
+    assert set(map(tuple, edges.tolist())) == set(map(tuple, np.argwhere(np.triu(dense, 1)).tolist()))
+    plain = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
+    assert len(edges) > len(plain)
+    np.testing.assert_array_equal(compatibility_graph(observed, landmarks, candidates, 0.3, np.zeros(len(candidates))), plain)
+
+
+def test_identical_landmarks_are_capped_to_the_pair_budget_best_scored_first():
+    landmarks = np.zeros((3000, 3))  # 3,000 identical overlapping landmarks: 4.5 million pairs in reach
+    observed = np.array([[0, 0, 0], [0.5, 0, 0], [0, 0.5, 0.0]])
+    candidates = np.column_stack((np.arange(3000) % 3, np.arange(3000)))
+    scores = np.linspace(1.0, 0.0, 3000)
+    kept = affordable_candidates(observed, landmarks, candidates, scores, 0.3, max_pairs=10_000)
+    assert len(kept) == 141  # 141 * 140 / 2 = 9,870 pairs; 142 would make 10,011
+    np.testing.assert_array_equal(kept, np.arange(len(kept)))  # the best-scored ones
+    assert len(compatibility_graph(observed, landmarks, candidates[kept], 0.3)) <= 10_000
+    few = affordable_candidates(observed, landmarks, candidates[:50], scores[:50], 0.3, max_pairs=10_000)
+    np.testing.assert_array_equal(few, np.arange(50))

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from clipclique.config import MatchingConfig
-from clipclique.matching import adaptive_matches, knn_matches, match, mutual_best_matches, top_m
+from clipclique.matching import adaptive_matches, cap, knn_matches, match, mutual_best_matches, top_m
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -60,3 +60,14 @@ def test_empty_inputs_give_no_candidates():
     for strategy in ("adaptive", "knn", "one_to_one"):
         candidates, scores = match(np.zeros((0, 5)), MatchingConfig(strategy=strategy))
         assert candidates.shape == (0, 2) and scores.shape == (0,)
+
+
+def test_cap_keeps_the_best_scored_candidates_in_row_order():
+    candidates = np.column_stack((np.repeat(np.arange(4), 3), np.tile(np.arange(3), 4)))
+    scores = np.array([0.9, 0.5, 0.1, 0.8, 0.8, 0.2, 0.3, 0.95, 0.0, 0.8, 0.6, 0.4])
+    kept, kept_scores, hit = cap(candidates, scores, limit=5)
+    assert hit
+    np.testing.assert_array_equal(kept_scores, [0.9, 0.8, 0.8, 0.95, 0.8])  # ties at 0.8 by row: rows 3, 4, 9
+    np.testing.assert_array_equal(kept, candidates[[0, 3, 4, 7, 9]])
+    same, _, hit = cap(candidates, scores, limit=12)
+    assert not hit and same is candidates

@@ -111,3 +111,26 @@ def test_embed_passes_what_each_crop_shows_to_the_simulated_encoder():
     text = encoder.encode_text(["a red ball"])[0]
     assert observations.image_embeddings[0] @ text > observations.image_embeddings[1] @ text + 0.05
     assert embed(extract_observations(frame, detections_of([mask], [5])), None, {}).image_embeddings is None
+
+
+def test_depth_fit_cuts_bled_background_and_agrees_with_the_point_fit():
+    """A mask that bleeds onto the wall behind the sphere (every third pixel of a one-pixel ring,
+    2 m behind) is cut by the image-window outlier filter, and only it: the fit equals the fit of
+    the sphere's own pixels without a filter. On the clean mask the image-window filter and the
+    KD-tree filter (the map builder's) give ellipsoids within 1 cm of each other."""
+    from scipy import ndimage
+
+    from clipclique.geometry import FitParams, backproject, fit_ellipsoid, fit_ellipsoid_depth
+
+    frame, mask = sphere_frame()
+    depth = frame.depth.astype(np.float64)
+    ring = np.argwhere(ndimage.binary_dilation(mask) & ~mask)[::3]
+    bled = mask.copy()
+    bled[ring[:, 0], ring[:, 1]] = True  # depth there is the wall's, 4 m
+    unfiltered = FitParams(outlier_std_ratio=1e9)
+    for got, want in zip(fit_ellipsoid_depth(depth, K, bled), fit_ellipsoid_depth(depth, K, mask, unfiltered)):
+        np.testing.assert_allclose(got, want, atol=1e-9)
+    assert fit_ellipsoid_depth(depth, K, bled, unfiltered)[1][0] > 0.5  # unfiltered, the wall stretches the box
+    by_image, by_tree = fit_ellipsoid_depth(depth, K, mask), fit_ellipsoid(backproject(depth, K, mask))
+    np.testing.assert_allclose(by_image[0], by_tree[0], atol=0.01)
+    np.testing.assert_allclose(by_image[1], by_tree[1], atol=0.01)

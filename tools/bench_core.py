@@ -1,30 +1,37 @@
 """Speed of the core algorithm on synthetic maps (everything here is simulated data).
 
-    .venv/bin/python tools/bench_core.py                 # both parts, default sizes
-    .venv/bin/python tools/bench_core.py --counts 50 500 5000 --frames 10
+    .venv/bin/python tools/bench_core.py                 # all parts, default sizes
+    .venv/bin/python tools/bench_core.py --desk-counts 47 470 4700 --desk-frames 10 --json out.json
+    /usr/bin/time -v .venv/bin/python tools/bench_core.py --degenerate 5000   # peak memory, worst case
 
 Part 1: matching + inliers + pose for one query against a 50-landmark map, median ms per method.
-Part 2: scalability as the paper measures it: one room's landmarks duplicated side by side (50 to
-5,000 landmarks), latency per query against landmark count and the fitted growth exponent
-(slope of a log-log least-squares line). Also times igraph against networkx's `find_cliques`
-on the compatibility graphs that arise, the measurement behind inliers.py's choice.
+Part 2: the hard case: a simulated desk scene with the statistics of a real desk object map
+(`desk_map`, REAL_SCENES.md: 47 objects, 19 classes, about 25 observations and 80 candidates per
+query, thousands of maximal cliques), copied into rooms 20 m apart, SH only. The pipeline's
+branch-and-bound search beside the previous implementation (igraph full enumeration + Python
+ranking, `previous_solve`) on the same queries, their ratio, cap hits and growth exponents.
+Part 3: scalability on the demo-like synthetic rooms (about 2 maximal cliques per query), as the
+paper measures it, with the growth exponent (slope of a log-log least-squares line).
 `scalability()` is importable for other benchmark scripts.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
-import networkx as nx
 import numpy as np
 
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
+from clipclique.geometry import random_rotation
 from clipclique.inliers import compatibility_graph, maximal_cliques
 from clipclique.pipeline import LocalizationResult, index_map, localize
+from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
-from clipclique.types import Map, Observations
+from clipclique.types import Ellipsoids, Map, Observations, Pose
 
 ALGORITHM = ("matching", "inliers", "pose")
 
@@ -99,34 +106,128 @@ def growth_exponent(rows: list[dict], key: str = "median_ms") -> float:
     return float(np.polyfit(x, y, 1)[0])
 
 
-def clique_engines(counts: list[int], room: int = 50, frames: int = 5, seed: int = 0) -> list[dict]:
-    """ms of igraph (as used) and networkx find_cliques on the same compatibility graphs."""
+DESK_CLASS_COUNTS = (8, 7, 4, 3, 3, 3, 3, 2, 2, 2, 2) + (1,) * 8  # 47 objects, 19 classes (REAL_SCENES.md)
+DESKS = np.array([[1.5, 1.2, 0.75], [3.6, 2.0, 0.75]])  # two desks in a 5.5 x 3.4 x 1 m office
+ROOM_SPACING = 20.0  # metres between copies of the desk scene
+
+
+def desk_map(rng: np.random.Generator) -> Map:
+    """A simulated desk object map with REAL_SCENES.md's statistics: 47 objects of 19 classes
+    (8 cups, 7 books, ...), most crowded on two desks (degree within 0.8 m 0 to about 23,
+    median about 17), 12% anywhere in the room."""
+    class_ids = np.repeat(np.arange(len(DESK_CLASS_COUNTS)), DESK_CLASS_COUNTS)
+    count = len(class_ids)
+    centers = DESKS[rng.integers(0, len(DESKS), count)] + rng.uniform(-1, 1, (count, 3)) * [0.6, 0.4, 0.2]
+    loose = rng.random(count) < 0.12
+    centers[loose] = rng.uniform(0, 1, (loose.sum(), 3)) * [5.5, 3.4, 1.0]
+    names = [f"class{c}" for c in range(len(DESK_CLASS_COUNTS))]
+    return Map(
+        Ellipsoids(centers, rng.uniform(0.04, 0.2, (count, 3)), np.repeat(np.eye(3)[None], count, axis=0)),
+        class_ids, names, [names[c] for c in class_ids], np.arange(count) + 1, provenance={"simulated": True},
+    )
+
+
+def desk_query(map: Map, rng: np.random.Generator, reach: float = 3.5, half_fov_deg: float = 40.0, noise: float = 0.08) -> Observations:
+    """What a camera 1-2 m from a random object sees of the desk: every object within `reach`
+    metres and `half_fov_deg` of its optical axis (about 25), centres with `noise` metres of noise."""
+    centers = map.ellipsoids.centers
+    target = centers[rng.integers(len(map))]
+    heading = rng.uniform(0, 2 * np.pi)
+    eye = target + np.array([np.cos(heading), np.sin(heading), 0.0]) * rng.uniform(1.0, 2.0) + [0, 0, 0.5]
+    rays = centers - eye
+    distance = np.linalg.norm(rays, axis=1)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    visible = np.flatnonzero((distance < reach) & (rays @ forward > np.cos(np.radians(half_fov_deg)) * distance))
+    seen = map.ellipsoids.subset(visible).transformed(Pose(random_rotation(rng), eye).inverse())
+    seen.centers = seen.centers + rng.normal(scale=noise, size=seen.centers.shape)
+    return Observations(seen, map.class_ids[visible], None, map.instance_ids[visible], np.arange(len(visible)))
+
+
+def previous_solve(observations: Observations, map: Map, result: LocalizationResult, config: LocalizationConfig) -> tuple[float, int, str | None]:
+    """The implementation before the branch-and-bound search, for comparison: igraph enumerates
+    every maximal clique, Python sums and sorts them, one pose per clique until top_n.
+    Returns (seconds, maximal cliques, cap)."""
+    settings = config.inliers
+    start = time.perf_counter()
+    edges = compatibility_graph(observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, settings.d_comp)
+    cliques, cap = maximal_cliques(edges, len(result.candidates), settings.min_clique_size, settings.max_cliques, settings.time_limit_s)
+    totals = np.array([result.candidate_scores[c].sum() for c in cliques])
+    poses = 0
+    for index in np.argsort(-totals, kind="stable"):
+        pairs = result.candidates[cliques[index]]
+        weights = correspondence_weights(result.candidate_scores[cliques[index]], observations.ellipsoids.axes[pairs[:, 0]],
+                                         map.ellipsoids.axes[pairs[:, 1]], config.pose.weights)
+        try:
+            fit_rigid(observations.ellipsoids.centers[pairs[:, 0]], map.ellipsoids.centers[pairs[:, 1]], weights)
+        except DegeneratePoseError:
+            continue
+        poses += 1
+        if poses == config.top_n:
+            break
+    return time.perf_counter() - start, len(cliques), cap
+
+
+def desk_scalability(counts: list[int], frames: int = 30, seed: int = 0) -> list[dict]:
+    """Per landmark count: the desk scene copied into rooms ROOM_SPACING apart, `frames` queries
+    of room 0, SH only; median ms of matching + inliers + pose now and with `previous_solve`."""
+    config = make_config("clipclique", overrides={"similarity.descriptor": "sh"})
+    base = desk_map(np.random.default_rng(seed))
     rows = []
     for count in counts:
-        ig, nxs = [], []
-        for map, observations, config, result in duplicated_room_queries(count, "clipclique", room, frames, seed):
-            edges = compatibility_graph(
-                observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, config.inliers.d_comp
-            )
-            start = time.perf_counter()
-            maximal_cliques(edges, len(result.candidates))
-            ig.append(time.perf_counter() - start)
-            start = time.perf_counter()
-            graph = nx.Graph()
-            graph.add_nodes_from(range(len(result.candidates)))
-            graph.add_edges_from(edges.tolist())
-            [c for c in nx.find_cliques(graph) if len(c) >= 3]
-            nxs.append(time.perf_counter() - start)
-        rows.append({"landmarks": len(map), "igraph_ms": 1e3 * np.median(ig), "networkx_ms": 1e3 * np.median(nxs)})
+        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
+        index = index_map(map, config)
+        rng = np.random.default_rng(seed + 1)
+        now, before, candidates, cliques, reached, caps, caps_before = [], [], [], [], [], 0, 0
+        for _ in range(frames):
+            observations = desk_query(base, rng)
+            result = localize(observations, index, config)
+            seconds, enumerated, cap = previous_solve(observations, map, result, config)
+            now.append(1e3 * sum(result.timings[s] for s in ALGORITHM))
+            before.append(1e3 * (result.timings["matching"] + seconds))
+            candidates.append(len(result.candidates))
+            cliques.append(enumerated)
+            reached.append(result.num_cliques)
+            caps += result.cap_hit is not None
+            caps_before += cap is not None
+        rows.append({"landmarks": len(map), "median_ms": float(np.median(now)), "previous_ms": float(np.median(before)),
+                     "candidates": float(np.median(candidates)), "cliques": float(np.median(cliques)),
+                     "max_cliques": int(np.max(cliques)), "reached": float(np.median(reached)),
+                     "cap_hits": caps, "previous_cap_hits": caps_before})
     return rows
+
+
+def degenerate(count: int) -> LocalizationResult:
+    """One query against `count` identical overlapping landmarks of one class: the worst case for
+    memory (every candidate pair within reach). The caps must keep it bounded; says which one hit.
+    CLIP similarity: the figure is the matching and clique stages' (the semantic graph has its own bound)."""
+    config = make_config("clipclique", overrides={"similarity.descriptor": "clip"})
+    rng = np.random.default_rng(0)
+    base = synthetic_map(rng, num_landmarks=1, num_classes=1)
+    map = duplicate_rooms(base, count, gap=-np.ptp(base.ellipsoids.centers[:, 0]))  # all at one spot
+    observations, _ = synthetic_query(synthetic_map(rng, num_landmarks=12, num_classes=1), rng, num_visible=12, num_outliers=0)
+    return localize(observations, index_map(map, config), config)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--counts", type=int, nargs="+", default=[50, 100, 200, 500, 1000, 2000, 5000])
-    parser.add_argument("--frames", type=int, default=10, help="queries per landmark count")
+    parser.add_argument("--desk-counts", type=int, nargs="+", default=[47, 94, 235, 470, 940, 2350, 4700])
+    parser.add_argument("--frames", type=int, default=10, help="queries per landmark count (demo-like map)")
+    parser.add_argument("--desk-frames", type=int, default=30, help="queries per landmark count (desk scene)")
     parser.add_argument("--method", default="clipclique", choices=list(METHOD_PRESETS))
+    parser.add_argument("--json", type=Path, help="also write the tables here (scalability plot data)")
+    parser.add_argument("--plot", type=Path, help="also draw the scalability plot here (PNG)")
+    parser.add_argument("--degenerate", type=int, metavar="N",
+                        help="only localize one query against N identical overlapping landmarks (peak memory: run under /usr/bin/time -v)")
     args = parser.parse_args()
+    if args.degenerate:
+        start = time.perf_counter()
+        result = degenerate(args.degenerate)
+        print(f"{args.degenerate} identical landmarks: {len(result.candidates)} candidates, cap hit: {result.cap_hit}, "
+              f"{1e3 * (time.perf_counter() - start):.0f} ms with the map index "
+              f"({1e3 * (result.timings['matching'] + result.timings['inliers']):.0f} ms matching + inliers), "
+              f"failure: {result.failure}")
+        return
 
     print("Part 1: one query vs a 50-landmark synthetic map (matching + inliers + pose)")
     print(f"{'method':<12}{'median ms':>10}{'p90 ms':>10}{'total ms':>10}")
@@ -134,7 +235,19 @@ def main() -> None:
         row = single_query(method)
         print(f"{method:<12}{row['median_ms']:>10.2f}{row['p90_ms']:>10.2f}{row['median_total_ms']:>10.2f}")
 
-    print(f"\nPart 2: scalability, {args.method}, duplicated rooms of 50 landmarks")
+    print(f"\nPart 2: simulated desk scene (47 objects) copied into rooms {ROOM_SPACING:.0f} m apart, SH only, "
+          f"{args.desk_frames} queries each; median ms of matching + inliers + pose")
+    desk = desk_scalability(args.desk_counts, args.desk_frames)
+    print(f"{'landmarks':>10}{'now ms':>9}{'before ms':>10}{'ratio':>7}{'cands':>7}{'cliques':>9}{'max':>8}"
+          f"{'reached':>9}{'caps':>6}{'caps before':>12}")
+    for row in desk:
+        print(f"{row['landmarks']:>10}{row['median_ms']:>9.2f}{row['previous_ms']:>10.1f}"
+              f"{row['previous_ms'] / row['median_ms']:>7.1f}{row['candidates']:>7.0f}{row['cliques']:>9.0f}"
+              f"{row['max_cliques']:>8}{row['reached']:>9.0f}{row['cap_hits']:>6}{row['previous_cap_hits']:>12}")
+    print(f"growth exponent (log-log slope): now {growth_exponent(desk):.2f}, "
+          f"before {growth_exponent(desk, 'previous_ms'):.2f}")
+
+    print(f"\nPart 3: scalability, {args.method}, demo-like synthetic rooms of 50 landmarks side by side")
     rows = scalability(args.counts, args.method, frames=args.frames)
     print(f"{'landmarks':>10}{'median ms':>11}{'total ms':>10}{'candidates':>11}{'cliques':>9}{'caps':>6}")
     for row in rows:
@@ -148,10 +261,31 @@ def main() -> None:
         f"{growth_exponent(tail):.2f} over the last {len(tail)} (algorithm); "
         f"{growth_exponent(rows, 'median_total_ms'):.2f} / {growth_exponent(tail, 'median_total_ms'):.2f} whole query"
     )
+    if args.json:
+        args.json.write_text(json.dumps({"desk": desk, "demo_like": rows}, indent=1))
+    if args.plot:
+        plot_scalability(desk, rows, args.plot)
 
-    print("\nClique engines on the same compatibility graphs (median ms)")
-    for row in clique_engines(args.counts[:: max(1, len(args.counts) // 3)]):
-        print(f"{row['landmarks']:>10}  igraph {row['igraph_ms']:8.2f}  networkx {row['networkx_ms']:8.2f}")
+
+def plot_scalability(desk: list[dict], demo_like: list[dict], path: Path) -> None:
+    """Latency per query against landmarks, log-log: the desk scene now and before, the demo-like rooms."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(6, 4))
+    for rows, key, label in ((desk, "median_ms", "desk scene, branch and bound"),
+                             (desk, "previous_ms", "desk scene, full enumeration (capped from 235 on)"),
+                             (demo_like, "median_ms", "demo-like rooms")):
+        axes.loglog([r["landmarks"] for r in rows], [r[key] for r in rows], "o-",
+                    label=f"{label}: exponent {growth_exponent(rows, key):.2f}")
+    axes.set_xlabel("landmarks")
+    axes.set_ylabel("matching + inliers + pose, median ms per query")
+    axes.grid(True, which="both", alpha=0.3)
+    axes.legend(fontsize=7)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """Per-frame timings of clipclique-loc on a sequence: the algorithm (matching + inliers + pose) apart
-from the detector, the observation fit and the encoder.
+from the detector, the observation fit and the encoder, and the whole frame without the detector.
 
     .venv/bin/python tools/bench_loc.py [SEQUENCE] [--method clipclique] [--repeat 3]
 
@@ -45,7 +45,7 @@ def main() -> None:
     except ClipcliqueError as error:  # a missing map or sequence: one line, as clipclique-loc says it
         parser.exit(2, f"bench_loc: error: {error}\n")
     index = index_map(run.map, run.config)
-    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *STAGES, "algorithm")}
+    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *STAGES, "algorithm", "no detector")}
     for i in selected_frames(run):
         seen = observe(run, run.sequence[i])
         results = [localize(seen.observations, index, run.config) for _ in range(args.repeat)]
@@ -53,6 +53,7 @@ def main() -> None:
         for stage, seconds in (seen.timings | fastest.timings).items():
             rows[stage].append(1e3 * seconds)
         rows["algorithm"].append(1e3 * sum(fastest.timings[s] for s in ALGORITHM_STAGES))
+        rows["no detector"].append(1e3 * (sum(seen.timings.values()) - seen.timings["detector"] + sum(fastest.timings.values())))
 
     print(f"{args.method} on {args.sequence}: {len(rows['algorithm'])} frames, {os.cpu_count()} cores "
           "(a shared machine gives noisy timings)")
@@ -61,6 +62,7 @@ def main() -> None:
     for stage, times in rows.items():
         print(f"{stage:<14}{np.median(times):>10.2f}{np.percentile(times, 90):>10.2f}")
     print(f"algorithm = matching + inliers + pose, fastest of {args.repeat}; target: median <= 10 ms")
+    print("no detector = the whole frame but the detector: observations + encoder + every localization stage")
 
 
 if __name__ == "__main__":

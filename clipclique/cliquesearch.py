@@ -1,0 +1,376 @@
+"""The N heaviest maximal cliques of a vertex-weighted graph, found by branch and bound (numba).
+
+Bron-Kerbosch with Tomita pivoting, vertices taken one at a time, the most promising first (the
+most a clique through it can weigh; each vertex `v` explores the cliques whose first vertex in
+that order is `v`: P = its later neighbours, X = its earlier ones), run on bitsets of `v`'s
+neighbourhood. A branch is cut when the weight of its clique plus the most its candidates can
+still add cannot reach the current N-th best. Vertices carry a group (for the compatibility graph: the observation), no edge joins
+two vertices of one group, so a clique holds at most one vertex per group and "the most it can
+still add" is the sum over groups of each group's heaviest positive candidate: much tighter than
+the sum of all candidates when an observation has several.
+
+Exact: the result equals full enumeration ranked by `clique_total` (weights summed in ascending
+vertex order), ties broken by the sorted member lists compared lexicographically (smaller
+first). The cut keeps a branch whose bound ties the N-th best (within float round-off), so
+equal-weight cliques are never lost to the order of the search.
+
+The search runs in slices of `SLICE` branch steps; all its state lives in arrays owned by the
+Python caller, which checks the time limit between slices. numba compiles once per machine
+(`cache=True` keeps the machine code beside the module).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
+RUNNING, DONE, COUNT_CAP = 0, 1, 2  # search status (state[STATUS])
+OUTER, LEVEL, REACHED, STATUS, FILLED, FRESH, STAMP = range(7)  # slots of the int state array
+TOLERANCE = 1e-9  # relative slack of the cut against float round-off
+
+
+@dataclass
+class TopCliques:
+    """The heaviest maximal cliques, best first, and how the search ended."""
+
+    cliques: list[np.ndarray]  # sorted vertex indices
+    totals: np.ndarray  # (len(cliques),) summed weight, by `clique_total`
+    reached: int  # maximal cliques of at least `min_size` vertices the search reached (not cut)
+    cap: str | None  # "max_cliques" | "time_limit" | None
+
+
+def top_cliques(
+    edges: np.ndarray,
+    num_nodes: int,
+    weights: np.ndarray,
+    count: int,
+    groups: np.ndarray | None = None,
+    min_size: int = 3,
+    max_cliques: int = 100_000,
+    time_limit_s: float = 1.0,
+) -> TopCliques:
+    """The `count` heaviest maximal cliques of at least `min_size` vertices of the graph `edges` (E, 2).
+
+    `groups` (num_nodes,) int: vertices of one group must be pairwise non-adjacent (None: every
+    vertex its own group). The search stops early after reaching `max_cliques` maximal cliques
+    or after `time_limit_s`, and says which in `cap`; what it returns then is the best so far.
+    """
+    weights = np.ascontiguousarray(weights, dtype=np.float64)
+    groups = np.arange(num_nodes) if groups is None else np.ascontiguousarray(groups, dtype=np.int64)
+    edges = np.ascontiguousarray(edges, dtype=np.int64).reshape(-1, 2)
+    if len(groups) and groups.min() < 0:
+        raise ValueError("groups must be non-negative")
+    if count < 1 or num_nodes < min_size:
+        return TopCliques([], np.zeros(0), 0, None)
+    arrays = _prepare(edges, num_nodes, weights, groups, count)
+    if arrays is None:
+        raise ValueError("an edge joins two vertices of one group")
+    state, best_total, best_size, best_members = arrays[4], arrays[-3], arrays[-2], arrays[-1]
+    deadline = time.perf_counter() + time_limit_s
+    cap = None
+    while True:
+        _search(weights, groups, min_size, max_cliques, SLICE, *arrays)
+        if state[STATUS] == COUNT_CAP:
+            cap = "max_cliques"
+        if state[STATUS] != RUNNING:
+            break
+        if time.perf_counter() > deadline:
+            cap = "time_limit"
+            break
+    filled = int(state[FILLED])
+    cliques = [best_members[i, : best_size[i]].copy() for i in range(filled)]
+    return TopCliques(cliques, best_total[:filled].copy(), int(state[REACHED]), cap)
+
+
+def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
+    """(M,) summed weight per clique, added in ascending vertex order (the search's exact order)."""
+    if not cliques:
+        return np.zeros(0)
+    sizes = np.fromiter(map(len, cliques), np.int64, len(cliques))
+    padded = np.full((len(cliques), sizes.max()), len(weights))  # pad with a vertex of weight 0
+    padded[np.arange(sizes.max()) < sizes[:, None]] = np.fromiter(itertools.chain.from_iterable(cliques), np.int64)
+    padded.sort(axis=1)
+    return np.cumsum(np.append(weights, 0.0)[padded], axis=1)[:, -1]  # cumsum adds left to right, as the search
+
+
+@njit(cache=True)
+def _prepare(edges, num_nodes, weights, groups, count):
+    """The search's arrays: the graph as CSR, the vertex order, scratch and the ranked top list;
+    None when an edge joins two vertices of one group."""
+    degree = np.zeros(num_nodes, np.int64)
+    for e in range(len(edges)):
+        if groups[edges[e, 0]] == groups[edges[e, 1]]:
+            return None
+        degree[edges[e, 0]] += 1
+        degree[edges[e, 1]] += 1
+    indptr = np.zeros(num_nodes + 1, np.int64)
+    indptr[1:] = np.cumsum(degree)
+    fill = indptr[:-1].copy()
+    indices = np.empty(2 * len(edges), np.int64)
+    for e in range(len(edges)):
+        a, b = edges[e, 0], edges[e, 1]
+        indices[fill[a]] = b
+        fill[a] += 1
+        indices[fill[b]] = a
+        fill[b] += 1
+    # Most promising first: the weight a vertex's cliques can reach at most, heaviest first, so
+    # that the N-th best rises early and later vertices are cut before their neighbourhood is built.
+    potential = np.zeros(num_nodes)
+    best_in_group = np.zeros(groups.max() + 1 if num_nodes else 1)
+    for v in range(num_nodes):
+        potential[v] = max(weights[v], 0.0)
+        for k in range(indptr[v], indptr[v + 1]):
+            g = groups[indices[k]]
+            best_in_group[g] = max(best_in_group[g], weights[indices[k]])
+        for k in range(indptr[v], indptr[v + 1]):
+            g = groups[indices[k]]
+            potential[v] += best_in_group[g]
+            best_in_group[g] = 0.0
+    order = np.argsort(-potential, kind="mergesort")
+    position = np.empty(num_nodes, np.int64)
+    position[order] = np.arange(num_nodes)
+    width = degree.max() + 1 if num_nodes else 1
+    words = (width + 63) // 64
+    state = np.zeros(7, np.int64)
+    state[LEVEL] = -1
+    longest = max(1, min(width, groups.max() + 1))
+    return (indptr, indices, order, position, state, np.zeros(width), np.zeros(width, np.int64),
+            np.zeros(width, np.int64), np.full(num_nodes, -1, np.int64), np.zeros((width, words), np.uint64),
+            np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
+            np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
+            np.zeros(groups.max() + 1, np.int64), np.zeros(count), np.zeros(count, np.int64),
+            np.zeros((count, longest), np.int64))
+
+
+@njit(cache=True)
+def _lowest_bit(x: np.uint64) -> int:
+    """Index of the lowest set bit of a non-zero word."""
+    index = 0
+    if x & np.uint64(0xFFFFFFFF) == 0:
+        x >>= np.uint64(32)
+        index += 32
+    if x & np.uint64(0xFFFF) == 0:
+        x >>= np.uint64(16)
+        index += 16
+    if x & np.uint64(0xFF) == 0:
+        x >>= np.uint64(8)
+        index += 8
+    if x & np.uint64(0xF) == 0:
+        x >>= np.uint64(4)
+        index += 4
+    if x & np.uint64(0x3) == 0:
+        x >>= np.uint64(2)
+        index += 2
+    if x & np.uint64(0x1) == 0:
+        index += 1
+    return index
+
+
+@njit(cache=True)
+def _popcount(x: np.uint64) -> int:
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@njit(cache=True)
+def _better(total: float, clique: np.ndarray, size: int, best_total: np.ndarray, best_members: np.ndarray,
+            best_size: np.ndarray, i: int) -> bool:
+    """Whether `clique` ranks before entry i: heavier, or as heavy and lexicographically smaller."""
+    if total != best_total[i]:
+        return total > best_total[i]
+    for k in range(min(size, best_size[i])):
+        if clique[k] != best_members[i, k]:
+            return clique[k] < best_members[i, k]
+    return size < best_size[i]
+
+
+@njit(cache=True)
+def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
+           best_size: np.ndarray, best_members: np.ndarray) -> None:
+    """Insert a maximal clique into the ranked top list if it ranks high enough."""
+    clique[:size].sort()
+    total = 0.0
+    for k in range(size):
+        total += weights[clique[k]]
+    filled = state[FILLED]
+    at = filled
+    while at > 0 and _better(total, clique, size, best_total, best_members, best_size, at - 1):
+        at -= 1
+    capacity = len(best_total)
+    if at >= capacity:
+        return
+    last = min(filled, capacity - 1)
+    for i in range(last, at, -1):
+        best_total[i] = best_total[i - 1]
+        best_size[i] = best_size[i - 1]
+        best_members[i, :] = best_members[i - 1, :]
+    best_total[at] = total
+    best_size[at] = size
+    best_members[at, :size] = clique[:size]
+    state[FILLED] = min(filled + 1, capacity)
+
+
+@njit(cache=True)
+def _threshold(state: np.ndarray, best_total: np.ndarray) -> float:
+    """The weight a branch must be able to reach (minus round-off slack) to be explored."""
+    if state[FILLED] < len(best_total):
+        return -np.inf
+    worst = best_total[len(best_total) - 1]
+    return worst - TOLERANCE * max(1.0, abs(worst))
+
+
+@njit(cache=True)
+def _search(weights, groups, min_size, max_cliques, budget, indptr, indices, order, position, state,
+            local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo,
+            members, weight_so_far, group_stamp, best_total, best_size, best_members):
+    """Advance the search by up to `budget` branch steps; all state is in the arrays (see top_cliques)."""
+    words = adjacency.shape[1]
+    clique = np.zeros(members.shape[0], np.int64)
+    while budget > 0:
+        level = state[LEVEL]
+        if level < 0:  # the next first vertex
+            if state[OUTER] >= len(order):
+                state[STATUS] = DONE
+                return
+            v = order[state[OUTER]]
+            state[OUTER] += 1
+            budget -= 1
+            later = 0
+            for k in range(indptr[v], indptr[v + 1]):
+                later += position[indices[k]] > position[v]
+            if 1 + later < min_size:
+                continue
+            # The outer bound, from v's later neighbours: heaviest positive weight per group.
+            threshold = _threshold(state, best_total)
+            if threshold > -np.inf:
+                state[STAMP] += 1
+                bound = weights[v]
+                group_best = local_weight  # scratch, indexed by neighbour order (rebuilt below)
+                count = 0
+                for k in range(indptr[v], indptr[v + 1]):
+                    u = indices[k]
+                    if position[u] > position[v] and weights[u] > 0:
+                        group_best[count] = weights[u]
+                        local_group[count] = groups[u]
+                        count += 1
+                ranked = np.argsort(-group_best[:count])
+                for k in ranked:
+                    if group_stamp[local_group[k]] != state[STAMP]:
+                        group_stamp[local_group[k]] = state[STAMP]
+                        bound += group_best[k]
+                if bound < threshold:
+                    continue
+            # v's neighbourhood as local vertices 0..d-1, heaviest first (ties by index).
+            d = indptr[v + 1] - indptr[v]
+            neighbours = indices[indptr[v]:indptr[v + 1]]
+            ranked = np.argsort(-weights[neighbours], kind="mergesort")
+            for i in range(d):
+                u = neighbours[ranked[i]]
+                local_vertex[i] = u
+                local_weight[i] = weights[u]
+                local_group[i] = groups[u]
+                local_of[u] = i
+            adjacency[:d, :] = 0
+            p_sets[0, :] = 0
+            x_sets[0, :] = 0
+            for i in range(d):
+                u = local_vertex[i]
+                for k in range(indptr[u], indptr[u + 1]):
+                    j = local_of[indices[k]]
+                    if j >= 0:
+                        adjacency[i, j >> 6] |= np.uint64(1) << np.uint64(j & 63)
+                if position[u] > position[v]:
+                    p_sets[0, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+                else:
+                    x_sets[0, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
+            for i in range(d):
+                local_of[local_vertex[i]] = -1
+            members[0] = v
+            weight_so_far[0] = weights[v]
+            state[LEVEL] = 0
+            state[FRESH] = 1
+            continue
+        if state[FRESH]:  # evaluate the node just entered: a leaf, a cut, or its branches
+            state[FRESH] = 0
+            p_count = 0
+            x_empty = True
+            for w in range(words):
+                p_count += _popcount(p_sets[level, w])
+                x_empty &= x_sets[level, w] == 0
+            if p_count == 0:
+                if x_empty and level + 1 >= min_size:
+                    size = level + 1
+                    clique[0] = members[0]
+                    for k in range(1, size):
+                        clique[k] = local_vertex[members[k]]
+                    _offer(clique, size, weights, state, best_total, best_size, best_members)
+                    state[REACHED] += 1
+                    if state[REACHED] >= max_cliques:
+                        state[STATUS] = COUNT_CAP
+                        return
+                state[LEVEL] = level - 1
+                continue
+            if level + 1 + p_count < min_size:
+                state[LEVEL] = level - 1
+                continue
+            threshold = _threshold(state, best_total)
+            if threshold > -np.inf:
+                need = threshold - weight_so_far[level]
+                gained = 0.0
+                state[STAMP] += 1
+                for w in range(words):  # local order is heaviest first: a group's first is its best
+                    bits = p_sets[level, w]
+                    while bits and gained < need:
+                        i = (w << 6) + _lowest_bit(bits)
+                        bits &= bits - np.uint64(1)
+                        if local_weight[i] <= 0:
+                            break
+                        if group_stamp[local_group[i]] != state[STAMP]:
+                            group_stamp[local_group[i]] = state[STAMP]
+                            gained += local_weight[i]
+                if gained < need:
+                    state[LEVEL] = level - 1
+                    continue
+            # Tomita pivot: the vertex of P u X with the most neighbours in P.
+            pivot, most = -1, -1
+            for w in range(words):
+                bits = p_sets[level, w] | x_sets[level, w]
+                while bits:
+                    u = (w << 6) + _lowest_bit(bits)
+                    bits &= bits - np.uint64(1)
+                    common = 0
+                    for z in range(words):
+                        common += _popcount(p_sets[level, z] & adjacency[u, z])
+                    if common > most:
+                        pivot, most = u, common
+            for w in range(words):
+                todo[level, w] = p_sets[level, w] & ~adjacency[pivot, w]
+            continue
+        # Branch on the next vertex of todo (lowest local index = heaviest).
+        t = -1
+        for w in range(words):
+            if todo[level, w]:
+                t = (w << 6) + _lowest_bit(todo[level, w])
+                break
+        if t < 0:
+            state[LEVEL] = level - 1
+            continue
+        bit = np.uint64(1) << np.uint64(t & 63)
+        todo[level, t >> 6] &= ~bit
+        for w in range(words):
+            p_sets[level + 1, w] = p_sets[level, w] & adjacency[t, w]
+            x_sets[level + 1, w] = x_sets[level, w] & adjacency[t, w]
+        p_sets[level, t >> 6] &= ~bit
+        x_sets[level, t >> 6] |= bit
+        members[level + 1] = t
+        weight_so_far[level + 1] = weight_so_far[level] + local_weight[t]
+        state[LEVEL] = level + 1
+        state[FRESH] = 1
+        budget -= 1

@@ -1,0 +1,101 @@
+"""The branch-and-bound top-N clique search equals full enumeration (igraph) ranked by summed weight."""
+
+import numpy as np
+import pytest
+
+from clipclique.cliquesearch import clique_total, top_cliques
+from clipclique.config import make_config
+from clipclique.inliers import compatibility_graph, maximal_cliques, rank_cliques
+from clipclique.pipeline import LocalizationResult, _solve_cliques
+from clipclique.types import Ellipsoids, Map, Observations
+
+
+def reference(edges: np.ndarray, nodes: int, weights: np.ndarray, count: int, min_size: int = 3):
+    cliques, cap = maximal_cliques(edges, nodes, min_size=min_size)
+    assert cap is None
+    ranked = rank_cliques(cliques, weights)[:count]
+    return ranked, clique_total(ranked, weights)
+
+
+def assert_same(found, ranked, totals):
+    assert len(found.cliques) == len(ranked)
+    for got, want in zip(found.cliques, ranked):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(found.totals, totals)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_graphs_give_the_enumerated_top_n_in_order(seed):
+    rng = np.random.default_rng(seed)
+    for _ in range(25):
+        nodes = int(rng.integers(3, 70))
+        upper = np.triu(rng.random((nodes, nodes)) < rng.uniform(0.05, 0.7), 1)
+        edges = np.argwhere(upper)
+        # half the graphs with few distinct weights: many ties, decided by the member lists
+        weights = rng.choice([0.25, 0.5, 1.0], nodes) if seed % 2 else rng.random(nodes)
+        count = int(rng.integers(1, 12))
+        min_size = int(rng.integers(1, 5))
+        found = top_cliques(edges, nodes, weights, count, min_size=min_size)
+        assert_same(found, *reference(edges, nodes, weights, count, min_size))
+        assert found.cap is None
+
+
+def desk_compatibility(seed: int):
+    """A dense desk-like problem: 45 landmarks within 2 m, 25 noisy observations of them, 3 to 4
+    candidates per observation (several of one class), compatibility at d_comp = 0.3 m."""
+    rng = np.random.default_rng(seed)
+    landmarks = rng.uniform(0, 1, (45, 3)) * [2.0, 1.2, 0.5]
+    seen = rng.choice(45, 25, replace=False)
+    observed = landmarks[seen] + rng.normal(scale=0.05, size=(25, 3))
+    extra = rng.integers(0, 45, (25, 3))
+    candidates = np.unique(np.concatenate([np.column_stack((np.arange(25), seen))]
+                                          + [np.column_stack((np.arange(25), extra[:, j])) for j in range(3)]), axis=0)
+    scores = rng.choice([0.4, 0.6, 0.8, 1.0], len(candidates))
+    return compatibility_graph(observed, landmarks, candidates, 0.3), candidates, scores
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dense_desk_compatibility_graphs_give_the_enumerated_top_n(seed):
+    edges, candidates, scores = desk_compatibility(seed)
+    assert len(maximal_cliques(edges, len(candidates))[0]) > 200  # dense: many maximal cliques
+    for count in (1, 5, 20):
+        found = top_cliques(edges, len(candidates), scores, count, groups=candidates[:, 0])
+        assert_same(found, *reference(edges, len(candidates), scores, count))
+        assert found.reached < len(maximal_cliques(edges, len(candidates))[0])  # the bound cut the rest
+
+
+def test_caps_are_reported():
+    group = np.arange(21) // 3  # complement of 7 disjoint triangles: 3^7 maximal cliques, all of weight 7
+    edges = np.argwhere(np.triu(group[:, None] != group[None, :], 1))
+    found = top_cliques(edges, 21, np.ones(21), 5, max_cliques=50)
+    assert found.cap == "max_cliques" and found.reached == 50 and len(found.cliques) == 5
+    big = np.arange(30) // 3  # 3^10 cliques: more than one slice of the search, so the clock is read
+    found = top_cliques(np.argwhere(np.triu(big[:, None] != big[None, :], 1)), 30, np.ones(30), 5, time_limit_s=0.0)
+    assert found.cap == "time_limit" and 0 < found.reached < 3**10
+    found = top_cliques(edges, 21, np.ones(21), 5)
+    assert found.cap is None and found.reached == 3**7  # equal weights: nothing can be cut
+    np.testing.assert_array_equal(found.cliques[0], [0, 3, 6, 9, 12, 15, 18])
+
+
+def test_groups_must_be_independent():
+    with pytest.raises(ValueError, match="one group"):
+        top_cliques(np.array([[0, 1]]), 3, np.ones(3), 1, groups=np.array([0, 0, 1]))
+
+
+def test_a_degenerate_best_clique_is_skipped_and_the_search_goes_on():
+    """The heaviest clique is collinear (no pose); top_n = 1 must still give the next one."""
+    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
+    triangle = np.array([[10, 0, 0], [10, 1, 0], [11, 0, 0.0]])
+    observed = np.concatenate((line, triangle))
+    landmarks = np.concatenate((line, triangle + [0, 5, 0]))  # the two groups disagree across
+    ellipsoids = lambda c: Ellipsoids(c, np.full((6, 3), 0.2), np.repeat(np.eye(3)[None], 6, 0))  # noqa: E731
+    map = Map(ellipsoids(landmarks), np.zeros(6, int), ["thing"], ["thing"] * 6, np.arange(6) + 1, None, "none", {})
+    observations = Observations(ellipsoids(observed), np.zeros(6, int), None, np.arange(6) + 1, np.arange(6))
+    candidates = np.column_stack((np.arange(6), np.arange(6)))
+    scores = np.array([0.9, 0.9, 0.9, 0.5, 0.5, 0.5])
+    config = make_config("clipclique", overrides={"top_n": 1})
+    result = LocalizationResult([], candidates, scores, np.eye(6), 0, None, None)
+    _solve_cliques(result, observations, map, config, lambda stage: None)
+    assert len(result.hypotheses) == 1 and result.failure is None
+    assert result.hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]
+    np.testing.assert_allclose(result.hypotheses[0].pose.translation, [0, 5, 0], atol=1e-9)

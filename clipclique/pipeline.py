@@ -7,8 +7,9 @@ Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 A frame without a pose says why in `LocalizationResult.failure`, naming the stage that lost it:
 "fewer than 3 observations (K)", "fewer than 3 observations with a candidate landmark (k)",
 "no clique of 3 or more compatible correspondences", "no minimal set of 3 distinct,
-non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose"
-(every set was degenerate). Missing CLIP embeddings make "fused" fall back to SH only (a note
+non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose (each
+is collinear or poorly conditioned)" (every set was degenerate, or nearly a row of objects:
+`config.pose.min_conditioning`). Missing CLIP embeddings make "fused" fall back to SH only (a note
 says so) and make "clip" a ClipcliqueError.
 """
 
@@ -25,7 +26,7 @@ import scipy.sparse as sp
 from clipclique import graph, inliers, matching, similarity
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
+from clipclique.pose import DegeneratePoseError, conditioning, correspondence_weights, fit_rigid
 from clipclique.types import Hypothesis, Map, Observations
 
 STAGES = ("descriptors", "similarity", "matching", "inliers", "pose")
@@ -101,7 +102,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     for stage in STAGES:
         timings.setdefault(stage, 0.0)
     if result.failure is None and not result.hypotheses:
-        result.failure = "no correspondence set determines a pose"
+        result.failure = "no correspondence set determines a pose (each is collinear or poorly conditioned)"
     return result
 
 
@@ -223,7 +224,8 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
 def _hypothesis(
     result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, members: np.ndarray, score: float
 ) -> Hypothesis | None:
-    """The weighted pose of a correspondence set, or None when the set is degenerate."""
+    """The weighted pose of a correspondence set, or None when the set is degenerate or too poorly
+    conditioned (config.pose.min_conditioning) to fix the rotation."""
     pairs = result.candidates[members]
     weights = correspondence_weights(
         result.candidate_scores[members],
@@ -231,8 +233,12 @@ def _hypothesis(
         map.ellipsoids.axes[pairs[:, 1]],
         config.pose.weights,
     )
+    source, target = observations.ellipsoids.centers[pairs[:, 0]], map.ellipsoids.centers[pairs[:, 1]]
     try:
-        pose = fit_rigid(observations.ellipsoids.centers[pairs[:, 0]], map.ellipsoids.centers[pairs[:, 1]], weights)
+        pose = fit_rigid(source, target, weights)
     except DegeneratePoseError:
         return None
-    return Hypothesis(pose, pairs, score)
+    measure = min(conditioning(source, weights), conditioning(target, weights))
+    if measure < config.pose.min_conditioning:  # a near-row of objects: its rotation is a guess
+        return None
+    return Hypothesis(pose, pairs, score, measure)

@@ -70,6 +70,20 @@ def fit_rigid_batch(
     return rotation, translation, ok
 
 
+def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """sigma_2 / sigma_1 of the weighted, centred points: 0 when collinear, 1 when spread evenly in a plane.
+
+    The rotation about a row of points is fixed only by their spread off the row, so its error
+    grows as this ratio shrinks (tools/bench_conditioning.py measures how fast).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    weights = np.ones(len(points)) if weights is None else np.asarray(weights, dtype=np.float64)
+    w = weights / weights.sum()
+    centred = points - w @ points
+    variances = np.linalg.eigvalsh(np.einsum("p,pi,pj->ij", w, centred, centred))  # ascending
+    return float(np.sqrt(max(variances[1], 0.0) / variances[2])) if variances[2] > 0 else 0.0
+
+
 def _spread_ok(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
     """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
     covariance = np.einsum("bp,bpi,bpj->bij", w, centred, centred)

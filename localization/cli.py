@@ -61,6 +61,7 @@ def run(
 ) -> None:
     """Localize each frame; print the paper's table; write results.json, poses.tum, config.json, recording.rrd."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.progress import Progress
 
     from localization.results import run_and_save
@@ -73,13 +74,13 @@ def run(
                            record=not no_rrd)
     console = make_console()
     with _user_errors(), Progress(console=Console(stderr=True), transient=True) as progress:
-        task = progress.add_task(f"{sequence} / {method.value}", total=None)
+        task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
         document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
     print_documents(console, [document])
-    out_dir = settings.out_dir()
-    console.print(f"results: {out_dir}/results.json, {out_dir}/poses.tum, {out_dir}/config.json")
+    out_dir = escape(str(settings.out_dir()))
+    console.print(f"results: {out_dir}/results.json, {out_dir}/poses.tum, {out_dir}/config.json", highlight=False)
     if settings.record:
-        console.print(f"recording: rerun {out_dir}/recording.rrd")
+        console.print(f"recording: rerun {out_dir}/recording.rrd", highlight=False)
 
 
 @app.command()

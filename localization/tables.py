@@ -30,7 +30,7 @@ def results_table(documents: list[dict[str, Any]], title: str = "Localization") 
     for document in documents:
         run, summary = document["run"], document["summary"]
         table.add_row(
-            run["sequence"], run["method_title"], str(int(summary["frames"])),
+            escape(run["sequence"]), escape(run["method_title"]), _number(summary["frames"], 0),
             _number(summary["precision"]), _number(summary["recall"]),
             _number(summary["te_median_m"]), _number(summary["re_median_deg"], 1),
             *(_number(summary[f"success@{k}"], 1, 100.0) for k in (1, 3, 5)),
@@ -50,7 +50,7 @@ def stage_table(documents: list[dict[str, Any]]) -> Table:
         table.add_column(stage, justify="right")
     for document in documents:
         medians = document["summary"]["stage_ms_median"]
-        table.add_row(document["run"]["sequence"], document["run"]["method_title"],
+        table.add_row(escape(document["run"]["sequence"]), escape(document["run"]["method_title"]),
                       *(_number(medians[stage], 1) for stage in ALL_STAGES))
     return table
 
@@ -71,6 +71,6 @@ def run_banner(document: dict[str, Any]) -> str:
 def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
     """What ran (once per distinct banner), the results table and the stage timings."""
     for banner in dict.fromkeys(run_banner(d) for d in documents):
-        console.print(banner)
+        console.print(escape(banner), highlight=False)
     console.print(results_table(documents))
     console.print(stage_table(documents))

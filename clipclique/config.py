@@ -191,7 +191,10 @@ def apply_overrides(config: LocalizationConfig, values: dict[str, Any], source: 
         if dataclasses.is_dataclass(current):
             raise ConfigError(f"{source}: {dotted!r} is a section, set one of its keys")
         setattr(target, leaf, _coerce(value, current, dotted, source))
-    validate(config)
+    try:
+        validate(config)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
 
 
 def validate(config: LocalizationConfig) -> None:

@@ -186,6 +186,8 @@ class ClipEncoder:
 
         Raises ModelUnavailableError when the packages or the weights are not here.
         """
+        if Path(pretrained).is_file():
+            check_checkpoint(Path(pretrained))  # before torch is even imported
         _prefer_offline_hub()
         try:
             import open_clip
@@ -196,9 +198,7 @@ class ClipEncoder:
                 "or use --encoder simulated / none") from None
         if model_name not in open_clip.list_models():
             raise ModelUnavailableError(f"unknown open_clip model {model_name!r} (see open_clip.list_models())")
-        if Path(pretrained).is_file():
-            check_checkpoint(Path(pretrained))
-        else:
+        if not Path(pretrained).is_file():
             _check_weights(open_clip, model_name, pretrained)
         device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         try:

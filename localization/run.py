@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from clipclique.config import LocalizationConfig, make_config
-from clipclique.datasets import Sequence, open_sequence
+from clipclique.datasets import Sequence, open_sequence, scene_name
 from clipclique.encoders import Encoder, load_encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.mapfile import load_map
@@ -52,10 +52,10 @@ class RunSettings:
     seed: int = 0  # the simulated detector's
 
     def out_dir(self) -> Path:
-        return self.out or LOC_DIR / Path(self.sequence).name / self.method
+        return self.out or LOC_DIR / scene_name(self.sequence) / self.method
 
     def resolved_map_path(self) -> Path:
-        return self.map_path or MAP_DIR / f"{Path(self.sequence).name}.map.npz"
+        return self.map_path or MAP_DIR / f"{scene_name(self.sequence)}.map.npz"
 
 
 @dataclass
@@ -96,7 +96,7 @@ def prepare(settings: RunSettings) -> Run:
     CLIP), settle the config."""
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
-    if not map_path.is_file():
+    if not map_path.exists():
         raise MapFileError(f"{map_path}: no map; build it with `clipclique-map build {settings.sequence}` "
                            "or pass --map PATH")
     map = load_map(map_path)

@@ -107,7 +107,7 @@ def open_folder(folder: Path) -> Sequence:
     """The reader for a folder, told apart by the files each dataset ships."""
     from clipclique.datasets import scannet, tum
 
-    if (folder / "rgb.txt").is_file():
+    if (folder / "rgb.txt").exists():
         return tum.TumSequence(folder)
     if any(folder.glob("*_vh_clean_2.labels.ply")):
         return scannet.ScanNetScene(folder)

@@ -103,7 +103,7 @@ class ScanNetScene(Sequence):
         intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path)
         rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
         instance_path = self.root / "instance-filt" / f"{n}.png"
-        if instance_path.is_file():
+        if instance_path.exists():
             labels = read_instance_ids(instance_path)
             if labels.shape != depth.shape:
                 from PIL import Image
@@ -153,7 +153,7 @@ class ScanNetScene(Sequence):
     def _class_of(self) -> dict[str, str]:
         """Raw category -> class: NYU40 names from the label table when one is found, else identity."""
         for folder in (self.root, self.root.parent, self.root.parent.parent):
-            if (folder / LABELS_TSV).is_file():
+            if (folder / LABELS_TSV).exists():
                 return read_label_table(folder / LABELS_TSV)
         return {}
 
@@ -205,7 +205,7 @@ class ScanNetScene(Sequence):
     @cached_property
     def _descriptions(self) -> dict[int, str]:
         path = self.root / f"{self.name}_descriptions.json"
-        if not path.is_file():
+        if not path.exists():
             return {}
         try:
             return {int(key) + 1: safeio.check_text(text, f"{path}: description") for key, text in read_json(path).items()}

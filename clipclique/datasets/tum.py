@@ -129,7 +129,7 @@ class TumSequence(Sequence):
             if not len(listed):
                 raise DatasetError(f"{self.root / path}: lists no images (expected 'timestamp filename' lines)")
         gt_path = self.root / "groundtruth.txt"
-        gt_times, gt_poses = read_trajectory(gt_path) if gt_path.is_file() else (np.zeros(0), [])
+        gt_times, gt_poses = read_trajectory(gt_path) if gt_path.exists() else (np.zeros(0), [])
         to_depth = associate(rgb_times, depth_times)
         to_pose = associate(rgb_times, gt_times)
         keep = np.flatnonzero(to_depth >= 0)
@@ -143,7 +143,7 @@ class TumSequence(Sequence):
 
     def _intrinsics(self) -> np.ndarray:
         path = self.root / "intrinsics.txt"
-        if path.is_file():
+        if path.exists():
             lines = list(_data_lines(path))
             try:
                 fx, fy, cx, cy = (float(v) for v in lines[0][1].split())
@@ -169,7 +169,7 @@ class TumSequence(Sequence):
 
     def _annotation(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
         path = self._annotation_path(i)
-        if not path.is_file():
+        if not path.exists():
             return None
         ids = read_instance_ids(path)
         if ids.shape != shape:
@@ -192,7 +192,7 @@ class TumSequence(Sequence):
     def _objects(self) -> dict[int, tuple[str, str]]:
         """Annotation id -> (class, description) from annotations/objects.csv (empty without it)."""
         path = self.root / "annotations" / "objects.csv"
-        if not path.is_file():
+        if not path.exists():
             return {}
         objects: dict[int, tuple[str, str]] = {}
         reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", DatasetError), newline=""))
@@ -220,7 +220,7 @@ class TumSequence(Sequence):
         """Annotated objects: masked depth of every annotated frame with a pose, in the world frame."""
         clouds: dict[int, list[np.ndarray]] = {object_id: [] for object_id in self._objects}
         for i, pose in enumerate(self.poses):
-            if pose is None or not self._annotation_path(i).is_file():
+            if pose is None or not self._annotation_path(i).exists():
                 continue
             depth = self._depth(i)  # the colour image is not needed here
             instances = self._annotation(i, depth.shape)

@@ -7,6 +7,7 @@ the partial files and leaves the previous outputs byte-identical.
 
 from __future__ import annotations
 
+import glob
 import os
 import signal
 import threading
@@ -54,9 +55,11 @@ class Staging:
         self._moves.clear()
 
     def discard(self) -> None:
-        """Delete whatever was staged and not committed."""
+        """Delete whatever was staged and not committed, with any temporary its writer made beside it
+        (`<partial>.*`: a writer interrupted before it could clean up after itself)."""
         for partial, _ in self._moves:
-            partial.unlink(missing_ok=True)
+            for path in (partial, *partial.parent.glob(glob.escape(partial.name) + ".*")):
+                path.unlink(missing_ok=True)
         self._moves.clear()
 
     def __enter__(self) -> Staging:

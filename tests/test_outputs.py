@@ -43,3 +43,11 @@ def test_commit_refuses_when_a_staged_output_was_never_written(tmp_path):
         staging.path(tmp_path / "b.tum")
         staging.commit()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_discard_also_removes_what_an_interrupted_writer_left_beside_its_partial(tmp_path):
+    with pytest.raises(KeyboardInterrupt), Staging() as staging:
+        partial = staging.path(tmp_path / "recording.rrd")
+        partial.with_name(partial.name + ".partial").write_text("the writer's own temporary")
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []

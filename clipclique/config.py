@@ -205,6 +205,8 @@ def validate(config: LocalizationConfig) -> None:
         "inliers.method": InlierMethod,
         "pose.weights": PoseWeights,
     }
+    if config.method not in METHOD_PRESETS:
+        raise ConfigError(f"method = {config.method!r}; choose one of {', '.join(METHOD_PRESETS)} (with --method)")
     for dotted, literal in allowed.items():
         value = _get(config, dotted)
         if value not in literal.__args__:

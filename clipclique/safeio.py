@@ -119,6 +119,8 @@ def read_image(path: Path, mode: str | None = None, error: type[ClipcliqueError]
             return np.asarray(image.convert(mode) if mode else image)
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as problem:
         raise error(f"{path}: unreadable image ({problem})") from None
+    except ImportError:  # once ultralytics is imported, its patched Image.open tries an optional HEIF plugin on failure
+        raise error(f"{path}: unreadable image (not a format Pillow reads)") from None
 
 
 def read_single_channel(path: Path, what: str, error: type[ClipcliqueError] = ClipcliqueError) -> np.ndarray:

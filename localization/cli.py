@@ -101,10 +101,10 @@ class _user_errors:
         return None
 
     def __exit__(self, kind, error, trace) -> bool:
-        from clipclique.errors import ClipcliqueError
+        from clipclique.errors import ClipcliqueError, one_line
 
         if isinstance(error, ClipcliqueError):
-            print(f"clipclique-loc: error: {error}", file=sys.stderr)
+            print(f"clipclique-loc: error: {one_line(error)}", file=sys.stderr)
             raise typer.Exit(2)
         return False
 

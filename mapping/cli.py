@@ -52,12 +52,12 @@ def build(
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
-    from clipclique.errors import ClipcliqueError
+    from clipclique.errors import ClipcliqueError, one_line
 
     try:
         run_build(scene, data_root, out, encoder, not no_rrd)
     except ClipcliqueError as error:
-        console.print(f"[bold red]error:[/] {escape(str(error))}", soft_wrap=True, highlight=False)
+        console.print(f"[bold red]error:[/] {escape(one_line(error))}", soft_wrap=True, highlight=False)
         raise typer.Exit(2) from None
 
 

@@ -284,7 +284,7 @@ def config_cases() -> list[Case]:
     cases = [Case("config", f"{key}={value}", override(f"{key}={value}", key)) for key in FLOAT_KEYS for value in ("nan", "inf", "-inf")]
     for assignment in ("graph.walk_length=40", "graph.walk_length=0", "inliers.seed=-1", "graph.xview_seed=-3",
                        "top_n=0", "top_n=100000000000000000000", "matching.k=-2", "inliers.min_clique_size=2",
-                       "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000"):
+                       "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000", "method=xyz"):
         cases.append(Case("config", assignment, override(assignment, assignment.partition("=")[0])))
     cases += [
         Case("config", "toml-latin1", config_file(b"[inliers]\n# " + LATIN1 + b"\nd_comp = 0.3\n")),

@@ -80,3 +80,14 @@ def test_no_rrd_after_a_recorded_run_removes_the_stale_recording_and_says_so(dem
     assert sorted(p.name for p in out.iterdir()) == ["config.json", "poses.tum", "results.json"]
     assert f"note: {out / 'recording.rrd'} of an earlier run was removed (--no-rrd: it would not match these results)" \
         in result.output.replace("\n", "")
+
+
+def test_map_build_with_no_rrd_removes_the_earlier_maps_recording_and_says_so(demo, tmp_path):
+    from mapping.cli import app as map_app
+
+    out = tmp_path / "demo.map.npz"
+    (tmp_path / "demo.map.rrd").write_bytes(b"an earlier map's recording")
+    result = CliRunner().invoke(map_app, ["build", "demo", "--data-root", str(demo), "--out", str(out), "--no-rrd"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.map.npz"]
+    assert f"removed {tmp_path / 'demo.map.rrd'}, the recording of an earlier map (--no-rrd)" in result.output.replace("\n", "")

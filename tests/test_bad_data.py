@@ -217,3 +217,16 @@ def test_class_names_with_markup_print_as_they_are(tum, tmp_path):
     assert result.exit_code == 0, result.output
     assert "[bold]desk[/]" in result.output
     assert (tmp_path / "m.map.npz").is_file() and (tmp_path / "m.map.rrd").is_file()
+
+
+def test_tum_depth_at_half_size_gets_intrinsics_rescaled_too(tum, tmp_path):
+    folder = shutil.copytree(tum, tmp_path / "seq")
+    full = open_sequence(str(folder))[0]
+    sequence = open_sequence(str(folder))
+    depth_path = folder / sequence.depth_files[0]
+    (folder / "annotations" / "instances" / f"{Path(sequence.rgb_files[0]).stem}.png").unlink(missing_ok=True)  # full size
+    with Image.open(depth_path) as image:
+        image.resize((80, 60), Image.NEAREST).save(depth_path)
+    half = open_sequence(str(folder))[0]
+    assert half.depth.shape == (60, 80) and half.rgb.shape == (60, 80, 3)
+    np.testing.assert_allclose(half.intrinsics[:2], full.intrinsics[:2] / 2)

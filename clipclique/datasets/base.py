@@ -107,6 +107,28 @@ def read_instance_ids(path: Path) -> np.ndarray:
     return safeio.read_single_channel(path, "instance", error=DatasetError).astype(np.int32)
 
 
+def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path) -> np.ndarray:
+    """The depth intrinsics rescaled to a depth image of `shape` (H, W).
+
+    The principal point lies near the image centre, so a matrix whose (cx, cy) sits at twice
+    (or half, ...) the centre of this image was calibrated at that image size: scale it by the
+    power of two that fits. A principal point that fits no such size is refused.
+    """
+    height, width = shape
+    ratios = np.array([width / (2 * intrinsics[0, 2]), height / (2 * intrinsics[1, 2])])
+    scale = 2.0 ** np.round(np.log2(ratios[0]))
+    if not np.all(np.abs(ratios / scale - 1) < 0.2):
+        raise DatasetError(
+            f"{path}: depth image {width} x {height} does not fit the depth intrinsics (principal point "
+            f"{intrinsics[0, 2]:g}, {intrinsics[1, 2]:g}); the intrinsics belong to another camera"
+        )
+    if scale == 1:
+        return intrinsics
+    scaled = intrinsics.copy()
+    scaled[:2] *= scale
+    return scaled
+
+
 def resize_rgb(rgb: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """RGB resampled to the depth image's (H, W) so that one intrinsics matrix serves both."""
     from PIL import Image

@@ -32,6 +32,7 @@ from clipclique.datasets.base import (
     description_template,
     is_demo,
     is_structure,
+    intrinsics_for,
     read_depth,
     read_image,
     read_instance_ids,
@@ -272,28 +273,6 @@ def check_rigid(matrix: np.ndarray, path: Path, tolerance: float = 1e-3) -> None
         or np.linalg.det(rotation) < 0
     ):
         raise DatasetError(f"{path}: not a rigid camera pose (the rotation is not orthonormal with det +1, or the last row is not 0 0 0 1)")
-
-
-def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path) -> np.ndarray:
-    """The depth intrinsics rescaled to a depth image of `shape` (H, W).
-
-    The principal point lies near the image centre, so a matrix whose (cx, cy) sits at twice
-    (or half, ...) the centre of this image was calibrated at that image size: scale it by the
-    power of two that fits. A principal point that fits no such size is refused.
-    """
-    height, width = shape
-    ratios = np.array([width / (2 * intrinsics[0, 2]), height / (2 * intrinsics[1, 2])])
-    scale = 2.0 ** np.round(np.log2(ratios[0]))
-    if not np.all(np.abs(ratios / scale - 1) < 0.2):
-        raise DatasetError(
-            f"{path}: depth image {width} x {height} does not fit the depth intrinsics (principal point "
-            f"{intrinsics[0, 2]:g}, {intrinsics[1, 2]:g}); intrinsic/intrinsic_depth.txt belongs to another camera"
-        )
-    if scale == 1:
-        return intrinsics
-    scaled = intrinsics.copy()
-    scaled[:2] *= scale
-    return scaled
 
 
 def integer_array(values: object, where: str) -> np.ndarray:

@@ -31,6 +31,7 @@ from clipclique.datasets.base import (
     Instance,
     Sequence,
     description_template,
+    intrinsics_for,
     is_demo,
     is_structure,
     read_depth,
@@ -186,7 +187,8 @@ class TumSequence(Sequence):
         i = self._check_index(i)
         depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
-        return Frame(i, float(self.timestamps[i]), rgb, depth, self.intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
+        intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
+        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
 
     @cached_property
     def _objects(self) -> dict[int, tuple[str, str]]:
@@ -227,7 +229,8 @@ class TumSequence(Sequence):
             sample = np.zeros(depth.shape, bool)
             sample[::ANNOTATION_STRIDE, ::ANNOTATION_STRIDE] = True
             valid = sample & (instances > 0) & (depth > 0)
-            points = pose.apply(backproject(depth, self.intrinsics, valid))
+            intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
+            points = pose.apply(backproject(depth, intrinsics, valid))
             ids = instances[valid]  # same row-major order as backproject's pixels
             order = np.argsort(ids, kind="stable")
             unique, starts = np.unique(ids[order], return_index=True)

@@ -7,12 +7,14 @@ overrides (`inliers.d_comp=0.4`), and written next to every result so a run can 
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 from clipclique.errors import ClipcliqueError
+from clipclique.safeio import read_text
 
 Descriptor = Literal["fused", "clip", "sh", "xview"]
 MatchingStrategy = Literal["adaptive", "knn", "one_to_one"]
@@ -74,6 +76,9 @@ class InlierConfig:
 @dataclass
 class PoseConfig:
     weights: PoseWeights = "both"  # w = s_total * w_com ("sim" = s_total only, "com" = w_com only)
+    # A correspondence set whose centres are nearly a row (pose.conditioning below this) gives no
+    # pose: with 0.1 m centre noise most such poses are over 1 m off (tools/bench_conditioning.py).
+    min_conditioning: float = 0.05
 
 
 @dataclass
@@ -124,6 +129,36 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
 METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
 
 
+# Bounds that keep every setting meaningful and the work it asks for finite. Semantic Histogram
+# walks grow as degree^(s-1) and their codes as C^s: s = 5 is beyond the paper's 3 and safe.
+RANGES: dict[str, tuple[float, float]] = {
+    "similarity.alpha": (0.0, 1.0),
+    "similarity.class_weight": (0.0, 1.0),
+    "similarity.lookalike_weight": (0.0, 1.0),
+    "matching.top_m_fraction": (1e-6, 1.0),
+    "matching.min_similarity": (-1.0, 1.0),
+    "graph.walk_length": (1, 5),
+    "graph.max_degree": (1, 10_000),
+    "graph.xview_walks": (1, 10_000),
+    "graph.xview_seed": (0, 2**63 - 1),
+    "graph.d_adj": (1e-6, 100.0),
+    "inliers.d_comp": (1e-6, 100.0),
+    "inliers.partial_slack": (0.0, 100.0),
+    "inliers.max_slack": (0.0, 100.0),
+    "inliers.inlier_threshold": (1e-6, 100.0),
+    "inliers.time_limit_s": (1e-6, 3600.0),
+    "inliers.max_cliques": (1, 10_000_000),
+    "inliers.ransac_iterations": (1, 10_000_000),
+    "inliers.min_clique_size": (3, 1000),  # fewer than 3 cannot fix a 6-DoF pose
+    "inliers.seed": (0, 2**63 - 1),
+    "matching.k": (1, 1000),
+    "top_n": (1, 1000),
+    "success_threshold_m": (1e-6, 1e5),
+    "pose.min_conditioning": (0.0, 1.0),
+}
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def make_config(
     method: str = "clipclique",
     file: Path | None = None,
@@ -144,12 +179,11 @@ def make_config(
 
 
 def load_toml(path: Path) -> dict[str, Any]:
+    """A TOML config file, read as strict UTF-8 (tomllib's own rule) with a ConfigError naming it otherwise."""
+    text = read_text(Path(path), "config file", ConfigError, limit=MAX_CONFIG_BYTES)
     try:
-        with open(path, "rb") as handle:
-            return tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: config file not found") from None
-    except tomllib.TOMLDecodeError as error:
+        return tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError) as error:
         raise ConfigError(f"{path}: not valid TOML: {error}") from None
 
 
@@ -182,7 +216,10 @@ def apply_overrides(config: LocalizationConfig, values: dict[str, Any], source: 
         if dataclasses.is_dataclass(current):
             raise ConfigError(f"{source}: {dotted!r} is a section, set one of its keys")
         setattr(target, leaf, _coerce(value, current, dotted, source))
-    validate(config)
+    try:
+        validate(config)
+    except ConfigError as error:
+        raise ConfigError(f"{source}: {error}") from None
 
 
 def validate(config: LocalizationConfig) -> None:
@@ -193,24 +230,25 @@ def validate(config: LocalizationConfig) -> None:
         "inliers.method": InlierMethod,
         "pose.weights": PoseWeights,
     }
+    if config.method not in METHOD_PRESETS:
+        raise ConfigError(f"method = {config.method!r}; choose one of {', '.join(METHOD_PRESETS)} (with --method)")
     for dotted, literal in allowed.items():
         value = _get(config, dotted)
         if value not in literal.__args__:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
-    for dotted in ("similarity.alpha", "similarity.class_weight", "similarity.lookalike_weight"):
-        if not 0.0 <= (value := _get(config, dotted)) <= 1.0:
-            raise ConfigError(f"{dotted} = {value}; must be within [0, 1]")
-    for dotted in ("inliers.partial_slack", "inliers.max_slack"):
-        if not (value := _get(config, dotted)) >= 0.0:
-            raise ConfigError(f"{dotted} = {value}; must be at least 0")
-    if config.inliers.min_clique_size < 3:
-        raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
-    for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):
-        if _get(config, dotted) <= 0:
-            raise ConfigError(f"{dotted} must be positive")
-    for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.max_degree", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
-        if (value := _get(config, dotted)) < 1:
-            raise ConfigError(f"{dotted} = {value}; must be at least 1")
+    for dotted, value in _leaves(config):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{dotted} = {value}; must be a finite number")
+    for dotted, (low, high) in RANGES.items():
+        if not low <= (value := _get(config, dotted)) <= high:
+            raise ConfigError(f"{dotted} = {value}; must be within [{low}, {high}]")
+
+
+def _leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every setting."""
+    if not dataclasses.is_dataclass(tree):
+        return [(prefix.removesuffix("."), tree)]
+    return [leaf for f in dataclasses.fields(tree) for leaf in _leaves(getattr(tree, f.name), f"{prefix}{f.name}.")]
 
 
 def _get(config: LocalizationConfig, dotted: str) -> Any:

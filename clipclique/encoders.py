@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import hashlib
 import os
+import pickletools
 import re
 import socket
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,10 +45,19 @@ from typing import Protocol
 import numpy as np
 
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.safeio import parse_json
 
 DEFAULT_MODEL = "ViT-L-14"
 DEFAULT_PRETRAINED = "openai"
 SIMULATED_NAME = "simulated-clip"
+
+CHECKPOINT_SUFFIXES = (".pt", ".pth", ".bin", ".safetensors")
+MAX_SAFETENSORS_HEADER = 100 * 2**20
+# What torch.save writes for tensors, parameters and (ordered) dicts; nothing that runs code.
+SAFE_PICKLE_GLOBALS = frozenset(
+    {"collections OrderedDict", "torch._utils _rebuild_tensor_v2", "torch._utils _rebuild_parameter"}
+    | {f"torch {kind}Storage" for kind in ("Float", "Double", "Half", "BFloat16", "Long", "Int", "Short", "Char", "Byte", "Bool")}
+)
 
 _STOP_WORDS = frozenset({"a", "an", "the", "of", "on", "in", "with", "and", "photo", "this", "is"})
 
@@ -175,6 +186,8 @@ class ClipEncoder:
 
         Raises ModelUnavailableError when the packages or the weights are not here.
         """
+        if Path(pretrained).is_file():
+            check_checkpoint(Path(pretrained))  # before torch is even imported
         _prefer_offline_hub()
         try:
             import open_clip
@@ -188,7 +201,13 @@ class ClipEncoder:
         if not Path(pretrained).is_file():
             _check_weights(open_clip, model_name, pretrained)
         device = device or ("cuda" if torch.cuda.is_available() else "cpu")
-        model, _, preprocess = open_clip.create_model_and_transforms(model_name, pretrained=pretrained, device=device)
+        try:
+            model, _, preprocess = open_clip.create_model_and_transforms(model_name, pretrained=pretrained, device=device)
+        except Exception as error:  # open_clip and torch raise many types for weights that do not fit the model
+            if not Path(pretrained).is_file():
+                raise
+            raise ModelUnavailableError(f"{pretrained}: not {model_name} weights ({type(error).__name__}: "
+                                        f"{str(error).splitlines()[0] if str(error) else ''})") from None
         return cls(model, preprocess, open_clip.get_tokenizer(model_name), f"open_clip:{model_name}/{pretrained}",
                    device, batch_size)
 
@@ -236,12 +255,43 @@ def load_encoder(spec: str = "auto", device: str | None = None, batch_size: int 
         if not sep or not model_name or not pretrained:
             raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. open_clip:ViT-L-14/openai")
         return ClipEncoder.load(model_name, pretrained, device, batch_size)
-    if Path(spec).suffix in (".pt", ".pth", ".bin", ".safetensors"):
+    if Path(spec).suffix in CHECKPOINT_SUFFIXES:
         if not Path(spec).is_file():
             raise ModelUnavailableError(f"--encoder {spec}: checkpoint file not found")
         return ClipEncoder.load(DEFAULT_MODEL, spec, device, batch_size)
     raise ClipcliqueError(
         f"--encoder {spec!r}: choose auto, simulated, none, open_clip:MODEL/PRETRAINED or a checkpoint file")
+
+
+def check_checkpoint(path: Path) -> None:
+    """Refuse, without unpickling anything, a file that is not a weights checkpoint.
+
+    A `.safetensors` file must have its JSON header; any other file must be torch's zip format
+    whose pickle references only tensor-rebuilding functions (read by opcode, never executed).
+    A legacy raw pickle, a TorchScript archive or junk is refused: a checkpoint must not run code.
+    """
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(8)
+            if path.suffix == ".safetensors":
+                size = int.from_bytes(head, "little") if len(head) == 8 else -1
+                if not 2 <= size <= min(MAX_SAFETENSORS_HEADER, path.stat().st_size - 8):
+                    raise ModelUnavailableError(f"{path}: not a safetensors file (no valid header)")
+                parse_json(handle.read(size), f"{path}: safetensors header", ModelUnavailableError)
+                return
+        if not zipfile.is_zipfile(path):
+            raise ModelUnavailableError(f"{path}: not a torch checkpoint (not torch's zip format; raw pickles are refused)")
+        with zipfile.ZipFile(path) as archive:
+            pickles = [name for name in archive.namelist() if name.endswith("/data.pkl")]
+            if len(pickles) != 1:
+                raise ModelUnavailableError(f"{path}: not a torch checkpoint (no data.pkl in the archive)")
+            references = {arg for op, arg, _ in pickletools.genops(archive.read(pickles[0])) if "GLOBAL" in op.name}
+    except (OSError, zipfile.BadZipFile, ValueError, EOFError) as error:
+        raise ModelUnavailableError(f"{path}: unreadable checkpoint ({type(error).__name__}: {error})") from None
+    unsafe = sorted(str(r) for r in references if r not in SAFE_PICKLE_GLOBALS)
+    if unsafe:
+        raise ModelUnavailableError(f"{path}: the checkpoint's pickle references {', '.join(unsafe[:3])}; "
+                                    "only tensors and dicts are accepted (the file is not loaded)")
 
 
 def _check_weights(open_clip, model_name: str, tag: str) -> None:

@@ -15,3 +15,8 @@ class MapFileError(ClipcliqueError):
 
 class ModelUnavailableError(ClipcliqueError):
     """Model weights (CLIP, YOLO) or their packages are not available here."""
+
+
+def one_line(error: BaseException) -> str:
+    """The error's message on one line (a library's message may span several)."""
+    return " ".join(str(error).split())

@@ -7,8 +7,9 @@ Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 A frame without a pose says why in `LocalizationResult.failure`, naming the stage that lost it:
 "fewer than 3 observations (K)", "fewer than 3 observations with a candidate landmark (k)",
 "no clique of 3 or more compatible correspondences", "no minimal set of 3 distinct,
-non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose"
-(every set was degenerate). Missing CLIP embeddings make "fused" fall back to SH only (a note
+non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose (each
+is collinear or poorly conditioned)" (every set was degenerate, or nearly a row of objects:
+`config.pose.min_conditioning`). Missing CLIP embeddings make "fused" fall back to SH only (a note
 says so) and make "clip" a ClipcliqueError.
 """
 
@@ -25,7 +26,7 @@ import scipy.sparse as sp
 from clipclique import cliquesearch, graph, inliers, lookalikes, matching, similarity
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.pose import correspondence_weights, fit_rigid_batch
+from clipclique.pose import conditioning, correspondence_weights, fit_rigid_batch
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 STAGES = ("descriptors", "similarity", "matching", "inliers", "pose")
@@ -111,7 +112,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     for stage in STAGES:
         timings.setdefault(stage, 0.0)
     if result.failure is None and not result.hypotheses:
-        result.failure = "no correspondence set determines a pose"
+        result.failure = "no correspondence set determines a pose (each is collinear or poorly conditioned)"
     return result
 
 
@@ -261,7 +262,8 @@ def _hypotheses(
     result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, sets: list[np.ndarray], scores: np.ndarray
 ) -> list[Hypothesis]:
     """The weighted pose of each correspondence set, in order, fitted in one batch (shorter sets
-    padded with weight 0); a degenerate set (collinear, fewer than 3 positive weights) gives none."""
+    padded with weight 0). A degenerate set (collinear, fewer than 3 positive weights) or one too
+    poorly conditioned to fix the rotation (config.pose.min_conditioning) gives none."""
     if not sets:
         return []
     sizes = np.array([len(members) for members in sets])
@@ -275,8 +277,11 @@ def _hypotheses(
         map.ellipsoids.axes[pairs[..., 1]].reshape(-1, 3),
         config.pose.weights,
     ).reshape(valid.shape)
-    rotation, translation, ok = fit_rigid_batch(
-        observations.ellipsoids.centers[pairs[..., 0]], map.ellipsoids.centers[pairs[..., 1]], weights
-    )
-    ok &= np.count_nonzero(weights, axis=1) >= 3
-    return [Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b])) for b in np.flatnonzero(ok)]
+    source, target = observations.ellipsoids.centers[pairs[..., 0]], map.ellipsoids.centers[pairs[..., 1]]
+    rotation, translation, ok = fit_rigid_batch(source, target, weights)
+    measure = np.minimum(conditioning(source, weights), conditioning(target, weights))
+    ok &= (np.count_nonzero(weights, axis=1) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
+    return [
+        Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b]), float(measure[b]))
+        for b in np.flatnonzero(ok)
+    ]

@@ -70,6 +70,24 @@ def fit_rigid_batch(
     return rotation, translation, ok
 
 
+def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
+    """sigma_2 / sigma_1 of the weighted, centred points: 0 when collinear, 1 when spread evenly in a plane.
+
+    (P, 3) points give a float, (B, P, 3) points with (B, P) weights give B ratios. The rotation
+    about a row of points is fixed only by their spread off the row, so its error grows as this
+    ratio shrinks (tools/bench_conditioning.py measures how fast).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    weights = np.ones(points.shape[:-1]) if weights is None else np.asarray(weights, dtype=np.float64)
+    total = weights.sum(axis=-1, keepdims=True)
+    w = weights / np.where(total > 0, total, 1.0)
+    centred = points - np.einsum("...p,...pi->...i", w, points)[..., None, :]
+    variances = np.linalg.eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))  # ascending
+    spread = variances[..., 2] > 0
+    ratio = np.where(spread, np.sqrt(np.clip(variances[..., 1], 0.0, None) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+    return float(ratio) if ratio.ndim == 0 else ratio
+
+
 def _spread_ok(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
     """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
     covariance = np.einsum("bp,bpi,bpj->bij", w, centred, centred)

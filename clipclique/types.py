@@ -142,3 +142,7 @@ class Hypothesis:
     pose: Pose  # camera-to-map
     correspondences: np.ndarray  # (M, 2) int, columns (observation index, landmark index)
     score: float  # the ranking score (summed similarity for cliques, inlier score for RANSAC)
+    # sigma_2 / sigma_1 of the correspondences' centres (pose.conditioning, the smaller of the
+    # observed and the map side): near 0, a row of objects whose rotation is ill-determined.
+    # NaN when not measured (only the pipeline measures it).
+    conditioning: float = float("nan")

@@ -83,6 +83,7 @@ def run(
 ) -> None:
     """Localize each frame; print the paper's table; write results, TUM poses and a recording to the run's folder."""
     from rich.console import Console
+    from rich.markup import escape
     from rich.progress import Progress
 
     from clipclique.commands import rerun_hint
@@ -97,7 +98,7 @@ def run(
     console = make_console()
     try:
         with _user_errors(), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-            task = progress.add_task(f"{sequence} / {method.value}", total=None)
+            task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
             document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
     except KeyboardInterrupt:
         print("clipclique-loc: interrupted", file=sys.stderr)
@@ -106,11 +107,11 @@ def run(
         print_frames(console, document)
     if not quiet:
         print_documents(console, [document])
-    out_dir = settings.out_dir(document["run"]["sequence"])
+    out_dir = escape(str(settings.out_dir(document["run"]["sequence"])))
     console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
                   soft_wrap=True)
     if settings.record:
-        console.print(f"recording: {out_dir}/recording.rrd ({rerun_hint(out_dir / 'recording.rrd')})", highlight=False,
+        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir(document['run']['sequence']) / 'recording.rrd'))})", highlight=False,
                       soft_wrap=True)
 
 
@@ -132,10 +133,10 @@ class _user_errors:
         return None
 
     def __exit__(self, kind, error, trace) -> bool:
-        from clipclique.errors import ClipcliqueError
+        from clipclique.errors import ClipcliqueError, one_line
 
         if isinstance(error, ClipcliqueError):
-            print(f"clipclique-loc: error: {error}", file=sys.stderr)
+            print(f"clipclique-loc: error: {one_line(error)}", file=sys.stderr)
             raise typer.Exit(2)
         return False
 

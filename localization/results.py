@@ -1,6 +1,7 @@
 """Results of a run on disk: results.json (summary + every frame), poses.tum, config.json.
 
-Each file is written to a temporary name and moved into place, so a file that exists is whole.
+The files (and recording.rrd) are staged as `*.partial` and moved into place together once the
+run succeeded (clipclique.outputs), so a file that exists is whole and belongs to one run.
 JSON holds no NaN: a value that does not exist (no pose, nothing to average) is null.
 poses.tum holds the top-1 pose of each localized frame as `timestamp tx ty tz qx qy qz qw`
 (camera-to-world, the TUM format evo reads); frames without a pose are left out. groundtruth.tum
@@ -13,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -24,36 +24,31 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import METHOD_TITLES, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
+from clipclique.outputs import Staging
 from clipclique.pipeline import STAGES
+from clipclique.safeio import read_json
 from clipclique.types import Pose
 from localization.run import QUERY_STAGES, FrameOutcome, Run, RunSettings, execute, prepare
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
 ALL_STAGES = QUERY_STAGES + STAGES
+OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
 
 
-def write_results(run: Run, out_dir: Path) -> dict[str, Any]:
-    """Write results.json, poses.tum, groundtruth.tum and config.json into `out_dir`; the results document."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+def write_results(run: Run, partials: dict[str, Path]) -> dict[str, Any]:
+    """Write results.json, poses.tum, groundtruth.tum and config.json to their staged paths
+    (`OUTPUT_FILES` -> path); the results document. Every text is made before any file is written."""
     document = results_document(run)
-    atomic_write(out_dir / "results.json", json.dumps(document, indent=1, allow_nan=False))
-    atomic_write(out_dir / "poses.tum", tum_trajectory(run.frames))
-    atomic_write(out_dir / "groundtruth.tum", tum_ground_truth(run.frames))
-    atomic_write(out_dir / "config.json", json.dumps(run.config.to_dict(), indent=1, allow_nan=False))
+    texts = {
+        "results.json": json.dumps(document, indent=1, allow_nan=False),
+        "poses.tum": tum_trajectory(run.frames),
+        "groundtruth.tum": tum_ground_truth(run.frames),
+        "config.json": json.dumps(run.config.to_dict(), indent=1, allow_nan=False),
+    }
+    for name, text in texts.items():
+        partials[name].write_text(text, encoding="utf-8")
     return document
-
-
-def atomic_write(path: Path, text: str) -> None:
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    try:
-        with os.fdopen(handle, "w") as file:
-            file.write(text)
-        os.chmod(temporary, 0o644)  # mkstemp makes it private; results are ordinary output files
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 def run_description(run: Run) -> dict[str, Any]:
@@ -111,6 +106,7 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         hypotheses.append({
             "rank": rank,
             "score": hypothesis.score,
+            "conditioning": hypothesis.conditioning,
             "pose": hypothesis.pose.matrix().tolist(),
             "translation_error_m": te,
             "rotation_error_deg": None if re is None else math.degrees(re),
@@ -162,14 +158,49 @@ def tum_line(timestamp: float, pose: Pose) -> str:
 
 
 def read_results(path: Path) -> dict[str, Any]:
-    """A results.json, checked to be one."""
-    try:
-        document = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError) as error:
-        raise ClipcliqueError(f"{path}: cannot read results ({error})") from None
-    if document.get("format") != RESULTS_FORMAT or document.get("version") != RESULTS_VERSION:
+    """A results.json, checked to hold everything the tables read."""
+    document = read_json(Path(path), "results file")
+    if not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT or document.get("version") != RESULTS_VERSION:
         raise ClipcliqueError(f"{path}: not a version {RESULTS_VERSION} {RESULTS_FORMAT} file")
+    problem = _schema_problem(document, RESULTS_SCHEMA)
+    if problem:
+        raise ClipcliqueError(f"{path}: malformed results: {problem}")
     return document
+
+
+_NUMBER = (int, float, type(None))
+_NAMED = {"name": str, "simulated": bool}
+RESULTS_SCHEMA: dict[str, Any] = {
+    "run": {"sequence": str, "method_title": str, "detector": _NAMED, "encoder": (_NAMED, type(None)), "notes": [str]},
+    "summary": {
+        **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
+                                    "success@3", "success@5", "time_ms_median")},
+        "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
+    },
+}
+
+
+def _schema_problem(value: Any, schema: Any, where: str = "") -> str | None:
+    """Where `value` departs from `schema` (a dict of keys, a one-item list, a type or a tuple of choices), or None."""
+    if isinstance(schema, tuple) and any(isinstance(s, dict) for s in schema):
+        problems = [_schema_problem(value, s, where) for s in schema]
+        return None if None in problems else problems[0]
+    if isinstance(schema, dict):
+        if not isinstance(value, dict):
+            return f"{where or 'the document'} is not an object"
+        for key, part in schema.items():
+            if key not in value:
+                return f"{where}{key} missing"
+            if problem := _schema_problem(value[key], part, f"{where}{key}."):
+                return problem
+        return None
+    if isinstance(schema, list):
+        if not isinstance(value, list):
+            return f"{where.removesuffix('.')} is not a list"
+        return next((p for item in value if (p := _schema_problem(item, schema[0], where))), None)
+    if not isinstance(value, schema):
+        return f"{where.removesuffix('.')} has the wrong type ({type(value).__name__})"
+    return None
 
 
 def json_safe(value: Any) -> Any:
@@ -189,22 +220,34 @@ def json_safe(value: Any) -> Any:
 
 def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Prepare, localize every selected frame, write results (and the .rrd) into
-    `settings.out_dir(sequence name)`; the results document. A run that stops half-way (an error,
-    Ctrl-C) leaves no folder it made empty behind."""
+    `settings.out_dir(sequence name)`; the results document.
+
+    The outputs appear together once the run succeeded; a failed or interrupted run leaves the
+    previous ones as they were and no folder it made empty behind. Without a recording, an earlier
+    run's recording.rrd is removed (it would show other results) and a note says so.
+    """
     run = prepare(settings)
     out_dir = settings.out_dir(run.sequence.name)
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
-    writable_folder(out_dir)
+    recording = out_dir / "recording.rrd"
     try:
-        if settings.record:
-            from clipclique.viz import LocalizationRecorder
+        writable_folder(out_dir)
+        with Staging() as staging:
+            partials = {name: staging.path(out_dir / name) for name in OUTPUT_FILES}  # a folder in the way: refused now
+            if settings.record:
+                from clipclique.viz import LocalizationRecorder
 
-            with LocalizationRecorder(out_dir / "recording.rrd", run.map, recording_description(run),
-                                      d_adj=run.config.graph.d_adj) as recorder:
-                execute(run, recorder, progress)
-        else:
-            execute(run, None, progress)
-        return write_results(run, out_dir)
+                with LocalizationRecorder(staging.path(recording), run.map, recording_description(run),
+                                          d_adj=run.config.graph.d_adj) as recorder:
+                    execute(run, recorder, progress)
+            else:
+                execute(run, None, progress)
+                if recording.is_file():
+                    staging.remove(recording)
+                    run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
+            document = write_results(run, partials)
+            staging.commit()
+        return document
     except BaseException:
         for folder in made:
             if folder.is_dir() and not any(folder.iterdir()):

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, make_config
-from clipclique.datasets import Sequence, open_sequence
+from clipclique.datasets import Sequence, open_sequence, scene_name
 from clipclique.encoders import Encoder, load_encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.mapfile import load_map
@@ -77,7 +77,7 @@ class RunSettings:
         return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
     def resolved_map_path(self) -> Path:
-        return self.map_path or MAP_DIR / f"{Path(self.sequence).name}.map.npz"
+        return self.map_path or MAP_DIR / f"{scene_name(self.sequence)}.map.npz"
 
 
 @dataclass
@@ -118,7 +118,7 @@ def prepare(settings: RunSettings) -> Run:
     CLIP), settle the config."""
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
-    if not map_path.is_file():
+    if not map_path.exists():
         raise MapFileError(f"{map_path}: no map; build it with `{command('clipclique-map')} build {settings.sequence}` "
                            "or pass --map PATH")
     map = load_map(map_path)

@@ -73,7 +73,7 @@ def results_table(documents: list[dict[str, Any]], title: str = "Localization") 
     for document, method in zip(documents, titles):
         summary = document["summary"]
         table.add_row(
-            document["run"]["sequence"], method, str(int(summary["frames"])),
+            escape(document["run"]["sequence"]), escape(method), str(int(summary["frames"])),
             _number(summary["precision"]), _number(summary["recall"]),
             _number(summary["te_median_m"]), _number(summary["re_median_deg"], 1),
             *(_number(summary[f"success@{k}"], 1, 100.0) for k in (1, 3, 5)),
@@ -94,7 +94,7 @@ def stage_table(documents: list[dict[str, Any]]) -> Table:
     titles, _ = _marks(documents)
     for document, method in zip(documents, titles):
         medians = document["summary"]["stage_ms_median"]
-        table.add_row(document["run"]["sequence"], method, *(_number(medians[stage], 1) for stage in ALL_STAGES))
+        table.add_row(escape(document["run"]["sequence"]), escape(method), *(_number(medians[stage], 1) for stage in ALL_STAGES))
     table.caption = "fit: observed ellipsoids from the detections; descr.: descriptors; simil.: similarity"
     return table
 
@@ -115,7 +115,7 @@ def run_banner(document: dict[str, Any]) -> str:
 def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
     """What ran (once per distinct banner), the results table and the stage timings."""
     for banner in dict.fromkeys(run_banner(d) for d in documents):
-        console.print(banner)
+        console.print(escape(banner), highlight=False)
     console.print(results_table(documents))
     console.print(stage_table(documents))
     for line in _marks(documents)[1]:

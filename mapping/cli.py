@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 if TYPE_CHECKING:  # the real imports stay inside the command, so that --help is instant
@@ -67,12 +68,12 @@ def build(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
-    from clipclique.errors import ClipcliqueError
+    from clipclique.errors import ClipcliqueError, one_line
 
     try:
         run_build(scene, data_root, out, encoder, not no_rrd, verbosity=verbose - quiet)
     except ClipcliqueError as error:
-        console.print(f"[bold red]error:[/] {error}", soft_wrap=True, highlight=False)
+        console.print(f"[bold red]error:[/] {escape(one_line(error))}", soft_wrap=True, highlight=False)
         raise typer.Exit(2) from None
     except KeyboardInterrupt:
         console.print("clipclique-map: interrupted", highlight=False)
@@ -86,36 +87,46 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from clipclique.commands import rerun_hint
-    from clipclique.datasets import demo, open_sequence, resolve_data_root
+    from clipclique.datasets import demo, open_sequence, resolve_data_root, scene_name
     from clipclique.encoders import load_encoder
     from clipclique.mapfile import save_map
+    from clipclique.outputs import Staging
     from mapping.build import build_map
 
     started = time.perf_counter()
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
-        if scene in demo.DEMO_SCENES:
-            demo.ensure_demo(scene, resolve_data_root(data_root), _bar_on_first_call(progress, f"generating the {scene} data (first use)"))
-        sequence = open_sequence(scene, data_root)
-        spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
-        loaded = load_encoder(spec)
-        task = progress.add_task("fitting ellipsoids", total=None)
-        map, report = build_map(sequence, loaded, progress=lambda done, total: progress.update(task, completed=done, total=total))
-
-    out = out or Path("outputs") / "maps" / f"{Path(scene).name}.map.npz"  # the name typed, as clipclique-loc looks it up
-    save_map(map, out)
+    out = out or Path("outputs") / "maps" / f"{scene_name(scene)}.map.npz"  # the name typed, as clipclique-loc looks it up
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
-    if rrd:
-        from clipclique.viz import write_map_recording
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Staging() as staging:
+        staged_map = staging.path(out)  # a folder in the way is refused before the work
+        staged_recording = staging.path(recording) if rrd else None
+        with Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
+            if scene in demo.DEMO_SCENES:
+                demo.ensure_demo(scene, resolve_data_root(data_root), _bar_on_first_call(progress, f"generating the {scene} data (first use)"))
+            sequence = open_sequence(scene, data_root)
+            spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
+            loaded = load_encoder(spec)
+            task = progress.add_task("fitting ellipsoids", total=None)
+            map, report = build_map(sequence, loaded, progress=lambda done, total: progress.update(task, completed=done, total=total))
+        save_map(map, staged_map)
+        if staged_recording is not None:
+            from clipclique.viz import write_map_recording
 
-        cloud = sequence.scene_cloud()
-        write_map_recording(recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
+            cloud = sequence.scene_cloud()
+            write_map_recording(staged_recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
+        stale = recording if staged_recording is None and recording.is_file() else None
+        if stale:
+            staging.remove(stale)
+        staging.commit()
     report.timings["total"] = time.perf_counter() - started
     if verbosity >= 0:
         print_summary(map, report, spec)
     if verbosity > 0:
         print_landmarks(map)
-    console.print(f"map: {out}" + (f"\nrecording: {recording}  ({rerun_hint(recording)})" if rrd else ""), highlight=False)
+    where = f"map: {out}" + (f"\nrecording: {recording}  ({rerun_hint(recording)})" if rrd else "")
+    console.print(escape(where), highlight=False)
+    if stale:
+        console.print(f"removed {escape(str(stale))}, the recording of an earlier map (--no-rrd)", highlight=False)
     return out
 
 
@@ -149,18 +160,18 @@ def print_summary(map: Map, report: BuildReport, spec: str) -> None:
     table.add_column("class")
     table.add_column("landmarks", justify="right")
     for name in map.class_names:
-        table.add_row(name, str(report.landmarks_per_class[name]))
+        table.add_row(escape(name), str(report.landmarks_per_class[name]))
     console.print(table)
     if report.structure:
-        console.print("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items())))
+        console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
     for reason, items in report.skipped.items():
-        console.print(f"skipped {len(items)}, {reason}: {', '.join(items)}", highlight=False)
+        console.print(escape(f"skipped {len(items)}, {reason}: {', '.join(items)}"), highlight=False)
     if map.encoder == "none":
         why = "no CLIP weights found (--encoder auto)" if spec == "auto" else "--encoder none"
         console.print(f"text embeddings: none ({why}); localization will rank by Semantic Histograms only")
     else:
         simulated = " [yellow](simulated)[/]" if map.provenance.get("encoder_simulated") else ""
-        console.print(f"text embeddings: {map.encoder}{simulated}")
+        console.print(f"text embeddings: {escape(map.encoder)}{simulated}")
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
     console.print(f"time: {timings}")
 

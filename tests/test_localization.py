@@ -17,7 +17,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
 from localization.cli import app
 from localization.run import choose_encoder
-from localization.results import ALL_STAGES, json_safe, atomic_write, read_results, tum_line
+from localization.results import ALL_STAGES, json_safe, read_results, tum_line
 from localization.tables import results_table, run_banner
 
 RUNNER = CliRunner()
@@ -39,17 +39,6 @@ def test_finite_replaces_nan_and_numpy_scalars():
     cleaned = json_safe(tree)
     assert cleaned == {"a": None, "b": [3, 0.5, None], "4": True}
     json.dumps(cleaned, allow_nan=False)
-
-
-def test_atomic_write_leaves_no_partial_file(tmp_path):
-    target = tmp_path / "results.json"
-    atomic_write(target, "{}")
-    assert target.read_text() == "{}" and [p.name for p in tmp_path.iterdir()] == ["results.json"]
-
-
-def test_atomic_write_gives_an_ordinary_readable_file(tmp_path):
-    atomic_write(tmp_path / "results.json", "{}")
-    assert (tmp_path / "results.json").stat().st_mode & 0o777 == 0o644  # not mkstemp's private 0o600
 
 
 def test_read_results_rejects_other_files(tmp_path):

@@ -62,10 +62,11 @@ def test_round_trip_keeps_every_field(tmp_path, dim):
     assert [p.name for p in path.parent.iterdir()] == ["scene.map.npz"]  # no temp file left
 
 
-def test_empty_map_round_trips(tmp_path):
+def test_a_map_of_nothing_is_refused_and_not_written(tmp_path):
     empty = Map(Ellipsoids.empty(), np.zeros(0, int), [], [], np.zeros(0, int))
-    save_map(empty, tmp_path / "empty.npz")
-    assert len(load_map(tmp_path / "empty.npz")) == 0
+    with pytest.raises(MapFileError, match=r"empty\.npz: 0 landmarks; a map holds 1 to"):
+        save_map(empty, tmp_path / "empty.npz")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_missing_file_says_how_to_make_one(tmp_path):
@@ -119,7 +120,7 @@ def test_pickled_arrays_are_never_loaded(tmp_path):
     path = tmp_path / "m.npz"
     save_map(make_map(), path)
     rewrite(path, class_ids=np.array([object()] * 5, dtype=object))
-    with pytest.raises(MapFileError, match="not a readable map file"):
+    with pytest.raises(MapFileError, match="holds Python objects"):
         load_map(path)
     assert zipfile.is_zipfile(path)
 

@@ -23,6 +23,7 @@ __all__ = [
     "is_structure",
     "open_sequence",
     "resolve_data_root",
+    "scene_name",
 ]
 
 DATA_ENV = "CLIPCLIQUE_DATA"
@@ -64,7 +65,7 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
             )
         return scannet.ScanNetScene(folder)
     if name in TUM_SHORT_NAMES or name.startswith("rgbd_dataset_"):
-        folder = root / "tum" / TUM_SHORT_NAMES.get(name, name)
+        folder = root / "tum" / TUM_SHORT_NAMES.get(name, _folder_name(name, root / "tum"))
         if not folder.is_dir():
             raise DatasetError(
                 f"TUM RGB-D sequence {name} not found: expected the folder {folder}/ holding rgb/ depth/ "
@@ -73,18 +74,40 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
             )
         return tum.TumSequence(folder)
     if Path(name).is_dir():
-        return open_folder(Path(name))
+        return open_folder(Path(os.path.abspath(name)))
     raise DatasetError(
         f"unknown scene {name!r}: use a ScanNet name (scene0002_00), fr1/fr2/fr3, a TUM folder name "
         f"(rgbd_dataset_freiburg2_desk), demo, demo_tum, or the path of a scene folder"
     )
 
 
+def scene_name(name: str) -> str:
+    """The name output files of SCENE are named after: a short or dataset name as typed, else the
+    name of the folder a path leads to (`seq/sub/..` is `seq`), so that outputs never land in `..`."""
+    if name.startswith("rgbd_dataset_"):
+        return _folder_name(name, Path("<data root>") / "tum")
+    folder = Path(os.path.abspath(name)).name if ("/" in name or name in (".", "..")) else name
+    if not folder or not re.fullmatch(r"[^\x00-\x1f/]+", folder):
+        raise DatasetError(f"{name!r}: not a scene name or a folder a scene can be named after")
+    return folder
+
+
+def _folder_name(name: str, parent: Path) -> str:
+    """A dataset name that is one folder name under `parent`; a path (that could lead out of it) is refused."""
+    clean = name.rstrip("/")
+    if "/" in clean or clean in (".", "..") or "\0" in clean:
+        raise DatasetError(
+            f"{name!r}: a TUM sequence name is one folder name under {parent}/, not a path; "
+            f"to open a folder elsewhere, pass its path (e.g. ./{clean.split('/')[0]})"
+        )
+    return clean
+
+
 def open_folder(folder: Path) -> Sequence:
     """The reader for a folder, told apart by the files each dataset ships."""
     from clipclique.datasets import scannet, tum
 
-    if (folder / "rgb.txt").is_file():
+    if (folder / "rgb.txt").exists():
         return tum.TumSequence(folder)
     if any(folder.glob("*_vh_clean_2.labels.ply")):
         return scannet.ScanNetScene(folder)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -10,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clipclique import safeio
 from clipclique.errors import DatasetError
 from clipclique.types import Frame
 
@@ -83,36 +83,50 @@ def is_demo(folder: Path) -> bool:
 
 def read_json(path: Path) -> dict:
     """A JSON file holding an object, with a DatasetError naming the file otherwise."""
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise DatasetError(f"{path}: not valid JSON ({error})") from None
+    data = safeio.read_json(path, error=DatasetError)
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: expected a JSON object {{...}}, got a {type(data).__name__}")
     return data
 
 
 def read_image(path: Path, mode: str | None = None) -> np.ndarray:
-    """An image file as an array (PIL), with a DatasetError naming the file when unreadable."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as image:
-            return np.asarray(image.convert(mode) if mode else image)
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (UnidentifiedImageError, OSError) as error:
-        raise DatasetError(f"{path}: unreadable image ({error})") from None
+    """An image file as an array, size-checked before decoding; a DatasetError naming the file when unreadable."""
+    return safeio.read_image(path, mode, error=DatasetError)
 
 
 def read_depth(path: Path, factor: float) -> np.ndarray:
-    """A uint16 depth PNG as float32 metres (0 stays 0 = invalid)."""
-    raw = read_image(path)
-    if raw.ndim != 2 or raw.dtype.kind not in "ui":
-        raise DatasetError(f"{path}: expected a single-channel 16-bit depth image, got {raw.dtype} {raw.shape}")
+    """A 16-bit depth PNG as float32 metres (0 stays 0 = invalid); 8-bit depth is refused, its unit unknown."""
+    raw = safeio.read_single_channel(path, "depth", error=DatasetError)
+    if raw.dtype.itemsize < 2:
+        raise DatasetError(f"{path}: 8-bit depth image; depth must be 16-bit (1/{factor:g} m per unit)")
     return raw.astype(np.float32) / np.float32(factor)
+
+
+def read_instance_ids(path: Path) -> np.ndarray:
+    """A single-channel instance image (8- or 16-bit object ids) as int32."""
+    return safeio.read_single_channel(path, "instance", error=DatasetError).astype(np.int32)
+
+
+def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path) -> np.ndarray:
+    """The depth intrinsics rescaled to a depth image of `shape` (H, W).
+
+    The principal point lies near the image centre, so a matrix whose (cx, cy) sits at twice
+    (or half, ...) the centre of this image was calibrated at that image size: scale it by the
+    power of two that fits. A principal point that fits no such size is refused.
+    """
+    height, width = shape
+    ratios = np.array([width / (2 * intrinsics[0, 2]), height / (2 * intrinsics[1, 2])])
+    scale = 2.0 ** np.round(np.log2(ratios[0]))
+    if not np.all(np.abs(ratios / scale - 1) < 0.2):
+        raise DatasetError(
+            f"{path}: depth image {width} x {height} does not fit the depth intrinsics (principal point "
+            f"{intrinsics[0, 2]:g}, {intrinsics[1, 2]:g}); the intrinsics belong to another camera"
+        )
+    if scale == 1:
+        return intrinsics
+    scaled = intrinsics.copy()
+    scaled[:2] *= scale
+    return scaled
 
 
 def resize_rgb(rgb: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

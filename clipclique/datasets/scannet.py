@@ -20,6 +20,7 @@ depth intrinsics serve both.
 from __future__ import annotations
 
 import csv
+import io
 from functools import cached_property
 from pathlib import Path
 
@@ -31,17 +32,21 @@ from clipclique.datasets.base import (
     description_template,
     is_demo,
     is_structure,
+    intrinsics_for,
     read_depth,
     read_image,
+    read_instance_ids,
     read_json,
     resize_rgb,
 )
+from clipclique import safeio
 from clipclique.datasets.render import MeshRaycaster
 from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 
 LABELS_TSV = "scannetv2-labels.combined.tsv"
 DEPTH_FACTOR = 1000.0
+MAX_OBJECT_ID = 2**31 - 1  # object ids are int32 in frames
 
 
 class ScanNetScene(Sequence):
@@ -70,25 +75,22 @@ class ScanNetScene(Sequence):
         for path in files:
             if not path.stem.isdigit():
                 continue
-            try:
-                matrix = np.loadtxt(path, dtype=np.float64)
-            except ValueError as error:
-                raise DatasetError(f"{path}: not a 4x4 pose matrix ({error})") from None
+            matrix = read_matrix(path, "pose")
             if matrix.shape != (4, 4):
                 raise DatasetError(f"{path}: expected a 4x4 pose matrix, got shape {matrix.shape}")
-            if np.isfinite(matrix).all():
+            if np.isfinite(matrix).all():  # -inf marks a frame where tracking failed
+                check_rigid(matrix, path)
                 numbers.append(int(path.stem))
                 poses.append(Pose.from_matrix(matrix))
         return numbers, poses
 
     def _read_intrinsics(self) -> np.ndarray:
         path = self.root / "intrinsic" / "intrinsic_depth.txt"
-        try:
-            matrix = np.loadtxt(path)
-        except (OSError, ValueError) as error:
-            raise DatasetError(f"{path}: cannot read the depth intrinsics ({error})") from None
-        if matrix.shape not in ((4, 4), (3, 3)):
-            raise DatasetError(f"{path}: expected a 4x4 (or 3x3) matrix, got shape {matrix.shape}")
+        matrix = read_matrix(path, "depth intrinsics")
+        if matrix.shape not in ((4, 4), (3, 3)) or not np.isfinite(matrix).all():
+            raise DatasetError(f"{path}: expected a finite 4x4 (or 3x3) matrix, got shape {matrix.shape}")
+        if min(matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2]) <= 0:
+            raise DatasetError(f"{path}: focal lengths and principal point must be positive")
         return matrix[:3, :3].copy()
 
     def __len__(self) -> int:
@@ -97,27 +99,29 @@ class ScanNetScene(Sequence):
     def __getitem__(self, i: int) -> Frame:
         i = self._check_index(i)
         n = self.frame_numbers[i]
-        depth = read_depth(self.root / "depth" / f"{n}.png", DEPTH_FACTOR)
+        depth_path = self.root / "depth" / f"{n}.png"
+        depth = read_depth(depth_path, DEPTH_FACTOR)
+        intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path)
         rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
         instance_path = self.root / "instance-filt" / f"{n}.png"
-        if instance_path.is_file():
-            labels = read_image(instance_path)
+        if instance_path.exists():
+            labels = read_instance_ids(instance_path)
             if labels.shape != depth.shape:
                 from PIL import Image
 
                 labels = np.asarray(Image.fromarray(labels).resize(depth.shape[::-1], Image.NEAREST))
             instances = labels.astype(np.int32)
         else:
-            instances = self.project_instances(self.poses[i], depth)
-        return Frame(i, float(n), rgb, depth, self.intrinsics, self.poses[i], instances, name=str(n))
+            instances = self.project_instances(self.poses[i], depth, intrinsics)
+        return Frame(i, float(n), rgb, depth, intrinsics, self.poses[i], instances, name=str(n))
 
-    def project_instances(self, pose: Pose, depth: np.ndarray, tolerance: float = 0.1) -> np.ndarray:
+    def project_instances(self, pose: Pose, depth: np.ndarray, intrinsics: np.ndarray, tolerance: float = 0.1) -> np.ndarray:
         """Object ids of the labelled mesh rendered into a frame, kept where the measured depth agrees.
 
         Stands in for the 2D instance images when `<scene>_2d-instance-filt.zip` is not unzipped.
         """
         raycaster, face_ids = self._projector
-        render = raycaster.render(self.intrinsics, pose, depth.shape)
+        render = raycaster.render(intrinsics, pose, depth.shape)
         agrees = (render.faces >= 0) & (depth > 0) & (np.abs(render.depth - depth) < tolerance)
         return np.where(agrees, face_ids[np.maximum(render.faces, 0)], 0).astype(np.int32)
 
@@ -150,27 +154,32 @@ class ScanNetScene(Sequence):
     def _class_of(self) -> dict[str, str]:
         """Raw category -> class: NYU40 names from the label table when one is found, else identity."""
         for folder in (self.root, self.root.parent, self.root.parent.parent):
-            if (folder / LABELS_TSV).is_file():
+            if (folder / LABELS_TSV).exists():
                 return read_label_table(folder / LABELS_TSV)
         return {}
 
     @cached_property
     def _grouping(self) -> tuple[list[int], list[str], np.ndarray]:
         """Instance ids (objectId + 1) and raw categories of the segGroups, and each vertex's group index."""
-        segments = np.asarray(read_json(self.segs_path).get("segIndices", []), dtype=np.int64)
+        segments = integer_array(read_json(self.segs_path).get("segIndices"), f"{self.segs_path}: segIndices")
         if len(segments) != len(self._vertices):
             raise DatasetError(
                 f"{self.segs_path}: {len(segments)} segIndices for {len(self._vertices)} vertices of {self.mesh_path.name}"
             )
         groups = read_json(self.aggregation_path).get("segGroups")
-        if not isinstance(groups, list):
-            raise DatasetError(f"{self.aggregation_path}: no segGroups list")
+        if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
+            raise DatasetError(f"{self.aggregation_path}: no segGroups list of objects")
+        where = f"{self.aggregation_path}: segGroup"
         try:
-            ids = [int(g["objectId"]) + 1 for g in groups]
-            labels = [str(g["label"]) for g in groups]
-            members = [np.asarray(g["segments"], dtype=np.int64) for g in groups]
-        except (KeyError, TypeError, ValueError) as error:
-            raise DatasetError(f"{self.aggregation_path}: malformed segGroup ({error!r})") from None
+            ids = [int(integer_array([g["objectId"]], f"{where} objectId")[0]) + 1 for g in groups]
+            labels = [safeio.check_text(g["label"], f"{where} label") for g in groups]
+            members = [integer_array(g["segments"], f"{where} segments") for g in groups]
+        except KeyError as error:
+            raise DatasetError(f"{where} without {error}") from None
+        if ids and not 1 <= min(ids) <= max(ids) <= MAX_OBJECT_ID:
+            raise DatasetError(f"{where} objectId outside 0..{MAX_OBJECT_ID - 1}")
+        if (duplicate := _first_duplicate(ids)) is not None:
+            raise DatasetError(f"{self.aggregation_path}: objectId {duplicate - 1} appears in more than one segGroup")
         return ids, labels, vertex_owner(segments, members)
 
     @cached_property
@@ -197,10 +206,10 @@ class ScanNetScene(Sequence):
     @cached_property
     def _descriptions(self) -> dict[int, str]:
         path = self.root / f"{self.name}_descriptions.json"
-        if not path.is_file():
+        if not path.exists():
             return {}
         try:
-            return {int(key) + 1: str(text) for key, text in read_json(path).items()}
+            return {int(key) + 1: safeio.check_text(text, f"{path}: description") for key, text in read_json(path).items()}
         except ValueError:
             raise DatasetError(f'{path}: keys must be ScanNet objectIds, e.g. {{"0": "a red office chair"}}') from None
 
@@ -237,9 +246,49 @@ def vertex_owner(segments: np.ndarray, members: list[np.ndarray]) -> np.ndarray:
 
 def read_label_table(path: Path) -> dict[str, str]:
     """raw_category -> nyu40class from ScanNet's `scannetv2-labels.combined.tsv`."""
-    with open(path, newline="") as handle:
-        reader = csv.DictReader(handle, delimiter="\t")
-        missing = {"raw_category", "nyu40class"} - set(reader.fieldnames or ())
-        if missing:
-            raise DatasetError(f"{path}: column {', '.join(sorted(missing))} missing; is this the ScanNet label table?")
-        return {row["raw_category"]: row["nyu40class"] for row in reader if row["raw_category"] and row["nyu40class"]}
+    text = safeio.read_text(path, "label table", DatasetError)
+    reader = csv.DictReader(io.StringIO(text, newline=""), delimiter="\t")
+    missing = {"raw_category", "nyu40class"} - set(reader.fieldnames or ())
+    if missing:
+        raise DatasetError(f"{path}: column {', '.join(sorted(missing))} missing; is this the ScanNet label table?")
+    return {row["raw_category"]: row["nyu40class"] for row in reader if row["raw_category"] and row["nyu40class"]}
+
+
+def read_matrix(path: Path, what: str) -> np.ndarray:
+    """A whitespace-separated matrix of numbers in a UTF-8 text file."""
+    text = safeio.read_text(path, what, DatasetError)
+    try:
+        rows = [[float(v) for v in line.split()] for line in text.splitlines() if line.strip()]
+        return np.array(rows, dtype=np.float64)
+    except ValueError as error:  # a non-number, or rows of different lengths
+        raise DatasetError(f"{path}: not a {what} matrix of numbers ({error})") from None
+
+
+def check_rigid(matrix: np.ndarray, path: Path, tolerance: float = 1e-3) -> None:
+    """A camera pose must be a rotation (orthonormal, det +1) and translation with a 0 0 0 1 last row."""
+    rotation = matrix[:3, :3]
+    if (
+        not np.allclose(matrix[3], [0, 0, 0, 1], atol=tolerance)
+        or not np.allclose(rotation.T @ rotation, np.eye(3), atol=tolerance)
+        or np.linalg.det(rotation) < 0
+    ):
+        raise DatasetError(f"{path}: not a rigid camera pose (the rotation is not orthonormal with det +1, or the last row is not 0 0 0 1)")
+
+
+def integer_array(values: object, where: str) -> np.ndarray:
+    """A flat list of JSON integers as int64; floats, strings, nesting and out-of-range values refused."""
+    if not isinstance(values, list) or not all(type(v) is int for v in values):
+        raise DatasetError(f"{where} must be a flat list of integers")
+    try:
+        return np.array(values, dtype=np.int64)
+    except OverflowError:
+        raise DatasetError(f"{where} holds an integer beyond 64 bits") from None
+
+
+def _first_duplicate(values: list[int]) -> int | None:
+    seen: set[int] = set()
+    for value in values:
+        if value in seen:
+            return value
+        seen.add(value)
+    return None

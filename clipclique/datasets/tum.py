@@ -20,6 +20,7 @@ Object annotations (ours, for building maps and as ground-truth detections):
 from __future__ import annotations
 
 import csv
+import io
 import re
 from functools import cached_property
 from pathlib import Path
@@ -30,12 +31,15 @@ from clipclique.datasets.base import (
     Instance,
     Sequence,
     description_template,
+    intrinsics_for,
     is_demo,
     is_structure,
     read_depth,
     read_image,
+    read_instance_ids,
     resize_rgb,
 )
+from clipclique import safeio
 from clipclique.errors import DatasetError
 from clipclique.geometry import backproject
 from clipclique.types import Frame, Pose
@@ -48,15 +52,13 @@ INTRINSICS = {
     "freiburg2": (520.9, 521.0, 325.1, 249.7),
     "freiburg3": (535.4, 539.2, 320.1, 247.6),
 }
+MAX_OBJECT_ID = 65535  # annotation ids are pixel values of 16-bit images
 ANNOTATION_STRIDE = 2  # map building back-projects every 2nd pixel row and column of a mask
 
 
 def _data_lines(path: Path):
-    """(line number, stripped text) of the non-comment, non-empty lines of a TUM text file."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
+    """(line number, stripped text) of the non-comment, non-empty lines of a TUM text file (strict UTF-8)."""
+    text = safeio.read_text(path, "TUM text file", DatasetError)
     for number, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if line and not line.startswith("#"):
@@ -74,6 +76,8 @@ def read_file_list(path: Path) -> tuple[np.ndarray, list[str]]:
             times.append(float(parts[0]))
         except ValueError:
             raise DatasetError(f"{path}, line {number}: expected 'timestamp filename', got {line!r}") from None
+        if Path(parts[1]).is_absolute() or ".." in Path(parts[1]).parts:
+            raise DatasetError(f"{path}, line {number}: {parts[1]!r} is not a path inside the sequence folder")
         names.append(parts[1])
     return np.array(times, dtype=np.float64), names
 
@@ -122,11 +126,16 @@ class TumSequence(Sequence):
         self.synthetic = is_demo(self.root)
         rgb_times, rgb_files = read_file_list(self.root / "rgb.txt")
         depth_times, depth_files = read_file_list(self.root / "depth.txt")
+        for listed, path in ((rgb_times, "rgb.txt"), (depth_times, "depth.txt")):
+            if not len(listed):
+                raise DatasetError(f"{self.root / path}: lists no images (expected 'timestamp filename' lines)")
         gt_path = self.root / "groundtruth.txt"
-        gt_times, gt_poses = read_trajectory(gt_path) if gt_path.is_file() else (np.zeros(0), [])
+        gt_times, gt_poses = read_trajectory(gt_path) if gt_path.exists() else (np.zeros(0), [])
         to_depth = associate(rgb_times, depth_times)
         to_pose = associate(rgb_times, gt_times)
         keep = np.flatnonzero(to_depth >= 0)
+        if not len(keep):
+            raise DatasetError(f"{self.root}: no colour image of rgb.txt has a depth image of depth.txt within {MAX_TIME_DIFF} s")
         self.timestamps = rgb_times[keep]
         self.rgb_files = [rgb_files[k] for k in keep]
         self.depth_files = [depth_files[to_depth[k]] for k in keep]
@@ -135,12 +144,14 @@ class TumSequence(Sequence):
 
     def _intrinsics(self) -> np.ndarray:
         path = self.root / "intrinsics.txt"
-        if path.is_file():
+        if path.exists():
             lines = list(_data_lines(path))
             try:
                 fx, fy, cx, cy = (float(v) for v in lines[0][1].split())
+                if not all(np.isfinite([fx, fy, cx, cy])) or min(fx, fy, cx, cy) <= 0:
+                    raise ValueError
             except (IndexError, ValueError):
-                raise DatasetError(f"{path}: expected one line 'fx fy cx cy'") from None
+                raise DatasetError(f"{path}: expected one line 'fx fy cx cy' of positive numbers") from None
         else:
             match = re.search(r"freiburg[123]", self.name)
             if not match:
@@ -159,9 +170,9 @@ class TumSequence(Sequence):
 
     def _annotation(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
         path = self._annotation_path(i)
-        if not path.is_file():
+        if not path.exists():
             return None
-        ids = read_image(path).astype(np.int32)
+        ids = read_instance_ids(path)
         if ids.shape != shape:
             raise DatasetError(f"{path}: instance image is {ids.shape}, the depth image {shape}")
         unknown = np.setdiff1d(np.unique(ids), [0, *self._objects])
@@ -176,44 +187,50 @@ class TumSequence(Sequence):
         i = self._check_index(i)
         depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
-        return Frame(i, float(self.timestamps[i]), rgb, depth, self.intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
+        intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
+        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
 
     @cached_property
     def _objects(self) -> dict[int, tuple[str, str]]:
         """Annotation id -> (class, description) from annotations/objects.csv (empty without it)."""
         path = self.root / "annotations" / "objects.csv"
-        if not path.is_file():
+        if not path.exists():
             return {}
         objects: dict[int, tuple[str, str]] = {}
-        with open(path, newline="") as handle:
-            reader = csv.DictReader(handle)
-            missing = {"id", "class", "description"} - set(reader.fieldnames or ())
-            if missing:
-                raise DatasetError(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
-            for row in reader:
-                line = reader.line_num
-                try:
-                    object_id = int(row["id"])
-                except (TypeError, ValueError):
-                    raise DatasetError(f"{path}, line {line}: id {row['id']!r} is not an integer") from None
-                name = (row["class"] or "").strip()
-                if object_id < 1 or object_id in objects or not name:
-                    raise DatasetError(f"{path}, line {line}: ids must be unique integers >= 1 and class non-empty")
-                objects[object_id] = (name, (row["description"] or "").strip() or description_template(name))
+        reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", DatasetError), newline=""))
+        missing = {"id", "class", "description"} - set(reader.fieldnames or ())
+        if missing:
+            raise DatasetError(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
+        for row in reader:
+            where = f"{path}, line {reader.line_num}"
+            try:
+                object_id = int(row["id"])
+            except (TypeError, ValueError):
+                raise DatasetError(f"{where}: id {row['id']!r} is not an integer") from None
+            if not 1 <= object_id <= MAX_OBJECT_ID:
+                raise DatasetError(f"{where}: id {object_id} outside 1..{MAX_OBJECT_ID} (the instance images are 16-bit)")
+            if object_id in objects:
+                raise DatasetError(f"{where}: id {object_id} appears twice")
+            name = safeio.check_text(row["class"] or "", f"{where}: class", DatasetError).strip()
+            if not name:
+                raise DatasetError(f"{where}: class is empty")
+            description = safeio.check_text(row["description"] or "", f"{where}: description", DatasetError).strip()
+            objects[object_id] = (name, description or description_template(name))
         return objects
 
     def instances(self) -> list[Instance]:
         """Annotated objects: masked depth of every annotated frame with a pose, in the world frame."""
         clouds: dict[int, list[np.ndarray]] = {object_id: [] for object_id in self._objects}
         for i, pose in enumerate(self.poses):
-            if pose is None or not self._annotation_path(i).is_file():
+            if pose is None or not self._annotation_path(i).exists():
                 continue
             depth = self._depth(i)  # the colour image is not needed here
             instances = self._annotation(i, depth.shape)
             sample = np.zeros(depth.shape, bool)
             sample[::ANNOTATION_STRIDE, ::ANNOTATION_STRIDE] = True
             valid = sample & (instances > 0) & (depth > 0)
-            points = pose.apply(backproject(depth, self.intrinsics, valid))
+            intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
+            points = pose.apply(backproject(depth, intrinsics, valid))
             ids = instances[valid]  # same row-major order as backproject's pixels
             order = np.argsort(ids, kind="stable")
             unique, starts = np.unique(ids[order], return_index=True)

@@ -1,0 +1,80 @@
+"""Outputs of a run that appear together and whole, or not at all.
+
+Each output is written to `<name>.partial` beside its target and moved into place by
+`Staging.commit` once everything succeeded; an error, Ctrl-C or SIGTERM before that removes
+the partial files and leaves the previous outputs byte-identical.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+import signal
+import threading
+from pathlib import Path
+from types import FrameType, TracebackType
+
+from clipclique.errors import ClipcliqueError
+
+PARTIAL_SUFFIX = ".partial"
+
+
+class Staging:
+    """A set of outputs committed together. Use as a context manager; call `commit()` at the end."""
+
+    def __init__(self) -> None:
+        self._moves: list[tuple[Path, Path]] = []
+        self._removals: list[Path] = []
+        self._previous_handler: signal.Handlers | None = None
+
+    def path(self, target: Path) -> Path:
+        """Where to write `target` for now; refuses, before any work, a target that cannot be replaced."""
+        target = Path(target)
+        if target.is_dir():
+            raise ClipcliqueError(f"{target}: is a folder; cannot write the output there (remove it or choose another path)")
+        partial = target.with_name(target.name + PARTIAL_SUFFIX)
+        self._moves.append((partial, target))
+        return partial
+
+    def remove(self, target: Path) -> None:
+        """Delete `target` at commit (an output of an earlier run that would no longer match)."""
+        self._removals.append(Path(target))
+
+    def commit(self) -> None:
+        """Move every staged output into place (each move is atomic) and delete the removals."""
+        missing = [str(partial) for partial, _ in self._moves if not partial.is_file()]
+        if missing:
+            raise ClipcliqueError(f"outputs not written: {', '.join(missing)}")
+        try:
+            for partial, target in self._moves:
+                os.replace(partial, target)
+            for target in self._removals:
+                target.unlink(missing_ok=True)
+        except OSError as error:
+            raise ClipcliqueError(f"{error.filename}: cannot move the output into place ({error.strerror})") from None
+        self._moves.clear()
+
+    def discard(self) -> None:
+        """Delete whatever was staged and not committed, with any temporary its writer made beside it
+        (`<partial>.*`: a writer interrupted before it could clean up after itself)."""
+        for partial, _ in self._moves:
+            for path in (partial, *partial.parent.glob(glob.escape(partial.name) + ".*")):
+                path.unlink(missing_ok=True)
+        self._moves.clear()
+
+    def __enter__(self) -> Staging:
+        if threading.current_thread() is threading.main_thread():
+            self._previous_handler = signal.signal(signal.SIGTERM, _terminate)
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None) -> None:
+        try:
+            self.discard()
+        finally:
+            if self._previous_handler is not None:
+                signal.signal(signal.SIGTERM, self._previous_handler)
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM unwinds like Ctrl-C, so that context managers clean their partial files."""
+    raise SystemExit(128 + signum)

@@ -1,0 +1,603 @@
+"""Hostile and broken inputs against clipclique-map, clipclique-loc run and compare (issue 12).
+
+Every case is generated from a small demo (4 frames of 160 x 120, ScanNet and TUM layouts) by
+one deterministic mutation, and run in-process. Each must end with exit code 2 and one line
+that names the input, no traceback, no `*.partial`/`*.tmp` left anywhere, and the earlier map,
+recording and results byte-identical.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import json
+import os
+import pickle
+import shutil
+import struct
+import zipfile
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from clipclique.datasets.demo import DEMO_SCENES, generate
+from localization.cli import app as loc_app
+from mapping.cli import app as map_app
+
+RUNNER = CliRunner()
+SMALL = {"num_frames": 4, "width": 160, "height": 120}
+PWNED = Path("/tmp/clipclique-fuzz-pickle-ran")  # what the hostile pickles would create if ever loaded
+
+
+@dataclass(frozen=True)
+class Case:
+    """One hostile input: `make(workspace, case_dir)` writes it and returns (app, args, text the message must name)."""
+
+    family: str
+    name: str
+    make: Callable[[Workspace, Path], tuple[object, list[str], str]]
+
+    def __str__(self) -> str:
+        return f"{self.family}-{self.name}"
+
+
+@dataclass
+class Workspace:
+    root: Path  # data/ (the demos), maps/ (a map and its recording), loc/ (an earlier run's outputs)
+
+    @property
+    def data(self) -> Path:
+        return self.root / "data"
+
+    @property
+    def map(self) -> Path:
+        return self.root / "maps" / "demo.map.npz"
+
+    @property
+    def loc(self) -> Path:
+        return self.root / "loc"
+
+    def copy(self, scene: str, case_dir: Path) -> Path:
+        """A private copy of a demo scene folder to mutate."""
+        target = case_dir / scene
+        shutil.copytree(self.data / "demo" / scene, target)
+        return target
+
+    def loc_args(self, *extra: str, sequence: str = "demo", map_path: Path | None = None) -> list[str]:
+        return ["run", sequence, "--data-root", str(self.data), "--map", str(map_path or self.map), "--out", str(self.loc),
+                "--max-frames", "2", *extra]
+
+    def map_args(self, scene: str, *extra: str) -> list[str]:
+        return ["build", scene, "--data-root", str(self.data), "--out", str(self.map), "--encoder", "simulated", *extra]
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory) -> Workspace:
+    """The two small demos, a map with a recording, and a successful earlier run (with its recording)."""
+    space = Workspace(tmp_path_factory.mktemp("fuzz"))
+    for name in ("demo", "demo_tum"):
+        folder = space.data / "demo" / name
+        folder.mkdir(parents=True)
+        generate(folder, name, dataclasses.replace(DEMO_SCENES[name], **SMALL))
+    built = RUNNER.invoke(map_app, space.map_args("demo"))
+    assert built.exit_code == 0, built.output
+    ran = RUNNER.invoke(loc_app, space.loc_args())
+    assert ran.exit_code == 0, ran.output
+    assert {p.name for p in space.loc.iterdir()} == {"results.json", "poses.tum", "config.json", "recording.rrd"}
+    return space
+
+
+def snapshot(*folders: Path) -> dict[str, str]:
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for folder in folders for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def leftovers(root: Path) -> list[str]:
+    return [str(p) for p in root.rglob("*") if p.name.endswith((".partial", ".tmp"))]
+
+
+# ---- mutations -----------------------------------------------------------------------------------
+
+LATIN1 = "café".encode("latin-1")
+
+
+def _insert(path: Path, data: bytes, at: float = 0.5) -> None:
+    raw = path.read_bytes()
+    cut = int(len(raw) * at)
+    cut = raw.rfind(b"\n", 0, cut) + 1 if b"\n" in raw[:cut] else cut
+    path.write_bytes(raw[:cut] + data + raw[cut:])
+
+
+def _replace_dir(path: Path) -> None:
+    path.unlink()
+    path.mkdir()
+
+
+def _deep_json(depth: int = 100_000) -> str:
+    return "[" * depth + "]" * depth
+
+
+def _map_arrays(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as data:
+        return {name: data[name] for name in data.files}
+
+
+def _rewrite_map(space: Workspace, case_dir: Path, edit: Callable[[dict], None] | None = None, **arrays) -> Path:
+    """A copy of the good map with some arrays replaced, or its header fields edited."""
+    contents = _map_arrays(space.map)
+    if edit is not None:
+        fields = json.loads(str(contents["header"][()]))
+        edit(fields)
+        contents["header"] = np.array(json.dumps(fields))
+    contents.update(arrays)
+    target = case_dir / "bad.map.npz"
+    np.savez(target, **contents)
+    return target
+
+
+def _npy_declaring(shape: tuple[int, ...]) -> bytes:
+    """An .npy member whose header declares `shape` but holds 24 bytes of data."""
+    header = f"{{'descr': '<f8', 'fortran_order': False, 'shape': {shape}, }}".encode()
+    header += b" " * (63 - (len(header) + 10) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + bytes(24)
+
+
+def map_cases() -> list[Case]:
+    """A damaged or hostile map file given to clipclique-loc run --map."""
+
+    def use(make_map: Callable[[Workspace, Path], Path]) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            path = make_map(space, case_dir)
+            return loc_app, space.loc_args(map_path=path), path.name
+
+        return make
+
+    def raw(data: bytes) -> Callable[[Workspace, Path], Path]:
+        def write(space: Workspace, case_dir: Path) -> Path:
+            (case_dir / "bad.map.npz").write_bytes(data)
+            return case_dir / "bad.map.npz"
+
+        return write
+
+    def truncated(fraction: float):
+        def write(space, case_dir):
+            data = space.map.read_bytes()
+            return raw(data[: int(len(data) * fraction)])(space, case_dir)
+
+        return write
+
+    def flipped(seed: int):
+        """Bytes flipped inside a member's compressed data: a corrupt deflate stream or a CRC mismatch."""
+
+        def write(space, case_dir):
+            data = bytearray(space.map.read_bytes())
+            with zipfile.ZipFile(space.map) as archive:
+                info = archive.infolist()[seed % len(archive.infolist())]
+            start = info.header_offset + 30 + len(info.filename) + len(info.extra)
+            rng = np.random.default_rng(seed)
+            for offset in rng.integers(start, start + info.compress_size, 4):
+                data[offset] ^= 0xFF
+            return raw(bytes(data))(space, case_dir)
+
+        return write
+
+    def declared(shape: tuple[int, ...]):
+        def write(space, case_dir):
+            target = case_dir / "bad.map.npz"
+            with zipfile.ZipFile(space.map) as source, zipfile.ZipFile(target, "w") as archive:
+                for info in source.infolist():
+                    body = _npy_declaring(shape) if info.filename == "centers.npy" else source.read(info)
+                    archive.writestr(info.filename, body)
+            return target
+
+        return write
+
+    def rotations(matrix_of: Callable[[np.ndarray], np.ndarray]):
+        return lambda space, case_dir: _rewrite_map(space, case_dir, rotations=matrix_of(_map_arrays(space.map)["rotations"]))
+
+    def reflect(r: np.ndarray) -> np.ndarray:
+        r = r.copy()
+        r[0, :, 0] *= -1
+        return r
+
+    def centers(value: float):
+        def write(space, case_dir):
+            c = _map_arrays(space.map)["centers"].copy()
+            c[0, 0] = value
+            return _rewrite_map(space, case_dir, centers=c)
+
+        return write
+
+    def header(change: Callable[[dict], None]):
+        return lambda space, case_dir: _rewrite_map(space, case_dir, edit=change)
+
+    def vocabulary(space, case_dir):
+        return _rewrite_map(space, case_dir, edit=lambda h: h.__setitem__("class_names", h["class_names"] + [f"c{i}" for i in range(200_000)]))
+
+    def empty(space, case_dir):
+        return _rewrite_map(space, case_dir, edit=lambda h: h.update(class_names=[], descriptions=[]),
+                            centers=np.zeros((0, 3)), axes=np.zeros((0, 3)), rotations=np.zeros((0, 3, 3)),
+                            class_ids=np.zeros(0, np.int64), instance_ids=np.zeros(0, np.int64),
+                            text_embeddings=np.zeros((0, 512), np.float32))
+
+    def pickled(space, case_dir):
+        return _rewrite_map(space, case_dir, class_ids=np.array([object()], dtype=object))
+
+    def folder(space, case_dir):
+        (case_dir / "bad.map.npz").mkdir()
+        return case_dir / "bad.map.npz"
+
+    rng = np.random.default_rng(12)
+    makers: dict[str, Callable] = {
+        **{f"random-bytes-{i}": raw(rng.bytes(2000 * (i + 1))) for i in range(3)},
+        "empty-file": raw(b""),
+        **{f"truncated-{f}": truncated(f) for f in (0.1, 0.3, 0.5, 0.7, 0.9, 0.99)},
+        **{f"corrupt-deflate-{seed}": flipped(seed) for seed in range(6)},
+        "declared-shape-3e12": declared((3_000_000_000_000, 3)),
+        "declared-shape-2**62": declared((2**62, 3)),
+        "object-array": pickled,
+        "reflection": rotations(reflect),
+        "scaled-rotation": rotations(lambda r: r * 2),
+        "nan-rotation": rotations(lambda r: np.where(np.arange(r.size).reshape(r.shape) == 0, np.nan, r)),
+        "coordinate-1e300": centers(1e300),
+        "coordinate-nan": centers(np.nan),
+        "coordinate-inf": centers(-np.inf),
+        "zero-landmarks": empty,
+        "huge-vocabulary": vocabulary,
+        "header-deep-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array(_deep_json())),
+        "header-not-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array("{not json")),
+        "header-bytes": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.frombuffer(b"\x00\xff" * 8, np.uint8)),
+        "schema-version-2": header(lambda h: h.update(schema_version=2)),
+        "class-name-nul": header(lambda h: h["class_names"].__setitem__(0, "ch\0air")),
+        "class-name-not-text": header(lambda h: h["class_names"].__setitem__(0, 7)),
+        "description-megabyte": header(lambda h: h["descriptions"].__setitem__(0, "x" * 1_000_000)),
+        "provenance-deep": header(lambda h: h.update(provenance={"a": json.loads("[" * 100 + "]" * 100)})),
+        "map-is-a-folder": folder,
+    }
+    return [Case("map", name, use(make)) for name, make in makers.items()]
+
+
+FLOAT_KEYS = ("inliers.d_comp", "graph.d_adj", "matching.top_m_fraction", "similarity.alpha", "inliers.time_limit_s",
+              "inliers.inlier_threshold", "matching.min_similarity", "success_threshold_m", "pose.min_conditioning")
+
+
+def config_cases() -> list[Case]:
+    """Numbers out of range in --set, and broken --config files."""
+
+    def override(assignment: str, key: str) -> Callable:
+        return lambda space, case_dir: (loc_app, space.loc_args("--set", assignment), key)
+
+    def config_file(data: bytes | None, directory: bool = False) -> Callable:
+        def make(space, case_dir):
+            path = case_dir / "params.toml"
+            path.mkdir() if directory else path.write_bytes(data)
+            return loc_app, space.loc_args("--config", str(path)), "params.toml"
+
+        return make
+
+    cases = [Case("config", f"{key}={value}", override(f"{key}={value}", key)) for key in FLOAT_KEYS for value in ("nan", "inf", "-inf")]
+    for assignment in ("graph.walk_length=40", "graph.walk_length=0", "inliers.seed=-1", "graph.xview_seed=-3",
+                       "top_n=0", "top_n=100000000000000000000", "matching.k=-2", "inliers.min_clique_size=2",
+                       "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000", "method=xyz"):
+        cases.append(Case("config", assignment, override(assignment, assignment.partition("=")[0])))
+    cases += [
+        Case("config", "toml-latin1", config_file(b"[inliers]\n# " + LATIN1 + b"\nd_comp = 0.3\n")),
+        Case("config", "toml-nul", config_file(b"[inliers]\nd_comp = 0.3\0\n")),
+        Case("config", "toml-deep", config_file(("x = " + "[" * 100_000 + "]" * 100_000).encode())),
+        Case("config", "toml-folder", config_file(None, directory=True)),
+        Case("config", "toml-nan", config_file(b"[graph]\nd_adj = nan\n")),
+    ]
+    return cases
+
+
+def tum_cases() -> list[Case]:
+    """A TUM sequence (the small demo_tum) with one file broken, given to clipclique-map build."""
+
+    def mutated(relative: str, change: Callable[[Path], None], names: str | None = None) -> Callable:
+        def make(space, case_dir):
+            folder = space.copy("demo_tum", case_dir)
+            change(folder / relative)
+            return map_app, space.map_args(str(folder)), names or Path(relative).name
+
+        return make
+
+    def first_instance(folder_file: Path) -> Path:
+        return sorted(folder_file.glob("*.png"))[0]
+
+    files = ("groundtruth.txt", "rgb.txt", "depth.txt", "intrinsics.txt", "annotations/objects.csv")
+    cases = []
+    for relative in files:
+        cases += [
+            Case("tum-text", f"{relative}-latin1", mutated(relative, lambda p: _insert(p, b"# " + LATIN1 + b"\n"))),
+            Case("tum-text", f"{relative}-nul", mutated(relative, lambda p: _insert(p, b"\0\n", 0.9))),
+            Case("tum-text", f"{relative}-folder", mutated(relative, _replace_dir)),
+            Case("tum-text", f"{relative}-utf16", mutated(relative, lambda p: p.write_bytes(p.read_text().encode("utf-16")))),
+        ]
+    objects = "annotations/objects.csv"
+    cases += [
+        Case("tum-data", "rgb-empty", mutated("rgb.txt", lambda p: p.write_text("# timestamp filename\n"))),
+        Case("tum-data", "rgb-escape", mutated("rgb.txt", lambda p: _insert(p, b"1700000000.0 ../../../etc/passwd\n", 0.99))),
+        Case("tum-data", "groundtruth-nan", mutated("groundtruth.txt", lambda p: _insert(p, b"1700000000.5 nan 0 0 0 0 0 1\n", 0.99))),
+        Case("tum-data", "intrinsics-negative", mutated("intrinsics.txt", lambda p: p.write_text("-500 500 80 60\n"))),
+        Case("tum-data", "objects-id-2**70", mutated(objects, lambda p: _insert(p, f'{2**70},chair,"a chair"\n'.encode(), 0.99))),
+        Case("tum-data", "objects-id-0", mutated(objects, lambda p: _insert(p, b'0,chair,"a chair"\n', 0.99))),
+        Case("tum-data", "objects-id-duplicate", mutated(objects, lambda p: p.write_text(p.read_text() + p.read_text().splitlines()[1] + "\n"))),
+        Case("tum-data", "objects-class-escape", mutated(objects, lambda p: _insert(p, b'99,ch\x1bair,"a chair"\n', 0.99))),
+        Case("tum-data", "objects-no-header", mutated(objects, lambda p: p.write_text("7,desk,a desk\n"))),
+        Case("tum-image", "instance-rgb", mutated("annotations/instances", lambda p: Image.new("RGB", (160, 120)).save(first_instance(p)), "instances")),
+        Case("tum-image", "instance-junk", mutated("annotations/instances", lambda p: first_instance(p).write_bytes(b"\x89PNG junk"), "instances")),
+        Case("tum-image", "instance-folder", mutated("annotations/instances", lambda p: _replace_dir(first_instance(p)), "instances")),
+    ]
+    return cases
+
+
+def _aggregation(change: Callable[[dict], None]) -> Callable[[Path], None]:
+    def write(path: Path) -> None:
+        document = json.loads(path.read_text())
+        change(document)
+        path.write_text(json.dumps(document))
+
+    return write
+
+
+def scannet_cases() -> list[Case]:
+    """The demo ScanNet scene with its segmentation, aggregation, descriptions or label table broken (map build)."""
+
+    def mutated(relative: str, change: Callable[[Path], None]) -> Callable:
+        def make(space, case_dir):
+            folder = space.copy("demo", case_dir)
+            change(folder / relative)
+            return map_app, space.map_args(str(folder)), Path(relative).name
+
+        return make
+
+    aggregation, segs, descriptions = "demo.aggregation.json", "demo_vh_clean_2.0.010000.segs.json", "demo_descriptions.json"
+    groups = lambda change: _aggregation(lambda d: change(d["segGroups"]))  # noqa: E731
+    tsv = "scannetv2-labels.combined.tsv"
+    cases = {
+        "aggregation-deep": (aggregation, lambda p: p.write_text(_deep_json())),
+        "aggregation-list": (aggregation, lambda p: p.write_text("[1, 2]")),
+        "aggregation-latin1": (aggregation, lambda p: _insert(p, LATIN1, 0.0)),
+        "aggregation-2d-segments": (aggregation, groups(lambda g: g[0].update(segments=[g[0]["segments"]]))),
+        "aggregation-duplicate-objectid": (aggregation, groups(lambda g: g[1].update(objectId=g[0]["objectId"]))),
+        "aggregation-objectid-2**70": (aggregation, groups(lambda g: g[0].update(objectId=2**70))),
+        "aggregation-objectid-negative": (aggregation, groups(lambda g: g[0].update(objectId=-5))),
+        "aggregation-objectid-text": (aggregation, groups(lambda g: g[0].update(objectId="seven"))),
+        "aggregation-label-nul": (aggregation, groups(lambda g: g[0].update(label="ch\0air"))),
+        "aggregation-groups-dict": (aggregation, _aggregation(lambda d: d.update(segGroups={"a": 1}))),
+        "segs-deep": (segs, lambda p: p.write_text('{"segIndices": ' + _deep_json() + "}")),
+        "segs-float-ids": (segs, _aggregation(lambda d: d.update(segIndices=[i + 0.5 for i in d["segIndices"]]))),
+        "segs-text-ids": (segs, _aggregation(lambda d: d["segIndices"].__setitem__(3, "x"))),
+        "segs-huge-id": (segs, _aggregation(lambda d: d["segIndices"].__setitem__(3, 2**70))),
+        "segs-folder": (segs, _replace_dir),
+        "descriptions-nul": (descriptions, lambda p: p.write_text(json.dumps({"0": "a red\u0000 chair"}))),
+        "descriptions-list": (descriptions, lambda p: p.write_text("[]")),
+        "descriptions-latin1": (descriptions, lambda p: p.write_bytes(b'{"0": "a ' + LATIN1 + b' chair"}')),
+        "labels-tsv-latin1": (tsv, lambda p: p.write_bytes(b"raw_category\tnyu40class\n" + LATIN1 + b"\tchair\n")),
+        "labels-tsv-columns": (tsv, lambda p: p.write_text("a\tb\n1\t2\n")),
+        "labels-tsv-folder": (tsv, lambda p: p.mkdir()),
+        "descriptions-folder": (descriptions, _replace_dir),
+        "mesh-junk": ("demo_vh_clean_2.labels.ply", lambda p: p.write_bytes(b"ply\nformat junk\n")),
+    }
+    return [Case("scannet", name, mutated(relative, change)) for name, (relative, change) in cases.items()]
+
+
+def frame_cases() -> list[Case]:
+    """The demo ScanNet scene with a pose, the intrinsics or a frame image broken (clipclique-loc run, recording on)."""
+
+    def mutated(relative: str, change: Callable[[Path], None]) -> Callable:
+        def make(space, case_dir):
+            folder = space.copy("demo", case_dir)
+            change(folder / relative)
+            return loc_app, space.loc_args(sequence=str(folder)), Path(relative).name
+
+        return make
+
+    def matrix(values: np.ndarray) -> Callable[[Path], None]:
+        return lambda p: np.savetxt(p, values)
+
+    def huge_png(path: Path) -> None:
+        """A PNG whose header declares 100,000 x 100,000 pixels (a decompression bomb)."""
+        def chunk(kind: bytes, body: bytes) -> bytes:
+            return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+        header = struct.pack(">IIBBBBB", 100_000, 100_000, 16, 0, 0, 0, 0)
+        path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND", b""))
+
+    scaled = np.eye(4)
+    scaled[:3, :3] *= 1.5
+    reflected = np.diag([1.0, 1.0, -1.0, 1.0])
+    sheared = np.eye(4)
+    sheared[0, 1] = 0.4
+    cases = {
+        "pose-latin1": ("pose/1.txt", lambda p: _insert(p, LATIN1 + b"\n", 0.0)),
+        "pose-scaled": ("pose/1.txt", matrix(scaled)),
+        "pose-reflection": ("pose/1.txt", matrix(reflected)),
+        "pose-shear": ("pose/1.txt", matrix(sheared)),
+        "pose-3x3": ("pose/1.txt", matrix(np.eye(3))),
+        "pose-text": ("pose/1.txt", lambda p: p.write_text("one two three four\n" * 4)),
+        "intrinsics-latin1": ("intrinsic/intrinsic_depth.txt", lambda p: _insert(p, LATIN1 + b"\n", 0.0)),
+        "intrinsics-garbage": ("intrinsic/intrinsic_depth.txt", lambda p: p.write_text("1 2\n3\n")),
+        "intrinsics-other-camera": ("intrinsic/intrinsic_depth.txt", matrix(np.array([[500.0, 0, 700, 0], [0, 500, 20, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))),
+        "intrinsics-folder": ("intrinsic/intrinsic_depth.txt", _replace_dir),
+        "depth-8bit": ("depth/1.png", lambda p: Image.fromarray(np.full((120, 160), 200, np.uint8)).save(p)),
+        "depth-rgb": ("depth/1.png", lambda p: Image.new("RGB", (160, 120)).save(p)),
+        "depth-bomb": ("depth/1.png", huge_png),
+        "depth-junk": ("depth/1.png", lambda p: p.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))),
+        "depth-truncated": ("depth/1.png", lambda p: p.write_bytes(p.read_bytes()[:120])),
+        "depth-folder": ("depth/1.png", _replace_dir),
+        "colour-junk": ("color/1.jpg", lambda p: p.write_bytes(b"\xff\xd8\xff not a jpeg")),
+        "instance-rgb": ("instance-filt/1.png", lambda p: Image.new("RGB", (160, 120)).save(p)),
+        "instance-rgba": ("instance-filt/1.png", lambda p: Image.new("RGBA", (160, 120)).save(p)),
+        "instance-folder": ("instance-filt/1.png", _replace_dir),
+    }
+    return [Case("frames", name, mutated(relative, change)) for name, (relative, change) in cases.items()]
+
+
+def output_cases() -> list[Case]:
+    """Outputs that cannot be written where asked: a folder in the way, --out a file."""
+
+    def loc_in_the_way(name: str) -> Callable:
+        def make(space, case_dir):
+            out = case_dir / "loc"
+            shutil.copytree(space.loc, out)
+            target = out / name
+            target.unlink()
+            target.mkdir()
+            args = space.loc_args()
+            args[args.index("--out") + 1] = str(out)
+            return loc_app, args, name
+
+        return make
+
+    def out_is_file(space, case_dir):
+        (case_dir / "file").write_text("x")
+        args = space.loc_args()
+        args[args.index("--out") + 1] = str(case_dir / "file")
+        return loc_app, args, "file"
+
+    def map_out_folder(space, case_dir):
+        (case_dir / "m.map.npz").mkdir()
+        args = space.map_args("demo")
+        args[args.index("--out") + 1] = str(case_dir / "m.map.npz")
+        return map_app, args, "m.map.npz"
+
+    def map_recording_folder(space, case_dir):
+        (case_dir / "m.map.rrd").mkdir()
+        args = space.map_args("demo")
+        args[args.index("--out") + 1] = str(case_dir / "m.map.npz")
+        return map_app, args, "m.map.rrd"
+
+    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "poses.tum", "config.json", "recording.rrd")]
+    return cases + [Case("outputs", "out-is-a-file", out_is_file), Case("outputs", "map-out-is-a-folder", map_out_folder),
+                    Case("outputs", "map-recording-is-a-folder", map_recording_folder)]
+
+
+def encoder_cases() -> list[Case]:
+    """--encoder checkpoints that are junk, raw pickles (never run) or pickles referring to code."""
+
+    class Evil:
+        def __reduce__(self):
+            return (os.system, (f"touch {PWNED}",))
+
+    def checkpoint(name: str, data: bytes | None) -> Callable:
+        def make(space, case_dir):
+            path = case_dir / name
+            path.mkdir() if data is None else path.write_bytes(data)
+            return map_app, [*space.map_args("demo")[:-2], "--encoder", str(path)], name
+
+        return make
+
+    archive = io.BytesIO()
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("weights/data.pkl", pickle.dumps(Evil(), protocol=2))
+    return [
+        Case("encoder", "junk-pt", checkpoint("junk.pt", bytes(range(256)) * 8)),
+        Case("encoder", "raw-pickle", checkpoint("evil.pth", pickle.dumps(Evil()))),
+        Case("encoder", "zip-pickle-with-code", checkpoint("evil.pt", archive.getvalue())),
+        Case("encoder", "junk-safetensors", checkpoint("junk.safetensors", b"\xff" * 64)),
+        Case("encoder", "checkpoint-folder", checkpoint("dir.pt", None)),
+        Case("encoder", "empty-bin", checkpoint("empty.bin", b"")),
+    ]
+
+
+def compare_cases() -> list[Case]:
+    """Malformed results.json given to clipclique-loc compare."""
+
+    def results(change: Callable[[dict], object] | bytes | None) -> Callable:
+        def make(space, case_dir):
+            path = case_dir / "results.json"
+            if change is None:
+                path.mkdir()
+                (path / "results.json").mkdir()
+            elif isinstance(change, bytes):
+                path.write_bytes(change)
+            else:
+                document = json.loads((space.loc / "results.json").read_text())
+                path.write_text(json.dumps(change(document)))
+            return loc_app, ["compare", str(path)], "results.json"
+
+        return make
+
+    def without(*keys: str) -> Callable[[dict], dict]:
+        def change(document: dict) -> dict:
+            part = document
+            for key in keys[:-1]:
+                part = part[key]
+            del part[keys[-1]]
+            return document
+
+        return change
+
+    def setting(value: object, *keys: str) -> Callable[[dict], dict]:
+        def change(document: dict) -> dict:
+            part = document
+            for key in keys[:-1]:
+                part = part[key]
+            part[keys[-1]] = value
+            return document
+
+        return change
+
+    cases = {
+        "a-list": lambda d: [d],
+        "no-run": without("run"),
+        "no-summary": without("summary"),
+        "run-a-string": setting("x", "run"),
+        "no-sequence": without("run", "sequence"),
+        "sequence-a-number": setting(3, "run", "sequence"),
+        "detector-a-string": setting("gt", "run", "detector"),
+        "notes-a-string": setting("note", "run", "notes"),
+        "success-a-string": setting("high", "summary", "success@1"),
+        "no-stage-medians": without("summary", "stage_ms_median"),
+        "latin1": b'{"format": "' + LATIN1 + b'"}',
+        "deep": _deep_json().encode(),
+        "empty": b"",
+        "folder": None,
+    }
+    return [Case("compare", name, results(change)) for name, change in cases.items()]
+
+
+def name_cases() -> list[Case]:
+    """Sequence names that lead out of the data root or nowhere."""
+
+    def loc(name: str) -> Callable:
+        return lambda space, case_dir: (loc_app, space.loc_args(sequence=name), name)
+
+    def build(name: str) -> Callable:
+        return lambda space, case_dir: (map_app, space.map_args(name), name)
+
+    names = ("rgbd_dataset_x/../../../elsewhere", "rgbd_dataset_freiburg1_desk/../../demo/demo", "/", "no_such_scene")
+    return [Case("names", f"loc-{n}", loc(n)) for n in names] + [Case("names", f"map-{n}", build(n)) for n in names]
+
+
+CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+
+
+def test_the_suite_is_large_and_covers_every_family():
+    assert len(CASES) >= 100
+    assert len({str(case) for case in CASES}) == len(CASES)
+    assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
+                                               "outputs", "encoder", "compare", "names"}
+
+
+@pytest.mark.parametrize("case", CASES, ids=str)
+def test_hostile_input_is_one_line_exit_2_and_loses_nothing(case: Case, workspace: Workspace, tmp_path: Path):
+    before = snapshot(workspace.root / "maps", workspace.loc)
+    app, args, named = case.make(workspace, tmp_path)
+    result = RUNNER.invoke(app, args)
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2, f"exit {result.exit_code}: {result.output[-2000:]} {result.exception!r}"
+    assert isinstance(result.exception, SystemExit), repr(result.exception)
+    assert "Traceback" not in result.output
+    assert len(lines) == 1 and "error" in lines[0], result.output
+    assert named in lines[0], f"{named!r} not named in: {lines[0]}"
+    assert leftovers(workspace.root) == [] and leftovers(tmp_path) == []
+    assert snapshot(workspace.root / "maps", workspace.loc) == before
+    assert not PWNED.exists()  # no pickle was ever run

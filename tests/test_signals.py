@@ -54,7 +54,7 @@ def digests(folder: Path) -> dict[str, str]:
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signum):
     before = digests(demo / "loc")
-    assert set(before) == {"results.json", "poses.tum", "config.json", "recording.rrd"}
+    assert set(before) == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
     process = subprocess.Popen([str(LOC), *args(demo)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                env={**os.environ, "COLUMNS": "200"})
     deadline = time.monotonic() + 60
@@ -71,13 +71,13 @@ def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signu
 def test_no_rrd_after_a_recorded_run_removes_the_stale_recording_and_says_so(demo, tmp_path):
     out = tmp_path / "loc"
     out.mkdir()
-    for name in ("results.json", "poses.tum", "config.json", "recording.rrd"):
+    for name in ("results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"):
         (out / name).write_bytes((demo / "loc" / name).read_bytes())
     command = args(demo, "--max-frames", "2", "--no-rrd")
     command[command.index("--out") + 1] = str(out)
     result = CliRunner().invoke(app, command)
     assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in out.iterdir()) == ["config.json", "poses.tum", "results.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["config.json", "groundtruth.tum", "poses.tum", "results.json"]
     assert f"note: {out / 'recording.rrd'} of an earlier run was removed (--no-rrd: it would not match these results)" \
         in result.output.replace("\n", "")
 

@@ -107,8 +107,8 @@ def read_instance_ids(path: Path) -> np.ndarray:
     return safeio.read_single_channel(path, "instance", error=DatasetError).astype(np.int32)
 
 
-def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path) -> np.ndarray:
-    """The depth intrinsics rescaled to a depth image of `shape` (H, W).
+def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path, source: str = "the depth intrinsics") -> np.ndarray:
+    """The depth intrinsics (read from `source`) rescaled to the depth image `path` of `shape` (H, W).
 
     The principal point lies near the image centre, so a matrix whose (cx, cy) sits at twice
     (or half, ...) the centre of this image was calibrated at that image size: scale it by the
@@ -119,7 +119,7 @@ def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path) -
     scale = 2.0 ** np.round(np.log2(ratios[0]))
     if not np.all(np.abs(ratios / scale - 1) < 0.2):
         raise DatasetError(
-            f"{path}: depth image {width} x {height} does not fit the depth intrinsics (principal point "
+            f"{path}: depth image {width} x {height} does not fit {source} (principal point "
             f"{intrinsics[0, 2]:g}, {intrinsics[1, 2]:g}); the intrinsics belong to another camera"
         )
     if scale == 1:

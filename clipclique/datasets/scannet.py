@@ -101,7 +101,7 @@ class ScanNetScene(Sequence):
         n = self.frame_numbers[i]
         depth_path = self.root / "depth" / f"{n}.png"
         depth = read_depth(depth_path, DEPTH_FACTOR)
-        intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path)
+        intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path, str(self.root / "intrinsic" / "intrinsic_depth.txt"))
         rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
         instance_path = self.root / "instance-filt" / f"{n}.png"
         if instance_path.exists():

@@ -30,6 +30,7 @@ class DetectorKind(str, Enum):
     annotations = "annotations"
     yolo = "yolo"
     simulated = "simulated"
+    simulated_yolo = "simulated-yolo"
 
 
 @app.command()
@@ -45,7 +46,8 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[DetectorKind], typer.Option(
-        help="\\[default: simulated on the demo, gt on ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+        help="\\[default: simulated on demo/demo_tum, simulated-yolo on demo_desk, gt on demo_apartment and "
+             "ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(

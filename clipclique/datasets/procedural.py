@@ -122,7 +122,7 @@ class _RoomBuilder:
         self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []  # vertices, faces, colour, object
 
     def add_object(self, category: str, color: str | None) -> int:
-        description = PHRASES[category].format(c=color) if color else category
+        description = PHRASES.get(category, "a {c} " + category).format(c=color) if color else category
         self.objects.append(RoomObject(len(self.objects), category, description))
         return len(self.objects) - 1
 
@@ -403,9 +403,13 @@ def make_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
     eyes[:, 1] = np.clip(eyes[:, 1], margin, room.size[1] - margin)
     eyes[:, 2] = rng.uniform(1.35, 1.65, len(eyes))
     knots = np.linspace(0.0, duration, len(eyes))
-    shake = np.column_stack((
+    return Walk(np.linspace(0.0, duration, num_frames, endpoint=False), knots, eyes, targets, hand_shake(rng))
+
+
+def hand_shake(rng: np.random.Generator) -> np.ndarray:
+    """`Walk.shake`: 18 seeded sinusoids, 8 mm of position and 6 mrad of rotation each."""
+    return np.column_stack((
         rng.uniform(0.5, 3.0, 18),  # rad/s
         rng.uniform(0, 2 * np.pi, 18),
         np.concatenate((np.full(9, 0.008), np.full(9, 0.006))),  # metres; radians
     ))
-    return Walk(np.linspace(0.0, duration, num_frames, endpoint=False), knots, eyes, targets, shake)

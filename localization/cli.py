@@ -35,7 +35,7 @@ class DetectorKind(str, Enum):
 
 @app.command()
 def run(
-    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, scene0002_00, fr2, fr3, or a sequence folder")],
+    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
     method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
     top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,

@@ -188,8 +188,8 @@ class SimulatedYoloDetector:
     truth: InstanceDetector
     lookalikes: dict[str, list[tuple[str, float]]] = field(default_factory=read_lookalikes)
     seed: int = 0
-    detect_max: float = 0.8
-    half_pixels: float = 4000.0
+    detect_max: float = 0.9
+    half_pixels: float = 2500.0
     truncated_factor: float = 0.5
     far_factor: float = 0.5
     far_m: float = 3.5

@@ -31,7 +31,7 @@ def _tool() -> None:
 
 @app.command()
 def build(
-    scene: Annotated[str, typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, or a scene folder", show_default=False)],
+    scene: Annotated[str, typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, demo_desk, or a scene folder", show_default=False)],
     data_root: Annotated[
         Path | None,
         typer.Option("--data-root", help="folder holding scannet/scans/, tum/, demo/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
@@ -113,6 +113,7 @@ def print_summary(map: Map, report: BuildReport, out: Path, recording: Path | No
     for name in map.class_names:
         table.add_row(name, str(report.landmarks_per_class[name]))
     console.print(table)
+    print_graph(map)
     if report.structure:
         console.print("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items())))
     for reason, items in report.skipped.items():
@@ -126,6 +127,18 @@ def print_summary(map: Map, report: BuildReport, out: Path, recording: Path | No
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
     console.print(f"time: {timings}")
     console.print(f"map: {out}" + (f"\nrecording: {recording}  (open with: rerun {recording})" if recording else ""), highlight=False)
+
+
+def print_graph(map: Map) -> None:
+    """The semantic graph's degree histogram at the default d_adj: how much the Semantic Histograms can say."""
+    from clipclique.config import GraphConfig
+    from mapping.build import degree_histogram
+
+    d_adj = GraphConfig().d_adj
+    counts = degree_histogram(map, d_adj)
+    console.print(f"semantic graph at d_adj {d_adj:g} m, landmarks per degree (0, 1, 2, ...): "
+                  f"{', '.join(str(int(n)) for n in counts)}; {counts[0] / max(len(map), 1):.0%} isolated "
+                  "(no neighbour: their Semantic Histograms are empty)", highlight=False)
 
 
 def main() -> None:

@@ -59,7 +59,7 @@ class SceneStats:
 
     objects: int
     classes: int
-    extent: np.ndarray  # (3,) of the landmarks' boxes
+    extent: np.ndarray  # (3,) of the mapped objects' points
     degrees: np.ndarray  # (N,) semantic-graph degree of each landmark at d_adj
     observations: np.ndarray  # (F,) ground-truth observations per frame
     observations_near: np.ndarray  # (F,) ... of them within NEAR_M of the camera
@@ -89,10 +89,11 @@ class SceneStats:
         return sum(self.confusions.values()) / max(self.hits, 1)
 
 
-def landmark_extent(map: Map) -> np.ndarray:
-    """(3,) size of the box holding every landmark's oriented box."""
-    half = np.sqrt(np.einsum("nij,nj->ni", map.ellipsoids.rotations ** 2, map.ellipsoids.axes ** 2))
-    return (map.ellipsoids.centers + half).max(axis=0) - (map.ellipsoids.centers - half).min(axis=0)
+def landmark_extent(sequence: Sequence, map: Map) -> np.ndarray:
+    """(3,) size of the axis-aligned box holding the points of every mapped object."""
+    points = np.concatenate([i.points for i in sequence.instances() if i.instance_id in set(map.instance_ids.tolist())])
+    points = points[np.isfinite(points).all(axis=1)]
+    return points.max(axis=0) - points.min(axis=0)
 
 
 def hit_objects(frame: Frame, detections: Detections, mapped: np.ndarray) -> np.ndarray:
@@ -119,7 +120,7 @@ def measure(sequence: Sequence, detector_kind: str | None = None, frames: int | 
     class_of = dict(zip(map.instance_ids.tolist(), map.class_ids.tolist()))
     mapped = map.instance_ids
     params = ObservationParams()
-    stats = SceneStats(len(map), len(map.class_names), landmark_extent(map),
+    stats = SceneStats(len(map), len(map.class_names), landmark_extent(sequence, map),
                        np.diff(semantic_graph(map.ellipsoids.centers, d_adj).indptr), np.zeros(0, int),
                        np.zeros(0, int), 0.0, np.zeros(0), detector.name)
     counts, near, isolated, offsets = [], [], [], []

@@ -5,6 +5,8 @@ frames, 2D instance images) and `demo_tum` a TUM RGB-D sequence folder (rgb/, de
 5000, rgb.txt, depth.txt, a 100 Hz groundtruth.txt whose timestamps differ from the images', and
 our object annotations). The real readers read them; nothing downstream knows they are
 synthetic except through the marker file `clipclique_demo.json`. Same seed, same bytes.
+`demo_apartment` (ScanNet layout) and `demo_desk` (TUM layout) are scenes shaped like real data
+(clipclique.datasets.scenes); their marker also names the detector they are localized with.
 
 Files beyond the official layouts (documented for users, read by our readers):
 - ScanNet: `<scene>_descriptions.json`, `{"<objectId>": "a red office chair", ...}`.

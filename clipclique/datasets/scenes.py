@@ -233,28 +233,27 @@ def apartment_walk(room: Room, seed: int, num_frames: int, duration: float) -> W
     del room
     route = np.array([
         # eye (x, y, z)          target
-        [3.5, 0.6, 1.65, 0.8, 3.2, 0.5],   # living room: couch, armchair, lamp, tv
-        [3.3, 1.6, 1.65, 0.5, 2.8, 0.5],   # couch, coffee table, armchair, lamp, bookshelf
-        [3.2, 2.8, 1.65, 0.5, 1.0, 0.6],   # bookshelf, curtain, couch, coffee table
-        [2.5, 1.5, 1.55, 1.5, 0.0, 0.9],   # close to the curtain
-        [2.6, 3.3, 1.65, 6.5, 0.8, 0.6],   # across to the kitchen
-        [4.5, 3.0, 1.65, 6.5, 0.6, 0.6],   # kitchen: counter, cabinets, table, chairs
-        [4.6, 2.6, 1.6, 6.8, 1.2, 0.6],    # the same, nearer
+        [3.5, 0.6, 1.7, 0.8, 3.2, 0.5],    # living room: couch, armchair, lamp, tv
+        [3.3, 2.8, 1.7, 0.5, 1.0, 0.5],    # bookshelf, curtain, couch, coffee table
+        [2.6, 1.6, 1.6, 1.2, 0.0, 0.8],    # near the curtain
+        [0.9, 0.9, 1.75, 5.5, 2.2, 0.5],   # across to the kitchen
+        [1.9, 3.9, 1.75, 6.0, 1.0, 0.5],   # across to the kitchen from the armchair
+        [4.5, 3.0, 1.7, 6.5, 0.6, 0.6],    # kitchen: counter, cabinets, table, chairs
         [5.6, 1.15, 1.5, 6.3, 0.2, 0.7],   # close to the counter
-        [6.5, 1.5, 1.65, 4.0, 2.6, 0.5],   # table, pantry, the living room
-        [6.5, 2.0, 1.65, 2.0, 3.0, 0.5],   # across everything
-        [6.4, 1.1, 1.65, 1.0, 2.0, 0.5],   # the living room from the kitchen
+        [6.5, 1.5, 1.7, 4.0, 2.6, 0.5],    # table, pantry, the living room
+        [6.5, 2.0, 1.75, 2.0, 3.0, 0.5],   # across everything
+        [6.4, 1.1, 1.75, 1.0, 2.0, 0.5],   # the living room from the kitchen
+        [4.6, 2.9, 1.7, 1.0, 1.5, 0.5],    # the living room from the kitchen door
         [5.7, 3.0, 1.6, 7.4, 4.5, 0.9],    # through to the hall: front door
         [4.45, 5.0, 1.6, 1.5, 6.6, 0.5],   # bedroom door
-        [3.1, 5.4, 1.65, 0.5, 7.3, 0.5],   # bedroom: bed, pillows, curtain
-        [1.1, 5.5, 1.65, 3.4, 7.3, 0.5],   # nightstand, lamp, desk, chair
+        [3.1, 5.4, 1.7, 0.5, 7.3, 0.5],    # bedroom: bed, pillows, curtain
+        [1.1, 5.5, 1.7, 3.4, 7.3, 0.5],    # nightstand, lamp, desk, chair
         [1.6, 5.4, 1.5, 1.6, 7.5, 0.4],    # close to the bed
-        [2.9, 5.6, 1.65, 0.6, 4.2, 0.6],   # dresser, wardrobe, the living room through the double door
-        [2.0, 5.2, 1.7, 2.0, 2.0, 0.5],    # into the living room
-        [4.45, 5.0, 1.55, 6.5, 5.7, 0.8],  # back to the hall
-        [6.45, 5.0, 1.65, 6.0, 7.2, 0.4],  # bathroom door
+        [2.9, 5.6, 1.7, 0.6, 4.2, 0.6],    # dresser, wardrobe, the living room through the double door
+        [2.0, 5.2, 1.75, 2.0, 2.0, 0.5],   # into the living room
+        [5.2, 4.6, 1.7, 6.3, 7.0, 0.5],    # back to the hall, into the bathroom
+        [6.45, 5.2, 1.7, 5.6, 7.2, 0.5],   # bathroom door: toilet, bathtub
         [7.2, 5.7, 1.75, 5.1, 6.9, 0.5],   # vanity, mirror cabinet, hand towel, toilet, bathtub
-        [5.9, 5.8, 1.7, 7.2, 7.5, 0.4],    # bathtub, bath towel
         [6.4, 6.8, 1.5, 7.5, 6.4, 0.9],    # close to the bath towel
     ])
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.05)
@@ -264,17 +263,19 @@ def desk_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
     """Around the desks at 1-2.5 m, looking at their tops, as in TUM fr2/desk."""
     del room
     route = np.array([
-        [1.0, 2.6, 1.5, 2.0, 0.8, 0.75],
-        [2.0, 2.9, 1.6, 2.3, 0.8, 0.75],
-        [3.0, 2.7, 1.55, 2.9, 0.8, 0.75],
-        [4.3, 2.4, 1.5, 3.5, 0.8, 0.75],
-        [5.2, 1.9, 1.45, 3.4, 0.8, 0.75],
-        [4.6, 2.8, 1.6, 2.6, 0.8, 0.75],
-        [2.6, 2.2, 1.7, 2.7, 0.8, 0.7],
-        [0.4, 2.0, 1.5, 2.0, 0.8, 0.75],
-        [0.6, 3.0, 1.6, 2.5, 0.8, 0.75],
-        [1.8, 2.5, 1.45, 1.9, 0.8, 0.75],
-        [3.4, 2.5, 1.5, 3.0, 0.8, 0.75],
-        [1.0, 2.6, 1.5, 2.0, 0.8, 0.75],
+        # eye (x, y, z)          target
+        [1.2, 2.05, 1.45, 2.0, 0.8, 0.75],
+        [2.0, 2.15, 1.5, 2.3, 0.8, 0.75],
+        [3.0, 2.05, 1.5, 2.9, 0.8, 0.75],
+        [4.1, 1.95, 1.45, 3.5, 0.8, 0.75],
+        [4.8, 1.65, 1.4, 3.4, 0.8, 0.75],
+        [4.0, 2.6, 1.55, 5.8, 3.4, 0.4],   # a look at the spare chair and the plant
+        [3.2, 2.15, 1.55, 2.7, 0.8, 0.7],
+        [2.2, 2.4, 1.5, 0.5, 3.4, 0.3],    # a look at the floor vase
+        [0.6, 1.75, 1.45, 2.0, 0.8, 0.75],
+        [0.9, 2.35, 1.55, 2.5, 0.8, 0.75],
+        [1.9, 1.95, 1.4, 1.9, 0.8, 0.75],
+        [3.4, 2.05, 1.45, 3.0, 0.8, 0.75],
+        [1.2, 2.05, 1.45, 2.0, 0.8, 0.75],
     ])
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.08)

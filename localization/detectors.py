@@ -193,7 +193,7 @@ class SimulatedYoloDetector:
     truncated_factor: float = 0.5
     far_factor: float = 0.5
     far_m: float = 3.5
-    false_positive_ratio: float = 0.27  # 21% of all detections
+    false_positive_ratio: float = 0.3  # false positives per true detection: about 21-23% of all detections
     border_px: int = 8
     simulated: bool = True
 

@@ -68,11 +68,10 @@ class SceneSpec(DemoSpec):
     detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
 
     def room(self) -> Room:
-        return scenes.make_apartment(self.seed) if self.scene == "apartment" else scenes.make_desk(self.seed)
+        return scenes.SCENES[self.scene][0](self.seed)
 
     def walk(self, room: Room) -> Walk:
-        make = scenes.apartment_walk if self.scene == "apartment" else scenes.desk_walk
-        return make(room, self.seed, self.num_frames, self.duration_s)
+        return scenes.SCENES[self.scene][1](room, self.seed, self.num_frames, self.duration_s)
 
 
 DEMO_SCENES: dict[str, DemoSpec] = {

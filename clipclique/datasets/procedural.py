@@ -274,22 +274,9 @@ class _Furniture:
                 self.block("book", pos, yaw + self.rng.uniform(-0.5, 0.5), color, (0.23, 0.16, 0.035))
 
 
-def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
-    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
-
-    `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
-    boxes in a row along the wall y = D, for scenes with more objects.
-    """
-    rng = np.random.default_rng(seed)
-    size = np.asarray(size, float)
+def add_shell(b: _RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, float, float]], spacing: float) -> None:
+    """Floor, ceiling, the four outer walls, then inner wall segments (x0, y0, x1, y1), each along an axis."""
     W, D, H = size
-    b = _RoomBuilder(rng, spacing)
-    f = _Furniture(b, rng)
-
-    def spot(x, y, rx=0.12, ry=0.12):
-        """A floor point near (x, y), moved by up to (rx, ry) metres."""
-        return np.array([x + rng.uniform(-rx, rx), y + rng.uniform(-ry, ry), 0.0])
-
     for name, dims, at in (
         ("floor", (W, D, 0.1), (W / 2, D / 2, -0.05)),
         ("ceiling", (W, D, 0.1), (W / 2, D / 2, H + 0.05)),
@@ -298,7 +285,30 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
         ("wall", (0.1, D, H), (-0.05, D / 2, H / 2)),
         ("wall", (0.1, D, H), (W + 0.05, D / 2, H / 2)),
     ):
-        b.box(b.add_object(name, None), STRUCTURE_COLORS[name], dims, at, spacing=wall_spacing)
+        b.box(b.add_object(name, None), STRUCTURE_COLORS[name], dims, at, spacing=spacing)
+    for x0, y0, x1, y1 in walls:
+        dims = (max(x1 - x0, 0.1), max(y1 - y0, 0.1), H)
+        b.box(b.add_object("wall", None), STRUCTURE_COLORS["wall"], dims, ((x0 + x1) / 2, (y0 + y1) / 2, H / 2),
+              spacing=spacing)
+
+
+def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
+    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
+
+    `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
+    boxes in a row along the wall y = D, for scenes with more objects.
+    """
+    rng = np.random.default_rng(seed)
+    size = np.asarray(size, float)
+    W, D, _ = size
+    b = _RoomBuilder(rng, spacing)
+    f = _Furniture(b, rng)
+
+    def spot(x, y, rx=0.12, ry=0.12):
+        """A floor point near (x, y), moved by up to (rx, ry) metres."""
+        return np.array([x + rng.uniform(-rx, rx), y + rng.uniform(-ry, ry), 0.0])
+
+    add_shell(b, size, [], wall_spacing)
 
     # Office corner: desk against the wall y = 0, two monitors, keyboard, lamp, chair.
     desk = spot(1.6, 0.4, 0.1, 0.0)

@@ -1,9 +1,9 @@
 """Two procedural scenes shaped like real data (../shared/REAL_SCENES.md), for the demo generator.
 
-- `make_apartment`: a ScanNet-like apartment of four rooms (7.5 x 8 m inside, objects spanning
-  about 7.3 x 7.8 x 2.1 m): 45 objects of 31 classes, most classes once, 6 cabinets, sparse
-  furniture (about half the objects have no neighbour within 0.8 m) and large objects
-  (kitchen counter, couch, bed, curtains, bath towel) that a frame sees only in part.
+- `make_apartment`: a ScanNet-like apartment (7.5 x 8 m inside: open living room and kitchen,
+  hall, bedroom, bathroom): 45 objects of 32 classes, most classes once, 6 cabinets, sparse
+  furniture (44% of the objects have no neighbour within 0.8 m) and large objects (an L-shaped
+  kitchen counter, couch, bed, curtains, bath towel) that a frame sees only in part.
 - `make_desk`: a TUM fr2/desk-like office: two desks end to end crowded with 47 objects of 19
   COCO classes (8 cups, 7 books, 4 chairs, ...), so dense that most objects have more than
   a dozen neighbours within 0.8 m.
@@ -19,39 +19,21 @@ import numpy as np
 
 from clipclique.datasets.procedural import (
     PALETTE,
-    STRUCTURE_COLORS,
     Room,
     Walk,
     _Furniture,
     _RoomBuilder,
     _yaw_offset,
+    add_shell,
     hand_shake,
 )
 
 WALL_SPACING = 0.12
 
 
-def _shell(b: _RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, float, float]]) -> None:
-    """Floor, ceiling, the four outer walls and inner wall segments (x0, y0, x1, y1), each along an axis."""
-    W, D, H = size
-    for name, dims, at in (
-        ("floor", (W, D, 0.1), (W / 2, D / 2, -0.05)),
-        ("ceiling", (W, D, 0.1), (W / 2, D / 2, H + 0.05)),
-        ("wall", (W + 0.2, 0.1, H), (W / 2, -0.05, H / 2)),
-        ("wall", (W + 0.2, 0.1, H), (W / 2, D + 0.05, H / 2)),
-        ("wall", (0.1, D, H), (-0.05, D / 2, H / 2)),
-        ("wall", (0.1, D, H), (W + 0.05, D / 2, H / 2)),
-    ):
-        b.box(b.add_object(name, None), STRUCTURE_COLORS[name], dims, at, spacing=WALL_SPACING)
-    for x0, y0, x1, y1 in walls:
-        dims = (max(x1 - x0, 0.1), max(y1 - y0, 0.1), H)
-        b.box(b.add_object("wall", None), STRUCTURE_COLORS["wall"], dims, ((x0 + x1) / 2, (y0 + y1) / 2, H / 2),
-              spacing=WALL_SPACING)
-
-
-def _curtain(f: _Furniture, at, yaw: float, color: str, width: float, height: float, category: str = "curtain") -> None:
+def _curtain(f: _Furniture, at, yaw: float, color: str, width: float, height: float) -> None:
     """A curtain with folds: vertical strips at alternating depth, hanging from `height` to 10 cm above `at`."""
-    obj, rgb = f.b.add_object(category, color), PALETTE[color]
+    obj, rgb = f.b.add_object("curtain", color), PALETTE[color]
     folds = max(2, int(round(width / 0.2)))
     for k in range(folds):
         offset = _yaw_offset(yaw, 0.05 * (k % 2), -width / 2 + (k + 0.5) * width / folds)
@@ -64,12 +46,12 @@ def make_apartment(seed: int) -> Room:
     size = np.array([7.5, 8.0, 2.5])
     b = _RoomBuilder(rng, 0.06)
     f = _Furniture(b, rng)
-    _shell(b, size, [
+    add_shell(b, size, [
         (3.95, 3.45, 4.05, 4.6), (3.95, 5.5, 4.05, 8.0),  # living room | hall, bedroom | hall
         (0.0, 4.55, 0.9, 4.65), (2.4, 4.55, 3.95, 4.65),  # living room | bedroom (a wide double door)
         (4.05, 3.35, 5.2, 3.45), (6.2, 3.35, 7.5, 3.45),  # kitchen | hall
         (4.9, 5.35, 6.0, 5.45), (6.9, 5.35, 7.5, 5.45), (4.85, 5.45, 4.95, 8.0),  # bathroom
-    ])
+    ], WALL_SPACING)
 
     def at(x, y, z=0.0, r=0.04):
         """A point near (x, y, z), moved by up to r metres in x and y."""
@@ -156,7 +138,7 @@ def make_desk(seed: int) -> Room:
     size = np.array([7.0, 5.0, 2.6])
     b = _RoomBuilder(rng, 0.04)
     f = _Furniture(b, rng)
-    _shell(b, size, [])
+    add_shell(b, size, [], WALL_SPACING)
     y0 = 0.8  # desks' centre line; their backs face the wall y = 0.4
     for x, w in ((1.9, 1.8), (3.65, 1.7)):
         f.table(np.array([x, y0, 0.0]), 0.0, f.colors(1)[0], category="dining table", w=w, d=0.8, h=0.72)
@@ -279,3 +261,7 @@ def desk_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
         [1.2, 2.05, 1.45, 2.0, 0.8, 0.75],
     ])
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.08)
+
+
+# Scene name -> (room maker, walk maker), as `clipclique.datasets.demo.SceneSpec.scene` names them.
+SCENES = {"apartment": (make_apartment, apartment_walk), "desk": (make_desk, desk_walk)}

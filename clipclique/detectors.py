@@ -5,6 +5,9 @@
   object table. The paper queries with ground-truth instances.
 - `SimulatedDetector`: ground truth degraded, seeded per frame: misses, false positives
   (blobs on whatever surface is there) and class confusions. Named "simulated" everywhere.
+- `SimulatedYoloDetector`: ground truth degraded the way a real YOLO fails (size- and
+  truncation-dependent misses, look-alike classes from `data/detector_lookalikes.csv`, false
+  positives on unmapped surfaces), seeded per frame. Named "simulated-yolo" everywhere.
 
 They live in the library (not in the clipclique-loc tool) so that a library user can go from a
 dataset frame to a pose without the CLI; YOLO-seg, which needs ultralytics and weights, is a
@@ -13,8 +16,9 @@ back-end of the tool (`localization/detectors.py`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -63,6 +67,11 @@ class InstanceDetector:
         """Dataset object id -> map class id (-1: not in the map's vocabulary), fixed for the run."""
         vocabulary = vocabulary_index(self.class_names)
         return {i: vocabulary.get(name.lower(), -1) for i, name in self.object_classes.items()}
+
+    @cached_property
+    def mapped_ids(self) -> frozenset[int]:
+        """Dataset object ids whose class the map's vocabulary has."""
+        return frozenset(i for i, c in self._map_class.items() if c >= 0)
 
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
@@ -123,3 +132,110 @@ class SimulatedDetector:
         radii = rng.uniform(0.05, 0.15, (count, 2)) * min(height, width)
         return (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
                 + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
+
+
+LOOKALIKES_FILE = Path(__file__).parent / "data" / "detector_lookalikes.csv"
+
+
+def read_lookalikes(path: Path = LOOKALIKES_FILE) -> dict[str, list[tuple[str, float]]]:
+    """true class -> [(look-alike class, probability), ...] from the look-alike table (`#` lines are comments)."""
+    import csv
+
+    lines = [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
+    table: dict[str, list[tuple[str, float]]] = {}
+    for row in csv.DictReader(lines):
+        table.setdefault(row["true"].lower(), []).append((row["detected"].lower(), float(row["probability"])))
+    return table
+
+
+@dataclass
+class SimulatedYoloDetector:
+    """Ground truth degraded the way a real YOLO fails on a real desk map (../shared/REAL_SCENES.md).
+
+    - Misses: an object is detected with probability `detect_max * a / (a + half_pixels)` for a
+      mask of `a` pixels, times `truncated_factor` when it touches the image border and
+      `far_factor` beyond `far_m`: small, cut and distant objects are missed most.
+    - Look-alike classes from `lookalikes` (clipclique/data/detector_lookalikes.csv), not uniform flips.
+    - False positives: Poisson(`false_positive_ratio` * detections) blobs the size of a small
+      object at their depth, on surfaces that hold no mapped object, with a class of the map.
+    Seeded per frame. Named "simulated-yolo" everywhere.
+    """
+
+    truth: InstanceDetector
+    lookalikes: dict[str, list[tuple[str, float]]] = field(default_factory=read_lookalikes)
+    seed: int = 0
+    detect_max: float = 0.9
+    half_pixels: float = 2500.0
+    truncated_factor: float = 0.5
+    far_factor: float = 0.5
+    far_m: float = 3.5
+    false_positive_ratio: float = 0.3  # false positives per true detection: about 21-23% of all detections
+    border_px: int = 8
+    simulated: bool = True
+
+    @property
+    def name(self) -> str:
+        return "simulated-yolo"
+
+    @cached_property
+    def _confusions(self) -> tuple[np.ndarray, np.ndarray]:
+        """(C, K) look-alike class ids (-1 = none) and their cumulative probabilities, per map class."""
+        vocabulary = vocabulary_index(self.truth.class_names)
+        rows = [[(vocabulary[other], p) for other, p in self.lookalikes.get(name.lower(), []) if other in vocabulary]
+                for name in self.truth.class_names]
+        width = max([len(row) for row in rows] + [1])
+        targets = np.full((len(rows), width), -1, int)
+        cumulative = np.ones((len(rows), width))  # padding never wins
+        for c, row in enumerate(rows):
+            if row:
+                targets[c, :len(row)] = [other for other, _ in row]
+                cumulative[c, :len(row)] = np.cumsum([p for _, p in row])
+        return targets, cumulative
+
+    def detect(self, frame: Frame) -> Detections:
+        rng = np.random.default_rng([self.seed, frame.index])
+        true = self.truth.detect(frame)
+        height, width = frame.depth.shape
+        pixels = true.masks.sum(axis=(1, 2)).astype(float)
+        band = np.ones((height, width), bool)
+        band[self.border_px:height - self.border_px, self.border_px:width - self.border_px] = False
+        truncated = (true.masks & band).any(axis=(1, 2))
+        depths = np.array([np.median(frame.depth[m][frame.depth[m] > 0]) if (frame.depth[m] > 0).any() else 0.0
+                           for m in true.masks])
+        chance = (self.detect_max * pixels / (pixels + self.half_pixels)
+                  * np.where(truncated, self.truncated_factor, 1.0) * np.where(depths > self.far_m, self.far_factor, 1.0))
+        kept = rng.random(len(true)) < chance
+        class_ids = self._confused(rng, true.class_ids[kept])
+        spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
+        masks = np.concatenate((true.masks[kept], spurious))
+        return Detections(
+            masks,
+            mask_boxes(masks) if len(masks) else np.zeros((0, 4)),
+            np.concatenate((class_ids, spurious_ids)).astype(int),
+            np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious)))),
+            np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
+        )
+
+    def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
+        """Each class replaced by one of its look-alikes with the table's probability."""
+        targets, cumulative = self._confusions
+        draw = rng.random(len(class_ids))
+        pick = (draw[:, None] >= cumulative[class_ids]).sum(axis=1)  # index of the first row above the draw
+        chosen = targets[class_ids, np.minimum(pick, targets.shape[1] - 1)]
+        return np.where((pick < targets.shape[1]) & (chosen >= 0), chosen, class_ids)
+
+    def _false_positives(self, rng: np.random.Generator, frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """Elliptic masks 10-30 cm across at their depth, centred on valid depth off every mapped object."""
+        height, width = frame.depth.shape
+        mapped = np.isin(frame.instances, list(self.truth.mapped_ids)) if frame.instances is not None else np.zeros((height, width), bool)
+        free = np.flatnonzero((frame.depth > 0) & ~mapped)
+        if count == 0 or len(free) == 0:
+            return np.zeros((0, height, width), bool), np.zeros(0, int)
+        centers = np.column_stack(np.unravel_index(free[rng.integers(0, len(free), count)], (height, width)))
+        size_m = rng.uniform(0.05, 0.15, (count, 2))
+        radii = size_m * frame.intrinsics[0, 0] / frame.depth[centers[:, 0], centers[:, 1]][:, None]
+        v, u = np.mgrid[:height, :width]
+        blobs = (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
+                 + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
+        blobs &= ~mapped
+        return blobs, rng.integers(0, len(self.truth.class_names), count)

@@ -46,11 +46,12 @@ class DetectorKind(str, Enum):
     annotations = "annotations"
     yolo = "yolo"
     simulated = "simulated"
+    simulated_yolo = "simulated-yolo"
 
 
 @app.command()
 def run(
-    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, scene0002_00, fr2, fr3, or a sequence folder")],
+    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
     method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
     top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
@@ -61,7 +62,8 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[DetectorKind], typer.Option(
-        help="\\[default: simulated on the demo, gt on ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+        help="\\[default: simulated on demo/demo_tum, simulated-yolo on demo_desk, gt on demo_apartment and "
+             "ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(

@@ -1,6 +1,6 @@
 """Detector back-ends of clipclique-loc behind one interface: `detect(frame) -> Detections` in the map's
-class vocabulary. `--detector gt`, `annotations` and `simulated` are the library's `clipclique.detectors`;
-this module adds the one that needs a model:
+class vocabulary. `--detector gt`, `annotations`, `simulated` and `simulated-yolo` are the library's
+`clipclique.detectors`; this module adds the one that needs a model:
 
 - `YoloDetector`: YOLO instance segmentation through ultralytics; COCO classes are mapped to
   the map's vocabulary by `COCO_TO_MAP` (first name the map has wins; otherwise the COCO name
@@ -14,7 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.detectors import Detector, InstanceDetector, SimulatedDetector, empty_detections, vocabulary_index
+from clipclique.detectors import (
+    Detector,
+    InstanceDetector,
+    SimulatedDetector,
+    SimulatedYoloDetector,
+    empty_detections,
+    vocabulary_index,
+)
 from clipclique.encoders import host_reachable
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Detections, Frame
@@ -116,13 +123,15 @@ def coco_to_vocabulary(model_names: dict[int, str], class_names: list[str]) -> n
 
 def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
                   yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0) -> Detector:
-    """The back-end a `--detector` value names: gt | annotations | simulated | yolo."""
+    """The back-end a `--detector` value names: gt | annotations | simulated | simulated-yolo | yolo."""
     if kind == "gt":
         return InstanceDetector(object_classes, class_names)
     if kind == "annotations":
         return InstanceDetector(object_classes, class_names, name="annotations")
     if kind == "simulated":
         return SimulatedDetector(InstanceDetector(object_classes, class_names), seed=seed)
+    if kind == "simulated-yolo":
+        return SimulatedYoloDetector(InstanceDetector(object_classes, class_names), seed=seed)
     if kind == "yolo":
         return YoloDetector.load(yolo_weights, class_names)
-    raise ClipcliqueError(f"--detector {kind!r}: choose gt, annotations, simulated or yolo")
+    raise ClipcliqueError(f"--detector {kind!r}: choose gt, annotations, simulated, simulated-yolo or yolo")

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import Sequence, open_sequence, scene_name
+from clipclique.datasets.base import DEMO_MARKER, read_json
 from clipclique.encoders import Encoder, load_encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.mapfile import load_map
@@ -46,7 +47,7 @@ class RunSettings:
     overrides: list[str] = field(default_factory=list)
     map_path: Path | None = None  # default outputs/maps/<SEQUENCE>.map.npz
     data_root: Path | None = None
-    detector: str | None = None  # default: simulated on the demo, gt on ScanNet, annotations on TUM
+    detector: str | None = None  # default: the generated scene's (simulated, demo_desk: simulated-yolo), gt on ScanNet, annotations on TUM
     encoder: str | None = None  # default: the map's encoder (simulated on the demo) if here, else none
     yolo_weights: str = "yolov8x-seg.pt"
     stride: int = 1
@@ -157,9 +158,10 @@ def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: Run
 
 
 def default_detector(sequence: Sequence) -> str:
-    """The `--detector` a sequence gets unless asked: simulated (demo), gt (ScanNet), annotations (TUM)."""
+    """The `--detector` a sequence gets unless asked: the one a generated scene's marker names (simulated
+    when it names none: demo, demo_tum), gt (ScanNet), annotations (TUM)."""
     if sequence.synthetic:
-        return "simulated"
+        return str(read_json(sequence.root / DEMO_MARKER).get("detector", "simulated"))
     return "gt" if sequence.kind == "scannet" else "annotations"
 
 

@@ -23,6 +23,7 @@ from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_struct
 from clipclique.encoders import Encoder
 from clipclique.errors import DatasetError
 from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
+from clipclique.graph import semantic_graph
 from clipclique.types import Map
 
 Progress = Callable[[int, int], None]
@@ -129,3 +130,9 @@ def _nothing_kept(instances: list[Instance], report: BuildReport) -> str:
     parts = [f"{sum(report.structure.values())} left out as structure"] if report.structure else []
     parts += [f"{len(items)} skipped, {reason}" for reason, items in report.skipped.items()]
     return f"none of its {len(instances)} objects could be fitted ({'; '.join(parts)})"
+
+
+def degree_histogram(map: Map, d_adj: float) -> np.ndarray:
+    """Landmarks per semantic-graph degree (index = degree) at `d_adj`: index 0 counts the isolated ones,
+    whose Semantic Histograms are empty."""
+    return np.bincount(np.diff(semantic_graph(map.ellipsoids.centers, d_adj).indptr), minlength=1)

@@ -46,7 +46,7 @@ def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_ver
 
 @app.command()
 def build(
-    scene: Annotated[str, typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, or a scene folder", show_default=False)],
+    scene: Annotated[str, typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, demo_desk, or a scene folder", show_default=False)],
     data_root: Annotated[
         Path | None,
         typer.Option("--data-root", help="folder holding scannet/scans/, tum/, demo/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
@@ -162,6 +162,7 @@ def print_summary(map: Map, report: BuildReport, spec: str) -> None:
     for name in map.class_names:
         table.add_row(escape(name), str(report.landmarks_per_class[name]))
     console.print(table)
+    print_graph(map)
     if report.structure:
         console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
     for reason, items in report.skipped.items():
@@ -183,6 +184,18 @@ def print_landmarks(map: Map) -> None:
         axes = " ".join(f"{v:.2f}" for v in map.ellipsoids.axes[i])
         console.print(f"{map.instance_ids[i]:>4} {map.class_names[map.class_ids[i]]}: centre {center}, "
                       f"semi-axes {axes}, {map.descriptions[i]!r}", highlight=False, markup=False)
+
+
+def print_graph(map: Map) -> None:
+    """The semantic graph's degree histogram at the default d_adj: how much the Semantic Histograms can say."""
+    from clipclique.config import GraphConfig
+    from mapping.build import degree_histogram
+
+    d_adj = GraphConfig().d_adj
+    counts = degree_histogram(map, d_adj)
+    console.print(f"semantic graph at d_adj {d_adj:g} m, landmarks per degree (0, 1, 2, ...): "
+                  f"{', '.join(str(int(n)) for n in counts)}; {counts[0] / max(len(map), 1):.0%} isolated "
+                  "(no neighbour: their Semantic Histograms are empty)", highlight=False)
 
 
 def main() -> None:

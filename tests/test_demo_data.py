@@ -31,7 +31,7 @@ def digest(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-@pytest.mark.parametrize("name", ["demo", "demo_tum"])
+@pytest.mark.parametrize("name", ["demo", "demo_tum", "demo_apartment", "demo_desk"])
 def test_same_seed_same_bytes(tmp_path, name):
     first, second = digest(small_demo(tmp_path / "a", name)), digest(small_demo(tmp_path / "b", name))
     assert first == second
@@ -55,12 +55,12 @@ def mesh_distances(room, points: np.ndarray) -> np.ndarray:
     return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
 
 
-@pytest.mark.parametrize("name", ["demo", "demo_tum"])
+@pytest.mark.parametrize("name", ["demo", "demo_tum", "demo_apartment", "demo_desk"])
 def test_frames_agree_with_the_scene_geometry(tmp_path, name):
     """Depth + intrinsics + ground-truth pose put every pixel on the mesh, and instance ids on their object."""
     small_demo(tmp_path, name)
     sequence = open_sequence(name, tmp_path)
-    room = make_room(SMALL[name].seed)
+    room = SMALL[name].room()
     owner = room.segment_objects[room.vertex_segments] + 1  # instance id of every vertex
     for frame in sequence:
         labelled = (frame.instances > 0) & (frame.depth > 0)

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import os
+from collections import Counter
 
 import numpy as np
 import pytest
 
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
-from clipclique.detectors import InstanceDetector, SimulatedDetector, mask_boxes
+from clipclique.detectors import InstanceDetector, SimulatedDetector, SimulatedYoloDetector, mask_boxes, read_lookalikes
 from localization.detectors import YoloDetector, coco_to_vocabulary, make_detector
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
@@ -63,6 +64,52 @@ def test_simulated_detector_degrades_truth_reproducibly():
     assert detector.simulated and detector.name == "simulated"
     for d in runs[:20]:
         assert d.masks.any(axis=(1, 2)).all() and d.boxes.shape == (len(d), 4)
+
+
+DESK = ["cup", "bottle", "book", "cell phone", "dining table"]
+DESK_OBJECTS = {1: "cup", 2: "book", 3: "dining table", 4: "cup", 5: "plant"}  # plant: not in the map
+
+
+def desk_frame(index: int) -> Frame:
+    """Two cups (one small), a book and a table on a 2 m deep background; the plant is unmapped."""
+    instances = np.zeros((120, 160), np.int32)
+    instances[20:30, 20:28] = 1  # 80 px: a small far cup
+    instances[20:60, 40:70] = 2
+    instances[70:115, 10:150] = 3
+    instances[30:70, 100:130] = 4  # 1200 px
+    instances[5:15, 140:150] = 5
+    return Frame(index, float(index), np.zeros((120, 160, 3), np.uint8), np.full((120, 160), 2.0, np.float32),
+                 np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]]), Pose.identity(), instances)
+
+
+def test_lookalike_table_reads_as_probabilities_per_class():
+    table = read_lookalikes()
+    assert ("bottle", 0.5) in table["cup"] and table["book"][0] == ("cell phone", 0.4)
+    for name, row in table.items():
+        assert 0 < sum(p for _, p in row) < 1, name  # the true class always keeps some probability
+        assert name not in {other for other, _ in row}
+
+
+def test_simulated_yolo_misses_small_objects_confuses_lookalikes_and_adds_blobs_off_the_map():
+    detector = make_detector("simulated-yolo", DESK_OBJECTS, DESK, seed=3)
+    assert isinstance(detector, SimulatedYoloDetector) and detector.simulated and detector.name == "simulated-yolo"
+    runs = [detector.detect(desk_frame(i)) for i in range(400)]
+    hit = {i: np.mean([i in d.instance_ids for d in runs]) for i in (1, 2, 3, 4)}
+    assert hit[1] < 0.1 < hit[4] < hit[2] < hit[3] < 0.9  # bigger masks are found more often, none always
+    classes = {1: 0, 2: 2, 3: 4, 4: 0}
+    pairs = Counter((classes[i], c) for d in runs for i, c in zip(d.instance_ids, d.class_ids) if i > 0)
+    cups = sum(n for (true, _), n in pairs.items() if true == 0)
+    assert pairs[(0, 1)] / cups == pytest.approx(0.5, abs=0.08)  # cup -> bottle, the table's probability
+    assert {pair for pair in pairs if pair[0] != pair[1]} <= {(0, 1), (2, 3)}  # book -> cell phone; no flips
+    # vase and bowl, cup's other look-alikes, are not in this map: those rows are ignored
+    spurious = [d.masks[d.instance_ids < 0] for d in runs]
+    assert sum(len(s) for s in spurious) / sum(int((d.instance_ids > 0).sum()) for d in runs) == pytest.approx(
+        detector.false_positive_ratio, abs=0.08)
+    mapped = np.isin(desk_frame(0).instances, [1, 2, 3, 4])
+    assert all(not (s & mapped).any() for s in spurious)  # blobs lie where no mapped object is
+    again = detector.detect(desk_frame(17))
+    np.testing.assert_array_equal(again.masks, runs[17].masks)
+    np.testing.assert_array_equal(again.class_ids, runs[17].class_ids)
 
 
 def test_make_detector_rejects_unknown_and_missing_yolo_weights(monkeypatch, tmp_path):

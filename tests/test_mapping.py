@@ -97,6 +97,12 @@ def test_cli_builds_the_demo_map_and_recording(data_root, tmp_path):
     assert (tmp_path / "demo.map.rrd").stat().st_size > 10_000
     assert "skipped 1" in result.output and "picture" in result.output and "simulated" in result.output
     assert "left out as structure: ceiling x1, floor x1, wall x4" in result.output
+    distances = np.linalg.norm(map.ellipsoids.centers[:, None] - map.ellipsoids.centers[None], axis=-1)
+    degrees = (distances < 0.8).sum(axis=1) - 1  # brute force, self excluded
+    counts = np.bincount(degrees)
+    assert counts.sum() == len(map) and len(counts) > 2  # the demo room has isolated and connected landmarks
+    assert (f"landmarks per degree (0, 1, 2, ...): {', '.join(str(n) for n in counts)}; "
+            f"{counts[0] / len(map):.0%} isolated") in " ".join(result.output.split())
 
 
 def test_cli_tum_demo_without_encoder_or_recording(data_root, tmp_path):

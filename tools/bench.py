@@ -1,6 +1,6 @@
 """`make bench`: the paper's experiments on every available sequence, written up as a report.
 
-    .venv/bin/python tools/bench.py                          # demo, demo_tum, real sequences with a map
+    .venv/bin/python tools/bench.py                          # the demo scenes, real sequences with a map
     .venv/bin/python tools/bench.py --sequences demo --quick --out /tmp/bench
 
 Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
@@ -418,7 +418,7 @@ def spread(values: list[float]) -> list[float]:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sequences", nargs="+", help="default: demo, demo_tum and every real sequence with a map")
+    parser.add_argument("--sequences", nargs="+", help="default: the four demo scenes and every real sequence with a map")
     parser.add_argument("--quick", action="store_true", help=f"{QUICK_FRAMES} frames per sequence, small scalability run, no GPU")
     parser.add_argument("--frames", type=int, help="frames per sequence, spread evenly [default: all]")
     parser.add_argument("--data-root", type=Path, help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]")

@@ -5,6 +5,8 @@ frames, 2D instance images) and `demo_tum` a TUM RGB-D sequence folder (rgb/, de
 5000, rgb.txt, depth.txt, a 100 Hz groundtruth.txt whose timestamps differ from the images', and
 our object annotations). The real readers read them; nothing downstream knows they are
 synthetic except through the marker file `clipclique_demo.json`. Same seed, same bytes.
+`demo_apartment` (ScanNet layout) and `demo_desk` (TUM layout) are scenes shaped like real data
+(clipclique.datasets.scenes); their marker also names the detector they are localized with.
 
 Files beyond the official layouts (documented for users, read by our readers):
 - ScanNet: `<scene>_descriptions.json`, `{"<objectId>": "a red office chair", ...}`.
@@ -24,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clipclique.datasets import scenes
 from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES
 from clipclique.datasets.procedural import Room, Walk, make_room, make_walk
 from clipclique.datasets.render import MeshRaycaster, shade, sensor_depth
@@ -50,7 +53,33 @@ class DemoSpec:
         return np.array([[fx * sx, 0, cx * sx], [0, fy * sy, cy * sy], [0, 0, 1.0]])
 
 
-DEMO_SCENES = {"demo": DemoSpec("scannet", seed=7), "demo_tum": DemoSpec("tum", seed=11)}
+    def room(self) -> Room:
+        return make_room(self.seed)
+
+    def walk(self, room: Room) -> Walk:
+        return make_walk(room, self.seed, self.num_frames, self.duration_s)
+
+
+@dataclass(frozen=True)
+class SceneSpec(DemoSpec):
+    """A scene shaped like real data (clipclique.datasets.scenes); the marker records it and its detector."""
+
+    scene: str = "apartment"  # "apartment" | "desk"
+    detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
+
+    def room(self) -> Room:
+        return scenes.SCENES[self.scene][0](self.seed)
+
+    def walk(self, room: Room) -> Walk:
+        return scenes.SCENES[self.scene][1](room, self.seed, self.num_frames, self.duration_s)
+
+
+DEMO_SCENES: dict[str, DemoSpec] = {
+    "demo": DemoSpec("scannet", seed=7),
+    "demo_tum": DemoSpec("tum", seed=11),
+    "demo_apartment": SceneSpec("scannet", seed=5, num_frames=60, scene="apartment", detector="gt"),
+    "demo_desk": SceneSpec("tum", seed=3, num_frames=120, scene="desk", detector="simulated-yolo"),
+}
 
 
 def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) -> Path:
@@ -94,8 +123,8 @@ def _marker_version(marker: Path) -> object:
 
 def generate(folder: Path, name: str, spec: DemoSpec, progress: Progress | None = None) -> None:
     """Render the scene `name` into `folder` in the layout of `spec`; the marker file goes last."""
-    room = make_room(spec.seed)
-    walk = make_walk(room, spec.seed, spec.num_frames, spec.duration_s)
+    room = spec.room()
+    walk = spec.walk(room)
     writer = ScanNetWriter(folder, name, room) if spec.layout == "scannet" else TumWriter(folder, room, walk, spec)
     raycaster = MeshRaycaster(room.vertices, room.faces)
     face_objects, face_colors = room.face_objects(), room.face_colors()

@@ -122,7 +122,7 @@ class _RoomBuilder:
         self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, int]] = []  # vertices, faces, colour, object
 
     def add_object(self, category: str, color: str | None) -> int:
-        description = PHRASES[category].format(c=color) if color else category
+        description = PHRASES.get(category, "a {c} " + category).format(c=color) if color else category
         self.objects.append(RoomObject(len(self.objects), category, description))
         return len(self.objects) - 1
 
@@ -274,22 +274,9 @@ class _Furniture:
                 self.block("book", pos, yaw + self.rng.uniform(-0.5, 0.5), color, (0.23, 0.16, 0.035))
 
 
-def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
-    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
-
-    `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
-    boxes in a row along the wall y = D, for scenes with more objects.
-    """
-    rng = np.random.default_rng(seed)
-    size = np.asarray(size, float)
+def add_shell(b: _RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, float, float]], spacing: float) -> None:
+    """Floor, ceiling, the four outer walls, then inner wall segments (x0, y0, x1, y1), each along an axis."""
     W, D, H = size
-    b = _RoomBuilder(rng, spacing)
-    f = _Furniture(b, rng)
-
-    def spot(x, y, rx=0.12, ry=0.12):
-        """A floor point near (x, y), moved by up to (rx, ry) metres."""
-        return np.array([x + rng.uniform(-rx, rx), y + rng.uniform(-ry, ry), 0.0])
-
     for name, dims, at in (
         ("floor", (W, D, 0.1), (W / 2, D / 2, -0.05)),
         ("ceiling", (W, D, 0.1), (W / 2, D / 2, H + 0.05)),
@@ -298,7 +285,30 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
         ("wall", (0.1, D, H), (-0.05, D / 2, H / 2)),
         ("wall", (0.1, D, H), (W + 0.05, D / 2, H / 2)),
     ):
-        b.box(b.add_object(name, None), STRUCTURE_COLORS[name], dims, at, spacing=wall_spacing)
+        b.box(b.add_object(name, None), STRUCTURE_COLORS[name], dims, at, spacing=spacing)
+    for x0, y0, x1, y1 in walls:
+        dims = (max(x1 - x0, 0.1), max(y1 - y0, 0.1), H)
+        b.box(b.add_object("wall", None), STRUCTURE_COLORS["wall"], dims, ((x0 + x1) / 2, (y0 + y1) / 2, H / 2),
+              spacing=spacing)
+
+
+def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
+    """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
+
+    `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
+    boxes in a row along the wall y = D, for scenes with more objects.
+    """
+    rng = np.random.default_rng(seed)
+    size = np.asarray(size, float)
+    W, D, _ = size
+    b = _RoomBuilder(rng, spacing)
+    f = _Furniture(b, rng)
+
+    def spot(x, y, rx=0.12, ry=0.12):
+        """A floor point near (x, y), moved by up to (rx, ry) metres."""
+        return np.array([x + rng.uniform(-rx, rx), y + rng.uniform(-ry, ry), 0.0])
+
+    add_shell(b, size, [], wall_spacing)
 
     # Office corner: desk against the wall y = 0, two monitors, keyboard, lamp, chair.
     desk = spot(1.6, 0.4, 0.1, 0.0)
@@ -403,9 +413,13 @@ def make_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
     eyes[:, 1] = np.clip(eyes[:, 1], margin, room.size[1] - margin)
     eyes[:, 2] = rng.uniform(1.35, 1.65, len(eyes))
     knots = np.linspace(0.0, duration, len(eyes))
-    shake = np.column_stack((
+    return Walk(np.linspace(0.0, duration, num_frames, endpoint=False), knots, eyes, targets, hand_shake(rng))
+
+
+def hand_shake(rng: np.random.Generator) -> np.ndarray:
+    """`Walk.shake`: 18 seeded sinusoids, 8 mm of position and 6 mrad of rotation each."""
+    return np.column_stack((
         rng.uniform(0.5, 3.0, 18),  # rad/s
         rng.uniform(0, 2 * np.pi, 18),
         np.concatenate((np.full(9, 0.008), np.full(9, 0.006))),  # metres; radians
     ))
-    return Walk(np.linspace(0.0, duration, num_frames, endpoint=False), knots, eyes, targets, shake)

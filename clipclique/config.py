@@ -18,6 +18,8 @@ Descriptor = Literal["fused", "clip", "sh", "xview"]
 MatchingStrategy = Literal["adaptive", "knn", "one_to_one"]
 InlierMethod = Literal["cliques", "ransac", "prosac"]
 PoseWeights = Literal["none", "sim", "com", "both"]
+Verification = Literal["overlap", "centers"]
+Rerank = Literal["none", "verification", "confidence"]
 
 
 class ConfigError(ClipcliqueError):
@@ -54,8 +56,11 @@ class InlierConfig:
     max_cliques: int = 100_000  # enumeration stops here and says so
     time_limit_s: float = 1.0  # enumeration stops here and says so
     ransac_iterations: int = 1000
-    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier
+    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
     seed: int = 0
+    verification: Verification = "overlap"  # RANSAC/PROSAC: projected box overlap (the paper) or 3D centre distance
+    iou_threshold: float = 0.3  # RANSAC/PROSAC overlap verification: box IoU to count as inlier
+    rerank: Rerank = "none"  # reorder every method's hypotheses by image verification or confidence
 
 
 @dataclass
@@ -73,6 +78,8 @@ class LocalizationConfig:
     pose: PoseConfig = field(default_factory=PoseConfig)
     top_n: int = 5
     success_threshold_m: float = 1.0
+    min_confidence: float = 0.0  # hypotheses less confident are dropped; a frame left without one is not localized
+    confidence_model: str = ""  # JSON file of a refitted confidence model ("": the one shipped in the package)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -172,6 +179,8 @@ def validate(config: LocalizationConfig) -> None:
         "matching.strategy": MatchingStrategy,
         "inliers.method": InlierMethod,
         "pose.weights": PoseWeights,
+        "inliers.verification": Verification,
+        "inliers.rerank": Rerank,
     }
     for dotted, literal in allowed.items():
         value = _get(config, dotted)
@@ -179,6 +188,9 @@ def validate(config: LocalizationConfig) -> None:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
     if not 0.0 <= config.similarity.alpha <= 1.0:
         raise ConfigError(f"similarity.alpha = {config.similarity.alpha}; must be within [0, 1]")
+    for dotted in ("inliers.iou_threshold", "min_confidence"):
+        if not 0.0 <= _get(config, dotted) <= 1.0:
+            raise ConfigError(f"{dotted} = {_get(config, dotted)}; must be within [0, 1]")
     if config.inliers.min_clique_size < 3:
         raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
     for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):

@@ -1,0 +1,88 @@
+"""How well a pose hypothesis explains the image: the map projected under it, against the detections.
+
+Per hypothesis (all of a frame's at once), with the map's landmarks projected by
+`clipclique.projection`:
+- overlap: the summed IoU between each corresponding observation's detection box and its
+  landmark's projected box, each weighted by depth agreement, max(0, 1 - |dz| / DEPTH_TOLERANCE),
+  where dz is the observed centre's depth along its ray minus the landmark centre's depth;
+- missed: landmarks projected well inside the image (at least MIN_VISIBLE_PIXELS, half of their
+  box on the image) that no detection of their class overlaps (IoU >= EXPLAINED_IOU): what the
+  pose says should be seen but was not;
+- score = overlap - MISSED_WEIGHT * missed: the verification score (`Hypothesis.verification`).
+
+RANSAC / PROSAC verify minimal-set poses by overlap alone (`consensus_overlap`), as CLIP-Loc does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clipclique.errors import ClipcliqueError
+from clipclique.projection import Projection, box_area, box_iou, project
+from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
+
+DEPTH_TOLERANCE = 0.5  # metres: depth disagreement at which an overlap counts for nothing
+MISSED_WEIGHT = 0.25  # a missed landmark costs a quarter of a perfect overlap
+MIN_VISIBLE_PIXELS = 1500  # projected boxes smaller than this may well go undetected
+EXPLAINED_IOU = 0.1  # a detection of the landmark's class overlapping this much explains it
+
+
+@dataclass
+class Verification:
+    """Verification of B hypotheses, one entry each."""
+
+    score: np.ndarray  # (B,) overlap - MISSED_WEIGHT * missed
+    overlap: np.ndarray  # (B,) depth-weighted summed IoU over the correspondences
+    mean_iou: np.ndarray  # (B,) plain IoU averaged over the correspondences
+    missed: np.ndarray  # (B,) int, landmarks that should be visible but no detection explains
+    depth_error: np.ndarray  # (B,) metres, median |dz| over the correspondences
+
+
+def require_image(observations: Observations, why: str) -> None:
+    """ClipcliqueError unless the observations carry their boxes and camera."""
+    if observations.boxes is None or observations.camera is None:
+        raise ClipcliqueError(f"{why} needs each observation's detection box and the camera "
+                              "(Observations.boxes and .camera, filled by extract_observations)")
+
+
+def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -> Verification:
+    """Verification of each hypothesis against the observations' boxes and centres."""
+    require_image(observations, "image verification")
+    camera = observations.camera
+    rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
+    translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
+    seen = project(map.ellipsoids, rotations, translations, camera)
+
+    owner = np.repeat(np.arange(len(hypotheses)), [len(h.correspondences) for h in hypotheses])
+    pairs = np.concatenate([h.correspondences for h in hypotheses]).reshape(-1, 2).astype(np.int64)
+    obs, lm = pairs[:, 0], pairs[:, 1]
+    iou = np.where(seen.visible[owner, lm], box_iou(observations.boxes[obs], seen.boxes[owner, lm]), 0.0)
+    depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - seen.depths[owner, lm])
+    agreement = np.clip(1.0 - depth_gap / DEPTH_TOLERANCE, 0.0, None)
+    count = len(hypotheses)
+    sizes = np.bincount(owner, minlength=count)
+    overlap = np.bincount(owner, iou * agreement, minlength=count)
+    mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
+    depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
+    missed = _missed(seen, map, observations)
+    return Verification(overlap - MISSED_WEIGHT * missed, overlap, mean_iou, missed, depth_error)
+
+
+def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,
+                      camera: Camera) -> np.ndarray:
+    """(B, C) IoU of each candidate's observation box (C, 4) with its landmark (C ellipsoids) projected
+    under each camera-to-map pose (B); 0 where the landmark is not visible."""
+    seen = project(landmarks, rotations, translations, camera)
+    return np.where(seen.visible, box_iou(boxes[None], seen.boxes), 0.0)
+
+
+def _missed(seen: Projection, map: Map, observations: Observations) -> np.ndarray:
+    """(B,) landmarks projected well into the image that no detection of their class overlaps."""
+    area = box_area(seen.boxes)
+    expected = seen.visible & (area >= MIN_VISIBLE_PIXELS) & (area >= 0.5 * seen.full_areas)
+    same_class = map.class_ids[:, None] == observations.class_ids[None, :]  # (N, K)
+    overlaps = box_iou(seen.boxes[:, :, None, :], observations.boxes[None, None, :, :])  # (B, N, K)
+    explained = ((overlaps >= EXPLAINED_IOU) & same_class[None]).any(axis=2)
+    return (expected & ~explained).sum(axis=1)

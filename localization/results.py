@@ -95,6 +95,8 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         hypotheses.append({
             "rank": rank,
             "score": hypothesis.score,
+            "verification": hypothesis.verification,
+            "confidence": hypothesis.confidence,
             "pose": hypothesis.pose.matrix().tolist(),
             "translation_error_m": te,
             "rotation_error_deg": None if re is None else math.degrees(re),

@@ -404,11 +404,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     """Run the suite; a user mistake (unknown sequence, missing map) is one line on stderr and exit 2."""
-    args = parse_args(argv)
+    user_errors_exit("bench", run_suite, parse_args(argv))
+
+
+def user_errors_exit(program: str, work: Callable[[argparse.Namespace], None], args: argparse.Namespace) -> None:
+    """`work(args)`; a ClipcliqueError (a user mistake) becomes one line on stderr and exit status 2."""
     try:
-        run_suite(args)
+        work(args)
     except ClipcliqueError as error:
-        print(f"bench: error: {error}", file=sys.stderr)
+        print(f"{program}: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
 
 

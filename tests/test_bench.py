@@ -175,14 +175,16 @@ def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stocha
         return {k: v for key, value in tree.items()
                 for k, v in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
 
-    default = flat(make_config("clipclique").to_dict())
     for variant in bench.variants():
         if variant.group == "methods":
             continue
+        default = flat(make_config(variant.method).to_dict())  # verification / rerank rows change a baseline
         changed = {k for k, v in flat(variant.config().to_dict()).items() if v != default[k]}
         assert changed <= {key for key, _ in variant.overrides}, variant
     stochastic = {v.label for v in bench.variants() if v.stochastic}
-    assert stochastic == {"X-View", "SH", "CLIP-Loc", "RANSAC", "PROSAC"}
+    baselines = ("X-View", "SH", "CLIP-Loc")
+    assert stochastic == {*baselines, "RANSAC", "PROSAC", *(f"{b}, centre distances" for b in baselines),
+                          *(f"{b}, re-ranked" for b in baselines)}
 
 
 def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, monkeypatch):
@@ -192,7 +194,7 @@ def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, m
         frame.observations.image_embeddings = None
     records = [bench.run_variant(sequence, variant, lambda: None) for variant in bench.variants()]
     skipped = {r["label"] for r in records if "skipped" in r}
-    assert skipped == {"CLIP-Loc", "CLIP", *GROUP_LABELS["alpha"]}
+    assert skipped == {"CLIP-Loc", "CLIP", *GROUP_LABELS["alpha"], "CLIP-Loc, centre distances", "CLIP-Loc, re-ranked"}
     fused = next(r for r in records if r["label"] == "CLIP-Clique")
     assert fused["notes"] and "SH only" in fused["notes"][0]
     sh = next(r for r in records if r["label"] == "SH" and r["group"] == "descriptors")
@@ -200,7 +202,8 @@ def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, m
     results = {"sequences": {"demo": sequence.description}, "experiments": {"demo": records}}
     table_one = report.table_one(results)
     assert "| CLIP-Loc † | not run: no CLIP embeddings" in table_one
-    for text in (table_one, report.ablations(results), report.alpha_section(results, plotted=False)):
+    for text in (table_one, report.ablations(results), report.alpha_section(results, plotted=False),
+                 report.verification_section(results, plotted=False)):
         for table in tables_of(text):
             assert len({line.count("|") for line in table}) == 1, table
 

@@ -3,7 +3,7 @@
 An ellipsoid with centre c, rotation R and semi-axes s is the unit sphere moved by
 H = [[R diag(s), c], [0, 1]]; its dual quadric is Q* = H diag(1, 1, 1, -1) H^T. A camera
 P = K [R_c^T | -R_c^T t_c] (pose (R_c, t_c) camera-to-map) sees its outline as the dual conic
-C* = P Q* P^T (Hartley & Zisserman, 8.3). The tangent lines x = u of that conic, (1, 0, -u) C* (1, 0, -u)^T = 0,
+C* = P Q* P^T (Hartley & Zisserman, 8.3), computed in the expanded form `project` gives. The tangent lines x = u of that conic, (1, 0, -u) C* (1, 0, -u)^T = 0,
 give the box in closed form: u = (C*13 +- sqrt(C*13^2 - C*11 C*33)) / C*33, and likewise v.
 
 The projection is an ellipse only when the whole ellipsoid lies in front of the camera, so a
@@ -34,40 +34,30 @@ class Projection:
     full_areas: np.ndarray  # (B, N) square pixels of each box before clipping (0 where not in front)
 
 
-def dual_quadrics(ellipsoids: Ellipsoids) -> np.ndarray:
-    """(N, 4, 4) Q* of each ellipsoid."""
-    shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]  # R diag(s)
-    centers = ellipsoids.centers
-    out = np.empty((len(ellipsoids), 4, 4))
-    out[:, :3, :3] = shape @ shape.transpose(0, 2, 1) - centers[:, :, None] * centers[:, None, :]
-    out[:, :3, 3] = out[:, 3, :3] = -centers
-    out[:, 3, 3] = -1.0
-    return out
-
-
-def camera_matrices(rotations: np.ndarray, translations: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """(B, 3, 4) P = K [R^T | -R^T t] of camera-to-map poses (B, 3, 3), (B, 3)."""
-    world_to_camera = np.concatenate(
-        (rotations.transpose(0, 2, 1), -np.einsum("bji,bj->bi", rotations, translations)[:, :, None]), axis=2)
-    return intrinsics @ world_to_camera
-
-
 def project(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera) -> Projection:
-    """Every map ellipsoid (N) under every camera-to-map pose (B): rotations (B, 3, 3), translations (B, 3)."""
-    matrices = camera_matrices(rotations, translations, camera.intrinsics)
-    conics = np.einsum("bij,njk,blk->bnil", matrices, dual_quadrics(ellipsoids), matrices)
-    # Depth of the centre, and the ellipsoid's half-extent along the optical axis (K's last row is (0, 0, 1)).
-    axis = rotations[:, :, 2]  # (B, 3) the optical axis in the map frame
-    depths = np.einsum("bi,ni->bn", axis, ellipsoids.centers) - np.einsum("bi,bi->b", axis, translations)[:, None]
-    reach = np.linalg.norm(np.einsum("bi,nij->bnj", axis, ellipsoids.rotations) * ellipsoids.axes[None], axis=2)
+    """Every map ellipsoid (N) under every camera-to-map pose (B): rotations (B, 3, 3), translations (B, 3).
+
+    With P = V [I | -t], V = K R^T, the dual conic expands to C* = V M V^T - h h^T, where
+    M = R_e diag(s^2) R_e^T is the ellipsoid's spread and h = V (c - t) its centre's image (times
+    its depth). V M V^T is one (N, 9) x (9, 9) product per pose (vec(V M V^T) = (V kron V) vec(M)),
+    so a map of thousands of landmarks costs a few big products, not thousands of small ones.
+    """
+    shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]  # R_e diag(s)
+    spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
+    view = camera.intrinsics @ rotations.transpose(0, 2, 1)  # (B, 3, 3)
+    kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
+    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, N, 3)
+    conics = (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
+    # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
+    depths = centers[..., 2]
+    reach = np.sqrt(np.maximum(conics[..., 2, 2] + depths**2, 0.0))
     in_front = depths - reach > MIN_DEPTH
     c33 = np.where(in_front, conics[..., 2, 2], -1.0)  # in front: C*33 = reach^2 - depth^2 < 0
     boxes = np.empty(conics.shape[:2] + (4,))
-    for axis_index in (0, 1):  # u from (C*11, C*13), v from (C*22, C*23)
+    for axis_index in (0, 1):  # u from (C*11, C*13), v from (C*22, C*23); C*33 < 0 orders the two roots
         c_ii, c_i3 = conics[..., axis_index, axis_index], conics[..., axis_index, 2]
         root = np.sqrt(np.maximum(c_i3**2 - c_ii * c33, 0.0))
-        ends = np.sort(np.stack(((c_i3 + root) / c33, (c_i3 - root) / c33)), axis=0)
-        boxes[..., axis_index], boxes[..., axis_index + 2] = ends[0], ends[1]
+        boxes[..., axis_index], boxes[..., axis_index + 2] = (c_i3 + root) / c33, (c_i3 - root) / c33
     full_areas = np.where(in_front, box_area(boxes), 0.0)
     boxes = np.clip(boxes, 0.0, np.array([camera.width, camera.height] * 2, float))
     visible = (in_front & (depths <= camera.max_depth)

@@ -82,7 +82,8 @@ def _missed(seen: Projection, map: Map, observations: Observations) -> np.ndarra
     """(B,) landmarks projected well into the image that no detection of their class overlaps."""
     area = box_area(seen.boxes)
     expected = seen.visible & (area >= MIN_VISIBLE_PIXELS) & (area >= 0.5 * seen.full_areas)
-    same_class = map.class_ids[:, None] == observations.class_ids[None, :]  # (N, K)
-    overlaps = box_iou(seen.boxes[:, :, None, :], observations.boxes[None, None, :, :])  # (B, N, K)
-    explained = ((overlaps >= EXPLAINED_IOU) & same_class[None]).any(axis=2)
-    return (expected & ~explained).sum(axis=1)
+    hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
+    overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
+    same_class = map.class_ids[landmark][:, None] == observations.class_ids[None]
+    explained = ((overlaps >= EXPLAINED_IOU) & same_class).any(axis=1)
+    return np.bincount(hypothesis[~explained], minlength=len(expected))

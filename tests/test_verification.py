@@ -105,3 +105,16 @@ def test_rerank_orders_every_methods_hypotheses_by_verification():
             scores = [h.verification for h in after]
             assert scores == sorted(scores, reverse=True)
             assert sorted(h.verification for h in before) == sorted(scores)
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("inliers.verification=ious", "inliers.verification = 'ious'; choose one of overlap, centers"),
+    ("inliers.rerank=score", "inliers.rerank = 'score'; choose one of none, verification, confidence"),
+    ("inliers.iou_threshold=1.5", "inliers.iou_threshold = 1.5; must be within"),
+    ("min_confidence=-0.1", "min_confidence = -0.1; must be within"),
+])
+def test_verification_keys_are_checked(override, message):
+    from clipclique.config import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        make_config("sh", overrides=[override])

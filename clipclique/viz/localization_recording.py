@@ -226,7 +226,7 @@ class LocalizationRecorder:
         scalars |= {f"time/{stage}": seconds for stage, seconds in result.timings.items()}
         if result.hypotheses and result.hypotheses[0].confidence is not None:
             scalars["confidence/top1"] = result.hypotheses[0].confidence
-            scalars["confidence/verification"] = result.hypotheses[0].verification
+            scalars["verification/top1"] = result.hypotheses[0].verification
         if evaluation is not None:
             if evaluation.translation_error is not None:
                 scalars["error/translation_m"] = evaluation.translation_error

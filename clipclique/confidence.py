@@ -102,8 +102,7 @@ def fit(features: np.ndarray, labels: np.ndarray, groups: np.ndarray, names: tup
     """Logistic regression on all rows; Platt scaling on leave-one-group-out logits (groups = scenes;
     with one group there is nothing held out and the Platt step is the identity)."""
     features, labels = np.asarray(features, float), np.asarray(labels, float)
-    mean, scale = features.mean(axis=0), features.std(axis=0)
-    scale = np.where(scale > 1e-9, scale, 1.0)
+    mean, scale = _standardization(features)
     signs = np.array([FEATURES[name][1] for name in names])
     weights, intercept = _logistic((features - mean) / scale, labels, signs)
     platt = (1.0, 0.0)
@@ -112,12 +111,17 @@ def fit(features: np.ndarray, labels: np.ndarray, groups: np.ndarray, names: tup
         held_out = np.empty(len(labels))
         for scene in scenes:
             train = groups != scene
-            m, s = features[train].mean(axis=0), features[train].std(axis=0)
-            s = np.where(s > 1e-9, s, 1.0)
+            m, s = _standardization(features[train])
             w, b = _logistic((features[train] - m) / s, labels[train], signs)
             held_out[~train] = ((features[~train] - m) / s) @ w + b
         platt = _platt(held_out, labels)
     return ConfidenceModel(tuple(names), mean, scale, weights, intercept, platt, provenance or {})
+
+
+def _standardization(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column means and deviations (1 where a column is constant)."""
+    scale = features.std(axis=0)
+    return features.mean(axis=0), np.where(scale > 1e-9, scale, 1.0)
 
 
 def _logistic(x: np.ndarray, y: np.ndarray, signs: np.ndarray) -> tuple[np.ndarray, float]:

@@ -119,3 +119,28 @@ def test_min_confidence_reports_unconfident_frames_as_not_localized():
             assert pose_errors(h.pose, truth)[0] < 1.0
     assert refused > 0 and sum(e.failure is None for e in evaluations) > 0
     assert summarize(evaluations)["not_confident"] == refused
+
+
+def test_held_out_predictions_never_see_their_own_scene():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(600, len(confidence.FEATURES)))
+    y = rng.random(600) < 1 / (1 + np.exp(-2 * x[:, 0]))
+    scene = np.repeat(["a", "b", "c"], 200)
+    rows = calibration.Rows(x, y, scene, np.full(600, "m"), np.arange(600), y.copy())
+    flipped = calibration.Rows(x, np.where(scene == "a", ~y, y), scene, rows.method, rows.frame, y.copy())
+    before, after = calibration.held_out(rows), calibration.held_out(flipped)
+    np.testing.assert_allclose(before[scene == "a"], after[scene == "a"])  # scene a's labels never reach its scores
+    assert not np.allclose(before[scene != "a"], after[scene != "a"])
+    with pytest.raises(ClipcliqueError, match="two scenes or more"):
+        calibration.held_out(rows.take(scene == "a"))
+
+
+def test_fit_confidence_needs_two_scenes(tmp_path):
+    import subprocess
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "fit_confidence.py"
+    done = subprocess.run([sys.executable, str(tool), "demo", "--out", str(tmp_path / "m.json")], capture_output=True,
+                          text=True, cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        "fit_confidence: error: give two scenes or more: the model is measured on a scene it was not fitted on"]
+    assert not (tmp_path / "m.json").exists()

@@ -49,9 +49,11 @@ def main(argv: list[str] | None = None) -> None:
 def fit(args: argparse.Namespace) -> None:
     if len(set(args.sequences)) < 2:
         raise ClipcliqueError("give two scenes or more: the model is measured on a scene it was not fitted on")
-    sequences = []
-    for name in dict.fromkeys(args.sequences):
+    names = list(dict.fromkeys(args.sequences))
+    for name in names:  # every map first: a missing one stops the run before any work
         ensure_map(name, args.data_root)
+    sequences = []
+    for name in names:
         print(f"{name}: detect, fit, embed", file=sys.stderr)
         sequences.append(cache_sequence(name, args.data_root, args.frames, lambda total: None))
     rows = calibration.collect(sequences)

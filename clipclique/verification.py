@@ -53,20 +53,28 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -
     camera = observations.camera
     rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
     translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
-    seen = project(map.ellipsoids, rotations, translations, camera)
+    # Only landmarks within the depth range of some pose can be in view: a large map projects a few of them.
+    distance = np.linalg.norm(map.ellipsoids.centers[None] - translations[:, None], axis=2) - map.ellipsoids.axes.max(axis=1)
+    nearby = np.flatnonzero((distance <= camera.max_depth).any(axis=0))
+    seen = project(map.ellipsoids.subset(nearby), rotations, translations, camera)
+    slot = np.full(len(map), -1)
+    slot[nearby] = np.arange(len(nearby))
 
     owner = np.repeat(np.arange(len(hypotheses)), [len(h.correspondences) for h in hypotheses])
     pairs = np.concatenate([h.correspondences for h in hypotheses]).reshape(-1, 2).astype(np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
-    iou = np.where(seen.visible[owner, lm], box_iou(observations.boxes[obs], seen.boxes[owner, lm]), 0.0)
-    depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - seen.depths[owner, lm])
+    at = np.maximum(slot[lm], 0)
+    in_view = (slot[lm] >= 0) & seen.visible[owner, at]
+    iou = np.where(in_view, box_iou(observations.boxes[obs], seen.boxes[owner, at]), 0.0)
+    landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
+    depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
     agreement = np.clip(1.0 - depth_gap / DEPTH_TOLERANCE, 0.0, None)
     count = len(hypotheses)
     sizes = np.bincount(owner, minlength=count)
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
     depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
-    missed = _missed(seen, map, observations)
+    missed = _missed(seen, map.class_ids[nearby], observations)
     return Verification(overlap - MISSED_WEIGHT * missed, overlap, mean_iou, missed, depth_error)
 
 
@@ -78,12 +86,12 @@ def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks
     return np.where(seen.visible, box_iou(boxes[None], seen.boxes), 0.0)
 
 
-def _missed(seen: Projection, map: Map, observations: Observations) -> np.ndarray:
-    """(B,) landmarks projected well into the image that no detection of their class overlaps."""
+def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations) -> np.ndarray:
+    """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps."""
     area = box_area(seen.boxes)
     expected = seen.visible & (area >= MIN_VISIBLE_PIXELS) & (area >= 0.5 * seen.full_areas)
     hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
     overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
-    same_class = map.class_ids[landmark][:, None] == observations.class_ids[None]
+    same_class = class_ids[landmark][:, None] == observations.class_ids[None]
     explained = ((overlaps >= EXPLAINED_IOU) & same_class).any(axis=1)
     return np.bincount(hypothesis[~explained], minlength=len(expected))

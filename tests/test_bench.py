@@ -240,3 +240,30 @@ def test_bench_loc_user_mistakes_are_one_line(tmp_path):
         done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr
+
+
+def test_quick_report_compares_verifications_and_reranking(quick_run):
+    text = section((quick_run / "report.md").read_text(), "Verification in the image, re-ranking and confidence")
+    for title in ("X-View", "SH", "CLIP-Loc"):
+        for variant in ("projected overlap", "centre distances"):
+            rows = table_rows(text, f"{title}, {variant}")
+            assert rows and 0.0 <= float(rows[0][5]) <= 100.0, (title, variant)
+    reranked = [line for line in text.splitlines() if line.startswith("| demo |") and line.count("|") == 6]
+    assert [line.split("|")[2].strip() for line in reranked] == ["X-View", "SH", "CLIP-Loc", "CLIP-Clique"]
+    assert "Not measured: a held-out measurement needs two sequences or more." in text
+
+
+def test_calibration_section_states_the_goals():
+    measured = {"sequences": ["a", "b"], "hypotheses": 10, "ece": 0.07, "ece_answers": 0.04,
+                "acceptance": {"threshold": 0.8, "accepted": 5, "accepted_correct": 5, "frames_with_correct": 8,
+                               "share_of_reachable": 0.625,
+                               "at_min_confidence": {"accepted": 4, "precision": 1.0, "share_of_reachable": 0.5}},
+                "by_scene": {"a": {"ece": 0.07, "acceptance": {"frames_with_correct": 8, "accepted_correct": 5,
+                                                               "share_of_reachable": 0.625, "threshold": 0.8}}},
+                "by_method": {"sh": {"frames_with_correct": 8, "accepted_correct": 5, "share_of_reachable": 0.625,
+                                     "threshold": 0.8}}}
+    text = report.calibration_text(measured, plotted=True)
+    assert "**0.070** over hypotheses" in text and "goal < 0.05: **not met**" in text
+    assert "5 of the 8 frames" in text and "**62.5%**; goal 80%: **not met**" in text
+    assert "| a | 0.070 | 8 | 5 (62.5%) | 0.80 |" in text and "| sh | 8 | 5 (62.5%) | 0.80 |" in text
+    assert "![Reliability diagram on held-out scenes](reliability.png)" in text

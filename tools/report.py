@@ -351,6 +351,11 @@ def calibration_text(measured: dict[str, Any] | None, plotted: bool) -> str:
         a = data["acceptance"]
         lines.append(f"| {scene} | {data['ece']:.3f} | {a['frames_with_correct']} | {a['accepted_correct']} "
                      f"({fmt(a['share_of_reachable'], percent_of)}) | {fmt(a['threshold'], lambda v: f'{v:.2f}')} |")
+    lines += ["", "| Method (answers pooled over the held-out scenes) | Frames with a correct hypothesis | "
+              "Accepted at 95% precision | Threshold |", "|---|---|---|---|"]
+    for method, a in measured["by_method"].items():
+        lines.append(f"| {method} | {a['frames_with_correct']} | {a['accepted_correct']} "
+                     f"({fmt(a['share_of_reachable'], percent_of)}) | {fmt(a['threshold'], lambda v: f'{v:.2f}')} |")
     if plotted:
         lines += ["", "![Reliability diagram on held-out scenes](reliability.png)"]
     return "\n".join(lines)

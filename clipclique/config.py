@@ -188,9 +188,6 @@ def validate(config: LocalizationConfig) -> None:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
     if not 0.0 <= config.similarity.alpha <= 1.0:
         raise ConfigError(f"similarity.alpha = {config.similarity.alpha}; must be within [0, 1]")
-    for dotted in ("inliers.iou_threshold", "min_confidence"):
-        if not 0.0 <= _get(config, dotted) <= 1.0:
-            raise ConfigError(f"{dotted} = {_get(config, dotted)}; must be within [0, 1]")
     if config.inliers.min_clique_size < 3:
         raise ConfigError("inliers.min_clique_size must be at least 3: fewer cannot fix a 6-DoF pose")
     for dotted in ("graph.d_adj", "inliers.d_comp", "inliers.time_limit_s", "inliers.inlier_threshold", "success_threshold_m"):
@@ -199,6 +196,9 @@ def validate(config: LocalizationConfig) -> None:
     for dotted in ("top_n", "matching.k", "graph.walk_length", "graph.xview_walks", "inliers.max_cliques", "inliers.ransac_iterations"):
         if (value := _get(config, dotted)) < 1:
             raise ConfigError(f"{dotted} = {value}; must be at least 1")
+    for dotted in ("inliers.iou_threshold", "min_confidence"):
+        if not 0.0 <= _get(config, dotted) <= 1.0:
+            raise ConfigError(f"{dotted} = {_get(config, dotted)}; must be within [0, 1]")
 
 
 def _get(config: LocalizationConfig, dotted: str) -> Any:

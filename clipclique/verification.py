@@ -10,7 +10,7 @@ Per hypothesis (all of a frame's at once), with the map's landmarks projected by
   pose says should be seen but was not;
 - score = overlap - MISSED_WEIGHT * missed: the verification score (`Hypothesis.verification`).
 
-RANSAC / PROSAC verify minimal-set poses by overlap alone (`consensus_overlap`), as CLIP-Loc does.
+RANSAC / PROSAC verify minimal-set poses by overlap alone (`candidate_overlap`), as CLIP-Loc does.
 """
 
 from __future__ import annotations
@@ -53,11 +53,9 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -
     camera = observations.camera
     rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
     translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
-    # Only landmarks within the depth range of some pose can be in view: a large map projects a few of them.
-    distance = np.linalg.norm(map.ellipsoids.centers[None] - translations[:, None], axis=2) - map.ellipsoids.axes.max(axis=1)
-    nearby = np.flatnonzero((distance <= camera.max_depth).any(axis=0))
+    nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
     seen = project(map.ellipsoids.subset(nearby), rotations, translations, camera)
-    slot = np.full(len(map), -1)
+    slot = np.full(len(map), -1)  # landmark -> its column in `seen`, -1 out of range
     slot[nearby] = np.arange(len(nearby))
 
     owner = np.repeat(np.arange(len(hypotheses)), [len(h.correspondences) for h in hypotheses])
@@ -76,6 +74,13 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -
     depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
     missed = _missed(seen, map.class_ids[nearby], observations)
     return Verification(overlap - MISSED_WEIGHT * missed, overlap, mean_iou, missed, depth_error)
+
+
+def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
+    """Indices of the landmarks some camera (B positions) may see: nearer than `max_depth` plus their size.
+    Of a large map only these are projected."""
+    distance = np.linalg.norm(ellipsoids.centers[None] - translations[:, None], axis=2) - ellipsoids.axes.max(axis=1)
+    return np.flatnonzero((distance <= max_depth).any(axis=0))
 
 
 def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,

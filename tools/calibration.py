@@ -20,13 +20,14 @@ from typing import Any, Protocol
 import numpy as np
 
 from clipclique import confidence, verification
-from clipclique.config import METHOD_TITLES, make_config
+from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
 from clipclique.types import Map, Observations, Pose
 
 BINS = 10  # reliability diagram and ECE: equal-width confidence bins
+METHODS = ("xview", "sh", "cliploc", "clipclique")  # Table I's four
 PRECISION = 0.95
 
 
@@ -61,7 +62,7 @@ class Rows:
                     self.has_correct)
 
 
-def collect(sequences: list[SequenceLike], methods: tuple[str, ...] = tuple(METHOD_TITLES)) -> Rows:
+def collect(sequences: list[SequenceLike], methods: tuple[str, ...] = METHODS) -> Rows:
     """Every hypothesis of every method on every sequence's frames with ground truth."""
     features, correct, scene, method, frame, has_correct = [], [], [], [], [], []
     for sequence in sequences:

@@ -20,6 +20,8 @@ Descriptor = Literal["fused", "clip", "sh", "xview"]
 MatchingStrategy = Literal["adaptive", "knn", "one_to_one"]
 InlierMethod = Literal["cliques", "ransac", "prosac"]
 PoseWeights = Literal["none", "sim", "com", "both"]
+Verification = Literal["overlap", "centers"]
+Rerank = Literal["none", "verification", "confidence"]
 
 
 class ConfigError(ClipcliqueError):
@@ -69,8 +71,11 @@ class InlierConfig:
     max_cliques: int = 100_000  # enumeration stops here and says so
     time_limit_s: float = 1.0  # enumeration stops here and says so
     ransac_iterations: int = 1000
-    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier
+    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
     seed: int = 0
+    verification: Verification = "overlap"  # RANSAC/PROSAC: projected box overlap (the paper) or 3D centre distance
+    iou_threshold: float = 0.3  # RANSAC/PROSAC overlap verification: box IoU to count as inlier
+    rerank: Rerank = "none"  # reorder every method's hypotheses by image verification or confidence
 
 
 @dataclass
@@ -91,6 +96,8 @@ class LocalizationConfig:
     pose: PoseConfig = field(default_factory=PoseConfig)
     top_n: int = 5
     success_threshold_m: float = 1.0
+    min_confidence: float = 0.0  # hypotheses less confident are dropped; a frame left without one is not localized
+    confidence_model: str = ""  # JSON file of a refitted confidence model ("": the one shipped in the package)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -155,6 +162,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "top_n": (1, 1000),
     "success_threshold_m": (1e-6, 1e5),
     "pose.min_conditioning": (0.0, 1.0),
+    "inliers.iou_threshold": (0.0, 1.0),
+    "min_confidence": (0.0, 1.0),
 }
 MAX_CONFIG_BYTES = 1 << 20
 
@@ -229,6 +238,8 @@ def validate(config: LocalizationConfig) -> None:
         "matching.strategy": MatchingStrategy,
         "inliers.method": InlierMethod,
         "pose.weights": PoseWeights,
+        "inliers.verification": Verification,
+        "inliers.rerank": Rerank,
     }
     if config.method not in METHOD_PRESETS:
         raise ConfigError(f"method = {config.method!r}; choose one of {', '.join(METHOD_PRESETS)} (with --method)")

@@ -16,12 +16,16 @@ Memory is bounded whatever the map: `affordable_candidates` keeps the best-score
 whose landmark pairs within reach fit `max_pairs` (5,000 identical overlapping landmarks would
 otherwise ask for gigabytes of pairs), and the pipeline reports the cap it used.
 
-RANSAC / PROSAC (baselines) draw minimal sets of 3 candidates and verify each pose by an
-MSAC-style score, a cheaper stand-in for the paper's projected overlap: every observation whose
-candidate landmark (of the same class, when classes are given) lies within `threshold` of the
-transformed observation centre adds `1 - residual / threshold`, counted once per observation
-(its best candidate). When the candidates have no more 3-subsets than the iteration budget,
-all of them are tried instead of drawing (exhaustive, and still deterministic).
+RANSAC / PROSAC (baselines) draw minimal sets of 3 candidates and verify each pose. As the paper
+(CLIP-Loc's verification), by projected overlap (`image` given): every candidate landmark is
+projected into the query image under the pose and its box compared with the observation's
+detection box; each observation adds the IoU of its best candidate (same class, when classes are
+given), and candidates with IoU >= `image.iou_threshold` are inliers. Without `image`, an
+MSAC-style centre score (`inliers.verification = centers`): every observation whose candidate
+landmark lies within `threshold` of the transformed observation centre adds
+`1 - residual / threshold`, counted once per observation (its best candidate). When the candidates
+have no more 3-subsets than the iteration budget, all of them are tried instead of drawing
+(exhaustive, and still deterministic).
 """
 
 from __future__ import annotations
@@ -38,6 +42,8 @@ from scipy.spatial import cKDTree
 
 from clipclique.cliquesearch import clique_total
 from clipclique.pose import fit_rigid_batch
+from clipclique.types import Camera, Ellipsoids
+from clipclique.verification import candidate_overlap
 
 FIRST_ROUND = 1_000  # cliques asked for in the first enumeration round
 MAX_PAIRS = 2_000_000  # landmark pairs the compatibility test may hold in memory (about 100 MB)
@@ -192,6 +198,16 @@ class Consensus:
     num_hypotheses: int  # minimal sets drawn and verified
 
 
+@dataclass
+class ImageEvidence:
+    """What verifying a pose by projected overlap needs."""
+
+    landmarks: Ellipsoids  # the map's landmarks
+    boxes: np.ndarray  # (K, 4) xyxy detection box of each observation
+    camera: Camera
+    iou_threshold: float  # a candidate whose boxes overlap this much is an inlier
+
+
 def sample_consensus(
     observed_centers: np.ndarray,
     landmark_centers: np.ndarray,
@@ -204,12 +220,13 @@ def sample_consensus(
     progressive: bool = False,
     same_class: np.ndarray | None = None,
     keep: int = 5,
+    image: ImageEvidence | None = None,
 ) -> Consensus:
     """RANSAC (uniform minimal sets) or PROSAC (`progressive`: drawn from the best-scored
     candidates first, the pool growing to all of them), keeping the `keep` best distinct inlier sets.
 
     `same_class` (C,) bool marks candidates whose observation and landmark share a class; only
-    those can be inliers.
+    those can be inliers. `image` switches verification from centre distances to projected overlap.
     """
     count = len(candidates)
     if count < 3 or iterations < 1:
@@ -223,13 +240,18 @@ def sample_consensus(
     by_obs = np.argsort(obs, kind="stable")
     group_starts = np.flatnonzero(np.r_[True, np.diff(obs[by_obs]) != 0])
     allowed = np.ones(count, dtype=bool) if same_class is None else same_class
-    source, target = observed_centers[obs], landmark_centers[lm]
+    if image is None:
+        source, target = observed_centers[obs], landmark_centers[lm]
+        support_of = lambda r, t: _center_support(r, t, source, target, threshold)  # noqa: E731
+    else:
+        landmarks, boxes = image.landmarks.subset(lm), image.boxes[obs]
+        support_of = lambda r, t: _overlap_support(r, t, landmarks, boxes, image)  # noqa: E731
     verification = np.empty(len(rotation))
     inlier_masks = np.empty((len(rotation), count), dtype=bool)
     for lo in range(0, len(rotation), CHUNK):
-        residual = _residuals(rotation[lo : lo + CHUNK], translation[lo : lo + CHUNK], source, target)
-        inlier_masks[lo : lo + CHUNK] = allowed & (residual < threshold)
-        support = np.where(inlier_masks[lo : lo + CHUNK], 1.0 - residual / threshold, 0.0)
+        support, inlier = support_of(rotation[lo : lo + CHUNK], translation[lo : lo + CHUNK])
+        support = np.where(allowed, support, 0.0)
+        inlier_masks[lo : lo + CHUNK] = allowed & inlier
         verification[lo : lo + CHUNK] = np.maximum.reduceat(support[:, by_obs], group_starts, axis=1).sum(axis=1)
 
     # Visit the best hypothesis of each distinct inlier set, best first.
@@ -240,22 +262,34 @@ def sample_consensus(
     for best in order[np.sort(first)]:
         if verification[best] <= 0 or len(inlier_sets) == keep:
             break
-        residual = _residuals(rotation[best : best + 1], translation[best : best + 1], source, target)[0]
-        inliers = _best_per_observation(np.flatnonzero(inlier_masks[best]), obs, residual)
+        if np.count_nonzero(inlier_masks[best]) < 3:
+            continue
+        support = support_of(rotation[best : best + 1], translation[best : best + 1])[0][0]
+        inliers = _best_per_observation(np.flatnonzero(inlier_masks[best]), obs, -support)
         if len(inliers) >= 3 and not any(np.array_equal(inliers, known) for known in inlier_sets):
             inlier_sets.append(inliers)
             set_scores.append(float(verification[best]))
     return Consensus(inlier_sets, set_scores, int(len(rotation)))
 
 
-def _residuals(rotation: np.ndarray, translation: np.ndarray, source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(B, C) distance between each transformed source point and its target, per pose."""
+def _center_support(rotation: np.ndarray, translation: np.ndarray, source: np.ndarray, target: np.ndarray,
+                    threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(B, C) MSAC support `1 - residual / threshold` of each candidate per pose, and the inlier mask."""
     moved = np.einsum("bij,cj->bci", rotation, source) + translation[:, None, :]
-    return np.linalg.norm(moved - target[None], axis=-1)
+    residual = np.linalg.norm(moved - target[None], axis=-1)
+    inlier = residual < threshold
+    return np.where(inlier, 1.0 - residual / threshold, 0.0), inlier
+
+
+def _overlap_support(rotation: np.ndarray, translation: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,
+                     image: ImageEvidence) -> tuple[np.ndarray, np.ndarray]:
+    """(B, C) IoU of each candidate's detection box with its projected landmark per pose, and the inlier mask."""
+    iou = candidate_overlap(rotation, translation, landmarks, boxes, image.camera)
+    return iou, iou >= image.iou_threshold
 
 
 def _best_per_observation(inliers: np.ndarray, obs: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Of the inlier candidates, the one with the smallest residual per observation (sorted)."""
+    """Of the inlier candidates, the one with the smallest residual (negated support) per observation (sorted)."""
     ranked = inliers[np.lexsort((residual[inliers], obs[inliers]))]
     first = np.r_[True, np.diff(obs[ranked]) != 0]
     return np.sort(ranked[first])

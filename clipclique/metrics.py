@@ -16,7 +16,7 @@ import numpy as np
 
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import pose_errors
-from clipclique.pipeline import LocalizationResult
+from clipclique.pipeline import NOT_CONFIDENT, LocalizationResult
 from clipclique.types import Map, Observations, Pose
 
 TOP_K = (1, 3, 5)
@@ -78,13 +78,15 @@ def evaluate_frame(
 
 def summarize(evaluations: list[FrameEvaluation]) -> dict[str, float]:
     """The paper's columns over frames: success@1/3/5 (fractions), precision, recall, median TE (m)
-    and RE (deg), time per query (ms). A column with no frame to average over is NaN."""
+    and RE (deg), time per query (ms), and the frames left without a pose by `min_confidence`.
+    A column with no frame to average over is NaN."""
     te = [e.translation_error for e in evaluations if e.translation_error is not None]
     re = [e.rotation_error for e in evaluations if e.rotation_error is not None]
     summary = {"frames": float(len(evaluations))}
     for k in TOP_K:
         summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
+    summary["not_confident"] = float(sum(e.failure is not None and e.failure.startswith(NOT_CONFIDENT) for e in evaluations))
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])
     summary["te_median_m"] = float(np.median(te)) if te else math.nan

@@ -16,7 +16,7 @@ from scipy import ndimage
 
 from clipclique.encoders import CropTruth, Encoder
 from clipclique.geometry import FitParams, fit_ellipsoid_depth, stack_ellipsoids
-from clipclique.types import Detections, Frame, Observations
+from clipclique.types import Camera, Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
 
@@ -71,7 +71,9 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
         truncated.append(in_band > 0)
     index = np.array(kept, int)
     observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
-                                detections.instance_ids[index], index)
+                                detections.instance_ids[index], index, detections.boxes[index].astype(float),
+                                detections.masks[index].sum(axis=(1, 2)),
+                                Camera(frame.intrinsics, width, height, params.max_depth))
     crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
     contents = [crop_contents(frame, detections.boxes[k], int(detections.instance_ids[k])) for k in kept]
     return Extraction(observations, crops, np.array(truncated, bool), contents, dict(dropped))

@@ -7,9 +7,13 @@ Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 A frame without a pose says why in `LocalizationResult.failure`, naming the stage that lost it:
 "fewer than 3 observations (K)", "fewer than 3 observations with a candidate landmark (k)",
 "no clique of 3 or more compatible correspondences", "no minimal set of 3 distinct,
-non-collinear correspondences" (RANSAC/PROSAC), or "no correspondence set determines a pose (each
+non-collinear correspondences" (RANSAC/PROSAC), "no correspondence set determines a pose (each
 is collinear or poorly conditioned)" (every set was degenerate, or nearly a row of objects:
-`config.pose.min_conditioning`). Missing CLIP embeddings make "fused" fall back to SH only (a note
+`config.pose.min_conditioning`), or "no pose with confidence >= P (best c)" (`min_confidence`).
+
+Every method's hypotheses are then verified in the image (`clipclique.verification`) and given a
+calibrated confidence (`clipclique.confidence`) when the observations carry their boxes and camera;
+`inliers.rerank` reorders them by either. Missing CLIP embeddings make "fused" fall back to SH only (a note
 says so) and make "clip" a ClipcliqueError.
 """
 
@@ -23,13 +27,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import cliquesearch, graph, inliers, lookalikes, matching, similarity
+from clipclique import cliquesearch, confidence, graph, inliers, lookalikes, matching, similarity, verification
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.pose import conditioning, correspondence_weights, fit_rigid_batch
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
-STAGES = ("descriptors", "similarity", "matching", "inliers", "pose")
+STAGES = ("descriptors", "similarity", "matching", "inliers", "pose", "verification")
+NOT_CONFIDENT = "no pose with confidence >="  # how a frame refused by `min_confidence` says why
 
 
 @dataclass
@@ -109,10 +114,12 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         _solve_cliques(result, observations, index.map, config, lap)
     else:
         _solve_consensus(result, observations, index.map, config, lap)
-    for stage in STAGES:
-        timings.setdefault(stage, 0.0)
     if result.failure is None and not result.hypotheses:
         result.failure = "no correspondence set determines a pose (each is collinear or poorly conditioned)"
+    _verify(result, observations, index.map, config)
+    lap("verification")
+    for stage in STAGES:
+        timings.setdefault(stage, 0.0)
     return result
 
 
@@ -238,6 +245,10 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
     """RANSAC / PROSAC inlier sets, each refit with the weighted pose."""
     settings = config.inliers
     obs, lm = result.candidates[:, 0], result.candidates[:, 1]
+    image = None
+    if settings.verification == "overlap":
+        verification.require_image(observations, "inliers.verification = overlap (set it to centers otherwise)")
+        image = inliers.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, settings.iou_threshold)
     consensus = inliers.sample_consensus(
         observations.ellipsoids.centers,
         map.ellipsoids.centers,
@@ -249,6 +260,7 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
         progressive=settings.method == "prosac",
         same_class=observations.class_ids[obs] == map.class_ids[lm],
         keep=config.top_n,
+        image=image,
     )
     result.num_cliques = consensus.num_hypotheses
     lap("inliers")
@@ -285,3 +297,37 @@ def _hypotheses(
         Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b]), float(measure[b]))
         for b in np.flatnonzero(ok)
     ]
+
+
+def _verify(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig) -> None:
+    """Verification score and confidence of every hypothesis, then `inliers.rerank` and `min_confidence`.
+
+    Observations without boxes and camera (a library caller's own) are left unverified, unless
+    re-ranking or a confidence floor asks for it.
+    """
+    wanted = config.inliers.rerank != "none" or config.min_confidence > 0
+    if observations.boxes is None or observations.camera is None:
+        if wanted:
+            verification.require_image(observations, "inliers.rerank and min_confidence")
+        return
+    if not result.hypotheses:
+        return
+    checked = verification.verify(result.hypotheses, observations, map)
+    model = confidence.load_model(config.confidence_model)
+    probability = (None if model is None else
+                   model.predict(confidence.Evidence(result.hypotheses, checked, result.similarity, len(observations))))
+    for rank, hypothesis in enumerate(result.hypotheses):
+        hypothesis.verification = float(checked.score[rank])
+        hypothesis.confidence = None if probability is None else float(probability[rank])
+    if config.inliers.rerank != "none":
+        if config.inliers.rerank == "confidence" and probability is None:
+            raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
+        key = checked.score if config.inliers.rerank == "verification" else probability
+        result.hypotheses = [result.hypotheses[i] for i in np.argsort(-key, kind="stable")]
+    if config.min_confidence > 0:
+        if probability is None:
+            raise ClipcliqueError("min_confidence needs a confidence model (none is shipped in this build)")
+        best = max(h.confidence for h in result.hypotheses)
+        result.hypotheses = [h for h in result.hypotheses if h.confidence >= config.min_confidence]
+        if not result.hypotheses:
+            result.failure = f"{NOT_CONFIDENT} {config.min_confidence:g} (best {best:.2f})"

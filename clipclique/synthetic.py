@@ -2,18 +2,22 @@
 
 Everything here is simulated: landmarks are random labelled ellipsoids in a room, "CLIP"
 embeddings are random unit vectors (an observation's image embedding is its landmark's text
-embedding plus noise), and observations are a neighbourhood of landmarks moved into a camera
-frame with centre noise, partial-view shrinking and false detections.
+embedding plus noise), and observations are a neighbourhood of landmarks moved into the frame of a
+camera looking at it, with centre noise, partial-view shrinking and false detections. Each
+observation's "detection box" is its observed ellipsoid projected into the simulated camera's
+image (`SIMULATED_CAMERA`); one out of view gets an empty box.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from clipclique.geometry import random_rotation
-from clipclique.types import Ellipsoids, Map, Observations, Pose
+from clipclique.geometry import look_at
+from clipclique.projection import box_area, project
+from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose
 
 ENCODER = "simulated-clip"
+SIMULATED_CAMERA = Camera(np.array([[320.0, 0.0, 320.0], [0.0, 320.0, 240.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
 
 
 def synthetic_map(
@@ -76,14 +80,16 @@ def synthetic_query(
     center_noise: float = 0.05,
     embedding_noise: float = 0.5,
 ) -> tuple[Observations, Pose]:
-    """Observations of the `num_visible` landmarks nearest a random map point, seen from a random
-    camera pose, plus `num_outliers` false detections (instance id -1). Returns (observations, camera-to-map pose).
+    """Observations of the `num_visible` landmarks nearest a random map point, seen by a camera 2-5 m
+    away looking at that point, plus `num_outliers` false detections (instance id -1). Returns
+    (observations, camera-to-map pose).
 
     A map of fewer than `num_visible` landmarks is seen whole."""
     num_visible = min(num_visible, len(map))
     anchor = map.ellipsoids.centers[rng.integers(len(map))]
     visible = np.argsort(np.linalg.norm(map.ellipsoids.centers - anchor, axis=1))[:num_visible]
-    pose = Pose(random_rotation(rng), anchor + rng.normal(scale=2.0, size=3))
+    direction = rng.normal(size=3)
+    pose = look_at(anchor + rng.uniform(2.0, 5.0) * direction / np.linalg.norm(direction), anchor)
     seen = map.ellipsoids.subset(visible).transformed(pose.inverse())
     seen.centers = seen.centers + rng.normal(scale=center_noise, size=seen.centers.shape)
     seen.axes = seen.axes * rng.uniform(0.6, 1.0, size=seen.axes.shape)  # partial views look smaller
@@ -101,12 +107,17 @@ def synthetic_query(
         dim = map.text_embeddings.shape[1]
         true = map.text_embeddings[visible] + rng.normal(scale=embedding_noise / np.sqrt(dim), size=(num_visible, dim))
         embeddings = _unit(np.concatenate((true, rng.normal(size=(num_outliers, dim))))).astype(np.float32)
+    seen_in_image = project(ellipsoids, np.eye(3)[None], np.zeros((1, 3)), SIMULATED_CAMERA)
+    boxes = np.where(seen_in_image.visible[0, :, None], seen_in_image.boxes[0], 0.0)
     observations = Observations(
         ellipsoids=ellipsoids,
         class_ids=class_ids,
         image_embeddings=embeddings,
         instance_ids=np.concatenate((map.instance_ids[visible], -np.ones(num_outliers, dtype=np.int64))),
         detection_index=np.arange(num_visible + num_outliers),
+        boxes=boxes,
+        mask_areas=np.round(np.pi / 4 * box_area(boxes)).astype(np.int64),  # the ellipse inscribed in the box
+        camera=SIMULATED_CAMERA,
     )
     return observations, pose
 

@@ -121,6 +121,16 @@ class Detections:
         return len(self.class_ids)
 
 
+@dataclass(frozen=True)
+class Camera:
+    """The pinhole camera a query was taken with: what projecting the map into its image needs."""
+
+    intrinsics: np.ndarray  # (3, 3)
+    width: int  # pixels
+    height: int
+    max_depth: float = 8.0  # metres: objects farther than this are not observed
+
+
 @dataclass
 class Observations:
     """Objects seen in one frame, as ellipsoids in the camera frame."""
@@ -130,6 +140,9 @@ class Observations:
     image_embeddings: np.ndarray | None  # (K, D) float32, L2-normalized
     instance_ids: np.ndarray  # (K,) int, ground-truth object id, -1 unknown
     detection_index: np.ndarray  # (K,) int, row in the Detections this came from
+    boxes: np.ndarray | None = None  # (K, 4) float xyxy pixels: the detection box (image verification needs it)
+    mask_areas: np.ndarray | None = None  # (K,) int, pixels of the detection mask
+    camera: Camera | None = None  # None: the query cannot be verified in the image
 
     def __len__(self) -> int:
         return len(self.class_ids)
@@ -146,3 +159,5 @@ class Hypothesis:
     # observed and the map side): near 0, a row of objects whose rotation is ill-determined.
     # NaN when not measured (only the pipeline measures it).
     conditioning: float = float("nan")
+    verification: float | None = None  # image verification score (clipclique.verification); None: not verified
+    confidence: float | None = None  # P(pose within the success threshold), clipclique.confidence; None: unknown

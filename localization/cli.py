@@ -57,6 +57,10 @@ def run(
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
                                                       rich_help_panel=ALGORITHM)] = None,
+    min_confidence: Annotated[Optional[float], typer.Option(
+        min=0.0, max=1.0, help="report a frame whose poses are all less confident as not localized "
+                               "(confidence: the calibrated probability that a pose is within 1 m)",
+        rich_help_panel=ALGORITHM)] = None,
     map_path: Annotated[Optional[Path], typer.Option("--map", help="map file \\[default: outputs/maps/SEQUENCE.map.npz]",
                                                      rich_help_panel=INPUTS)] = None,
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
@@ -94,6 +98,7 @@ def run(
     from localization.tables import make_console, print_documents, print_frames
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, force=force)
@@ -109,6 +114,10 @@ def run(
         print_frames(console, document)
     if not quiet:
         print_documents(console, [document])
+    if min_confidence:
+        summary = document["summary"]
+        console.print(f"not localized (no pose with confidence >= {min_confidence:g}): "
+                      f"{int(summary['not_confident'])} of {int(summary['frames'])} frames")
     out_dir = escape(str(settings.out_dir(document["run"]["sequence"])))
     console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
                   soft_wrap=True)

@@ -107,6 +107,8 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
             "rank": rank,
             "score": hypothesis.score,
             "conditioning": hypothesis.conditioning,
+            "verification": hypothesis.verification,
+            "confidence": hypothesis.confidence,
             "pose": hypothesis.pose.matrix().tolist(),
             "translation_error_m": te,
             "rotation_error_deg": None if re is None else math.degrees(re),

@@ -175,14 +175,16 @@ def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stocha
         return {k: v for key, value in tree.items()
                 for k, v in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
 
-    default = flat(make_config("clipclique").to_dict())
     for variant in bench.variants():
         if variant.group == "methods":
             continue
+        default = flat(make_config(variant.method).to_dict())  # verification / rerank rows change a baseline
         changed = {k for k, v in flat(variant.config().to_dict()).items() if v != default[k]}
         assert changed <= {key for key, _ in variant.overrides}, variant
     stochastic = {v.label for v in bench.variants() if v.stochastic}
-    assert stochastic == {"X-View", "SH", "CLIP-Loc", "RANSAC", "PROSAC"}
+    baselines = ("X-View", "SH", "CLIP-Loc")
+    assert stochastic == {*baselines, "RANSAC", "PROSAC", *(f"{b}, centre distances" for b in baselines),
+                          *(f"{b}, re-ranked" for b in baselines)}
 
 
 def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, monkeypatch):
@@ -192,7 +194,7 @@ def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, m
         frame.observations.image_embeddings = None
     records = [bench.run_variant(sequence, variant, lambda: None) for variant in bench.variants()]
     skipped = {r["label"] for r in records if "skipped" in r}
-    assert skipped == {"CLIP-Loc", "CLIP", *GROUP_LABELS["alpha"]}
+    assert skipped == {"CLIP-Loc", "CLIP", *GROUP_LABELS["alpha"], "CLIP-Loc, centre distances", "CLIP-Loc, re-ranked"}
     fused = next(r for r in records if r["label"] == "CLIP-Clique")
     assert fused["notes"] and "SH only" in fused["notes"][0]
     sh = next(r for r in records if r["label"] == "SH" and r["group"] == "descriptors")
@@ -200,7 +202,8 @@ def test_without_clip_the_clip_rows_say_why_and_tables_stay_aligned(quick_run, m
     results = {"sequences": {"demo": sequence.description}, "experiments": {"demo": records}}
     table_one = report.table_one(results)
     assert "| CLIP-Loc † | not run: no CLIP embeddings" in table_one
-    for text in (table_one, report.ablations(results), report.alpha_section(results, plotted=False)):
+    for text in (table_one, report.ablations(results), report.alpha_section(results, plotted=False),
+                 report.verification_section(results, plotted=False)):
         for table in tables_of(text):
             assert len({line.count("|") for line in table}) == 1, table
 
@@ -269,3 +272,30 @@ def test_committed_report_reproduces_table_one_on_the_demo(tmp_path, monkeypatch
         for column in ("success@1", "success@3", "success@5", "precision", "recall", "te_median_m"):
             assert fresh["summary"][column] == pytest.approx(expected[variant.label]["summary"][column]), \
                 (variant.label, column)
+
+
+def test_quick_report_compares_verifications_and_reranking(quick_run):
+    text = section((quick_run / "report.md").read_text(), "Verification in the image, re-ranking and confidence")
+    for title in ("X-View", "SH", "CLIP-Loc"):
+        for variant in ("projected overlap", "centre distances"):
+            rows = table_rows(text, f"{title}, {variant}")
+            assert rows and 0.0 <= float(rows[0][5]) <= 100.0, (title, variant)
+    reranked = [line for line in text.splitlines() if line.startswith("| demo |") and line.count("|") == 6]
+    assert [line.split("|")[2].strip() for line in reranked] == ["X-View", "SH", "CLIP-Loc", "CLIP-Clique"]
+    assert "Not measured: a held-out measurement needs two sequences or more." in text
+
+
+def test_calibration_section_states_the_goals():
+    measured = {"sequences": ["a", "b"], "hypotheses": 10, "ece": 0.07, "ece_answers": 0.04,
+                "acceptance": {"threshold": 0.8, "accepted": 5, "accepted_correct": 5, "frames_with_correct": 8,
+                               "share_of_reachable": 0.625,
+                               "at_min_confidence": {"accepted": 4, "precision": 1.0, "share_of_reachable": 0.5}},
+                "by_scene": {"a": {"ece": 0.07, "acceptance": {"frames_with_correct": 8, "accepted_correct": 5,
+                                                               "share_of_reachable": 0.625, "threshold": 0.8}}},
+                "by_method": {"sh": {"frames_with_correct": 8, "accepted_correct": 5, "share_of_reachable": 0.625,
+                                     "threshold": 0.8}}}
+    text = report.calibration_text(measured, plotted=True)
+    assert "**0.070** over hypotheses" in text and "goal < 0.05: **not met**" in text
+    assert "5 of the 8 frames" in text and "**62.5%**; goal 80%: **not met**" in text
+    assert "| a | 0.070 | 8 | 5 (62.5%) | 0.80 |" in text and "| sh | 8 | 5 (62.5%) | 0.80 |" in text
+    assert "![Reliability diagram on held-out scenes](reliability.png)" in text

@@ -168,3 +168,35 @@ def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys):
         tool.main()
     assert exit_info.value.code == 2
     assert capsys.readouterr().err == "demo: error: --out outputs/loc/demo/clipclique: cannot create the folder (Not a directory)\n"
+
+
+def test_results_carry_each_hypothesis_verification_and_confidence(runs):
+    for method, folder in runs.items():
+        frames = read_results(folder / "results.json")["frames"]
+        hypotheses = [h for f in frames for h in f["hypotheses"]]
+        assert hypotheses and all(0.0 <= h["confidence"] <= 1.0 and isinstance(h["verification"], float)
+                                  for h in hypotheses)
+        confident = [h for h in hypotheses if h["confidence"] >= 0.9]
+        assert confident, method
+        assert np.mean([h["translation_error_m"] < 1.0 for h in confident]) >= 0.9, method
+
+
+def test_min_confidence_reports_unconfident_frames_as_not_localized(runs, demo, tmp_path):
+    from typer.testing import CliRunner
+
+    from localization.cli import app
+
+    printed = CliRunner().invoke(app, ["run", "demo", "--map", str(demo / "demo.map.npz"), "--data-root", str(demo),
+                                       "--out", str(tmp_path), "--no-rrd", "--min-confidence", "0.9"])
+    assert printed.exit_code == 0, printed.output
+    plain = read_results(runs["clipclique"] / "results.json")["frames"]
+    strict = read_results(tmp_path / "results.json")
+    expected = [f["index"] for f in plain if f["hypotheses"] and max(h["confidence"] for h in f["hypotheses"]) < 0.9]
+    refused = [f["index"] for f in strict["frames"] if (f["failure"] or "").startswith("no pose with confidence >= 0.9")]
+    assert refused == expected and refused
+    assert strict["summary"]["not_confident"] == len(refused)
+    assert f"not localized (no pose with confidence >= 0.9): {len(refused)} of {FRAMES} frames" in printed.output
+    kept = [h for f in strict["frames"] for h in f["hypotheses"]]
+    assert kept and min(h["confidence"] for h in kept) >= 0.9
+    top1 = [f["hypotheses"][0]["translation_error_m"] < 1.0 for f in strict["frames"] if f["hypotheses"]]
+    assert np.mean(top1) >= 0.9  # what it still answers, it answers right

@@ -17,7 +17,7 @@ from clipclique.config import LocalizationConfig
 from clipclique.geometry import look_at
 from clipclique.metrics import FrameEvaluation, evaluate_frame
 from clipclique.pipeline import LocalizationResult
-from clipclique.types import Detections, Ellipsoids, Frame, Hypothesis, Map, Observations, Pose
+from clipclique.types import Camera, Detections, Ellipsoids, Frame, Hypothesis, Map, Observations, Pose
 
 ROOT = Path(__file__).resolve().parents[1]
 CLASSES = ["chair", "table", "sofa", "tv", "plant", "lamp"]
@@ -114,7 +114,8 @@ def _localize(map: Map, frame: Frame, top_n: int, wrong: bool, rng: np.random.Ge
 
     in_camera = map.ellipsoids.subset(np.array(seen)).transformed(frame.pose.inverse())
     in_camera.centers = in_camera.centers + rng.normal(0, 0.03, in_camera.centers.shape)
-    observations = Observations(in_camera, class_ids[:-1], None, instance_ids[:-1], np.arange(len(seen)))
+    observations = Observations(in_camera, class_ids[:-1], None, instance_ids[:-1], np.arange(len(seen)), boxes[:-1],
+                                masks[:-1].sum(axis=(1, 2)), Camera(INTRINSICS, WIDTH, HEIGHT))
 
     truth = np.column_stack((np.arange(len(seen)), seen))
     shuffled = np.column_stack((np.arange(len(seen)), np.roll(seen, 1)))
@@ -124,7 +125,8 @@ def _localize(map: Map, frame: Frame, top_n: int, wrong: bool, rng: np.random.Ge
         bad = wrong if rank == 0 else rank % 2 == 1
         offset = rng.normal(0, 0.8 if bad else 0.05, 3)
         pose = Pose(frame.pose.rotation, frame.pose.translation + offset)
-        hypotheses.append(Hypothesis(pose, shuffled[:3] if bad else truth, float(3.0 - rank * 0.4)))
+        hypotheses.append(Hypothesis(pose, shuffled[:3] if bad else truth, float(3.0 - rank * 0.4),
+                                     verification=0.5 if bad else 3.0, confidence=0.1 if bad else 0.9))
     result = LocalizationResult(
         hypotheses=hypotheses,
         candidates=candidates,

@@ -57,6 +57,7 @@ from clipclique.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
 from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
 
+import calibration  # noqa: E402
 import literal_reference  # noqa: E402
 import report  # noqa: E402
 from report import PAPER_LANDMARKS_AT_1S  # noqa: E402
@@ -65,6 +66,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"
 SEEDS = (0, 1, 2)  # stochastic configurations: best of three, as the paper
 LITERAL_REFERENCE = report.LITERAL
+BASELINES_SAMPLING = ("xview", "sh", "cliploc")  # the RANSAC / PROSAC baselines
 ALPHAS = tuple(round(0.1 * i, 1) for i in range(11))
 SCALABILITY_COUNTS = (50, 100, 200, 500, 1000, 2000, 5000)
 QUICK_COUNTS = (50, 200, 1000)
@@ -98,7 +100,9 @@ class Variant:
 
 
 def variants() -> list[Variant]:
-    """Table I, then each ablation changing one part of CLIP-Clique, then the alpha sweep."""
+    """Table I, then each ablation changing one part of CLIP-Clique, then the alpha sweep, then Table I's
+    RANSAC/PROSAC baselines verified by 3D centre distances instead of projected overlap, and every method
+    re-ranked by image verification."""
     def one(group: str, key: str, settings: tuple[tuple[Any, str], ...]) -> list[Variant]:
         return [Variant(group, label, overrides=((key, value),)) for value, label in settings]
 
@@ -116,6 +120,10 @@ def variants() -> list[Variant]:
         *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"), ("both", "w_sim * w_com"))),
         *one("matching", "matching.strategy", (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"), ("adaptive", "Adaptive"))),
         *one("alpha", "similarity.alpha", tuple((a, f"{a:.1f}") for a in ALPHAS)),
+        *(Variant("verification", f"{METHOD_TITLES[m]}, centre distances", m, (("inliers.verification", "centers"),))
+          for m in BASELINES_SAMPLING),
+        *(Variant("rerank", f"{METHOD_TITLES[m]}, re-ranked", m, (("inliers.rerank", "verification"),))
+          for m in ("xview", "sh", "cliploc", "clipclique")),
     ]
 
 
@@ -277,6 +285,14 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
     return record
 
 
+def held_out_calibration(sequences: list[CachedSequence]) -> dict[str, Any]:
+    """The confidence model measured leaving one scene out at a time (tools/calibration.py), or why not."""
+    if len(sequences) < 2:
+        return {"skipped": "a held-out measurement needs two sequences or more"}
+    rows = calibration.collect(sequences)
+    return calibration.measure(rows, calibration.held_out(rows)) | {"sequences": [s.name for s in sequences]}
+
+
 def run_scalability(counts: tuple[int, ...], frames: int, scene: CachedSequence, tick: Tick) -> dict[str, Any]:
     """Latency against landmark count: bench_core's synthetic rooms, and `scene`'s own map copied
     side by side and queried with its cached frames (the paper's set-up), each with its fit."""
@@ -435,11 +451,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     """Run the suite; a user mistake (unknown sequence, missing map) is one line on stderr and exit 2."""
-    args = parse_args(argv)
+    user_errors_exit("bench", run_suite, parse_args(argv))
+
+
+def user_errors_exit(program: str, work: Callable[[argparse.Namespace], None], args: argparse.Namespace) -> None:
+    """`work(args)`; a ClipcliqueError (a user mistake) becomes one line on stderr and exit status 2."""
     try:
-        run_suite(args)
+        work(args)
     except ClipcliqueError as error:
-        print(f"bench: error: {error}", file=sys.stderr)
+        print(f"{program}: error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
 
 
@@ -469,6 +489,7 @@ def run_suite(args: argparse.Namespace) -> None:
             task = progress.add_task(f"{name}: {len(experiments)} configurations, {work} runs", total=work)
             tick = lambda task=task: progress.update(task, advance=1)  # noqa: E731
             results["experiments"][name] = [run_variant(sequence, v, tick) for v in experiments]
+        results["calibration"] = held_out_calibration(list(cached.values()))
         first = cached[names[0]]
         task = progress.add_task("scalability (rooms side by side)", total=2 * len(counts))
         results["scalability"] = run_scalability(counts, 3 if args.quick else 20, first,

@@ -1,7 +1,7 @@
 """Per-frame timings of clipclique-loc on a sequence: the algorithm (matching + inliers + pose) apart
 from the detector, the observation fit and the encoder, and the whole frame without the detector.
 
-    .venv/bin/python tools/bench_loc.py [SEQUENCE] [--method clipclique] [--repeat 3]
+    .venv/bin/python tools/bench_loc.py [SEQUENCE] [--method clipclique] [--repeat 3] [--set KEY=VALUE ...]
 
 The map must exist (`clipclique-map build SEQUENCE`). Each frame's observations are localized
 `--repeat` times and the fastest kept, which damps the noise of a shared machine; the table
@@ -38,10 +38,13 @@ def main() -> None:
     parser.add_argument("--method", default="clipclique", choices=list(METHOD_PRESETS))
     parser.add_argument("--repeat", type=positive, default=3)
     parser.add_argument("--max-frames", type=positive, default=None)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="config override, e.g. inliers.verification=centers (repeatable)")
     args = parser.parse_args()
 
     try:
-        run = prepare(RunSettings(args.sequence, args.method, max_frames=args.max_frames, record=False))
+        run = prepare(RunSettings(args.sequence, args.method, overrides=args.set, max_frames=args.max_frames,
+                                  record=False))
     except ClipcliqueError as error:  # a missing map or sequence: one line, as clipclique-loc says it
         parser.exit(2, f"bench_loc: error: {error}\n")
     index = index_map(run.map, run.config)

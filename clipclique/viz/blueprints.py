@@ -62,13 +62,14 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                     rrb.Spatial2DView(
                         name="camera + detections",
                         origin="world/camera/gt",
-                        contents=["+ $origin/rgb", "+ $origin/detections/**"],
+                        contents=["+ $origin/rgb", "+ $origin/detections/**", "+ $origin/projected_landmarks"],
                     ),
                     rrb.Spatial2DView(name="depth", origin="depth"),
                 ),
                 rrb.Tabs(
                     rrb.TimeSeriesView(name="translation error (m)", origin="metrics/error",
                                        contents=["$origin/translation_m", "$origin/no_pose"]),
+                    rrb.TimeSeriesView(name="confidence of the top-1 pose", origin="metrics/confidence"),
                     rrb.TimeSeriesView(name="rotation error (deg)", origin="metrics/error",
                                        contents=["$origin/rotation_deg", "$origin/no_pose"]),
                     rrb.TimeSeriesView(name="counts", origin="metrics/count"),

@@ -13,6 +13,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from clipclique.config import GraphConfig
+from clipclique.projection import box_iou, ellipse_outlines, project
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
@@ -22,6 +23,7 @@ from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
     WRONG,
+    annotation_ids,
     correctness_colors,
     match_correctness,
 )
@@ -86,6 +88,7 @@ class LocalizationRecorder:
         self._log_cameras(frame, result, evaluation)
         self._log_observations(observations, frame.pose, top1)
         self._log_matches(observations, result, frame.pose or top1)
+        self._log_projection(observations, result)
         self._log_metrics(observations, result, evaluation)
         self._log_text(frame, observations, result, evaluation)
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
@@ -195,6 +198,35 @@ class LocalizationRecorder:
             )
         self._clear_ranks("world/hypotheses", len(result.hypotheses))
 
+    def _log_projection(self, observations: Observations, result: LocalizationResult) -> None:
+        """The map projected into the image under the top-1 pose: an ellipse outline per landmark in view,
+        in its class colour, labelled with its class and (when it supports the pose) the IoU with its detection."""
+        path = f"{CAMERA}/projected_landmarks"
+        if not result.hypotheses or observations.camera is None:
+            self.stream.log(path, rr.Clear(recursive=False))
+            return
+        pose = result.hypotheses[0].pose
+        seen = project(self.map.ellipsoids, pose.rotation[None], pose.translation[None], observations.camera)
+        shown = np.flatnonzero(seen.visible[0])
+        supporting = dict(map(tuple, np.asarray(result.hypotheses[0].correspondences)[:, ::-1].tolist()))
+        labels = []
+        for landmark in shown:
+            label = self.map.class_names[self.map.class_ids[landmark]]
+            if landmark in supporting and observations.boxes is not None:
+                iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
+                label += f" IoU {iou:.2f}"
+            labels.append(label)
+        self.stream.log(
+            path,
+            rr.LineStrips2D(
+                ellipse_outlines(seen.dual_conics[0, shown]),
+                class_ids=annotation_ids(self.map.class_ids[shown]),
+                labels=labels,
+                radii=rr.Radius.ui_points(np.where(np.isin(shown, list(supporting)), 2.0, 1.0)),
+                draw_order=2.0,
+            ),
+        )
+
     def _log_metrics(
         self, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
     ) -> None:
@@ -205,6 +237,9 @@ class LocalizationRecorder:
             "count/hypotheses": len(result.hypotheses),
         }
         scalars |= {f"time/{stage}": seconds for stage, seconds in result.timings.items()}
+        if result.hypotheses and result.hypotheses[0].confidence is not None:
+            scalars["confidence/top1"] = result.hypotheses[0].confidence
+            scalars["verification/top1"] = result.hypotheses[0].verification
         if evaluation is not None:
             if evaluation.translation_error is not None:
                 scalars["error/translation_m"] = evaluation.translation_error

@@ -1,0 +1,174 @@
+"""How far to trust a pose: P(translation error < the success threshold) per hypothesis.
+
+A logistic regression over the features of `FEATURES` (standardized), then Platt scaling fitted on
+leave-one-scene-out logits, so the probabilities are calibrated on scenes the regression did not
+see. The coefficients of features that must not lower the confidence as they grow (the
+verification score, its margin over the frame's other hypotheses) are bounded at >= 0, and the
+Platt slope too: the confidence is monotone in them by construction.
+
+The model is a JSON file (never a pickle): the shipped one is `clipclique/data/confidence.json`,
+fitted by `tools/fit_confidence.py` (which also measures it on held-out scenes); `confidence_model`
+in the config points to a refitted one. A feature is one line of `FEATURES`: a name, how to compute
+it from a frame's `Evidence`, and the sign its coefficient is held to (0: free).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.special import expit, log_expit
+
+from clipclique.errors import ClipcliqueError
+from clipclique.types import Hypothesis
+from clipclique.verification import Verification
+
+MODEL_FORMAT = "clipclique confidence model"
+MODEL_VERSION = 1
+L2 = 1e-2  # ridge on the standardized coefficients: a few hundred frames per scene, keep it smooth
+
+
+@dataclass
+class Evidence:
+    """One frame's hypotheses and what was measured of them."""
+
+    hypotheses: list[Hypothesis]
+    verification: Verification
+    similarity: np.ndarray  # (K, N) the matrix the matching used
+    num_observations: int
+
+
+def _margin(score: np.ndarray) -> np.ndarray:
+    """Each score minus the best other hypothesis's (the score itself when alone)."""
+    if len(score) < 2:
+        return score.copy()
+    top = np.sort(score)[::-1]
+    return score - np.where(score == top[0], top[1], top[0])
+
+
+FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
+    "verification": (lambda e: e.verification.score, +1),
+    "margin": (lambda e: _margin(e.verification.score), +1),
+    "mean_iou": (lambda e: e.verification.mean_iou, 0),
+    "missed": (lambda e: e.verification.missed.astype(float), 0),
+    "depth_error": (lambda e: np.minimum(e.verification.depth_error, 2.0), 0),
+    "size": (lambda e: np.array([len(h.correspondences) for h in e.hypotheses], float), 0),
+    "similarity": (lambda e: np.array([e.similarity[tuple(h.correspondences.T)].sum() for h in e.hypotheses]), 0),
+    "observations": (lambda e: np.full(len(e.hypotheses), float(e.num_observations)), 0),
+}
+
+
+def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES)) -> np.ndarray:
+    """(B, F) the named features of each hypothesis."""
+    return np.column_stack([FEATURES[name][0](evidence) for name in names]).astype(float)
+
+
+@dataclass(frozen=True)
+class ConfidenceModel:
+    features: tuple[str, ...]
+    mean: np.ndarray  # (F,) standardization
+    scale: np.ndarray  # (F,)
+    coefficients: np.ndarray  # (F,) on standardized features
+    intercept: float
+    platt: tuple[float, float]  # (slope, offset) applied to the logit
+    provenance: dict  # what it was fitted on, and its held-out measurements
+
+    def logit(self, features: np.ndarray) -> np.ndarray:
+        return ((features - self.mean) / self.scale) @ self.coefficients + self.intercept
+
+    def probability(self, features: np.ndarray) -> np.ndarray:
+        """(B,) calibrated probability that each row's pose is within the success threshold."""
+        slope, offset = self.platt
+        return expit(slope * self.logit(features) + offset)
+
+    def predict(self, evidence: Evidence) -> np.ndarray:
+        return self.probability(feature_matrix(evidence, self.features))
+
+    def to_json(self) -> dict:
+        return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),
+                "mean": self.mean.tolist(), "scale": self.scale.tolist(),
+                "coefficients": self.coefficients.tolist(), "intercept": self.intercept,
+                "platt": list(self.platt), "provenance": self.provenance}
+
+
+def fit(features: np.ndarray, labels: np.ndarray, groups: np.ndarray, names: tuple[str, ...] = tuple(FEATURES),
+        provenance: dict | None = None) -> ConfidenceModel:
+    """Logistic regression on all rows; Platt scaling on leave-one-group-out logits (groups = scenes;
+    with one group there is nothing held out and the Platt step is the identity)."""
+    features, labels = np.asarray(features, float), np.asarray(labels, float)
+    mean, scale = _standardization(features)
+    signs = np.array([FEATURES[name][1] for name in names])
+    weights, intercept = _logistic((features - mean) / scale, labels, signs)
+    platt = (1.0, 0.0)
+    scenes = np.unique(groups)
+    if len(scenes) > 1:
+        held_out = np.empty(len(labels))
+        for scene in scenes:
+            train = groups != scene
+            m, s = _standardization(features[train])
+            w, b = _logistic((features[train] - m) / s, labels[train], signs)
+            held_out[~train] = ((features[~train] - m) / s) @ w + b
+        platt = _platt(held_out, labels)
+    return ConfidenceModel(tuple(names), mean, scale, weights, intercept, platt, provenance or {})
+
+
+def _standardization(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Column means and deviations (1 where a column is constant)."""
+    scale = features.std(axis=0)
+    return features.mean(axis=0), np.where(scale > 1e-9, scale, 1.0)
+
+
+def _logistic(x: np.ndarray, y: np.ndarray, signs: np.ndarray) -> tuple[np.ndarray, float]:
+    """L2-regularized logistic regression, coefficients held to `signs` (+1: >= 0, -1: <= 0, 0: free)."""
+    def loss(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        z = x @ theta[:-1] + theta[-1]
+        value = -np.mean(y * log_expit(z) + (1 - y) * log_expit(-z)) + 0.5 * L2 * theta[:-1] @ theta[:-1]
+        residual = (expit(z) - y) / len(y)
+        return value, np.append(x.T @ residual + L2 * theta[:-1], residual.sum())
+
+    bounds = [(0, None) if s > 0 else (None, 0) if s < 0 else (None, None) for s in signs] + [(None, None)]
+    theta = minimize(loss, np.zeros(x.shape[1] + 1), jac=True, method="L-BFGS-B", bounds=bounds).x
+    return theta[:-1], float(theta[-1])
+
+
+def _platt(logits: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(slope >= 0, offset) minimizing the log loss of expit(slope * logit + offset)."""
+    weights, offset = _logistic(logits[:, None], y, np.array([1]))
+    return float(weights[0]), offset
+
+
+def shipped_model_path() -> Path:
+    return Path(str(resources.files("clipclique") / "data" / "confidence.json"))
+
+
+@lru_cache(maxsize=4)
+def load_model(path: str = "") -> ConfidenceModel | None:
+    """The model in `path` ("" = the shipped one; None when the package ships none yet)."""
+    file = Path(path) if path else shipped_model_path()
+    if not path and not file.is_file():
+        return None
+    try:
+        data = json.loads(file.read_text())
+    except (OSError, json.JSONDecodeError) as error:
+        raise ClipcliqueError(f"{file}: cannot read the confidence model ({error})") from None
+    if data.get("format") != MODEL_FORMAT or data.get("version") != MODEL_VERSION:
+        raise ClipcliqueError(f"{file}: not a version {MODEL_VERSION} {MODEL_FORMAT} file")
+    try:
+        names = tuple(data["features"])
+        arrays = [np.asarray(data[key], float) for key in ("mean", "scale", "coefficients")]
+        intercept, platt = float(data["intercept"]), tuple(float(v) for v in data["platt"])
+    except (KeyError, TypeError, ValueError) as error:
+        raise ClipcliqueError(f"{file}: malformed confidence model ({error!r})") from None
+    unknown = [name for name in names if name not in FEATURES]
+    if unknown:
+        raise ClipcliqueError(f"{file}: unknown features {', '.join(unknown)} (known: {', '.join(FEATURES)})")
+    if any(a.shape != (len(names),) for a in arrays) or not all(np.isfinite(a).all() for a in arrays) or len(platt) != 2:
+        raise ClipcliqueError(f"{file}: mean, scale and coefficients must be {len(names)} finite numbers each, "
+                              "platt two")
+    return ConfidenceModel(names, *arrays, intercept, platt, data.get("provenance", {}))

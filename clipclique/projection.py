@@ -1,0 +1,93 @@
+"""Map ellipsoids -> image ellipses and boxes under camera poses: the dual-quadric projection.
+
+An ellipsoid with centre c, rotation R and semi-axes s is the unit sphere moved by
+H = [[R diag(s), c], [0, 1]]; its dual quadric is Q* = H diag(1, 1, 1, -1) H^T. A camera
+P = K [R_c^T | -R_c^T t_c] (pose (R_c, t_c) camera-to-map) sees its outline as the dual conic
+C* = P Q* P^T (Hartley & Zisserman, 8.3), computed in the expanded form `project` gives. The tangent lines x = u of that conic, (1, 0, -u) C* (1, 0, -u)^T = 0,
+give the box in closed form: u = (C*13 +- sqrt(C*13^2 - C*11 C*33)) / C*33, and likewise v.
+
+The projection is an ellipse only when the whole ellipsoid lies in front of the camera, so a
+landmark any part of which is nearer than MIN_DEPTH (behind or around the camera), whose centre is
+beyond the camera's depth range, or whose box falls outside the image, is left out (`visible` False).
+Boxes are clipped to the image, as detection boxes are.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clipclique.types import Camera, Ellipsoids
+
+MIN_DEPTH = 0.05  # metres: an ellipsoid reaching nearer than this is not projected
+
+
+@dataclass
+class Projection:
+    """N ellipsoids seen by B cameras."""
+
+    dual_conics: np.ndarray  # (B, N, 3, 3) C* = P Q* P^T
+    boxes: np.ndarray  # (B, N, 4) xyxy pixels, clipped to the image; meaningful where visible
+    visible: np.ndarray  # (B, N) bool
+    depths: np.ndarray  # (B, N) metres, depth of each centre along the optical axis
+    full_areas: np.ndarray  # (B, N) square pixels of each box before clipping (0 where not in front)
+
+
+def project(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera) -> Projection:
+    """Every map ellipsoid (N) under every camera-to-map pose (B): rotations (B, 3, 3), translations (B, 3).
+
+    With P = V [I | -t], V = K R^T, the dual conic expands to C* = V M V^T - h h^T, where
+    M = R_e diag(s^2) R_e^T is the ellipsoid's spread and h = V (c - t) its centre's image (times
+    its depth). V M V^T is one (N, 9) x (9, 9) product per pose (vec(V M V^T) = (V kron V) vec(M)),
+    so a map of thousands of landmarks costs a few big products, not thousands of small ones.
+    """
+    shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]  # R_e diag(s)
+    spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
+    view = camera.intrinsics @ rotations.transpose(0, 2, 1)  # (B, 3, 3)
+    kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
+    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, N, 3)
+    conics = (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
+    # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
+    depths = centers[..., 2]
+    reach = np.sqrt(np.maximum(conics[..., 2, 2] + depths**2, 0.0))
+    in_front = depths - reach > MIN_DEPTH
+    c33 = np.where(in_front, conics[..., 2, 2], -1.0)  # in front: C*33 = reach^2 - depth^2 < 0
+    boxes = np.empty(conics.shape[:2] + (4,))
+    for axis_index in (0, 1):  # u from (C*11, C*13), v from (C*22, C*23); C*33 < 0 orders the two roots
+        c_ii, c_i3 = conics[..., axis_index, axis_index], conics[..., axis_index, 2]
+        root = np.sqrt(np.maximum(c_i3**2 - c_ii * c33, 0.0))
+        boxes[..., axis_index], boxes[..., axis_index + 2] = (c_i3 + root) / c33, (c_i3 - root) / c33
+    full_areas = np.where(in_front, box_area(boxes), 0.0)
+    boxes = np.clip(boxes, 0.0, np.array([camera.width, camera.height] * 2, float))
+    visible = (in_front & (depths <= camera.max_depth)
+               & (boxes[..., 2] > boxes[..., 0]) & (boxes[..., 3] > boxes[..., 1]))
+    return Projection(conics, boxes, visible, depths, full_areas)
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection over union of xyxy boxes, broadcast over leading dimensions (0 where both are empty)."""
+    width = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0.0, None)
+    height = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0.0, None)
+    inter = width * height
+    union = box_area(a) + box_area(b) - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+
+
+def box_area(boxes: np.ndarray) -> np.ndarray:
+    return np.clip(boxes[..., 2] - boxes[..., 0], 0.0, None) * np.clip(boxes[..., 3] - boxes[..., 1], 0.0, None)
+
+
+def ellipse_outlines(dual_conics: np.ndarray, samples: int = 48) -> np.ndarray:
+    """(N, samples + 1, 2) closed pixel outlines of the ellipses of dual conics (N, 3, 3) with C*33 < 0.
+
+    Normalized so C*33 = -1, a dual conic reads [[A A^T - m m^T, -m], [-m^T, -1]]: centre m, shape A.
+    """
+    normalized = dual_conics / -dual_conics[:, 2:3, 2:3]
+    centers = -normalized[:, :2, 2]
+    spread = normalized[:, :2, :2] + centers[:, :, None] * centers[:, None, :]
+    values, vectors = np.linalg.eigh(spread)
+    shape = vectors * np.sqrt(np.clip(values, 0.0, None))[:, None, :]
+    angles = np.linspace(0.0, 2 * np.pi, samples + 1)
+    circle = np.stack((np.cos(angles), np.sin(angles)))
+    return centers[:, None, :] + np.einsum("nij,js->nsi", shape, circle)

@@ -1,0 +1,102 @@
+"""How well a pose hypothesis explains the image: the map projected under it, against the detections.
+
+Per hypothesis (all of a frame's at once), with the map's landmarks projected by
+`clipclique.projection`:
+- overlap: the summed IoU between each corresponding observation's detection box and its
+  landmark's projected box, each weighted by depth agreement, max(0, 1 - |dz| / DEPTH_TOLERANCE),
+  where dz is the observed centre's depth along its ray minus the landmark centre's depth;
+- missed: landmarks projected well inside the image (at least MIN_VISIBLE_PIXELS, half of their
+  box on the image) that no detection of their class overlaps (IoU >= EXPLAINED_IOU): what the
+  pose says should be seen but was not;
+- score = overlap - MISSED_WEIGHT * missed: the verification score (`Hypothesis.verification`).
+
+RANSAC / PROSAC verify minimal-set poses by overlap alone (`candidate_overlap`), as CLIP-Loc does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clipclique.errors import ClipcliqueError
+from clipclique.projection import Projection, box_area, box_iou, project
+from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
+
+DEPTH_TOLERANCE = 0.5  # metres: depth disagreement at which an overlap counts for nothing
+MISSED_WEIGHT = 0.25  # a missed landmark costs a quarter of a perfect overlap
+MIN_VISIBLE_PIXELS = 1500  # projected boxes smaller than this may well go undetected
+EXPLAINED_IOU = 0.1  # a detection of the landmark's class overlapping this much explains it
+
+
+@dataclass
+class Verification:
+    """Verification of B hypotheses, one entry each."""
+
+    score: np.ndarray  # (B,) overlap - MISSED_WEIGHT * missed
+    overlap: np.ndarray  # (B,) depth-weighted summed IoU over the correspondences
+    mean_iou: np.ndarray  # (B,) plain IoU averaged over the correspondences
+    missed: np.ndarray  # (B,) int, landmarks that should be visible but no detection explains
+    depth_error: np.ndarray  # (B,) metres, median |dz| over the correspondences
+
+
+def require_image(observations: Observations, why: str) -> None:
+    """ClipcliqueError unless the observations carry their boxes and camera."""
+    if observations.boxes is None or observations.camera is None:
+        raise ClipcliqueError(f"{why} needs each observation's detection box and the camera "
+                              "(Observations.boxes and .camera, filled by extract_observations)")
+
+
+def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -> Verification:
+    """Verification of each hypothesis against the observations' boxes and centres."""
+    require_image(observations, "image verification")
+    camera = observations.camera
+    rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
+    translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
+    nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
+    seen = project(map.ellipsoids.subset(nearby), rotations, translations, camera)
+    slot = np.full(len(map), -1)  # landmark -> its column in `seen`, -1 out of range
+    slot[nearby] = np.arange(len(nearby))
+
+    owner = np.repeat(np.arange(len(hypotheses)), [len(h.correspondences) for h in hypotheses])
+    pairs = np.concatenate([h.correspondences for h in hypotheses]).reshape(-1, 2).astype(np.int64)
+    obs, lm = pairs[:, 0], pairs[:, 1]
+    at = np.maximum(slot[lm], 0)
+    in_view = (slot[lm] >= 0) & seen.visible[owner, at]
+    iou = np.where(in_view, box_iou(observations.boxes[obs], seen.boxes[owner, at]), 0.0)
+    landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
+    depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
+    agreement = np.clip(1.0 - depth_gap / DEPTH_TOLERANCE, 0.0, None)
+    count = len(hypotheses)
+    sizes = np.bincount(owner, minlength=count)
+    overlap = np.bincount(owner, iou * agreement, minlength=count)
+    mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
+    depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
+    missed = _missed(seen, map.class_ids[nearby], observations)
+    return Verification(overlap - MISSED_WEIGHT * missed, overlap, mean_iou, missed, depth_error)
+
+
+def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
+    """Indices of the landmarks some camera (B positions) may see: nearer than `max_depth` plus their size.
+    Of a large map only these are projected."""
+    distance = np.linalg.norm(ellipsoids.centers[None] - translations[:, None], axis=2) - ellipsoids.axes.max(axis=1)
+    return np.flatnonzero((distance <= max_depth).any(axis=0))
+
+
+def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,
+                      camera: Camera) -> np.ndarray:
+    """(B, C) IoU of each candidate's observation box (C, 4) with its landmark (C ellipsoids) projected
+    under each camera-to-map pose (B); 0 where the landmark is not visible."""
+    seen = project(landmarks, rotations, translations, camera)
+    return np.where(seen.visible, box_iou(boxes[None], seen.boxes), 0.0)
+
+
+def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations) -> np.ndarray:
+    """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps."""
+    area = box_area(seen.boxes)
+    expected = seen.visible & (area >= MIN_VISIBLE_PIXELS) & (area >= 0.5 * seen.full_areas)
+    hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
+    overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
+    same_class = class_ids[landmark][:, None] == observations.class_ids[None]
+    explained = ((overlaps >= EXPLAINED_IOU) & same_class).any(axis=1)
+    return np.bincount(hypothesis[~explained], minlength=len(expected))

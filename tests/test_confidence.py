@@ -1,0 +1,146 @@
+"""The calibrated confidence: the shipped model, fitting, loading, held-out measurement, --min-confidence."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clipclique import confidence
+from clipclique.config import make_config
+from clipclique.errors import ClipcliqueError
+from clipclique.geometry import pose_errors
+from clipclique.metrics import evaluate_frame, summarize
+from clipclique.pipeline import NOT_CONFIDENT, index_map, localize
+from clipclique.synthetic import synthetic_map, synthetic_query
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # tools/ holds scripts, not a package
+
+import calibration  # noqa: E402
+
+
+def test_the_shipped_model_is_monotone_in_the_verification_score():
+    model = confidence.load_model()
+    assert model is not None and "verification" in model.features
+    rng = np.random.default_rng(0)
+    base = model.mean + model.scale * rng.normal(size=(50, len(model.features)))  # typical rows
+    column = model.features.index("verification")
+    sweep = np.linspace(-3.0, 10.0, 40)
+    for row in base:
+        rows = np.tile(row, (len(sweep), 1))
+        rows[:, column] = sweep
+        probability = model.probability(rows)
+        assert (np.diff(probability) >= 0).all() and ((0 <= probability) & (probability <= 1)).all()
+    assert model.coefficients[column] > 0.1  # not monotone by being flat
+    assert model.provenance["held_out"]["ece"] < 0.05
+
+
+def test_fit_recovers_a_calibrated_model_and_holds_signs():
+    rng = np.random.default_rng(1)
+    names = ("verification", "margin", "size")
+    x = rng.normal(size=(4000, 3))
+    truth = 1.5 * x[:, 0] - 0.8 * x[:, 2] + 0.3  # margin plays no part: its coefficient must stay >= 0
+    y = rng.random(4000) < 1 / (1 + np.exp(-truth))
+    groups = np.repeat(["a", "b", "c", "d"], 1000)
+    model = confidence.fit(x, y, groups, names)
+    assert model.coefficients[0] == pytest.approx(1.5, abs=0.2) and model.coefficients[2] == pytest.approx(-0.8, abs=0.2)
+    assert model.coefficients[1] >= 0
+    assert calibration.ece(model.probability(x), y) < 0.03
+
+
+def test_a_refitted_model_round_trips_through_json(tmp_path):
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(300, len(confidence.FEATURES)))
+    model = confidence.fit(x, x[:, 0] > 0, np.repeat(["a", "b", "c"], 100), provenance={"scenes": ["a", "b", "c"]})
+    path = tmp_path / "mine.json"
+    path.write_text(json.dumps(model.to_json()))
+    loaded = confidence.load_model(str(path))
+    np.testing.assert_allclose(loaded.probability(x), model.probability(x))
+    assert loaded.provenance == {"scenes": ["a", "b", "c"]}
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("{not json", "cannot read the confidence model"),
+    (json.dumps({"format": "something else", "version": 1}), "not a version 1"),
+    (json.dumps({"format": confidence.MODEL_FORMAT, "version": 1, "features": ["verification"]}), "malformed"),
+    (json.dumps({"format": confidence.MODEL_FORMAT, "version": 1, "features": ["luck"], "mean": [0], "scale": [1],
+                 "coefficients": [1], "intercept": 0, "platt": [1, 0]}), "unknown features luck"),
+    (json.dumps({"format": confidence.MODEL_FORMAT, "version": 1, "features": ["verification"], "mean": [0, 1],
+                 "scale": [1], "coefficients": [1], "intercept": 0, "platt": [1, 0]}), "1 finite numbers each"),
+])
+def test_a_broken_model_file_is_a_one_line_error_naming_it(tmp_path, text, message):
+    path = tmp_path / "broken.json"
+    path.write_text(text)
+    with pytest.raises(ClipcliqueError, match=message) as caught:
+        confidence.load_model(str(path))
+    assert str(path) in str(caught.value)
+
+
+def test_ece_and_acceptance_on_a_hand_made_set():
+    probability = np.array([0.9, 0.9, 0.9, 0.9, 0.2, 0.2, 0.6])
+    correct = np.array([1, 1, 1, 0, 0, 0, 1], bool)
+    # bins: 0.9 -> accuracy 0.75 (4 rows), 0.2 -> 0 (2 rows), 0.6 -> 1 (1 row)
+    assert calibration.ece(probability, correct) == pytest.approx((4 * 0.15 + 2 * 0.2 + 1 * 0.4) / 7)
+    # frames: 0 (0.9 right, 0.2 wrong), 1 (0.9 right), 2 (0.9 right), 3 (0.9 wrong, 0.6 right), 4 (0.2 wrong)
+    frame = np.array([0, 1, 2, 3, 0, 4, 3])
+    rows = calibration.Rows(np.zeros((7, 1)), correct, np.full(7, "s"), np.full(7, "m"), frame,
+                            np.array([True, True, True, True, False]))
+    accepted = calibration.acceptance(rows, probability, precision=0.7)
+    # answers by confidence: 0.9 x4 (3 right) then 0.2 (wrong): 75% at threshold 0.9, 60% below
+    assert accepted["threshold"] == 0.9 and accepted["accepted"] == 4 and accepted["accepted_correct"] == 3
+    assert accepted["share_of_reachable"] == pytest.approx(3 / 4)
+    assert calibration.acceptance(rows, probability, precision=0.95)["accepted"] == 0
+
+
+def synthetic_frames(config, count: int = 16):
+    rng = np.random.default_rng(8)
+    map = synthetic_map(rng)
+    index = index_map(map, config)
+    for frame in range(count):
+        observations, truth = synthetic_query(map, rng, num_visible=6, num_outliers=4, center_noise=0.1)
+        yield frame, map, observations, truth, localize(observations, index, config)
+
+
+def test_min_confidence_reports_unconfident_frames_as_not_localized():
+    # The synthetic room shows many mapped objects it never "detects", so confidences stay low here: P = 0.2.
+    plain, strict = make_config("sh"), make_config("sh", overrides=["min_confidence=0.2"])
+    evaluations, refused = [], 0
+    for (frame, map, observations, truth, before), (*_, after) in zip(synthetic_frames(plain), synthetic_frames(strict)):
+        kept = [h for h in before.hypotheses if h.confidence >= 0.2]
+        assert [h.confidence for h in after.hypotheses] == [h.confidence for h in kept]
+        if before.hypotheses and not kept:
+            refused += 1
+            assert after.failure.startswith(f"{NOT_CONFIDENT} 0.2 (best ")
+        evaluations.append(evaluate_frame(after, observations, map, truth, strict, frame))
+        for h in after.hypotheses:  # a confident pose on this easy set is a correct one
+            assert pose_errors(h.pose, truth)[0] < 1.0
+    assert refused > 0 and sum(e.failure is None for e in evaluations) > 0
+    assert summarize(evaluations)["not_confident"] == refused
+
+
+def test_held_out_predictions_never_see_their_own_scene():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(600, len(confidence.FEATURES)))
+    y = rng.random(600) < 1 / (1 + np.exp(-2 * x[:, 0]))
+    scene = np.repeat(["a", "b", "c"], 200)
+    rows = calibration.Rows(x, y, scene, np.full(600, "m"), np.arange(600), y.copy())
+    flipped = calibration.Rows(x, np.where(scene == "a", ~y, y), scene, rows.method, rows.frame, y.copy())
+    before, after = calibration.held_out(rows), calibration.held_out(flipped)
+    np.testing.assert_allclose(before[scene == "a"], after[scene == "a"])  # scene a's labels never reach its scores
+    assert not np.allclose(before[scene != "a"], after[scene != "a"])
+    with pytest.raises(ClipcliqueError, match="two scenes or more"):
+        calibration.held_out(rows.take(scene == "a"))
+
+
+def test_fit_confidence_needs_two_scenes(tmp_path):
+    import subprocess
+
+    tool = Path(__file__).resolve().parents[1] / "tools" / "fit_confidence.py"
+    done = subprocess.run([sys.executable, str(tool), "demo", "--out", str(tmp_path / "m.json")], capture_output=True,
+                          text=True, cwd=tmp_path)
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        "fit_confidence: error: give two scenes or more: the model is measured on a scene it was not fitted on"]
+    assert not (tmp_path / "m.json").exists()

@@ -1,0 +1,80 @@
+"""The dual-quadric projection of map ellipsoids into a query image."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clipclique.geometry import look_at, random_rotation
+from clipclique.projection import box_iou, ellipse_outlines, project
+from clipclique.types import Camera, Ellipsoids, Pose
+
+CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
+
+
+def sampled_box(ellipsoids: Ellipsoids, pose: Pose, samples: int = 400_000) -> np.ndarray:
+    """(N, 4) bounding boxes of densely sampled surface points projected by the pinhole model."""
+    rng = np.random.default_rng(0)
+    unit = rng.normal(size=(samples, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    out = []
+    for center, axes, rotation in zip(ellipsoids.centers, ellipsoids.axes, ellipsoids.rotations):
+        points = pose.inverse().apply(center + (unit * axes) @ rotation.T) @ CAMERA.intrinsics.T
+        pixels = points[:, :2] / points[:, 2:]
+        out.append([*pixels.min(axis=0), *pixels.max(axis=0)])
+    return np.array(out)
+
+
+def test_projected_box_equals_the_sampled_surface_box_within_a_pixel():
+    rng = np.random.default_rng(4)
+    count = 6
+    ellipsoids = Ellipsoids(rng.uniform(-0.4, 0.4, (count, 3)), rng.uniform(0.05, 0.5, (count, 3)),
+                            np.array([random_rotation(rng) for _ in range(count)]))
+    pose = look_at(np.array([0.3, -3.0, 0.8]), np.zeros(3))
+    seen = project(ellipsoids, pose.rotation[None], pose.translation[None], CAMERA)
+    expected = sampled_box(ellipsoids, pose)
+    assert seen.visible.all()
+    assert (expected >= 0).all() and (expected[:, 2] <= 640).all() and (expected[:, 3] <= 480).all()  # no clipping
+    np.testing.assert_allclose(seen.boxes[0], expected, atol=1.0)
+    outlines = ellipse_outlines(seen.dual_conics[0], samples=2000)
+    np.testing.assert_allclose(np.concatenate((outlines.min(axis=1), outlines.max(axis=1)), axis=1), expected, atol=1.0)
+    np.testing.assert_allclose(seen.depths[0], pose.inverse().apply(ellipsoids.centers)[:, 2])
+
+
+def test_every_pose_of_a_batch_is_its_own_projection():
+    rng = np.random.default_rng(5)
+    ellipsoids = Ellipsoids(rng.uniform(-0.5, 0.5, (4, 3)), rng.uniform(0.1, 0.3, (4, 3)),
+                            np.array([random_rotation(rng) for _ in range(4)]))
+    poses = [look_at(np.array([x, -3.0, 1.0]), np.zeros(3)) for x in (-1.0, 0.0, 1.5)]
+    batch = project(ellipsoids, np.array([p.rotation for p in poses]), np.array([p.translation for p in poses]), CAMERA)
+    for b, pose in enumerate(poses):
+        alone = project(ellipsoids, pose.rotation[None], pose.translation[None], CAMERA)
+        np.testing.assert_allclose(batch.boxes[b], alone.boxes[0], atol=1e-9)
+
+
+@pytest.mark.parametrize(("center", "visible"), [
+    ((0.0, 0.0, 3.0), True),
+    ((0.0, 0.0, -3.0), False),  # behind the camera
+    ((0.0, 0.0, 0.1), False),  # around the camera: reaches behind it
+    ((0.0, 0.0, 9.0), False),  # beyond the depth range
+    ((30.0, 0.0, 3.0), False),  # in front, but far outside the image
+])
+def test_landmarks_behind_around_beyond_or_outside_are_left_out(center, visible):
+    ellipsoids = Ellipsoids(np.array([center]), np.array([[0.2, 0.2, 0.2]]), np.eye(3)[None])
+    seen = project(ellipsoids, np.eye(3)[None], np.zeros((1, 3)), CAMERA)
+    assert bool(seen.visible[0, 0]) is visible
+
+
+def test_a_landmark_at_the_border_is_clipped_to_the_image():
+    ellipsoids = Ellipsoids(np.array([[1.6, 0.0, 3.0]]), np.array([[0.5, 0.3, 0.3]]), np.eye(3)[None])
+    seen = project(ellipsoids, np.eye(3)[None], np.zeros((1, 3)), CAMERA)
+    assert seen.visible[0, 0] and seen.boxes[0, 0, 2] == 640.0
+    assert seen.full_areas[0, 0] > (seen.boxes[0, 0, 2] - seen.boxes[0, 0, 0]) * (seen.boxes[0, 0, 3] - seen.boxes[0, 0, 1])
+
+
+def test_box_iou():
+    a = np.array([0.0, 0.0, 10.0, 10.0])
+    assert box_iou(a, a) == 1.0
+    assert box_iou(a, np.array([5.0, 0.0, 15.0, 10.0])) == pytest.approx(50 / 150)
+    assert box_iou(a, np.array([20.0, 20.0, 30.0, 30.0])) == 0.0
+    assert box_iou(np.zeros(4), np.zeros(4)) == 0.0

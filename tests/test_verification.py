@@ -1,0 +1,120 @@
+"""Verifying pose hypotheses in the image: the score, RANSAC/PROSAC by projected overlap, re-ranking."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from clipclique import inliers
+from clipclique.config import make_config
+from clipclique.errors import ClipcliqueError
+from clipclique.geometry import look_at
+from clipclique.pipeline import index_map, localize
+from clipclique.projection import project
+from clipclique.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
+from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
+from clipclique.verification import MISSED_WEIGHT, verify
+
+
+def room() -> tuple[Map, Pose, Observations]:
+    """Six boxes of furniture on a 4 x 3 m floor seen from 3.5 m away; the detections are the true
+    projections, and the observed centres the true ones (nothing else to blame)."""
+    centers = np.array([[0.0, 0.0, 0.4], [1.2, 0.3, 0.5], [-1.1, 0.6, 0.3], [0.5, 1.3, 0.8], [-0.6, -0.8, 0.4],
+                        [1.5, -0.9, 0.6]])
+    axes = np.array([[0.4, 0.3, 0.4], [0.3, 0.3, 0.5], [0.5, 0.2, 0.3], [0.3, 0.4, 0.2], [0.25, 0.25, 0.4],
+                     [0.35, 0.3, 0.3]])
+    map = Map(Ellipsoids(centers, axes, np.tile(np.eye(3), (6, 1, 1))), np.array([0, 1, 2, 0, 1, 2]),
+              ["chair", "table", "sofa"], ["x"] * 6, np.arange(1, 7))
+    pose = look_at(np.array([0.2, -3.5, 1.6]), np.array([0.1, 0.2, 0.4]))
+    seen = project(map.ellipsoids, pose.rotation[None], pose.translation[None], SIMULATED_CAMERA)
+    assert seen.visible.all()
+    observations = Observations(map.ellipsoids.transformed(pose.inverse()), map.class_ids.copy(), None,
+                                map.instance_ids.copy(), np.arange(6), seen.boxes[0], None, SIMULATED_CAMERA)
+    return map, pose, observations
+
+
+def hypothesis(pose: Pose, count: int = 6) -> Hypothesis:
+    return Hypothesis(pose, np.column_stack((np.arange(count), np.arange(count))), 0.0)
+
+
+def test_a_correct_pose_scores_higher_than_one_a_metre_off():
+    map, truth, observations = room()
+    off = [Pose(truth.rotation, truth.translation + shift)
+           for shift in ([1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0], truth.rotation @ [0, 0, 1.0])]
+    checked = verify([hypothesis(truth), *(hypothesis(p) for p in off)], observations, map)
+    assert checked.score[0] == pytest.approx(6.0)  # six perfect overlaps, nothing missed
+    assert checked.missed[0] == 0 and checked.depth_error[0] == pytest.approx(0.0, abs=1e-9)
+    assert (checked.score[1:] < 1.0).all(), checked.score  # at 3.5 m, a metre moves the boxes off their detections
+    assert (checked.mean_iou[1:] < 0.35).all()
+
+
+def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():
+    map, truth, observations = room()
+    keep = np.arange(5)  # the sixth object goes undetected
+    partial = Observations(observations.ellipsoids.subset(keep), observations.class_ids[keep], None,
+                           observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
+    checked = verify([hypothesis(truth, 5)], partial, map)
+    assert checked.missed[0] == 1
+    assert checked.score[0] == pytest.approx(5.0 - MISSED_WEIGHT)
+
+
+def test_depth_disagreement_along_the_ray_lowers_the_score():
+    map, truth, observations = room()
+    deeper = dataclasses.replace(observations, ellipsoids=Ellipsoids(observations.ellipsoids.centers * [1, 1, 1.1],
+                                                                     observations.ellipsoids.axes,
+                                                                     observations.ellipsoids.rotations))
+    near, far = verify([hypothesis(truth)], observations, map), verify([hypothesis(truth)], deeper, map)
+    assert far.depth_error[0] > 0.2 and far.score[0] < near.score[0] - 2.0
+
+
+def test_ransac_verified_by_overlap_finds_the_true_correspondences():
+    map, truth, observations = room()
+    wrong = np.column_stack((np.arange(6), (np.arange(6) + 3) % 6))  # same classes, wrong objects
+    candidates = np.vstack((np.column_stack((np.arange(6), np.arange(6))), wrong))
+    image = inliers.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, 0.3)
+    found = inliers.sample_consensus(observations.ellipsoids.centers, map.ellipsoids.centers, candidates,
+                                     np.ones(len(candidates)), iterations=500, threshold=0.5,
+                                     rng=np.random.default_rng(0), image=image)
+    np.testing.assert_array_equal(candidates[found.inlier_sets[0]], np.column_stack((np.arange(6), np.arange(6))))
+    assert found.scores[0] == pytest.approx(6.0)  # summed IoU of six perfect overlaps
+
+
+def test_overlap_verification_needs_boxes_and_centres_do_not():
+    rng = np.random.default_rng(2)
+    map = synthetic_map(rng)
+    observations, _ = synthetic_query(map, rng)
+    bare = dataclasses.replace(observations, boxes=None, camera=None)
+    overlap, centers = make_config("sh"), make_config("sh", overrides=["inliers.verification=centers"])
+    with pytest.raises(ClipcliqueError, match="inliers.verification = overlap"):
+        localize(bare, index_map(map, overlap), overlap)
+    result = localize(bare, index_map(map, centers), centers)
+    assert result.hypotheses and result.hypotheses[0].confidence is None  # nothing to verify in the image
+
+
+def test_rerank_orders_every_methods_hypotheses_by_verification():
+    rng = np.random.default_rng(6)
+    map = synthetic_map(rng)
+    for method in ("clipclique", "cliploc"):
+        plain, reranked = make_config(method), make_config(method, overrides=["inliers.rerank=verification"])
+        for _ in range(4):
+            observations, _ = synthetic_query(map, rng)
+            before = localize(observations, index_map(map, plain), plain).hypotheses
+            after = localize(observations, index_map(map, reranked), reranked).hypotheses
+            scores = [h.verification for h in after]
+            assert scores == sorted(scores, reverse=True)
+            assert sorted(h.verification for h in before) == sorted(scores)
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("inliers.verification=ious", "inliers.verification = 'ious'; choose one of overlap, centers"),
+    ("inliers.rerank=score", "inliers.rerank = 'score'; choose one of none, verification, confidence"),
+    ("inliers.iou_threshold=1.5", "inliers.iou_threshold = 1.5; must be within"),
+    ("min_confidence=-0.1", "min_confidence = -0.1; must be within"),
+])
+def test_verification_keys_are_checked(override, message):
+    from clipclique.config import ConfigError
+
+    with pytest.raises(ConfigError, match=message):
+        make_config("sh", overrides=[override])

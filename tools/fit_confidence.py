@@ -29,7 +29,8 @@ import calibration  # noqa: E402
 from bench import cache_sequence, ensure_map, user_errors_exit  # noqa: E402
 from clipclique import confidence  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
-from localization.results import atomic_write, json_safe  # noqa: E402
+from clipclique.outputs import Staging  # noqa: E402
+from localization.results import json_safe  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -60,14 +61,16 @@ def fit(args: argparse.Namespace) -> None:
     measured = calibration.measure(rows, calibration.held_out(rows))
     args.report.mkdir(parents=True, exist_ok=True)
     calibration.plot_reliability(measured["reliability"], "Confidence on held-out scenes", args.report / "reliability.png")
-    atomic_write(args.report / "held_out.json", json.dumps(json_safe(measured), indent=1, allow_nan=False))
     provenance = {"command": " ".join(["tools/fit_confidence.py", *sys.argv[1:]]),
                   "scenes": {s.name: len(s.frames) for s in sequences}, "hypotheses": len(rows),
                   "correct": int(rows.correct.sum()),
                   "held_out": {key: measured[key] for key in ("ece", "ece_answers", "acceptance")}}
     model = confidence.fit(rows.features, rows.correct, rows.scene, provenance=json_safe(provenance))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(args.out, json.dumps(json_safe(model.to_json()), indent=1, allow_nan=False) + "\n")
+    with Staging() as staging:  # the model and its held-out measurement replace the old ones together
+        staging.path(args.report / "held_out.json").write_text(json.dumps(json_safe(measured), indent=1, allow_nan=False))
+        staging.path(args.out).write_text(json.dumps(json_safe(model.to_json()), indent=1, allow_nan=False) + "\n")
+        staging.commit()
     accepted = measured["acceptance"]
     print(f"held out: ECE {measured['ece']:.3f} (hypotheses), {measured['ece_answers']:.3f} (each frame's answer); "
           f"at 95% precision {accepted['accepted_correct']} of {accepted['frames_with_correct']} frames with a correct "

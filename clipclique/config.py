@@ -64,9 +64,10 @@ class InlierConfig:
     # Beyond the paper (0 = the literal test): a candidate whose observed ellipsoid is smaller than
     # its landmark (a part of a couch, a bed, a counter) has its centre displaced by up to the
     # difference of their semi-axes; the pair test is widened by this fraction of each candidate's
-    # largest semi-axis deficit (when it is at least d_comp), at most max_slack metres per candidate.
+    # largest semi-axis deficit (when it is at least slack_min_deficit), at most max_slack metres per candidate.
     partial_slack: float = 1.0
     max_slack: float = 0.6  # metres
+    slack_min_deficit: float = 0.3  # metres
     min_clique_size: int = 3  # fewer cannot fix a 6-DoF pose
     max_cliques: int = 100_000  # enumeration stops here and says so
     time_limit_s: float = 1.0  # enumeration stops here and says so
@@ -152,6 +153,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "inliers.d_comp": (1e-6, 100.0),
     "inliers.partial_slack": (0.0, 100.0),
     "inliers.max_slack": (0.0, 100.0),
+    "inliers.slack_min_deficit": (0.0, 100.0),
     "inliers.inlier_threshold": (1e-6, 100.0),
     "inliers.time_limit_s": (1e-6, 3600.0),
     "inliers.max_cliques": (1, 10_000_000),

@@ -136,21 +136,21 @@ def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> flo
 
 
 def partial_view_slack(
-    observed_axes: np.ndarray, landmark_axes: np.ndarray, fraction: float, cap: float, d_comp: float
+    observed_axes: np.ndarray, landmark_axes: np.ndarray, fraction: float, cap: float, min_deficit: float
 ) -> np.ndarray:
     """(C,) extra compatibility tolerance per candidate for objects seen in part.
 
     Seeing a part of length l of an object whose semi-axis is L moves the observed centre by up
     to L - l/2 = L - (observed semi-axis) along that axis. The deficit is compared axis by axis
     after sorting both sets of semi-axes (their order is not comparable). Only a deficit of at
-    least `d_comp` earns slack (a smaller one the test already absorbs; widening it for the many
-    small objects of a cluttered desk adds false edges and measured worse): `fraction` of it,
-    at most `cap` metres. A complete view gets none.
+    least `min_deficit` metres earns slack (a smaller one the test already absorbs; widening it
+    for the many small objects of a cluttered desk adds false edges): `fraction` of it, at most
+    `cap` metres. A complete view gets none.
     """
     if fraction == 0 or len(observed_axes) == 0:
         return np.zeros(len(observed_axes))
     deficit = (np.sort(landmark_axes, axis=1) - np.sort(observed_axes, axis=1)).max(axis=1)
-    return np.where(deficit >= d_comp, np.minimum(fraction * deficit, cap), 0.0)
+    return np.where(deficit >= min_deficit, np.minimum(fraction * deficit, cap), 0.0)
 
 
 def maximal_cliques(

@@ -215,7 +215,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     candidates, scores = result.candidates, result.candidate_scores
     slack = inliers.partial_view_slack(
         observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
-        settings.max_slack, settings.d_comp,
+        settings.max_slack, settings.slack_min_deficit,
     )
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
     kept = inliers.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack)

@@ -17,8 +17,8 @@ from rich.table import Table
 
 from localization.results import ALL_STAGES
 
-STAGE_HEADERS = {"detector": "detect", "observations": "fit", "encoder": "encode", "descriptors": "descr.",
-                 "similarity": "simil.", "matching": "match"}  # short headers keep 80 columns
+STAGE_HEADERS = {"detector": "det.", "observations": "fit", "encoder": "enc.", "descriptors": "desc.",
+                 "similarity": "sim.", "matching": "match", "inliers": "inl.", "verification": "verif"}  # 80 columns
 
 
 def make_console() -> Console:
@@ -95,7 +95,8 @@ def stage_table(documents: list[dict[str, Any]]) -> Table:
     for document, method in zip(documents, titles):
         medians = document["summary"]["stage_ms_median"]
         table.add_row(escape(document["run"]["sequence"]), escape(method), *(_number(medians[stage], 1) for stage in ALL_STAGES))
-    table.caption = "fit: observed ellipsoids from the detections; descr.: descriptors; simil.: similarity"
+    table.caption = ("det./enc.: detector/encoder; fit: observed ellipsoids from the detections; desc.: descriptors; "
+                     "sim.: similarity; inl.: inliers; verif: verification")
     return table
 
 

@@ -13,6 +13,7 @@ import pytest
 from PIL import Image
 
 from clipclique.config import make_config
+from clipclique.datasets.demo import DEMO_SCENES
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts that import each other, not a package
@@ -151,7 +152,7 @@ def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
     (tmp_path / "outputs" / "maps").mkdir(parents=True)
     (tmp_path / "outputs" / "maps" / "scene0002_00.map.npz").touch()
     names, skipped = bench.available_sequences(Path("data"))
-    assert names == ["demo", "demo_tum", "scene0002_00"]
+    assert names == [*DEMO_SCENES, "scene0002_00"]
     assert [s.split(":")[0] for s in skipped] == ["scene0001_00", "rgbd_dataset_freiburg2_desk"]
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--sequences", "scene0001_00", "--quick", "--out", "report"])

@@ -39,6 +39,7 @@ SKIPPED = {
     "rerun outputs/loc/demo/clipclique/recording.rrd": "opens the viewer's window",
     "make docs": "reruns the demo and the benchmark (minutes); tests/test_bench.py checks what it wrote",
     "make test": "runs this test suite",
+    ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
 }
 
 

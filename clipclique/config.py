@@ -65,9 +65,9 @@ class InlierConfig:
     # its landmark (a part of a couch, a bed, a counter) has its centre displaced by up to the
     # difference of their semi-axes; the pair test is widened by this fraction of each candidate's
     # largest semi-axis deficit (when it is at least slack_min_deficit), at most max_slack metres per candidate.
-    partial_slack: float = 1.0
-    max_slack: float = 0.6  # metres
-    slack_min_deficit: float = 0.3  # metres
+    partial_slack: float = 1.5
+    max_slack: float = 0.8  # metres
+    slack_min_deficit: float = 0.2  # metres (tools/sweep_slack.py: README "Beyond the paper")
     min_clique_size: int = 3  # fewer cannot fix a 6-DoF pose
     max_cliques: int = 100_000  # enumeration stops here and says so
     time_limit_s: float = 1.0  # enumeration stops here and says so

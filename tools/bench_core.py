@@ -3,6 +3,7 @@
     .venv/bin/python tools/bench_core.py                 # all parts, default sizes
     .venv/bin/python tools/bench_core.py --desk-counts 47 470 4700 --desk-frames 10 --json out.json
     /usr/bin/time -v .venv/bin/python tools/bench_core.py --degenerate 5000   # peak memory, worst case
+    .venv/bin/python tools/bench_core.py --literal 47 94   # beside the literal networkx reference
 
 Part 1: matching + inliers + pose for one query against a 50-landmark map, median ms per method.
 Part 2: the hard case: a simulated desk scene with the statistics of a real desk object map
@@ -13,12 +14,15 @@ ranking, `previous_solve`) on the same queries, their ratio, cap hits and growth
 Part 3: scalability on the demo-like synthetic rooms (about 2 maximal cliques per query), as the
 paper measures it, with the growth exponent (slope of a log-log least-squares line).
 `scalability()` is importable for other benchmark scripts.
+`--literal COUNTS`: only the whole query (descriptors to pose) on the desk scene, the project
+beside `tools/literal_reference.py` (networkx, no caps) on the same queries, SH only.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,6 +36,9 @@ from clipclique.pipeline import LocalizationResult, index_map, localize
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import literal_reference  # noqa: E402
 
 ALGORITHM = ("matching", "inliers", "pose")
 
@@ -196,6 +203,29 @@ def desk_scalability(counts: list[int], frames: int = 30, seed: int = 0) -> list
     return rows
 
 
+def literal_comparison(counts: list[int], frames: int = 10, seed: int = 0) -> list[dict]:
+    """Per landmark count: median ms of a whole SH-only query (descriptors to pose) on the desk
+    scene, the project (map indexed once, as a user's run does) beside the literal reference."""
+    config = make_config("clipclique-paper", overrides={"similarity.alpha": 0.0})
+    base = desk_map(np.random.default_rng(seed))
+    rows = []
+    for count in counts:
+        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
+        index = index_map(map, config)
+        rng = np.random.default_rng(seed + 1)
+        project, literal = [], []
+        for _ in range(frames):
+            observations = desk_query(base, rng)
+            start = time.perf_counter()
+            localize(observations, index, config)
+            project.append(1e3 * (time.perf_counter() - start))
+            start = time.perf_counter()
+            literal_reference.localize(observations, map, alpha=0.0)
+            literal.append(1e3 * (time.perf_counter() - start))
+        rows.append({"landmarks": len(map), "project_ms": float(np.median(project)), "literal_ms": float(np.median(literal))})
+    return rows
+
+
 def degenerate(count: int) -> LocalizationResult:
     """One query against `count` identical overlapping landmarks of one class: the worst case for
     memory (every candidate pair within reach). The caps must keep it bounded; says which one hit.
@@ -219,7 +249,16 @@ def main() -> None:
     parser.add_argument("--plot", type=Path, help="also draw the scalability plot here (PNG)")
     parser.add_argument("--degenerate", type=int, metavar="N",
                         help="only localize one query against N identical overlapping landmarks (peak memory: run under /usr/bin/time -v)")
+    parser.add_argument("--literal", type=int, nargs="+", metavar="COUNT",
+                        help="only compare whole desk queries with tools/literal_reference.py at these landmark counts")
     args = parser.parse_args()
+    if args.literal:
+        print(f"whole query on the desk scene, SH only, {args.desk_frames} queries each (median ms)")
+        print(f"{'landmarks':>10}{'project':>10}{'literal':>10}{'ratio':>8}")
+        for row in literal_comparison(args.literal, args.desk_frames):
+            print(f"{row['landmarks']:>10}{row['project_ms']:>10.1f}{row['literal_ms']:>10.0f}"
+                  f"{row['literal_ms'] / row['project_ms']:>8.1f}")
+        return
     if args.degenerate:
         start = time.perf_counter()
         result = degenerate(args.degenerate)

@@ -4,7 +4,9 @@ A logistic regression over the features of `FEATURES` (standardized), then Platt
 leave-one-scene-out logits, so the probabilities are calibrated on scenes the regression did not
 see. The coefficients of features that must not lower the confidence as they grow (the
 verification score, its margin over the frame's other hypotheses) are bounded at >= 0, and the
-Platt slope too: the confidence is monotone in them by construction.
+Platt slope too: the confidence is monotone in them by construction. Features that differ between
+scenes for reasons other than the pose's quality (missed landmarks: a cluttered desk's detector
+misses many at the right pose) enter relative to the frame's other hypotheses.
 
 The model is a JSON file (never a pickle): the shipped one is `clipclique/data/confidence.json`,
 fitted by `tools/fit_confidence.py` (which also measures it on held-out scenes); `confidence_model`
@@ -27,7 +29,7 @@ from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
 from clipclique.types import Hypothesis
-from clipclique.verification import Verification
+from clipclique.verification import MISSED_WEIGHT, Verification
 
 MODEL_FORMAT = "clipclique confidence model"
 MODEL_VERSION = 1
@@ -52,11 +54,22 @@ def _margin(score: np.ndarray) -> np.ndarray:
     return score - np.where(score == top[0], top[1], top[0])
 
 
+def _missed_in_frame(evidence: Evidence) -> np.ndarray:
+    """Missed landmarks beyond the frame's least-missing hypothesis. How many landmarks a detector
+    misses at the right pose depends on the scene (clutter, small objects: ~14 on the desk, under 1
+    in a room), so the raw count and the score it lowers do not carry from one scene to another;
+    what a hypothesis misses on top of the frame's best does."""
+    missed = evidence.verification.missed.astype(float)
+    return missed - missed.min()
+
+
 FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
-    "verification": (lambda e: e.verification.score, +1),
+    # The verification score with its missed penalty counted beyond the frame's fewest: the score
+    # plus a constant per frame, so monotone in it and with the same margins.
+    "verification_in_frame": (lambda e: e.verification.overlap - MISSED_WEIGHT * _missed_in_frame(e), +1),
     "margin": (lambda e: _margin(e.verification.score), +1),
     "mean_iou": (lambda e: e.verification.mean_iou, 0),
-    "missed": (lambda e: e.verification.missed.astype(float), 0),
+    "missed_in_frame": (_missed_in_frame, 0),
     "depth_error": (lambda e: np.minimum(e.verification.depth_error, 2.0), 0),
     "size": (lambda e: np.array([len(h.correspondences) for h in e.hypotheses], float), 0),
     "similarity": (lambda e: np.array([e.similarity[tuple(h.correspondences.T)].sum() for h in e.hypotheses]), 0),

@@ -12,7 +12,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+from numba import njit
 
 from clipclique.encoders import CropTruth, Encoder
 from clipclique.geometry import FitParams, fit_ellipsoid_depth, stack_ellipsoids
@@ -45,10 +45,9 @@ class Extraction:
 def extract_observations(frame: Frame, detections: Detections, params: ObservationParams = ObservationParams()) -> Extraction:
     """Fit one camera-frame ellipsoid per usable detection."""
     height, width = frame.depth.shape
-    depth = np.where(frame.depth <= params.max_depth, frame.depth, 0.0)
     inner = np.s_[params.border_px:height - params.border_px, params.border_px:width - params.border_px]
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
-    fits, kept, truncated = [], [], []
+    fits, kept, truncated, areas = [], [], [], []
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
         pixels = np.count_nonzero(mask)
         in_band = pixels - np.count_nonzero(mask[inner])
@@ -58,7 +57,7 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
         if in_band > params.max_border_fraction * pixels:
             dropped["border sliver"] += 1
             continue
-        window_depth, intrinsics, window_mask = _masked_window(depth, frame.intrinsics, mask, box, params)
+        window_depth, intrinsics, window_mask = _masked_window(frame.depth, frame.intrinsics, mask, box, params)
         if np.count_nonzero(window_mask & (window_depth > 0)) < params.fit.min_points:
             dropped["invalid depth"] += 1
             continue
@@ -69,11 +68,11 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
         fits.append(fit)
         kept.append(k)
         truncated.append(in_band > 0)
+        areas.append(pixels)
     index = np.array(kept, int)
     observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
                                 detections.instance_ids[index], index, detections.boxes[index].astype(float),
-                                detections.masks[index].sum(axis=(1, 2)),
-                                Camera(frame.intrinsics, width, height, params.max_depth))
+                                np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth))
     crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
     contents = [crop_contents(frame, detections.boxes[k], int(detections.instance_ids[k])) for k in kept]
     return Extraction(observations, crops, np.array(truncated, bool), contents, dict(dropped))
@@ -81,16 +80,36 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
 
 def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,
                    params: ObservationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(depth, intrinsics, eroded mask) cut to the detection's box: erosion over the box, not the image."""
+    """(depth, intrinsics, eroded mask) cut to the detection's box: erosion over the box, not the image.
+
+    Depth beyond `params.max_depth` reads as missing (0).
+    """
     height, width = depth.shape
     pad = params.erode_px + 1
     x0, y0 = np.clip(np.floor(box[:2]).astype(int) - pad, 0, None)
     x1, y1 = np.minimum(np.ceil(box[2:]).astype(int) + pad, (width, height))
     window = mask[y0:y1, x0:x1]
-    eroded = ndimage.binary_erosion(window, iterations=params.erode_px) if params.erode_px else window
+    eroded = _eroded(window, params.erode_px)
     shifted = intrinsics.copy()
     shifted[:2, 2] -= (x0, y0)
-    return depth[y0:y1, x0:x1], shifted, eroded if eroded.sum() >= params.min_mask_pixels else window
+    window_depth = depth[y0:y1, x0:x1]
+    return (np.where(window_depth <= params.max_depth, window_depth, 0.0), shifted,
+            eroded if np.count_nonzero(eroded) >= params.min_mask_pixels else window)
+
+
+@njit(cache=True)
+def _eroded(mask: np.ndarray, iterations: int) -> np.ndarray:
+    """`scipy.ndimage.binary_erosion(mask, iterations=iterations)`, compiled: the 4-neighbour
+    cross each time, pixels beyond the edge unset (an order of magnitude faster on object windows)."""
+    height, width = mask.shape
+    eroded = mask.copy()
+    for _ in range(iterations):
+        previous, eroded = eroded, np.zeros_like(mask)
+        for v in range(1, height - 1):
+            for u in range(1, width - 1):
+                eroded[v, u] = (previous[v, u] & previous[v - 1, u] & previous[v + 1, u]
+                                & previous[v, u - 1] & previous[v, u + 1])
+    return eroded
 
 
 def crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:

@@ -113,19 +113,19 @@ def _inlier_moments(points: np.ndarray, spread: np.ndarray, ratio: float) -> tup
     """(count, mean, 3 x 3 scatter matrix) of the points within the outlier limit, in one pass each."""
     limit = _outlier_limit(spread, ratio)
     count, mean, scatter = 0, np.zeros(3), np.zeros((3, 3))
-    for i in range(len(points)):
+    for i in range(len(points)):  # element by element: row slices would allocate in the loop
         if spread[i] <= limit:
             count += 1
-            mean += points[i]
+            for r in range(3):
+                mean[r] += points[i, r]
     if count == 0:
         return 0, mean, scatter
     mean /= count
     for i in range(len(points)):
         if spread[i] <= limit:
-            d = points[i] - mean
             for r in range(3):
                 for c in range(3):
-                    scatter[r, c] += d[r] * d[c]
+                    scatter[r, c] += (points[i, r] - mean[r]) * (points[i, c] - mean[c])
     return count, mean, scatter
 
 

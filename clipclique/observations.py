@@ -58,7 +58,8 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
         if in_band > params.max_border_fraction * pixels:
             dropped["border sliver"] += 1
             continue
-        window_depth, intrinsics, window_mask, with_depth = _masked_window(frame.depth, frame.intrinsics, mask, box, params)
+        window_depth, intrinsics, window_mask, with_depth = _masked_window(frame.depth, frame.intrinsics, mask, box,
+                                                                           params)
         if with_depth < params.fit.min_points:
             dropped["invalid depth"] += 1
             continue
@@ -97,12 +98,12 @@ def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, 
 @njit(cache=True)
 def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixels: int,
                    max_depth: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """One compiled pass over a detection's window (an order of magnitude faster than scipy and numpy on it).
+    """A detection's window prepared in compiled code, without scipy's and numpy's per-call overhead.
 
     Returns the mask eroded `erode_px` times by the 4-neighbour cross with pixels beyond the edge
     unset (`scipy.ndimage.binary_erosion`'s), or the mask itself where fewer than `min_pixels`
-    survive; the depth with values beyond `max_depth` (or not finite) set to 0; and how many
-    pixels of the returned mask have depth.
+    survive; the depth with values beyond `max_depth` (and NaN) set to 0; and how many pixels of
+    the returned mask have a positive depth.
     """
     height, width = mask.shape
     eroded = mask.copy()

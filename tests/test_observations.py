@@ -139,10 +139,12 @@ def test_depth_fit_cuts_bled_background_and_agrees_with_the_point_fit():
 
 def reference_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int,
                      radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """Spelled out in numpy: the valid pixels' points and the mean distance to their k nearest within the image window."""
+    """Spelled out in numpy: the valid pixels' points and each one's mean distance to its k nearest
+    within the image window."""
     v, u = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
     z = depth[v, u].astype(float)
-    points = np.column_stack(((u - intrinsics[0, 2]) * z / intrinsics[0, 0], (v - intrinsics[1, 2]) * z / intrinsics[1, 1], z))
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    points = np.column_stack(((u - cx) * z / fx, (v - cy) * z / fy, z))
     grid = np.full((*depth.shape, 3), np.nan)
     grid[v, u] = points
     offsets = [(dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1) if dv or du]
@@ -153,7 +155,8 @@ def reference_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray
         apart[inside, column] = np.where(np.isnan(distance), np.inf, distance)  # NaN: no valid pixel there
     apart = np.sort(apart, axis=1)[:, :k]
     counts = np.isfinite(apart).sum(axis=1)
-    return points, np.where(counts > 0, np.where(np.isfinite(apart), apart, 0.0).sum(axis=1) / np.maximum(counts, 1), np.inf)
+    mean = np.where(np.isfinite(apart), apart, 0.0).sum(axis=1) / np.maximum(counts, 1)
+    return points, np.where(counts > 0, mean, np.inf)
 
 
 def reference_fit(frame: Frame, mask: np.ndarray, box: np.ndarray, params: ObservationParams):

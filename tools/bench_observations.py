@@ -1,14 +1,15 @@
 """The observation stage (`extract_observations`) of the working tree beside a git revision's, on the same frames.
 
-    .venv/bin/python tools/bench_observations.py [SCENE ...] [--rev main] [--max-frames 40] [--repeat 3]
+    .venv/bin/python tools/bench_observations.py [SCENE ...] [--rev d350f9d] [--max-frames 40] [--repeat 3]
 
 The revision's `clipclique/observations.py` and `clipclique/geometry.py` are loaded from git as
 modules of their own, so both versions run in one process on the same detections (the
 sequence's own detector, run once per frame and not timed). Each frame is fitted `--repeat`
 times by each version, alternating, and the fastest kept, which damps the noise of a shared
 machine. Printed per scene: median ms per frame (also over the frames with 15 detections or
-more), ms per detection (total time over all detections), and the largest difference between the two versions' ellipsoids over every frame
-(kept detections, drop counts, crops and crop contents must be equal).
+more), ms per detection (total time over all detections), and the largest difference between
+the two versions' ellipsoids over every frame (kept detections, drop counts, crops and crop
+contents must be equal).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from clipclique.observations import Extraction, extract_observations  # noqa: E4
 from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+BEFORE = "d350f9d"  # the last commit before the compiled window pass (README, Observation stage)
 CROWDED = 15  # detections: the frames of the target, 15 objects in 15 ms (issue 10)
 
 
@@ -99,7 +101,8 @@ def bench(scene: str, old: ModuleType, max_frames: int, repeat: int) -> None:
           f"on average, median {np.median(detections_per_frame):.0f}, at most {max(detections_per_frame)} "
           f"(detector {run.detector.name}); {crowded.sum()} frames with {CROWDED} or more")
     for label, seconds in times.items():
-        busy = f", {1e3 * np.median(np.array(seconds)[crowded]):6.2f} ms on those {crowded.sum()}" if crowded.any() else ""
+        busy = (f", {1e3 * np.median(np.array(seconds)[crowded]):6.2f} ms on those {crowded.sum()}"
+                if crowded.any() else "")
         print(f"  {label:7s} {1e3 * np.median(seconds):6.2f} ms per frame (median{busy}), "
               f"{1e3 * sum(seconds) / max(total, 1):5.2f} ms per detection")
     print(f"  largest ellipsoid difference (centres, axes, rotations): {worst:.1e}", flush=True)
@@ -108,7 +111,8 @@ def bench(scene: str, old: ModuleType, max_frames: int, repeat: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="*", default=["demo", "demo_apartment", "demo_desk"])
-    parser.add_argument("--rev", default="main", help="the git revision timed beside the working tree")
+    parser.add_argument("--rev", default=BEFORE,
+                        help=f"the git revision timed beside the working tree (default {BEFORE})")
     parser.add_argument("--max-frames", type=int, default=40)
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()

@@ -13,7 +13,9 @@ depth pixel lie, in compiled code: about 30x faster than the KD-tree search open
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +67,7 @@ def fit_ellipsoid_depth(
         intrinsics = intrinsics.copy()
         intrinsics[:2] /= stride
     radius = math.ceil((math.sqrt(params.outlier_neighbors + 1) - 1) / 2)  # a window holding k neighbours
-    points, spread = _depth_points(depth, mask, intrinsics.astype(np.float64), params.outlier_neighbors, radius)
+    points, spread = _depth_points(params.outlier_neighbors, radius)(depth, mask, intrinsics.astype(np.float64))
     if len(points) < params.min_points:
         return None
     return _box(points, spread, params)
@@ -111,19 +113,19 @@ def _inlier_moments(points: np.ndarray, spread: np.ndarray, ratio: float) -> tup
     """(count, mean, 3 x 3 scatter matrix) of the points within the outlier limit, in one pass each."""
     limit = _outlier_limit(spread, ratio)
     count, mean, scatter = 0, np.zeros(3), np.zeros((3, 3))
-    for i in range(len(points)):
+    for i in range(len(points)):  # element by element: row slices would allocate in the loop
         if spread[i] <= limit:
             count += 1
-            mean += points[i]
+            for r in range(3):
+                mean[r] += points[i, r]
     if count == 0:
         return 0, mean, scatter
     mean /= count
     for i in range(len(points)):
         if spread[i] <= limit:
-            d = points[i] - mean
             for r in range(3):
                 for c in range(3):
-                    scatter[r, c] += d[r] * d[c]
+                    scatter[r, c] += (points[i, r] - mean[r]) * (points[i, c] - mean[c])
     return count, mean, scatter
 
 
@@ -142,56 +144,67 @@ def _extents(points: np.ndarray, spread: np.ndarray, mean: np.ndarray, rotation:
     return low, high
 
 
-@njit(cache=True)
-def _depth_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int, radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """(P, 3) camera-frame points of the pixels of `mask` with a finite positive depth (row-major),
-    and (P,) the mean 3D distance of each to its k nearest such pixels within `radius` pixels
-    (fewer where fewer exist; inf for a pixel with none)."""
-    height, width = mask.shape
-    valid = np.zeros((height, width), np.bool_)
-    for v in range(height):
-        for u in range(width):
-            valid[v, u] = mask[v, u] and math.isfinite(depth[v, u]) and depth[v, u] > 0
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    grid = np.empty((height, width, 3))
-    index = np.full((height, width), -1, np.int64)
-    count = 0
-    for v in range(height):
-        for u in range(width):
-            if valid[v, u]:
-                z = depth[v, u]
-                grid[v, u, 0], grid[v, u, 1], grid[v, u, 2] = (u - cx) * z / fx, (v - cy) * z / fy, z
-                index[v, u] = count
-                count += 1
-    points = np.empty((count, 3))
-    spread = np.full(count, np.inf)
-    near = np.empty((2 * radius + 1) ** 2)
-    for v in range(height):
-        for u in range(width):
-            i = index[v, u]
-            if i < 0:
-                continue
-            points[i] = grid[v, u]
-            n = 0
-            for vv in range(max(0, v - radius), min(height, v + radius + 1)):
-                for uu in range(max(0, u - radius), min(width, u + radius + 1)):
-                    if index[vv, uu] >= 0 and (vv != v or uu != u):
-                        near[n] = math.sqrt((grid[vv, uu, 0] - grid[v, u, 0]) ** 2 + (grid[vv, uu, 1] - grid[v, u, 1]) ** 2
-                                            + (grid[vv, uu, 2] - grid[v, u, 2]) ** 2)
-                        n += 1
-            total = 0.0
-            for j in range(n):
-                total += near[j]
-            for _ in range(n - k):  # the k nearest: drop the n - k farthest (a few at most)
-                far = 0
-                for j in range(1, n):
-                    if near[j] > near[far]:
-                        far = j
-                total -= near[far]
-                near[far] = -1.0
-            if n:
-                spread[i] = total / min(n, k)
-    return points, spread
+@functools.cache
+def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The compiled pass `depth_points(depth, mask, intrinsics)` for `k` neighbours within `radius` pixels.
+
+    `k` and `radius` are compiled in as constants (one cached compilation per pair), so the
+    window loops unroll and the distances to drop stay in registers, without a branch (README,
+    Observation stage).
+    """
+    side = 2 * radius + 1
+    drop = max(side * side - 1 - k, 0)  # a pixel has at most side^2 - 1 neighbours; the farthest beyond k are dropped
+
+    @njit(cache=True)
+    def depth_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(P, 3) camera-frame points of the pixels of `mask` with a finite positive depth (row-major),
+        and (P,) the mean 3D distance of each to its k nearest such pixels within `radius` pixels
+        (fewer where fewer exist; inf for a pixel with none)."""
+        height, width = mask.shape
+        fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+        # coordinates on a grid padded by `radius` invalid pixels: every window lies inside it
+        shape = (height + 2 * radius, width + 2 * radius)
+        x, y, z, valid = np.zeros(shape), np.zeros(shape), np.zeros(shape), np.zeros(shape, np.bool_)
+        count = 0
+        for v in range(height):
+            for u in range(width):
+                depth_vu = depth[v, u]
+                if mask[v, u] and math.isfinite(depth_vu) and depth_vu > 0:
+                    a, b = v + radius, u + radius
+                    x[a, b], y[a, b], z[a, b] = (u - cx) * depth_vu / fx, (v - cy) * depth_vu / fy, depth_vu
+                    valid[a, b] = True
+                    count += 1
+        points = np.empty((count, 3))
+        spread = np.full(count, np.inf)
+        farthest = np.empty(max(drop, 1))  # the largest distances so far, largest first
+        i = 0
+        for a in range(radius, height + radius):
+            for b in range(radius, width + radius):
+                if not valid[a, b]:
+                    continue
+                points[i, 0], points[i, 1], points[i, 2] = x[a, b], y[a, b], z[a, b]
+                n, total = 0, 0.0
+                farthest[:] = -1.0
+                for aa in range(a - radius, a + radius + 1):
+                    for bb in range(b - radius, b + radius + 1):  # branch-free: an absent neighbour adds 0
+                        near = valid[aa, bb] and (aa != a or bb != b)
+                        distance = math.sqrt((x[aa, bb] - x[a, b]) ** 2 + (y[aa, bb] - y[a, b]) ** 2
+                                             + (z[aa, bb] - z[a, b]) ** 2)
+                        total += distance if near else 0.0
+                        n += near
+                        carry = distance if near else -1.0
+                        for j in range(drop):  # insert into the sorted farthest list
+                            larger = max(farthest[j], carry)
+                            carry = min(farthest[j], carry)
+                            farthest[j] = larger
+                for j in range(n - k):  # the k nearest: the n - k farthest out, largest first
+                    total -= farthest[j]
+                if n:
+                    spread[i] = total / min(n, k)
+                i += 1
+        return points, spread
+
+    return depth_points
 
 
 def stack_ellipsoids(fits: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Ellipsoids:

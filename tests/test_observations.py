@@ -8,7 +8,8 @@ import pytest
 from clipclique.detectors import mask_boxes
 from clipclique.encoders import SimulatedClipEncoder
 from clipclique.types import Detections, Frame, Pose
-from clipclique.observations import crop, crop_contents, embed, extract_observations
+from clipclique.geometry import FitParams, _depth_points
+from clipclique.observations import ObservationParams, crop, crop_contents, embed, extract_observations
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
@@ -134,3 +135,89 @@ def test_depth_fit_cuts_bled_background_and_agrees_with_the_point_fit():
     by_image, by_tree = fit_ellipsoid_depth(depth, K, mask), fit_ellipsoid(backproject(depth, K, mask))
     np.testing.assert_allclose(by_image[0], by_tree[0], atol=0.01)
     np.testing.assert_allclose(by_image[1], by_tree[1], atol=0.01)
+
+
+def reference_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int,
+                     radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spelled out in numpy: the valid pixels' points and each one's mean distance to its k nearest
+    within the image window."""
+    v, u = np.nonzero(mask & np.isfinite(depth) & (depth > 0))
+    z = depth[v, u].astype(float)
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    points = np.column_stack(((u - cx) * z / fx, (v - cy) * z / fy, z))
+    grid = np.full((*depth.shape, 3), np.nan)
+    grid[v, u] = points
+    offsets = [(dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1) if dv or du]
+    apart = np.full((len(points), len(offsets)), np.inf)
+    for column, (dv, du) in enumerate(offsets):
+        inside = (v + dv >= 0) & (v + dv < depth.shape[0]) & (u + du >= 0) & (u + du < depth.shape[1])
+        distance = np.linalg.norm(grid[v[inside] + dv, u[inside] + du] - points[inside], axis=1)
+        apart[inside, column] = np.where(np.isnan(distance), np.inf, distance)  # NaN: no valid pixel there
+    apart = np.sort(apart, axis=1)[:, :k]
+    counts = np.isfinite(apart).sum(axis=1)
+    mean = np.where(np.isfinite(apart), apart, 0.0).sum(axis=1) / np.maximum(counts, 1)
+    return points, np.where(counts > 0, mean, np.inf)
+
+
+def reference_fit(frame: Frame, mask: np.ndarray, box: np.ndarray, params: ObservationParams):
+    """The observation fit spelled out with scipy and numpy (the compiled path must agree):
+    depth beyond max_depth missing, scipy erosion over the box window, every s-th row and column
+    past max_points, each pixel's k nearest 3D neighbours among the valid pixels of its window."""
+    from scipy import ndimage
+
+    from clipclique.geometry import _box
+
+    depth = np.where(frame.depth <= params.max_depth, frame.depth, 0.0)
+    pad = params.erode_px + 1
+    x0, y0 = max(int(np.floor(box[0])) - pad, 0), max(int(np.floor(box[1])) - pad, 0)
+    x1, y1 = min(int(np.ceil(box[2])) + pad, depth.shape[1]), min(int(np.ceil(box[3])) + pad, depth.shape[0])
+    window = mask[y0:y1, x0:x1]
+    eroded = ndimage.binary_erosion(window, iterations=params.erode_px)
+    use = eroded if eroded.sum() >= params.min_mask_pixels else window
+    stride = max(1, int(np.ceil(np.sqrt(use.sum() / params.fit.max_points))))
+    window_depth, use = depth[y0:y1:stride, x0:x1:stride], use[::stride, ::stride]
+    intrinsics = K.copy()
+    intrinsics[:2, 2] -= (x0, y0)
+    intrinsics[:2] /= stride
+    k = params.fit.outlier_neighbors
+    points, spread = reference_points(window_depth, use, intrinsics, k, int(np.ceil((np.sqrt(k + 1) - 1) / 2)))
+    return _box(points, spread, params.fit)
+
+
+def test_compiled_fit_equals_the_reference_on_a_hand_made_frame():
+    """Holes, NaN and too-far depth, a mask with a ragged edge, one subsampled past max_points and
+    one whose erosion leaves too few pixels: the compiled window pass gives the reference's
+    ellipsoids to 1e-9 (only the order of summation differs)."""
+    from scipy import ndimage
+
+    frame, sphere = sphere_frame()
+    rng = np.random.default_rng(3)
+    frame.depth += rng.normal(0, 0.004, frame.depth.shape).astype(np.float32)  # surface noise: outliers to cut
+    frame.depth[rng.random(frame.depth.shape) < 0.05] = np.nan
+    frame.depth[rng.random(frame.depth.shape) < 0.03] = 0.0
+    frame.depth[:, 150:155] = 9.0  # beyond max_depth: missing
+    ragged = sphere & (rng.random(sphere.shape) < 0.9)  # erosion eats far into a ragged mask
+    wall = np.zeros_like(sphere)
+    wall[30:100, 20:140] = True  # the wall at 4 m, given thickness by the noise
+    thin = np.zeros_like(sphere)
+    thin[160:230, 200:204] = True
+    thin[195:199, 180:240] = True  # a cross of 4-pixel bars: erosion leaves fewer than min_mask_pixels
+    params = ObservationParams(fit=FitParams(max_points=1000))
+    assert ndimage.binary_erosion(sphere, iterations=2).sum() > 4 * 1000  # subsampled: every third row and column
+    masks = [sphere, ragged, wall, thin]
+    extraction = extract_observations(frame, detections_of(masks, [1, 2, 3, 4]), params)
+    assert extraction.observations.detection_index.tolist() == [0, 1, 2, 3]
+    assert ndimage.binary_erosion(thin, iterations=2).sum() < params.min_mask_pixels
+    sparse = sphere & (rng.random(sphere.shape) < 0.1)  # pixels with fewer than k neighbours, some with none
+    for mask in (ragged, sparse):
+        ours = _depth_points(20, 2)(frame.depth, mask, K)
+        theirs = reference_points(frame.depth, mask, K, 20, 2)
+        np.testing.assert_allclose(ours[0], theirs[0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ours[1], theirs[1], rtol=0, atol=1e-12)
+    assert np.isinf(theirs[1]).any() and np.isfinite(theirs[1]).any()
+    for i, (mask, box) in enumerate(zip(masks, mask_boxes(np.stack(masks)))):
+        center, axes, rotation = reference_fit(frame, mask, box, params)
+        ellipsoids = extraction.observations.ellipsoids
+        np.testing.assert_allclose(ellipsoids.centers[i], center, atol=1e-9)
+        np.testing.assert_allclose(ellipsoids.axes[i], axes, atol=1e-9)
+        np.testing.assert_allclose(ellipsoids.rotations[i], rotation, atol=1e-9)

@@ -1,0 +1,134 @@
+"""The observation stage (`extract_observations`) of the working tree beside a git revision's, on the same frames.
+
+    .venv/bin/python tools/bench_observations.py [SCENE ...] [--rev d350f9d] [--max-frames 40] [--repeat 3]
+
+The revision's `clipclique/observations.py` and `clipclique/geometry.py` are loaded from git as
+modules of their own, so both versions run in one process on the same detections (the
+sequence's own detector, run once per frame and not timed). Each frame is fitted `--repeat`
+times by each version, alternating, and the fastest kept, which damps the noise of a shared
+machine. Printed per scene: median ms per frame (also over the frames with 15 detections or
+more), ms per detection (total time over all detections), and the largest difference between
+the two versions' ellipsoids over every frame (kept detections, drop counts, crops and crop
+contents must be equal).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import ModuleType
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (localization/cli.py), before numpy loads
+
+import numpy as np  # noqa: E402
+
+from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.observations import Extraction, extract_observations  # noqa: E402
+from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+BEFORE = "d350f9d"  # the last commit before the compiled window pass (README, Observation stage)
+CROWDED = 15  # detections: the frames of the target, 15 objects in 15 ms (issue 10)
+
+
+def load_revision(rev: str, directory: Path) -> ModuleType:
+    """`clipclique.observations` as of `rev`, importing that revision's `clipclique.geometry`."""
+    def load(name: str) -> ModuleType:
+        source = subprocess.run(["git", "show", f"{rev}:clipclique/{name}.py"], cwd=ROOT, capture_output=True,
+                                text=True, check=True).stdout
+        path = directory / f"{name}.py"  # a file, so numba can cache the revision's compiled functions
+        path.write_text(source)
+        spec = importlib.util.spec_from_file_location(f"revision_{name}", path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # dataclasses look their module up there
+        spec.loader.exec_module(module)
+        return module
+
+    current = sys.modules["clipclique.geometry"]
+    sys.modules["clipclique.geometry"] = load("geometry")  # what the revision's observations module imports
+    try:
+        return load("observations")
+    finally:
+        sys.modules["clipclique.geometry"] = current
+
+
+def difference(new: Extraction, old) -> float:
+    """Largest absolute difference of the ellipsoids; raises when anything else differs."""
+    same = (new.dropped == old.dropped
+            and np.array_equal(new.observations.detection_index, old.observations.detection_index)
+            and np.array_equal(new.observations.mask_areas, old.observations.mask_areas)
+            and np.array_equal(new.truncated, old.truncated) and new.contents == old.contents
+            and all(np.array_equal(a, b) for a, b in zip(new.crops, old.crops)))
+    if not same:
+        raise AssertionError("the two versions keep, drop, crop or count differently")
+    if not len(new.observations):
+        return 0.0
+    ours, theirs = new.observations.ellipsoids, old.observations.ellipsoids
+    return max(float(np.abs(a - b).max()) for a, b in ((ours.centers, theirs.centers), (ours.axes, theirs.axes),
+                                                        (ours.rotations, theirs.rotations)))
+
+
+def fastest(function, frame, detections, repeat: int) -> tuple[float, object]:
+    best, result = np.inf, None
+    for _ in range(repeat):
+        clock = time.perf_counter()
+        result = function(frame, detections)
+        best = min(best, time.perf_counter() - clock)
+    return best, result
+
+
+def bench(scene: str, old: ModuleType, max_frames: int, repeat: int) -> None:
+    run = prepare(RunSettings(scene, max_frames=max_frames, record=False))
+    times: dict[str, list[float]] = {"before": [], "now": []}
+    detections_per_frame, worst = [], 0.0
+    for i in selected_frames(run):
+        frame = run.sequence[i]
+        detections = run.detector.detect(frame)
+        before, theirs = fastest(old.extract_observations, frame, detections, repeat)
+        now, ours = fastest(extract_observations, frame, detections, repeat)
+        times["before"].append(before)
+        times["now"].append(now)
+        detections_per_frame.append(len(detections))
+        worst = max(worst, difference(ours, theirs))
+    total, crowded = sum(detections_per_frame), np.array(detections_per_frame) >= CROWDED
+    print(f"{scene}: {len(detections_per_frame)} frames, detections per frame {total / len(detections_per_frame):.1f} "
+          f"on average, median {np.median(detections_per_frame):.0f}, at most {max(detections_per_frame)} "
+          f"(detector {run.detector.name}); {crowded.sum()} frames with {CROWDED} or more")
+    for label, seconds in times.items():
+        busy = (f", {1e3 * np.median(np.array(seconds)[crowded]):6.2f} ms on those {crowded.sum()}"
+                if crowded.any() else "")
+        print(f"  {label:7s} {1e3 * np.median(seconds):6.2f} ms per frame (median{busy}), "
+              f"{1e3 * sum(seconds) / max(total, 1):5.2f} ms per detection")
+    print(f"  largest ellipsoid difference (centres, axes, rotations): {worst:.1e}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scenes", nargs="*", default=["demo", "demo_apartment", "demo_desk"])
+    parser.add_argument("--rev", default=BEFORE,
+                        help=f"the git revision timed beside the working tree (default {BEFORE})")
+    parser.add_argument("--max-frames", type=int, default=40)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as directory:
+        try:
+            old = load_revision(args.rev, Path(directory))
+        except subprocess.CalledProcessError as error:
+            parser.exit(2, f"bench_observations: error: --rev {args.rev}: {error.stderr.strip()}\n")
+        print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (a shared machine gives noisy timings); "
+              f"before = {args.rev}, now = the working tree")
+        for scene in args.scenes:
+            try:
+                bench(scene, old, args.max_frames, args.repeat)
+            except ClipcliqueError as error:  # a missing map or sequence: one line
+                parser.exit(2, f"bench_observations: error: {error}\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -116,7 +116,7 @@ def run_banner(document: dict[str, Any]) -> str:
 def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
     """What ran (once per distinct banner), the results table and the stage timings."""
     for banner in dict.fromkeys(run_banner(d) for d in documents):
-        console.print(escape(banner), highlight=False)
+        console.print(escape(banner), highlight=False, soft_wrap=True)  # notes name paths: never broken
     console.print(results_table(documents))
     console.print(stage_table(documents))
     for line in _marks(documents)[1]:

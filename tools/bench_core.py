@@ -32,7 +32,7 @@ import numpy as np
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.geometry import random_rotation
 from clipclique.inliers import compatibility_graph, maximal_cliques
-from clipclique.pipeline import LocalizationResult, index_map, localize
+from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
@@ -174,16 +174,21 @@ def previous_solve(observations: Observations, map: Map, result: LocalizationRes
     return time.perf_counter() - start, len(cliques), cap
 
 
+def desk_rooms(counts: list[int], config: LocalizationConfig, seed: int) -> Iterator[tuple[Map, Map, MapIndex, np.random.Generator]]:
+    """Per landmark count: the desk scene, its copies in rooms ROOM_SPACING apart, their index, and
+    the generator of the queries (the same queries at every count)."""
+    base = desk_map(np.random.default_rng(seed))
+    for count in counts:
+        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
+        yield base, map, index_map(map, config), np.random.default_rng(seed + 1)
+
+
 def desk_scalability(counts: list[int], frames: int = 30, seed: int = 0) -> list[dict]:
     """Per landmark count: the desk scene copied into rooms ROOM_SPACING apart, `frames` queries
     of room 0, SH only; median ms of matching + inliers + pose now and with `previous_solve`."""
     config = make_config("clipclique", overrides={"similarity.descriptor": "sh"})
-    base = desk_map(np.random.default_rng(seed))
     rows = []
-    for count in counts:
-        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
-        index = index_map(map, config)
-        rng = np.random.default_rng(seed + 1)
+    for base, map, index, rng in desk_rooms(counts, config, seed):
         now, before, candidates, cliques, reached, caps, caps_before = [], [], [], [], [], 0, 0
         for _ in range(frames):
             observations = desk_query(base, rng)
@@ -207,12 +212,8 @@ def literal_comparison(counts: list[int], frames: int = 10, seed: int = 0) -> li
     """Per landmark count: median ms of a whole SH-only query (descriptors to pose) on the desk
     scene, the project (map indexed once, as a user's run does) beside the literal reference."""
     config = make_config("clipclique-paper", overrides={"similarity.alpha": 0.0})
-    base = desk_map(np.random.default_rng(seed))
     rows = []
-    for count in counts:
-        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
-        index = index_map(map, config)
-        rng = np.random.default_rng(seed + 1)
+    for base, map, index, rng in desk_rooms(counts, config, seed):
         project, literal = [], []
         for _ in range(frames):
             observations = desk_query(base, rng)

@@ -55,8 +55,11 @@ def digests(folder: Path) -> dict[str, str]:
 def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signum):
     before = digests(demo / "loc")
     assert set(before) == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    # A shell starting a job in the background (`make test &`, nohup) hands it SIGINT ignored, and
+    # Python keeps an inherited SIG_IGN: the child gets the default back, as a terminal gives it.
     process = subprocess.Popen([str(LOC), *args(demo)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               env={**os.environ, "COLUMNS": "200"})
+                               env={**os.environ, "COLUMNS": "200"},
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not any(p.name.endswith(".partial") for p in (demo / "loc").iterdir()):  # the recording has begun
         assert process.poll() is None and time.monotonic() < deadline, "the run ended before it could be interrupted"

@@ -140,31 +140,31 @@ METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (
 # Bounds that keep every setting meaningful and the work it asks for finite. Semantic Histogram
 # walks grow as degree^(s-1) and their codes as C^s: s = 5 is beyond the paper's 3 and safe.
 RANGES: dict[str, tuple[float, float]] = {
+    "graph.d_adj": (1e-6, 100.0),
+    "graph.max_degree": (1, 10_000),
+    "graph.walk_length": (1, 5),
+    "graph.xview_walks": (1, 10_000),
+    "graph.xview_seed": (0, 2**63 - 1),
     "similarity.alpha": (0.0, 1.0),
     "similarity.class_weight": (0.0, 1.0),
     "similarity.lookalike_weight": (0.0, 1.0),
+    "matching.k": (1, 1000),
     "matching.top_m_fraction": (1e-6, 1.0),
     "matching.min_similarity": (-1.0, 1.0),
-    "graph.walk_length": (1, 5),
-    "graph.max_degree": (1, 10_000),
-    "graph.xview_walks": (1, 10_000),
-    "graph.xview_seed": (0, 2**63 - 1),
-    "graph.d_adj": (1e-6, 100.0),
     "inliers.d_comp": (1e-6, 100.0),
     "inliers.partial_slack": (0.0, 100.0),
     "inliers.max_slack": (0.0, 100.0),
     "inliers.slack_min_deficit": (0.0, 100.0),
-    "inliers.inlier_threshold": (1e-6, 100.0),
-    "inliers.time_limit_s": (1e-6, 3600.0),
-    "inliers.max_cliques": (1, 10_000_000),
-    "inliers.ransac_iterations": (1, 10_000_000),
     "inliers.min_clique_size": (3, 1000),  # fewer than 3 cannot fix a 6-DoF pose
+    "inliers.max_cliques": (1, 10_000_000),
+    "inliers.time_limit_s": (1e-6, 3600.0),
+    "inliers.ransac_iterations": (1, 10_000_000),
+    "inliers.inlier_threshold": (1e-6, 100.0),
     "inliers.seed": (0, 2**63 - 1),
-    "matching.k": (1, 1000),
+    "inliers.iou_threshold": (0.0, 1.0),
+    "pose.min_conditioning": (0.0, 1.0),
     "top_n": (1, 1000),
     "success_threshold_m": (1e-6, 1e5),
-    "pose.min_conditioning": (0.0, 1.0),
-    "inliers.iou_threshold": (0.0, 1.0),
     "min_confidence": (0.0, 1.0),
 }
 MAX_CONFIG_BYTES = 1 << 20
@@ -249,7 +249,7 @@ def validate(config: LocalizationConfig) -> None:
         value = _get(config, dotted)
         if value not in literal.__args__:
             raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
-    for dotted, value in _leaves(config):
+    for dotted, value in flat(config).items():
         if isinstance(value, float) and not math.isfinite(value):
             raise ConfigError(f"{dotted} = {value}; must be a finite number")
     for dotted, (low, high) in RANGES.items():
@@ -257,11 +257,11 @@ def validate(config: LocalizationConfig) -> None:
             raise ConfigError(f"{dotted} = {value}; must be within [{low}, {high}]")
 
 
-def _leaves(tree: Any, prefix: str = "") -> list[tuple[str, Any]]:
-    """(dotted key, value) of every setting."""
+def flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    """Every setting by its dotted key (`inliers.d_comp`)."""
     if not dataclasses.is_dataclass(tree):
-        return [(prefix.removesuffix("."), tree)]
-    return [leaf for f in dataclasses.fields(tree) for leaf in _leaves(getattr(tree, f.name), f"{prefix}{f.name}.")]
+        return {prefix.removesuffix("."): tree}
+    return {key: value for f in dataclasses.fields(tree) for key, value in flat(getattr(tree, f.name), f"{prefix}{f.name}.").items()}
 
 
 def _get(config: LocalizationConfig, dotted: str) -> Any:

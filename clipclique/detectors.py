@@ -52,6 +52,27 @@ def vocabulary_index(class_names: list[str]) -> dict[str, int]:
     return {name.lower(): i for i, name in enumerate(class_names)}
 
 
+def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(n, H, W) filled axis-aligned ellipses: (n, 2) centres and semi-axes in (row, column) pixels."""
+    v, u = np.mgrid[:height, :width]
+    return (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
+            + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
+
+
+def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
+             scores: np.ndarray) -> Detections:
+    """The kept true detections (with `class_ids`, possibly confused) followed by `spurious` masks
+    of no object (instance id -1): what a simulated detector reports."""
+    masks = np.concatenate((true.masks[kept], spurious))
+    return Detections(
+        masks,
+        mask_boxes(masks) if len(masks) else np.zeros((0, 4)),
+        np.concatenate((class_ids, spurious_ids)).astype(int),
+        scores,
+        np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
+    )
+
+
 @dataclass
 class InstanceDetector:
     """Detections read off the frame's instance image (ground truth, or TUM annotations)."""
@@ -109,14 +130,9 @@ class SimulatedDetector:
         confused = rng.random(len(class_ids)) < self.confusion_rate
         class_ids[confused] = self._other_class(rng, class_ids[confused])
         spurious = self._blobs(rng, rng.poisson(self.false_positives), height, width)
-        masks = np.concatenate((true.masks[kept], spurious))
-        return Detections(
-            masks,
-            mask_boxes(masks) if len(masks) else np.zeros((0, 4)),
-            np.concatenate((class_ids, rng.integers(0, len(self.truth.class_names), len(spurious)))).astype(int),
-            np.concatenate((rng.uniform(0.6, 1.0, len(class_ids)), rng.uniform(0.3, 0.7, len(spurious)))),
-            np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
-        )
+        spurious_ids = rng.integers(0, len(self.truth.class_names), len(spurious))
+        scores = np.concatenate((rng.uniform(0.6, 1.0, len(class_ids)), rng.uniform(0.3, 0.7, len(spurious))))
+        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
 
     def _other_class(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         count = len(self.truth.class_names)
@@ -127,11 +143,9 @@ class SimulatedDetector:
     @staticmethod
     def _blobs(rng: np.random.Generator, count: int, height: int, width: int) -> np.ndarray:
         """Elliptic masks of random size and place: detections of nothing in particular."""
-        v, u = np.mgrid[:height, :width]
         centers = rng.uniform((0, 0), (height, width), (count, 2))
         radii = rng.uniform(0.05, 0.15, (count, 2)) * min(height, width)
-        return (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
-                + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
+        return ellipse_masks(centers, radii, height, width)
 
 
 LOOKALIKES_FILE = Path(__file__).parent / "data" / "detector_lookalikes.csv"
@@ -207,14 +221,8 @@ class SimulatedYoloDetector:
         kept = rng.random(len(true)) < chance
         class_ids = self._confused(rng, true.class_ids[kept])
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
-        masks = np.concatenate((true.masks[kept], spurious))
-        return Detections(
-            masks,
-            mask_boxes(masks) if len(masks) else np.zeros((0, 4)),
-            np.concatenate((class_ids, spurious_ids)).astype(int),
-            np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious)))),
-            np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
-        )
+        scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
+        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
 
     def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced by one of its look-alikes with the table's probability."""
@@ -234,8 +242,5 @@ class SimulatedYoloDetector:
         centers = np.column_stack(np.unravel_index(free[rng.integers(0, len(free), count)], (height, width)))
         size_m = rng.uniform(0.05, 0.15, (count, 2))
         radii = size_m * frame.intrinsics[0, 0] / frame.depth[centers[:, 0], centers[:, 1]][:, None]
-        v, u = np.mgrid[:height, :width]
-        blobs = (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
-                 + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
-        blobs &= ~mapped
+        blobs = ellipse_masks(centers, radii, height, width) & ~mapped
         return blobs, rng.integers(0, len(self.truth.class_names), count)

@@ -73,7 +73,6 @@ def compatibility_graph(
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
     pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64)
-    slack = np.zeros(len(candidates)) if slack is None else np.asarray(slack, dtype=np.float64)
     return _compatible(pairs, points, obs, lm, observed, d_comp, slack)
 
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.config import METHOD_TITLES, make_config
+from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.outputs import Staging
@@ -67,19 +67,14 @@ def run_description(run: Run) -> dict[str, Any]:
         "max_frames": settings.max_frames,
         "sequence_frames": len(run.sequence),
         "name": settings.run_name(),
-        "changed": changed_settings(run.config.to_dict(), make_config(settings.method).to_dict()),
+        "changed": changed_settings(run.config, make_config(settings.method)),
     }
 
 
-def changed_settings(config: dict[str, Any], preset: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def changed_settings(config: LocalizationConfig, preset: LocalizationConfig) -> dict[str, Any]:
     """Dotted keys whose value differs from the method's preset (overrides, a config file, alpha forced to 0)."""
-    changed: dict[str, Any] = {}
-    for key, value in config.items():
-        if isinstance(value, dict):
-            changed |= changed_settings(value, preset.get(key, {}), f"{prefix}{key}.")
-        elif value != preset.get(key):
-            changed[f"{prefix}{key}"] = value
-    return changed
+    defaults = flat(preset)
+    return {key: value for key, value in flat(config).items() if value != defaults[key]}
 
 
 def results_document(run: Run) -> dict[str, Any]:

@@ -34,7 +34,7 @@ TABLE_ONE: dict[str, dict[str, tuple]] = {
 TABLE_ONE_COLUMNS = ("P [%]", "R [%]", "TE [m]", "RE [rad]", "Top-1 [%]", "Top-3 [%]", "Top-5 [%]", "Time [s]")
 
 # Ablations: (P %, R %, TE m, RE rad, SR@1 %) per group, sequence and setting (our report's setting labels).
-_ABLATION_ROWS = {
+ABLATIONS: dict[str, dict[str, dict[str, tuple]]] = {
     "descriptors": {
         "0002": {"SH": (70.2, 33.6, 0.889, 0.921, 65.3), "CLIP": (37.9, 11.8, 1.433, 1.424, 38.5),
                  "SH + CLIP": (75.9, 36.9, 0.772, 0.806, 72.9)},
@@ -76,5 +76,4 @@ _ABLATION_ROWS = {
                 "Adaptive": (None, None, 0.638, 0.482, 81.0)},
     },
 }
-ABLATIONS: dict[str, dict[str, dict[str, tuple]]] = _ABLATION_ROWS
 ABLATION_COLUMNS = ("P [%]", "R [%]", "TE [m]", "RE [rad]", "Top-1 [%]")

@@ -167,10 +167,10 @@ def load_model(path: str = "") -> ConfidenceModel | None:
     if not path and not file.is_file():
         return None
     try:
-        data = json.loads(file.read_text())
-    except (OSError, json.JSONDecodeError) as error:
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as error:  # ValueError: not JSON, or not UTF-8
         raise ClipcliqueError(f"{file}: cannot read the confidence model ({error})") from None
-    if data.get("format") != MODEL_FORMAT or data.get("version") != MODEL_VERSION:
+    if not isinstance(data, dict) or data.get("format") != MODEL_FORMAT or data.get("version") != MODEL_VERSION:
         raise ClipcliqueError(f"{file}: not a version {MODEL_VERSION} {MODEL_FORMAT} file")
     try:
         names = tuple(data["features"])

@@ -86,6 +86,8 @@ def test_a_refitted_model_round_trips_through_json(tmp_path):
 
 @pytest.mark.parametrize(("text", "message"), [
     ("{not json", "cannot read the confidence model"),
+    ("caf\xe9", "cannot read the confidence model"),  # written as latin-1 below: not UTF-8
+    ("[1, 2]", "not a version 1"),
     (json.dumps({"format": "something else", "version": 1}), "not a version 1"),
     (json.dumps({"format": confidence.MODEL_FORMAT, "version": 1, "features": ["margin"]}), "malformed"),
     (json.dumps({"format": confidence.MODEL_FORMAT, "version": 1, "features": ["luck"], "mean": [0], "scale": [1],
@@ -95,7 +97,7 @@ def test_a_refitted_model_round_trips_through_json(tmp_path):
 ])
 def test_a_broken_model_file_is_a_one_line_error_naming_it(tmp_path, text, message):
     path = tmp_path / "broken.json"
-    path.write_text(text)
+    path.write_text(text, encoding="latin-1")
     with pytest.raises(ClipcliqueError, match=message) as caught:
         confidence.load_model(str(path))
     assert str(path) in str(caught.value)

@@ -19,7 +19,6 @@ says so) and make "clip" a ClipcliqueError.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -42,7 +41,7 @@ class MapIndex:
     """Map-side work done once per map and config."""
 
     map: Map
-    built_for: tuple  # (descriptor, GraphConfig) this index was built with; localize checks it
+    built_for: str  # index_key of the config this index was built with; localize checks it
     adjacency: sp.csr_matrix  # (N, N) semantic graph
     histograms: sp.csr_matrix | None  # (N, C^s) Semantic Histograms, when the descriptor uses them
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
@@ -71,15 +70,15 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
     capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
-    return MapIndex(map, _index_key(config), adjacency, histograms, walks, text, kernel, capped)
+    return MapIndex(map, index_key(config), adjacency, histograms, walks, text, kernel, capped)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
     """Ranked camera-to-map poses for one frame's observations."""
     _check_classes(observations, index.map)
-    if index.built_for != _index_key(config):
+    if index.built_for != index_key(config):
         raise ClipcliqueError(
-            f"the map index was built for {index.built_for}, not {_index_key(config)}: call index_map with this config"
+            f"the map index was built for {index.built_for}, not {index_key(config)}: call index_map with this config"
         )
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -123,8 +122,10 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     return result
 
 
-def _index_key(config: LocalizationConfig) -> tuple:
-    return (config.similarity.descriptor, config.similarity.lookalike_weight, dataclasses.replace(config.graph))
+def index_key(config: LocalizationConfig) -> str:
+    """The settings a map index depends on, readable and hashable: indexes built alike share it."""
+    return (f"descriptor={config.similarity.descriptor}, lookalike_weight={config.similarity.lookalike_weight}, "
+            f"{config.graph}")
 
 
 def _graph_descriptors(

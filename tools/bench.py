@@ -52,7 +52,7 @@ from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_c
 from clipclique.datasets import demo, resolve_data_root  # noqa: E402
 from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
-from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize  # noqa: E402
+from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize  # noqa: E402
 from clipclique.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
 from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
@@ -220,12 +220,11 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig, reference: bo
     """Every cached frame localized with `config` (or by the literal reference) and scored; memoized."""
     key = json.dumps([config.to_dict(), reference], sort_keys=True)
     if key not in sequence.evaluated:
-        index_key = json.dumps([config.similarity.descriptor, config.similarity.lookalike_weight,
-                                dataclasses.asdict(config.graph)], sort_keys=True)
-        if not reference and index_key not in sequence.indexes:
-            sequence.indexes[index_key] = index_map(sequence.map, config)
+        built_for = index_key(config)
+        if not reference and built_for not in sequence.indexes:
+            sequence.indexes[built_for] = index_map(sequence.map, config)
         localizer = (partial(literal_localize, map=sequence.map, alpha=config.similarity.alpha) if reference
-                     else partial(localize, index=sequence.indexes[index_key], config=config))
+                     else partial(localize, index=sequence.indexes[built_for], config=config))
         evaluations, true, other, notes, failures = [], [], [], {}, Counter()
         for frame in sequence.frames:
             result = localizer(frame.observations)

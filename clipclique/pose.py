@@ -1,4 +1,4 @@
-"""Weighted closed-form rigid alignment (Kabsch/Umeyama without scale) and its weights.
+"""Weighted closed-form rigid alignment (Kabsch/Umeyama without scale), Umeyama with scale, and the weights.
 
 Given camera-frame observation centres `p_i`, map landmark centres `q_i` and weights `w_i >= 0`,
 the pose minimizes `sum_i w_i |R p_i + t - q_i|^2`: weighted centroids, the SVD of the weighted
@@ -8,6 +8,8 @@ with the reason; the solver never returns NaN.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,6 +41,43 @@ def fit_rigid(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None
     if not ok[0]:
         raise DegeneratePoseError("collinear points: the rotation about their line is undetermined")
     return Pose(rotation[0], translation[0])
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """`x -> scale * R x + t`: a rigid pose with one scale, what aligns a monocular map to metric ground truth."""
+
+    scale: float
+    pose: Pose
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        return self.pose.apply(self.scale * np.asarray(points, dtype=np.float64))
+
+    def matrix(self) -> np.ndarray:
+        out = self.pose.matrix()
+        out[:3, :3] *= self.scale
+        return out
+
+
+def fit_similarity(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> Similarity:
+    """Umeyama (1991): the similarity (or, `with_scale=False`, the rigid pose with scale 1) that best maps
+    `source` (P, 3) onto `target` (P, 3) in least squares. The one implementation behind map alignment
+    to ground truth and trajectory alignment; degenerate inputs raise `DegeneratePoseError`."""
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    pose = fit_rigid(source, target)  # validates shapes, counts and collinearity
+    if not with_scale:
+        return Similarity(1.0, pose)
+    centred = source - source.mean(axis=0)
+    variance = float(np.einsum("ij,ij->", centred, centred)) / len(source)
+    cross = (target - target.mean(axis=0)).T @ centred / len(source)
+    singular = np.linalg.svd(cross, compute_uv=False)
+    sign = np.sign(np.linalg.det(cross)) or 1.0
+    scale = float(singular[0] + singular[1] + sign * singular[2]) / variance
+    if not np.isfinite(scale) or scale <= 0:
+        raise DegeneratePoseError(f"no positive scale maps the source onto the target (scale {scale:g})")
+    translation = target.mean(axis=0) - scale * pose.rotation @ source.mean(axis=0)
+    return Similarity(scale, Pose(pose.rotation, translation))
 
 
 def fit_rigid_batch(

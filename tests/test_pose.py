@@ -3,7 +3,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
-from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid, fit_rigid_batch
+from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid, fit_rigid_batch, fit_similarity
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -81,3 +81,29 @@ def test_correspondence_weights_follow_the_formula():
     np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "sim"), [0.8, 0.0])
     np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "com"), [0.5, 1.0])
     np.testing.assert_allclose(correspondence_weights(scores, observed, landmark, "none"), [1.0, 1.0])
+
+
+def test_umeyama_recovers_a_known_similarity_and_rigid_pose():
+    rng = np.random.default_rng(4)
+    source = rng.normal(size=(40, 3)) * [3.0, 2.0, 1.0]
+    rotation = Rotation.from_rotvec([0.3, -1.1, 2.0]).as_matrix()
+    translation = np.array([1.5, -4.0, 0.25])
+    target = 2.7 * source @ rotation.T + translation
+    similarity = fit_similarity(source, target)
+    assert similarity.scale == pytest.approx(2.7, abs=1e-12)
+    np.testing.assert_allclose(similarity.pose.rotation, rotation, atol=1e-12)
+    np.testing.assert_allclose(similarity.pose.translation, translation, atol=1e-11)
+    np.testing.assert_allclose(similarity.apply(source), target, atol=1e-11)
+    np.testing.assert_allclose(similarity.matrix()[:3, :3], 2.7 * rotation, atol=1e-12)
+    rigid = fit_similarity(source, source @ rotation.T + translation, with_scale=False)
+    assert rigid.scale == 1.0
+    np.testing.assert_allclose(rigid.pose.translation, translation, atol=1e-11)
+    # the rigid fit of scaled points is not the similarity: scale is reported, not absorbed
+    noisy = target + rng.normal(scale=0.01, size=target.shape)
+    assert fit_similarity(source, noisy).scale == pytest.approx(2.7, abs=0.01)
+
+
+def test_umeyama_refuses_collinear_points():
+    line = np.outer(np.arange(5.0), [1.0, 2.0, 0.5])
+    with pytest.raises(DegeneratePoseError, match="collinear"):
+        fit_similarity(line, 2 * line)

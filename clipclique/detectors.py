@@ -1,24 +1,16 @@
-"""Detectors that need no model: the frame's own instance image, and a simulated detector built on it.
+"""The detector interface (`detect(frame) -> Detections` in the map's class vocabulary) and the
+detector that needs no model: `InstanceDetector` reads the frame's instance image (ScanNet 2D
+instances, a generated scene) or the TUM object annotations, each object id mapped to its class
+through the dataset's object table. The paper queries with ground-truth instances.
 
-- `InstanceDetector`: the frame's ground-truth instance image (ScanNet 2D instances, the demo)
-  or the TUM object annotations, each object id mapped to its class through the dataset's
-  object table. The paper queries with ground-truth instances.
-- `SimulatedDetector`: ground truth degraded, seeded per frame: misses, false positives
-  (blobs on whatever surface is there) and class confusions. Named "simulated" everywhere.
-- `SimulatedYoloDetector`: ground truth degraded the way a real YOLO fails (size- and
-  truncation-dependent misses, look-alike classes from `data/detector_lookalikes.csv`, false
-  positives on unmapped surfaces), seeded per frame. Named "simulated-yolo" everywhere.
-
-They live in the library (not in the clipclique-loc tool) so that a library user can go from a
-dataset frame to a pose without the CLI; YOLO-seg, which needs ultralytics and weights, is a
-back-end of the tool (`localization/detectors.py`).
+The other back-ends: YOLO-seg in `clipclique.yolo`, the simulated detectors in
+`clipclique.sim.detectors`; `clipclique.backends.make_detector` picks one by name.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -52,27 +44,6 @@ def vocabulary_index(class_names: list[str]) -> dict[str, int]:
     return {name.lower(): i for i, name in enumerate(class_names)}
 
 
-def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: int) -> np.ndarray:
-    """(n, H, W) filled axis-aligned ellipses: (n, 2) centres and semi-axes in (row, column) pixels."""
-    v, u = np.mgrid[:height, :width]
-    return (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
-            + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
-
-
-def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
-             scores: np.ndarray) -> Detections:
-    """The kept true detections (with `class_ids`, possibly confused) followed by `spurious` masks
-    of no object (instance id -1): what a simulated detector reports."""
-    masks = np.concatenate((true.masks[kept], spurious))
-    return Detections(
-        masks,
-        mask_boxes(masks) if len(masks) else np.zeros((0, 4)),
-        np.concatenate((class_ids, spurious_ids)).astype(int),
-        scores,
-        np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
-    )
-
-
 @dataclass
 class InstanceDetector:
     """Detections read off the frame's instance image (ground truth, or TUM annotations)."""
@@ -104,143 +75,3 @@ class InstanceDetector:
         ids, classes = ids[keep], classes[keep]
         masks = frame.instances[None] == ids[:, None, None]
         return Detections(masks, mask_boxes(masks), classes, np.ones(len(ids)), ids.astype(int))
-
-
-@dataclass
-class SimulatedDetector:
-    """Ground truth with seeded misses, false positives and class confusions (a stand-in for a real detector)."""
-
-    truth: InstanceDetector
-    miss_rate: float = 0.1  # probability each true object is not detected
-    false_positives: float = 0.5  # expected spurious detections per frame (Poisson)
-    confusion_rate: float = 0.05  # probability a detection gets a wrong class
-    seed: int = 0
-    simulated: bool = True
-
-    @property
-    def name(self) -> str:
-        return "simulated"
-
-    def detect(self, frame: Frame) -> Detections:
-        rng = np.random.default_rng([self.seed, frame.index])
-        true = self.truth.detect(frame)
-        height, width = frame.depth.shape
-        kept = rng.random(len(true)) >= self.miss_rate
-        class_ids = true.class_ids[kept].copy()
-        confused = rng.random(len(class_ids)) < self.confusion_rate
-        class_ids[confused] = self._other_class(rng, class_ids[confused])
-        spurious = self._blobs(rng, rng.poisson(self.false_positives), height, width)
-        spurious_ids = rng.integers(0, len(self.truth.class_names), len(spurious))
-        scores = np.concatenate((rng.uniform(0.6, 1.0, len(class_ids)), rng.uniform(0.3, 0.7, len(spurious))))
-        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
-
-    def _other_class(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
-        count = len(self.truth.class_names)
-        if count < 2:
-            return class_ids
-        return (class_ids + rng.integers(1, count, len(class_ids))) % count
-
-    @staticmethod
-    def _blobs(rng: np.random.Generator, count: int, height: int, width: int) -> np.ndarray:
-        """Elliptic masks of random size and place: detections of nothing in particular."""
-        centers = rng.uniform((0, 0), (height, width), (count, 2))
-        radii = rng.uniform(0.05, 0.15, (count, 2)) * min(height, width)
-        return ellipse_masks(centers, radii, height, width)
-
-
-LOOKALIKES_FILE = Path(__file__).parent / "data" / "detector_lookalikes.csv"
-
-
-def read_lookalikes(path: Path = LOOKALIKES_FILE) -> dict[str, list[tuple[str, float]]]:
-    """true class -> [(look-alike class, probability), ...] from the look-alike table (`#` lines are comments)."""
-    import csv
-
-    lines = [line for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
-    table: dict[str, list[tuple[str, float]]] = {}
-    for row in csv.DictReader(lines):
-        table.setdefault(row["true"].lower(), []).append((row["detected"].lower(), float(row["probability"])))
-    return table
-
-
-@dataclass
-class SimulatedYoloDetector:
-    """Ground truth degraded the way a real YOLO fails on a real desk map (../shared/REAL_SCENES.md).
-
-    - Misses: an object is detected with probability `detect_max * a / (a + half_pixels)` for a
-      mask of `a` pixels, times `truncated_factor` when it touches the image border and
-      `far_factor` beyond `far_m`: small, cut and distant objects are missed most.
-    - Look-alike classes from `lookalikes` (clipclique/data/detector_lookalikes.csv), not uniform flips.
-    - False positives: Poisson(`false_positive_ratio` * detections) blobs the size of a small
-      object at their depth, on surfaces that hold no mapped object, with a class of the map.
-    Seeded per frame. Named "simulated-yolo" everywhere.
-    """
-
-    truth: InstanceDetector
-    lookalikes: dict[str, list[tuple[str, float]]] = field(default_factory=read_lookalikes)
-    seed: int = 0
-    detect_max: float = 0.9
-    half_pixels: float = 2500.0
-    truncated_factor: float = 0.5
-    far_factor: float = 0.5
-    far_m: float = 3.5
-    false_positive_ratio: float = 0.3  # false positives per true detection: about 21-23% of all detections
-    border_px: int = 8
-    simulated: bool = True
-
-    @property
-    def name(self) -> str:
-        return "simulated-yolo"
-
-    @cached_property
-    def _confusions(self) -> tuple[np.ndarray, np.ndarray]:
-        """(C, K) look-alike class ids (-1 = none) and their cumulative probabilities, per map class."""
-        vocabulary = vocabulary_index(self.truth.class_names)
-        rows = [[(vocabulary[other], p) for other, p in self.lookalikes.get(name.lower(), []) if other in vocabulary]
-                for name in self.truth.class_names]
-        width = max([len(row) for row in rows] + [1])
-        targets = np.full((len(rows), width), -1, int)
-        cumulative = np.ones((len(rows), width))  # padding never wins
-        for c, row in enumerate(rows):
-            if row:
-                targets[c, :len(row)] = [other for other, _ in row]
-                cumulative[c, :len(row)] = np.cumsum([p for _, p in row])
-        return targets, cumulative
-
-    def detect(self, frame: Frame) -> Detections:
-        rng = np.random.default_rng([self.seed, frame.index])
-        true = self.truth.detect(frame)
-        height, width = frame.depth.shape
-        pixels = true.masks.sum(axis=(1, 2)).astype(float)
-        band = np.ones((height, width), bool)
-        band[self.border_px:height - self.border_px, self.border_px:width - self.border_px] = False
-        truncated = (true.masks & band).any(axis=(1, 2))
-        depths = np.array([np.median(frame.depth[m][frame.depth[m] > 0]) if (frame.depth[m] > 0).any() else 0.0
-                           for m in true.masks])
-        chance = (self.detect_max * pixels / (pixels + self.half_pixels)
-                  * np.where(truncated, self.truncated_factor, 1.0) * np.where(depths > self.far_m, self.far_factor, 1.0))
-        kept = rng.random(len(true)) < chance
-        class_ids = self._confused(rng, true.class_ids[kept])
-        spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
-        scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
-        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
-
-    def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
-        """Each class replaced by one of its look-alikes with the table's probability."""
-        targets, cumulative = self._confusions
-        draw = rng.random(len(class_ids))
-        pick = (draw[:, None] >= cumulative[class_ids]).sum(axis=1)  # index of the first row above the draw
-        chosen = targets[class_ids, np.minimum(pick, targets.shape[1] - 1)]
-        return np.where((pick < targets.shape[1]) & (chosen >= 0), chosen, class_ids)
-
-    def _false_positives(self, rng: np.random.Generator, frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """Elliptic masks 10-30 cm across at their depth, centred on valid depth off every mapped object."""
-        height, width = frame.depth.shape
-        mapped = np.isin(frame.instances, list(self.truth.mapped_ids)) if frame.instances is not None else np.zeros((height, width), bool)
-        free = np.flatnonzero((frame.depth > 0) & ~mapped)
-        if count == 0 or len(free) == 0:
-            return np.zeros((0, height, width), bool), np.zeros(0, int)
-        centers = np.column_stack(np.unravel_index(free[rng.integers(0, len(free), count)], (height, width)))
-        size_m = rng.uniform(0.05, 0.15, (count, 2))
-        radii = size_m * frame.intrinsics[0, 0] / frame.depth[centers[:, 0], centers[:, 1]][:, None]
-        blobs = ellipse_masks(centers, radii, height, width) & ~mapped
-        return blobs, rng.integers(0, len(self.truth.class_names), count)

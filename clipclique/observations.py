@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from clipclique.encoders import CropTruth, Encoder
+from clipclique.encoders import Crop, Encoder
 from clipclique.geometry import FitParams, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Camera, Detections, Frame, Observations
 
@@ -37,9 +37,7 @@ class Extraction:
     """Observations of one frame (embeddings not yet computed) and what the encoder needs."""
 
     observations: Observations
-    crops: list[np.ndarray]  # (h, w, 3) uint8, one per observation
-    truncated: np.ndarray  # (K,) bool: the mask touches the image border
-    contents: list[tuple[tuple[int, float], ...]]  # per crop: (object id, share of its pixels), 0 = unlabelled
+    crops: list[Crop]  # one per observation: its box of the image (and of the instance image), border-cut or not
     dropped: dict[str, int]  # detections lost, by reason (keys: DROP_REASONS)
 
 
@@ -75,9 +73,10 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
                                 detections.instance_ids[index], index, detections.boxes[index].astype(float),
                                 np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth))
-    crops = [crop(frame.rgb, detections.boxes[k]) for k in kept]
-    contents = [crop_contents(frame, detections.boxes[k], int(detections.instance_ids[k])) for k in kept]
-    return Extraction(observations, crops, np.array(truncated, bool), contents, dict(dropped))
+    crops = [Crop(crop(frame.rgb, detections.boxes[k]),
+                  None if frame.instances is None else crop(frame.instances, detections.boxes[k]), cut)
+             for k, cut in zip(kept, truncated)]
+    return Extraction(observations, crops, dict(dropped))
 
 
 def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,
@@ -131,23 +130,9 @@ def crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:
     return image[y0:y1, x0:x1]
 
 
-def crop_contents(frame: Frame, box: np.ndarray, instance_id: int) -> tuple[tuple[int, float], ...]:
-    """Ground-truth object ids inside a box with their pixel shares (the detection alone without an instance image)."""
-    if frame.instances is None:
-        return ((instance_id, 1.0),)
-    ids, counts = np.unique(crop(frame.instances, box), return_counts=True)
-    return tuple(zip(ids.tolist(), (counts / counts.sum()).tolist()))
-
-
-def embed(extraction: Extraction, encoder: Encoder | None, descriptions: dict[int, str]) -> Observations:
-    """The observations with CLIP image embeddings of their crops (None without an encoder).
-
-    `descriptions` (object id -> true description) reaches only a simulated encoder, as what
-    each crop shows (`CropTruth`); objects without one count as background.
-    """
+def embed(extraction: Extraction, encoder: Encoder | None) -> Observations:
+    """The observations with CLIP image embeddings of their crops (None without an encoder)."""
     observations = extraction.observations
     if encoder is not None:
-        truth = [CropTruth(tuple((descriptions.get(i), share) for i, share in contents), bool(cut))
-                 for contents, cut in zip(extraction.contents, extraction.truncated)]
-        observations.image_embeddings = encoder.encode_images(extraction.crops, truth)
+        observations.image_embeddings = encoder.encode_images(extraction.crops)
     return observations

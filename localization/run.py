@@ -11,21 +11,21 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, make_config
-from clipclique.datasets import Sequence, open_sequence, scene_name
-from clipclique.datasets.base import DEMO_MARKER, read_json
-from clipclique.encoders import Encoder, load_encoder
+from clipclique.backends import load_encoder, make_detector
+from clipclique.datasets import Sequence, scene_name
+from clipclique.detectors import Detector
+from clipclique.encoders import Encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.mapfile import load_map
 from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
+from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from localization.detectors import Detector, make_detector
 from clipclique.observations import ObservationParams, embed, extract_observations
 
 if TYPE_CHECKING:
@@ -105,11 +105,6 @@ class Run:
     notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
 
-    @cached_property
-    def truth_descriptions(self) -> dict[int, str]:
-        """Object id -> true description, which only a simulated encoder reads."""
-        return dict(zip(self.map.instance_ids.tolist(), self.map.descriptions))
-
     def summary(self) -> dict[str, float]:
         return summarize([outcome.evaluation for outcome in self.frames])
 
@@ -123,14 +118,14 @@ def prepare(settings: RunSettings) -> Run:
         raise MapFileError(f"{map_path}: no map; build it with `{command('clipclique-map')} build {settings.sequence}` "
                            "or pass --map PATH")
     map = load_map(map_path)
-    sequence = open_sequence(settings.sequence, settings.data_root)
+    sequence = open_scene(settings.sequence, settings.data_root)
     notes: list[str] = []
     check_map_source(map, map_path, sequence.name, settings, notes)
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed)
     if config.similarity.descriptor in ("clip", "fused"):
-        encoder = choose_encoder(settings.encoder, map, notes)
+        encoder = choose_encoder(settings.encoder, map, notes, sequence)
     else:  # SH and X-View never read CLIP: no model to load, no crops to embed every frame
         encoder = None
         if settings.encoder not in (None, "none"):
@@ -157,25 +152,18 @@ def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: Run
     notes.append(f"the map is of {source}, not of {sequence_name} (--force)")
 
 
-def default_detector(sequence: Sequence) -> str:
-    """The `--detector` a sequence gets unless asked: the one a generated scene's marker names (simulated
-    when it names none: demo, demo_tum), gt (ScanNet), annotations (TUM)."""
-    if sequence.synthetic:
-        return str(read_json(sequence.root / DEMO_MARKER).get("detector", "simulated"))
-    return "gt" if sequence.kind == "scannet" else "annotations"
-
-
-def choose_encoder(spec: str | None, map: Map, notes: list[str]) -> Encoder | None:
-    """The requested encoder, else the one that made the map's text embeddings when it is here, else none."""
+def choose_encoder(spec: str | None, map: Map, notes: list[str], sequence: Sequence | None = None) -> Encoder | None:
+    """The requested encoder, else the one that made the map's text embeddings when it is here, else none
+    (a simulated one knows the descriptions of `sequence`)."""
     if spec is None:
         if map.text_embeddings is None:
             return None
         try:
-            return load_encoder(map.encoder)
+            return load_encoder(map.encoder, scene=sequence)
         except ModelUnavailableError as error:
             notes.append(f"the map's encoder is not available here ({error})")
             return None
-    encoder = load_encoder(spec)
+    encoder = load_encoder(spec, scene=sequence)
     if encoder is not None and map.text_embeddings is not None and map.encoder != encoder.name:
         raise ClipcliqueError(f"the map's text embeddings come from {map.encoder} but the query encoder is "
                               f"{encoder.name}; their embeddings are not comparable (pass --encoder {map.encoder})")
@@ -202,7 +190,7 @@ def observe(run: Run, frame: Frame, params: ObservationParams = ObservationParam
     extraction = extract_observations(frame, detections, params)
     timings["observations"] = time.perf_counter() - clock
     clock = time.perf_counter()
-    observations = embed(extraction, run.encoder, run.truth_descriptions)
+    observations = embed(extraction, run.encoder)
     timings["encoder"] = time.perf_counter() - clock
     return Seen(detections, observations, extraction.dropped, timings)
 

@@ -87,8 +87,9 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from clipclique.commands import rerun_hint
-    from clipclique.datasets import demo, open_sequence, resolve_data_root, scene_name
-    from clipclique.encoders import load_encoder
+    from clipclique.backends import load_encoder
+    from clipclique.datasets import scene_name
+    from clipclique.resolve import open_scene
     from clipclique.mapfile import save_map
     from clipclique.outputs import Staging
     from mapping.build import build_map
@@ -101,9 +102,7 @@ def run_build(scene: str, data_root: Path | None, out: Path | None, encoder_spec
         staged_map = staging.path(out)  # a folder in the way is refused before the work
         staged_recording = staging.path(recording) if rrd else None
         with Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
-            if scene in demo.DEMO_SCENES:
-                demo.ensure_demo(scene, resolve_data_root(data_root), _bar_on_first_call(progress, f"generating the {scene} data (first use)"))
-            sequence = open_sequence(scene, data_root)
+            sequence = open_scene(scene, data_root, _bar_on_first_call(progress, f"generating the {scene} data (first use)"))
             spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
             loaded = load_encoder(spec)
             task = progress.add_task("fitting ellipsoids", total=None)

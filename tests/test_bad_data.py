@@ -162,7 +162,7 @@ def tum(tmp_path_factory) -> Path:
     """A 4-frame TUM-format demo sequence to copy and edit."""
     import dataclasses
 
-    from clipclique.datasets.demo import DEMO_SCENES, generate
+    from clipclique.sim.demo import DEMO_SCENES, generate
 
     folder = tmp_path_factory.mktemp("tum") / "demo_tum"
     folder.mkdir()

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from clipclique.config import make_config
-from clipclique.datasets.demo import DEMO_SCENES
+from clipclique.sim.demo import DEMO_SCENES
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts that import each other, not a package
@@ -88,7 +88,7 @@ def test_quick_report_matches_its_json(quick_run):
 
 
 def test_cached_observations_give_the_numbers_clipclique_loc_gives(quick_run):
-    from clipclique.datasets.demo import DEMO_SCENES
+    from clipclique.sim.demo import DEMO_SCENES
     from localization.run import RunSettings, execute, prepare
 
     settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz", data_root=ROOT / "data",

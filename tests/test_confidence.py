@@ -15,7 +15,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.pipeline import NOT_CONFIDENT, index_map, localize
-from clipclique.synthetic import synthetic_map, synthetic_query
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.verification import MISSED_WEIGHT, Verification
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # tools/ holds scripts, not a package

@@ -10,17 +10,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clipclique.datasets import STRUCTURE_CLASSES, open_sequence
-from clipclique.datasets.demo import DEMO_SCENES, DemoSpec, ensure_demo, generate
-from clipclique.datasets.procedural import PALETTE, make_room, make_walk
-from clipclique.datasets.render import MeshRaycaster
+from clipclique.datasets import STRUCTURE_CLASSES
+from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES, DemoSpec, ensure_scene, generate
+from clipclique.sim.procedural import PALETTE, make_room, make_walk
+from clipclique.raycast import MeshRaycaster
 from clipclique.geometry import backproject
 
 SMALL = {name: dataclasses.replace(spec, num_frames=4, width=160, height=120) for name, spec in DEMO_SCENES.items()}
 
 
 def small_demo(root: Path, name: str) -> Path:
-    """A 4-frame, 160 x 120 demo scene where ensure_demo will find it."""
+    """A 4-frame, 160 x 120 demo scene where ensure_scene will find it."""
     folder = root / "demo" / name
     folder.mkdir(parents=True)
     generate(folder, name, SMALL[name])
@@ -38,10 +39,10 @@ def test_same_seed_same_bytes(tmp_path, name):
     assert len(first) > 12  # mesh/annotation files plus 4 frames of images
 
 
-def test_ensure_demo_reuses_a_finished_scene(tmp_path):
+def test_ensure_scene_reuses_a_finished_scene(tmp_path):
     folder = small_demo(tmp_path, "demo")
-    assert ensure_demo("demo", tmp_path) == folder  # marker present: nothing regenerated
-    assert len(open_sequence("demo", tmp_path)) == 4
+    assert ensure_scene("demo", tmp_path) == folder  # marker present: nothing regenerated
+    assert len(open_scene("demo", tmp_path)) == 4
 
 
 def mesh_distances(room, points: np.ndarray) -> np.ndarray:
@@ -59,7 +60,7 @@ def mesh_distances(room, points: np.ndarray) -> np.ndarray:
 def test_frames_agree_with_the_scene_geometry(tmp_path, name):
     """Depth + intrinsics + ground-truth pose put every pixel on the mesh, and instance ids on their object."""
     small_demo(tmp_path, name)
-    sequence = open_sequence(name, tmp_path)
+    sequence = open_scene(name, tmp_path)
     room = SMALL[name].room()
     owner = room.segment_objects[room.vertex_segments] + 1  # instance id of every vertex
     for frame in sequence:
@@ -111,7 +112,7 @@ def test_walk_sees_two_to_eight_objects_in_most_frames(name):
 
 def test_depth_has_sensor_noise_and_holes(tmp_path):
     small_demo(tmp_path, "demo")
-    frame = open_sequence("demo", tmp_path)[0]
+    frame = open_scene("demo", tmp_path)[0]
     assert 0.005 < np.mean(frame.depth == 0) < 0.2  # holes at edges and at random
     # Depth is quantized to millimetres and noisy: not a smooth rendering.
     valid = frame.depth[frame.depth > 0]
@@ -123,14 +124,14 @@ def test_spec_intrinsics_scale_with_the_image():
     np.testing.assert_allclose(half.intrinsics()[:2], full.intrinsics()[:2] / 2)
 
 
-def test_ensure_demo_never_deletes_a_folder_it_did_not_write(tmp_path):
+def test_ensure_scene_never_deletes_a_folder_it_did_not_write(tmp_path):
     from clipclique.errors import DatasetError
 
     mine = tmp_path / "demo" / "demo"
     mine.mkdir(parents=True)
     (mine / "notes.txt").write_text("a user's file")
     with pytest.raises(DatasetError, match="exists but is not a generated demo scene"):  # it was deleted
-        ensure_demo("demo", tmp_path)
+        ensure_scene("demo", tmp_path)
     assert (mine / "notes.txt").read_text() == "a user's file"
 
 
@@ -140,4 +141,4 @@ def test_an_unwritable_data_root_is_a_clear_error(tmp_path):
     not_a_folder = tmp_path / "data"
     not_a_folder.write_text("a file where the data root should be")
     with pytest.raises(DatasetError, match=r"data/demo: cannot write the demo scene there .*--data-root"):
-        ensure_demo("demo", not_a_folder)
+        ensure_scene("demo", not_a_folder)

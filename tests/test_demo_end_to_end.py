@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.datasets import open_sequence
-from clipclique.datasets.demo import DEMO_SCENES, generate
-from clipclique.encoders import load_encoder
+from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES, generate
+from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from localization.results import read_results, run_and_save
 from localization.run import RunSettings
@@ -31,7 +31,7 @@ def demo(tmp_path_factory) -> Path:
     folder = root / "demo" / "demo"
     folder.mkdir(parents=True)
     generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=FRAMES))
-    map, _ = build_map(open_sequence("demo", root), load_encoder("simulated"))
+    map, _ = build_map(open_scene("demo", root), load_encoder("simulated"))
     save_map(map, root / "demo.map.npz")
     return root
 
@@ -90,7 +90,7 @@ def test_frames_without_enough_observations_are_failures_not_dropped(runs):
 
 def test_results_and_poses_read_back(runs, demo):
     document = read_results(runs["clipclique"] / "results.json")
-    sequence = open_sequence("demo", demo)
+    sequence = open_scene("demo", demo)
     localized = [f for f in document["frames"] if f["hypotheses"]]
     lines = [line.split() for line in (runs["clipclique"] / "poses.tum").read_text().splitlines()
              if not line.startswith("#")]

@@ -10,8 +10,10 @@ import pytest
 
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
-from clipclique.detectors import InstanceDetector, SimulatedDetector, SimulatedYoloDetector, mask_boxes, read_lookalikes
-from localization.detectors import YoloDetector, coco_to_vocabulary, make_detector
+from clipclique.backends import make_detector
+from clipclique.detectors import InstanceDetector, mask_boxes
+from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, read_lookalikes
+from clipclique.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
 OBJECTS = {3: "chair", 7: "table", 9: "plant", 12: "chair"}  # 9 is not in the map's vocabulary
@@ -126,7 +128,7 @@ def test_local_yolo_weights_keep_ultralytics_offline(monkeypatch, tmp_path):
     import sys
     import types
 
-    import localization.detectors as detectors
+    import clipclique.yolo as detectors
 
     seen = {}
 
@@ -147,10 +149,13 @@ def test_local_yolo_weights_keep_ultralytics_offline(monkeypatch, tmp_path):
 
 
 def test_coco_classes_map_to_the_vocabulary():
-    table = coco_to_vocabulary({0: "person", 56: "chair", 57: "couch", 60: "dining table", 58: "potted plant"},
-                               ["table", "chair", "sofa", "desk"])
+    table = coco_to_vocabulary(["table", "chair", "sofa", "desk"],
+                               {0: "person", 56: "chair", 57: "couch", 60: "dining table", 58: "potted plant"})
     assert table.shape == (61,)
     assert table[[0, 56, 57, 60, 58]].tolist() == [-1, 1, 2, 0, -1]
+    coco = coco_to_vocabulary(["table", "chair", "sofa", "cup", "book"])  # by COCO-80 id
+    assert len(COCO_NAMES) == 80 and coco.shape == (80,)
+    assert coco[[0, 41, 56, 57, 60, 73]].tolist() == [-1, 3, 1, 2, 0, 4]
 
 
 @pytest.mark.models
@@ -163,6 +168,7 @@ def test_yolo_random_weights_output_shapes_and_class_mapping(monkeypatch):
     torch.manual_seed(0)  # random weights: seeded, or the detections depend on what ran before
     model = ultralytics.YOLO("yolov8n-seg.yaml")  # built from its config: random weights, no download
     model.model.names = YAML.load(ROOT / "cfg/datasets/coco.yaml")["names"]
+    assert tuple(model.names[i] for i in range(len(model.names))) == COCO_NAMES
     detector = YoloDetector(model, ["chair", "table", "person"], confidence=0.0, device="cpu")
     assert detector.class_map[[0, 56, 60, 2]].tolist() == [2, 0, 1, -1]
     frame = make_frame()

@@ -27,7 +27,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from clipclique.datasets.demo import DEMO_SCENES, generate
+from clipclique.sim.demo import DEMO_SCENES, generate
 from localization.cli import app as loc_app
 from mapping.cli import app as map_app
 

@@ -126,7 +126,7 @@ def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
     from clipclique.config import make_config
     from clipclique.metrics import evaluate_frame
     from clipclique.pipeline import index_map, localize
-    from clipclique.synthetic import synthetic_map, synthetic_query
+    from clipclique.sim.synthetic import synthetic_map, synthetic_query
     from localization.results import frame_record
     from localization.run import FrameOutcome
 

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from clipclique.datasets import STRUCTURE_CLASSES, Instance, open_sequence
-from clipclique.datasets.procedural import make_room
+from clipclique.datasets import STRUCTURE_CLASSES, Instance
+from clipclique.resolve import open_scene
+from clipclique.sim.procedural import make_room
 from clipclique.geometry import FitParams
 from clipclique.mapfile import load_map
 from mapping.build import BuildReport, build_map, fit_landmarks
@@ -33,7 +34,7 @@ def object_boxes(name: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 
 def test_scannet_demo_map_matches_the_objects(data_root):
-    sequence = open_sequence("demo", data_root)
+    sequence = open_scene("demo", data_root)
     map, report = build_map(sequence, encoder=None)
     room = make_room(SMALL["demo"].seed)
     objects = [o for o in room.objects if o.category not in STRUCTURE_CLASSES]
@@ -59,9 +60,9 @@ def test_scannet_demo_map_matches_the_objects(data_root):
 
 
 def test_tum_demo_map_from_annotations(data_root):
-    map, report = build_map(open_sequence("demo_tum", data_root), encoder=None)
+    map, report = build_map(open_scene("demo_tum", data_root), encoder=None)
     boxes = object_boxes("demo_tum")
-    annotated = len(open_sequence("demo_tum", data_root).object_classes())
+    annotated = len(open_scene("demo_tum", data_root).object_classes())
     assert len(map) + sum(len(v) for v in report.skipped.values()) == annotated
     assert len(map) >= 10  # 4 frames see a good part of the room
     for k, object_id in enumerate(map.instance_ids):
@@ -167,7 +168,7 @@ class _Scene:
 
 
 def test_a_scene_without_landmarks_is_a_user_error_not_an_invalid_map(tmp_path):
-    from clipclique.encoders import load_encoder
+    from clipclique.backends import load_encoder
     from clipclique.errors import DatasetError
 
     floor = Instance(1, "floor", "", np.random.default_rng(0).normal(size=(500, 3)))

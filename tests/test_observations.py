@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from clipclique.detectors import mask_boxes
-from clipclique.encoders import SimulatedClipEncoder
 from clipclique.types import Detections, Frame, Pose
 from clipclique.geometry import FitParams, _depth_points
-from clipclique.observations import ObservationParams, crop, crop_contents, embed, extract_observations
+from clipclique.observations import ObservationParams, crop, embed, extract_observations
+from clipclique.sim.encoder import SimulatedClipEncoder
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
@@ -49,8 +49,9 @@ def test_sphere_becomes_a_camera_frame_ellipsoid():
     np.testing.assert_allclose(axes[:2], SPHERE_RADIUS, atol=0.04)  # the silhouette spans the radius
     assert axes[2] < 0.2  # the cap is shallow
     assert observations.instance_ids.tolist() == [5] and observations.detection_index.tolist() == [0]
-    assert not extraction.truncated[0]
-    assert extraction.crops[0].shape[2] == 3 and abs(extraction.crops[0].shape[0] - 2 * 300 * 0.3 / 1.96) < 10
+    pixels = extraction.crops[0].pixels
+    assert not extraction.crops[0].truncated and extraction.crops[0].instances is None
+    assert pixels.shape[2] == 3 and abs(pixels.shape[0] - 2 * 300 * 0.3 / 1.96) < 10
 
 
 def test_bad_detections_are_dropped_by_reason_never_nan():
@@ -79,7 +80,7 @@ def test_truncated_masks_are_kept_and_flagged():
     truncated = np.roll(sphere, -160, axis=1)  # shifted to the left border, depth rolled with it
     frame.depth = np.roll(frame.depth, -160, axis=1)
     extraction = extract_observations(frame, detections_of([truncated], [1]))
-    assert len(extraction.observations) == 1 and extraction.truncated.tolist() == [True]
+    assert len(extraction.observations) == 1 and [c.truncated for c in extraction.crops] == [True]
 
 
 def test_crop_is_clipped_and_never_empty():
@@ -88,30 +89,39 @@ def test_crop_is_clipped_and_never_empty():
     assert crop(rgb, np.array([19.5, 9.5, 19.5, 9.5])).shape == (1, 1, 3)
 
 
-def test_crop_contents_are_pixel_shares_of_the_objects_in_the_box():
+def test_crops_carry_the_instance_image_in_their_box_and_the_simulated_encoder_reads_it():
     frame, mask = sphere_frame()
     frame.instances = np.where(mask, 5, 0).astype(np.int32)
     frame.instances[:, 200:] = np.where(mask[:, 200:], 5, 8)
-    box = np.array([150.0, 0.0, 250.0, 100.0])
-    contents = dict(crop_contents(frame, box, 5))
-    assert set(contents) == {0, 5, 8}
-    assert contents[8] == pytest.approx((~mask[:100, 200:250]).sum() / 100**2)
+    wall = np.zeros_like(mask)
+    wall[0:100, 150:250] = True  # box 150..250 x 0..100
+    extraction = extract_observations(frame, detections_of([mask, wall], [5, -1]))
+    shown = extraction.crops[1]
+    np.testing.assert_array_equal(shown.instances, frame.instances[0:100, 150:250])
+    assert shown.pixels.shape[:2] == shown.instances.shape
+    encoder = SimulatedClipEncoder({5: "a red ball", 8: "a white wall"})
+    contents = dict(encoder.contents(shown))
+    assert set(contents) == {None, "a red ball", "a white wall"}
+    assert contents["a white wall"] == pytest.approx((~mask[:100, 200:250]).sum() / 100**2)
+    assert contents["a red ball"] == pytest.approx(mask[:100, 150:250].mean())
     assert sum(contents.values()) == pytest.approx(1.0)
-    assert contents[5] == pytest.approx(mask[:100, 150:250].mean())
-    frame.instances = None
-    assert crop_contents(frame, box, 5) == ((5, 1.0),)
+    assert dict(encoder.contents(extraction.crops[0]))["a red ball"] > 0.7
 
 
-def test_embed_passes_what_each_crop_shows_to_the_simulated_encoder():
+def test_embed_gives_each_crop_the_embedding_of_what_it_shows():
     frame, mask = sphere_frame()
-    extraction = extract_observations(frame, detections_of([mask, mask], [5, -1]))
-    assert extraction.contents == [((5, 1.0),), ((-1, 1.0),)]  # no instance image: the detection alone
-    encoder = SimulatedClipEncoder()
-    observations = embed(extraction, encoder, {5: "a red ball"})
-    assert observations.image_embeddings.shape == (2, 512)
+    frame.instances = np.where(mask, 5, 0).astype(np.int32)
+    bump = np.zeros_like(mask)
+    bump[20:60, 20:60] = True  # a false detection: a bulge of the wall, no object of the instance image
+    v, u = np.mgrid[20:60, 20:60]
+    frame.depth[20:60, 20:60] -= 0.3 * np.clip(1 - ((v - 40) ** 2 + (u - 40) ** 2) / 400, 0, None)
+    extraction = extract_observations(frame, detections_of([mask, bump], [5, -1]))
+    encoder = SimulatedClipEncoder({5: "a red ball"})
+    observations = embed(extraction, encoder)
+    assert observations.image_embeddings.shape == (len(observations), 512) and len(observations) == 2
     text = encoder.encode_text(["a red ball"])[0]
     assert observations.image_embeddings[0] @ text > observations.image_embeddings[1] @ text + 0.05
-    assert embed(extract_observations(frame, detections_of([mask], [5])), None, {}).image_embeddings is None
+    assert embed(extract_observations(frame, detections_of([mask], [5])), None).image_embeddings is None
 
 
 def test_depth_fit_cuts_bled_background_and_agrees_with_the_point_fit():

@@ -8,7 +8,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.pipeline import STAGES, index_map, localize
-from clipclique.synthetic import synthetic_map, synthetic_query
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 
 
 def run(method: str, frames: int = 12, overrides: list[str] | None = None, seed: int = 1, **query):

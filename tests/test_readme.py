@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from clipclique.config import make_config
-from clipclique.datasets.demo import DEMO_SCENES, generate
+from clipclique.sim.demo import DEMO_SCENES, generate
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,7 +13,7 @@ from clipclique.graph import semantic_graph, semantic_histograms
 from clipclique.inliers import compatibility_graph, partial_view_slack
 from clipclique.lookalikes import class_kernel
 from clipclique.pipeline import index_map, localize
-from clipclique.synthetic import synthetic_map, synthetic_query
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))

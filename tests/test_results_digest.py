@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from clipclique.datasets import open_sequence
-from clipclique.encoders import load_encoder
+from clipclique.resolve import open_scene
+from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from localization.results import read_results, run_and_save
 from localization.run import RunSettings
@@ -76,7 +76,7 @@ def maps(tmp_path_factory) -> dict[str, Path]:
     encoder = load_encoder("simulated")
     paths = {}
     for scene in sorted({scene for scene, _ in RUNS}):
-        map, _ = build_map(open_sequence(scene, ROOT / "data"), encoder)
+        map, _ = build_map(open_scene(scene, ROOT / "data"), encoder)
         paths[scene] = folder / f"{scene}.map.npz"
         save_map(map, paths[scene])
     return paths

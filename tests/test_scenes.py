@@ -11,10 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clipclique.datasets import open_sequence
-from clipclique.datasets.demo import DEMO_SCENES, generate
-from clipclique.detectors import read_lookalikes
-from localization.run import default_detector
+from clipclique.resolve import default_detector, open_scene
+from clipclique.sim.demo import DEMO_SCENES, generate
+from clipclique.sim.detectors import read_lookalikes
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts, not a package
@@ -33,7 +32,7 @@ def scenes(tmp_path_factory) -> dict[str, scene_stats.SceneStats]:
         folder = root / "demo" / name
         folder.mkdir(parents=True)
         generate(folder, name, dataclasses.replace(DEMO_SCENES[name], num_frames=frames))
-        out[name] = scene_stats.measure(open_sequence(name, root))
+        out[name] = scene_stats.measure(open_scene(name, root))
     return out
 
 
@@ -62,7 +61,7 @@ def test_desk_map_is_dense_clutter_of_coco_classes(scenes, tmp_path):
     assert 14 <= np.median(stats.degrees) <= 21 and stats.degrees.max() >= 22 and stats.degrees.min() == 0
     assert np.allclose(stats.extent, (5.5, 3.4, 1.0), atol=0.4)
     generate(tmp_path, "demo_desk", dataclasses.replace(DEMO_SCENES["demo_desk"], num_frames=1, width=80, height=60))
-    counts = Counter(open_sequence(str(tmp_path)).object_classes().values())
+    counts = Counter(open_scene(str(tmp_path)).object_classes().values())
     assert {k: counts[k] for k in ("cup", "book", "chair", "mouse", "tv", "vase", "keyboard", "bowl")} == {
         "cup": 8, "book": 7, "chair": 4, "mouse": 3, "tv": 3, "vase": 3, "keyboard": 2, "bowl": 2}
     coco = {"dining table", "bottle", "cell phone", "fork", "knife", "spoon", "scissors", "remote", "laptop",
@@ -86,4 +85,4 @@ def test_scenes_name_their_default_detector(tmp_path):
         folder = tmp_path / "demo" / name
         folder.mkdir(parents=True)
         generate(folder, name, dataclasses.replace(DEMO_SCENES[name], num_frames=1, width=80, height=60))
-        assert default_detector(open_sequence(name, tmp_path)) == expected
+        assert default_detector(open_scene(name, tmp_path)) == expected

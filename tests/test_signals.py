@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from clipclique.datasets import open_sequence
-from clipclique.datasets.demo import DEMO_SCENES, generate
-from clipclique.encoders import load_encoder
+from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES, generate
+from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from localization.cli import app
 from mapping.build import build_map
@@ -36,7 +36,7 @@ def demo(tmp_path_factory) -> Path:
     folder = root / "demo" / "demo"
     folder.mkdir(parents=True)
     generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=60, width=160, height=120))
-    map, _ = build_map(open_sequence("demo", root), load_encoder("simulated"))
+    map, _ = build_map(open_scene("demo", root), load_encoder("simulated"))
     save_map(map, root / "demo.map.npz")
     result = CliRunner().invoke(app, args(root, "--max-frames", "3"))
     assert result.exit_code == 0, result.output

@@ -1,6 +1,6 @@
 import numpy as np
 
-from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
+from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 
 
 def test_query_is_the_map_seen_from_the_returned_pose():

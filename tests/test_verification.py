@@ -13,7 +13,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
 from clipclique.pipeline import index_map, localize
 from clipclique.projection import project
-from clipclique.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
+from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 from clipclique.verification import MISSED_WEIGHT, verify
 

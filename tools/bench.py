@@ -49,11 +49,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from bench_core import ALGORITHM, growth_exponent, scalability  # noqa: E402
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
-from clipclique.datasets import demo, resolve_data_root  # noqa: E402
+from clipclique.datasets import resolve_data_root  # noqa: E402
 from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
 from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize  # noqa: E402
-from clipclique.synthetic import duplicate_rooms  # noqa: E402
+from clipclique.sim import DEMO_SCENES  # noqa: E402
+from clipclique.sim.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
 from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
 
@@ -162,7 +163,7 @@ class CachedSequence:
 def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     """The demos, plus every real ScanNet scene / TUM sequence under the data root whose map exists;
     and the real ones left out, with why."""
-    names, skipped = list(demo.DEMO_SCENES), []
+    names, skipped = list(DEMO_SCENES), []
     for folder in sorted([*(data_root / "scannet" / "scans").glob("scene*_*"), *(data_root / "tum").glob("rgbd_dataset_*")]):
         if (MAP_DIR / f"{folder.name}.map.npz").is_file():
             names.append(folder.name)
@@ -177,7 +178,7 @@ def ensure_map(name: str, data_root: Path | None) -> None:
     path = MAP_DIR / f"{Path(name).name}.map.npz"
     if path.is_file():
         return
-    if name not in demo.DEMO_SCENES:
+    if name not in DEMO_SCENES:
         raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
     command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
     built = subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), stdout=subprocess.DEVNULL)
@@ -361,8 +362,8 @@ def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3, cli
     from ultralytics import YOLO
 
     from clipclique.encoders import ClipEncoder
-    from localization.detectors import YoloDetector
     from clipclique.observations import extract_observations
+    from clipclique.yolo import YoloDetector
 
     torch.manual_seed(0)  # the random weights, so what YOLO detects (and NMS costs) repeats
     model, _, preprocess = open_clip.create_model_and_transforms(clip_model, pretrained=None, device=device)

@@ -34,7 +34,7 @@ from clipclique.geometry import random_rotation
 from clipclique.inliers import compatibility_graph, maximal_cliques
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
-from clipclique.synthetic import duplicate_rooms, synthetic_map, synthetic_query
+from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -26,8 +26,8 @@ def main() -> None:
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = str(args.threads)
 
-    from clipclique.datasets.demo import write_scannet_mesh
-    from clipclique.datasets.procedural import make_room
+    from clipclique.sim.demo import write_scannet_mesh
+    from clipclique.sim.procedural import make_room
     from clipclique.datasets.scannet import ScanNetScene
     from mapping.build import build_map
 

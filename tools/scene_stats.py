@@ -4,7 +4,7 @@
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
 
 Everything goes through the project's own code: the map from `mapping.build.build_map`, the frames
-from the dataset reader, the detections from `localization.detectors`, the observed ellipsoids from
+from the dataset reader, the detections from `clipclique.backends`, the observed ellipsoids from
 `clipclique.observations.extract_observations`. Geometry (observations per frame, isolated
 observations, centre offsets) is measured with ground-truth instances; the detector's faults
 (misses, false positives, confusions) with the scene's default detector or `--detector`, against
@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
+from clipclique.backends import make_detector
 from clipclique.config import GraphConfig
-from clipclique.datasets import Sequence, open_sequence
+from clipclique.datasets import Sequence
+from clipclique.detectors import InstanceDetector
 from clipclique.graph import semantic_graph
 from clipclique.observations import ObservationParams, extract_observations
+from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map
-from clipclique.detectors import InstanceDetector
-from localization.detectors import make_detector
-from localization.run import default_detector
 from mapping.build import build_map
 
 NEAR_M = 3.5  # "objects in view within 3.5 m" (REAL_SCENES.md, desk)
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, help="frames spread over the sequence [default: all]")
     parser.add_argument("--data-root", type=Path)
     args = parser.parse_args(argv)
-    sequence = open_sequence(args.scene, args.data_root)
+    sequence = open_scene(args.scene, args.data_root)
     stats = measure(sequence, args.detector, args.frames)
     frames = len(stats.observations)
     real = REAL[sequence.kind]

@@ -1,9 +1,11 @@
-"""Dataset readers: one small class per dataset, one entry point (`open_sequence`) by name.
+"""Dataset readers: one module per dataset, a registry of them by name (`READERS`), one entry point
+(`open_sequence`) by scene name or folder. Readers only read: a generated scene (clipclique.sim) is
+an ordinary ScanNet or TUM folder, generated before it is opened.
 
 Every reader yields `Frame`s (depth in metres, camera-to-world ground-truth pose, per-pixel
 dataset object ids where the dataset has them) and the scene's object `Instance`s that
-`clipclique-map` turns into landmarks. Adding a dataset means adding one module and one line
-in `open_sequence`.
+`clipclique-map` turns into landmarks, and says which detector its frames get by default.
+Adding a dataset means adding one module and one line in `READERS`.
 """
 
 from __future__ import annotations
@@ -13,18 +15,25 @@ import re
 from pathlib import Path
 
 from clipclique.datasets.base import STRUCTURE_CLASSES, Instance, Sequence, description_template, is_structure
+from clipclique.datasets.scannet import ScanNetScene
+from clipclique.datasets.tum import TumSequence
 from clipclique.errors import DatasetError
 
 __all__ = [
+    "READERS",
     "STRUCTURE_CLASSES",
     "Instance",
     "Sequence",
     "description_template",
     "is_structure",
+    "open_folder",
     "open_sequence",
     "resolve_data_root",
     "scene_name",
 ]
+
+# Reader by dataset name (`Sequence.kind`), in the order `open_folder` tries them.
+READERS: dict[str, type[Sequence]] = {"tum": TumSequence, "scannet": ScanNetScene}
 
 DATA_ENV = "CLIPCLIQUE_DATA"
 SCANNET_NAME = re.compile(r"^scene\d{4}_\d{2}$")
@@ -45,15 +54,9 @@ def resolve_data_root(cli_value: Path | None = None) -> Path:
 
 
 def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
-    """A scene or sequence by short name ("scene0002_00", "fr2", "fr3", "demo", "demo_tum") or folder path.
-
-    The demo scenes are generated under `<data_root>/demo/` on first use.
-    """
-    from clipclique.datasets import demo, scannet, tum
-
+    """A scene or sequence by short name ("scene0002_00", "fr2", "fr3") or folder path; never generates one
+    (the generated scenes' names are resolved by `clipclique.resolve.open_scene`)."""
     root = resolve_data_root(data_root)
-    if name in demo.DEMO_SCENES:
-        return open_folder(demo.ensure_demo(name, root))
     if SCANNET_NAME.match(name):
         folder = root / "scannet" / "scans" / name
         if not folder.is_dir():
@@ -63,7 +66,7 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
                 f"and the SensReader export (color/ depth/ pose/ intrinsic/). Get ScanNet from {SCANNET_URL}; "
                 f"point --data-root or ${DATA_ENV} at the folder that holds scannet/scans/."
             )
-        return scannet.ScanNetScene(folder)
+        return READERS["scannet"](folder)
     if name in TUM_SHORT_NAMES or name.startswith("rgbd_dataset_"):
         folder = root / "tum" / TUM_SHORT_NAMES.get(name, _folder_name(name, root / "tum"))
         if not folder.is_dir():
@@ -72,7 +75,7 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
                 f"rgb.txt depth.txt groundtruth.txt (the .tgz from {TUM_URL}, extracted there); point "
                 f"--data-root or ${DATA_ENV} at the folder that holds tum/."
             )
-        return tum.TumSequence(folder)
+        return READERS["tum"](folder)
     if Path(name).is_dir():
         return open_folder(Path(os.path.abspath(name)))
     raise DatasetError(
@@ -105,12 +108,9 @@ def _folder_name(name: str, parent: Path) -> str:
 
 def open_folder(folder: Path) -> Sequence:
     """The reader for a folder, told apart by the files each dataset ships."""
-    from clipclique.datasets import scannet, tum
-
-    if (folder / "rgb.txt").exists():
-        return tum.TumSequence(folder)
-    if any(folder.glob("*_vh_clean_2.labels.ply")):
-        return scannet.ScanNetScene(folder)
+    for reader in READERS.values():
+        if reader.recognizes(folder):
+            return reader(folder)
     raise DatasetError(
         f"{folder}: neither a ScanNet scene (no *_vh_clean_2.labels.ply) nor a TUM RGB-D sequence (no rgb.txt)"
     )

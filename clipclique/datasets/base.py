@@ -48,6 +48,12 @@ class Sequence(ABC):
     kind: str  # "scannet" | "tum"
     root: Path
     synthetic: bool  # True for the generated demo scenes (their ground truth is exact)
+    default_detector: str  # the `--detector` its frames get unless asked (a generated scene's own comes from clipclique.sim)
+
+    @staticmethod
+    @abstractmethod
+    def recognizes(folder: Path) -> bool:
+        """Whether `folder` holds this dataset's files (how `open_folder` tells readers apart)."""
 
     @abstractmethod
     def __len__(self) -> int: ...
@@ -62,6 +68,10 @@ class Sequence(ABC):
     @abstractmethod
     def object_classes(self) -> dict[int, str]:
         """Dataset object id -> class name of the objects that can be landmarks (no structure)."""
+
+    @abstractmethod
+    def descriptions(self) -> dict[int, str]:
+        """Dataset object id -> description of the objects that can be landmarks (no structure)."""
 
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""

@@ -40,7 +40,7 @@ from clipclique.datasets.base import (
     resize_rgb,
 )
 from clipclique import safeio
-from clipclique.datasets.render import MeshRaycaster
+from clipclique.raycast import MeshRaycaster
 from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 
@@ -51,6 +51,11 @@ MAX_OBJECT_ID = 2**31 - 1  # object ids are int32 in frames
 
 class ScanNetScene(Sequence):
     kind = "scannet"
+    default_detector = "gt"
+
+    @staticmethod
+    def recognizes(folder: Path) -> bool:
+        return any(folder.glob("*_vh_clean_2.labels.ply"))
 
     def __init__(self, folder: Path):
         self.root = Path(folder)
@@ -221,6 +226,10 @@ class ScanNetScene(Sequence):
 
     def object_classes(self) -> dict[int, str]:
         return {object_id: name for object_id, _, name, _ in self._objects if not is_structure(name)}
+
+    def descriptions(self) -> dict[int, str]:
+        return {object_id: self._descriptions.get(object_id, description_template(name))
+                for object_id, name in self.object_classes().items()}
 
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         vertex = self._vertices

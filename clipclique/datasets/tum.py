@@ -119,6 +119,11 @@ def associate(times: np.ndarray, candidates: np.ndarray, max_diff: float = MAX_T
 
 class TumSequence(Sequence):
     kind = "tum"
+    default_detector = "annotations"
+
+    @staticmethod
+    def recognizes(folder: Path) -> bool:
+        return (folder / "rgb.txt").exists()
 
     def __init__(self, folder: Path):
         self.root = Path(folder)
@@ -243,3 +248,6 @@ class TumSequence(Sequence):
 
     def object_classes(self) -> dict[int, str]:
         return {object_id: name for object_id, (name, _) in self._objects.items() if not is_structure(name)}
+
+    def descriptions(self) -> dict[int, str]:
+        return {object_id: text for object_id, (name, text) in self._objects.items() if not is_structure(name)}

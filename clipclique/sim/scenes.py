@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from clipclique.datasets.procedural import (
+from clipclique.sim.procedural import (
     PALETTE,
     Room,
     Walk,
-    _Furniture,
-    _RoomBuilder,
-    _yaw_offset,
+    Furniture,
+    RoomBuilder,
+    yaw_offset,
     add_shell,
     hand_shake,
 )
@@ -31,12 +31,12 @@ from clipclique.datasets.procedural import (
 WALL_SPACING = 0.12
 
 
-def _curtain(f: _Furniture, at, yaw: float, color: str, width: float, height: float) -> None:
+def _curtain(f: Furniture, at, yaw: float, color: str, width: float, height: float) -> None:
     """A curtain with folds: vertical strips at alternating depth, hanging from `height` to 10 cm above `at`."""
     obj, rgb = f.b.add_object("curtain", color), PALETTE[color]
     folds = max(2, int(round(width / 0.2)))
     for k in range(folds):
-        offset = _yaw_offset(yaw, 0.05 * (k % 2), -width / 2 + (k + 0.5) * width / folds)
+        offset = yaw_offset(yaw, 0.05 * (k % 2), -width / 2 + (k + 0.5) * width / folds)
         f.b.box(obj, rgb, (0.03, width / folds + 0.02, height - 0.1), at + offset + [0, 0, 0.1 + (height - 0.1) / 2], yaw)
 
 
@@ -44,8 +44,8 @@ def make_apartment(seed: int) -> Room:
     """The apartment: open living room and kitchen with dining table, hall, bedroom, bathroom."""
     rng = np.random.default_rng(seed)
     size = np.array([7.5, 8.0, 2.5])
-    b = _RoomBuilder(rng, 0.06)
-    f = _Furniture(b, rng)
+    b = RoomBuilder(rng, 0.06)
+    f = Furniture(b, rng)
     add_shell(b, size, [
         (3.95, 3.45, 4.05, 4.6), (3.95, 5.5, 4.05, 8.0),  # living room | hall, bedroom | hall
         (0.0, 4.55, 0.9, 4.65), (2.4, 4.55, 3.95, 4.65),  # living room | bedroom (a wide double door)
@@ -136,8 +136,8 @@ def make_desk(seed: int) -> Room:
     """The office: two desks end to end (3.4 m) crowded with things, chairs, and a side shelf."""
     rng = np.random.default_rng(seed)
     size = np.array([7.0, 5.0, 2.6])
-    b = _RoomBuilder(rng, 0.04)
-    f = _Furniture(b, rng)
+    b = RoomBuilder(rng, 0.04)
+    f = Furniture(b, rng)
     add_shell(b, size, [], WALL_SPACING)
     y0 = 0.8  # desks' centre line; their backs face the wall y = 0.4
     for x, w in ((1.9, 1.8), (3.65, 1.7)):
@@ -194,7 +194,7 @@ def make_desk(seed: int) -> Room:
     return b.build(size, [])
 
 
-def _potted_plant(b: _RoomBuilder, at: np.ndarray, color: str, radius: float) -> None:
+def _potted_plant(b: RoomBuilder, at: np.ndarray, color: str, radius: float) -> None:
     """A pot of `radius` with a ball of leaves (COCO's "potted plant")."""
     obj = b.add_object("potted plant", color)
     b.cylinder(obj, PALETTE[color], radius, 2 * radius, at)
@@ -263,5 +263,5 @@ def desk_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.08)
 
 
-# Scene name -> (room maker, walk maker), as `clipclique.datasets.demo.SceneSpec.scene` names them.
+# Scene name -> (room maker, walk maker), as `clipclique.sim.demo.SceneSpec.scene` names them.
 SCENES = {"apartment": (make_apartment, apartment_walk), "desk": (make_desk, desk_walk)}

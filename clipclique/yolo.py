@@ -1,10 +1,9 @@
-"""Detector back-ends of clipclique-loc behind one interface: `detect(frame) -> Detections` in the map's
-class vocabulary. `--detector gt`, `annotations`, `simulated` and `simulated-yolo` are the library's
-`clipclique.detectors`; this module adds the one that needs a model:
+"""YOLO-seg as a detector back-end (ultralytics, weights needed), and the one COCO-to-map class table.
 
-- `YoloDetector`: YOLO instance segmentation through ultralytics; COCO classes are mapped to
-  the map's vocabulary by `COCO_TO_MAP` (first name the map has wins; otherwise the COCO name
-  itself when the map has it; else the detection is dropped).
+COCO classes are mapped to a map's vocabulary by `COCO_TO_MAP` (first name the map has wins;
+otherwise the COCO name itself when the map has it; else the detection is dropped):
+`coco_to_vocabulary` builds that lookup for any COCO-labelled source (`COCO_NAMES`: the 80
+classes by COCO-80 id, the order YOLO models use).
 """
 
 from __future__ import annotations
@@ -14,17 +13,23 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.detectors import (
-    Detector,
-    InstanceDetector,
-    SimulatedDetector,
-    SimulatedYoloDetector,
-    empty_detections,
-    vocabulary_index,
-)
+from clipclique.detectors import empty_detections, vocabulary_index
 from clipclique.encoders import host_reachable
-from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.errors import ModelUnavailableError
 from clipclique.types import Detections, Frame
+
+# The 80 COCO classes by their COCO-80 id (YOLO's class ids).
+COCO_NAMES: tuple[str, ...] = (
+    "person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck", "boat", "traffic light",
+    "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
+    "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
+    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
+    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
+    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "couch",
+    "potted plant", "bed", "dining table", "toilet", "tv", "laptop", "mouse", "remote", "keyboard", "cell phone",
+    "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors", "teddy bear",
+    "hair drier", "toothbrush",
+)
 
 # COCO class -> candidate names in a map vocabulary (ScanNet NYU40 / raw categories, TUM annotations).
 COCO_TO_MAP: dict[str, tuple[str, ...]] = {
@@ -60,7 +65,7 @@ class YoloDetector:
         self.confidence = confidence
         self.device = device
         self.name = f"yolo:{Path(str(getattr(model, 'ckpt_path', None) or 'model')).name}"
-        self.class_map = coco_to_vocabulary(model.names, class_names)
+        self.class_map = coco_to_vocabulary(class_names, model.names)
 
     @classmethod
     def load(cls, weights: str | Path, class_names: list[str], confidence: float = 0.25,
@@ -109,8 +114,13 @@ def _env_true(name: str) -> bool:
     return os.environ.get(name, "").strip().lower() in ("1", "true", "yes", "on", "y", "t")
 
 
-def coco_to_vocabulary(model_names: dict[int, str], class_names: list[str]) -> np.ndarray:
-    """Lookup array: detector class id -> map class id, -1 where the map has no such class."""
+def coco_to_vocabulary(class_names: list[str], model_names: dict[int, str] | None = None) -> np.ndarray:
+    """Lookup array: detector class id -> map class id, -1 where the map has no such class.
+
+    `model_names` (class id -> COCO name) is the detector's own table (a YOLO model's `names`);
+    by default COCO-80 (`COCO_NAMES`)."""
+    if model_names is None:
+        model_names = dict(enumerate(COCO_NAMES))
     vocabulary = vocabulary_index(class_names)
     out = np.full(max(model_names) + 1, -1, int)
     for index, coco in model_names.items():
@@ -119,19 +129,3 @@ def coco_to_vocabulary(model_names: dict[int, str], class_names: list[str]) -> n
                 out[index] = vocabulary[candidate.lower()]
                 break
     return out
-
-
-def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
-                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0) -> Detector:
-    """The back-end a `--detector` value names: gt | annotations | simulated | simulated-yolo | yolo."""
-    if kind == "gt":
-        return InstanceDetector(object_classes, class_names)
-    if kind == "annotations":
-        return InstanceDetector(object_classes, class_names, name="annotations")
-    if kind == "simulated":
-        return SimulatedDetector(InstanceDetector(object_classes, class_names), seed=seed)
-    if kind == "simulated-yolo":
-        return SimulatedYoloDetector(InstanceDetector(object_classes, class_names), seed=seed)
-    if kind == "yolo":
-        return YoloDetector.load(yolo_weights, class_names)
-    raise ClipcliqueError(f"--detector {kind!r}: choose gt, annotations, simulated, simulated-yolo or yolo")

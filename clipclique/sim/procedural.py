@@ -112,7 +112,7 @@ def _legacy_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
 
 
-class _RoomBuilder:
+class RoomBuilder:
     """Collects parts (one segment each) of objects (one aggregation segGroup each)."""
 
     def __init__(self, rng: np.random.Generator, spacing: float):
@@ -164,15 +164,15 @@ class _RoomBuilder:
         return Room(size, self.objects, vertices, faces, colors, segments, objects, np.array(focus, float))
 
 
-def _yaw_offset(yaw: float, dx: float, dy: float) -> np.ndarray:
+def yaw_offset(yaw: float, dx: float, dy: float) -> np.ndarray:
     c, s = np.cos(yaw), np.sin(yaw)
     return np.array([c * dx - s * dy, s * dx + c * dy, 0.0])
 
 
-class _Furniture:
+class Furniture:
     """Object makers: each adds one object (several parts) and returns its id."""
 
-    def __init__(self, builder: _RoomBuilder, rng: np.random.Generator):
+    def __init__(self, builder: RoomBuilder, rng: np.random.Generator):
         self.b, self.rng = builder, rng
 
     def colors(self, k: int) -> list[str]:
@@ -183,7 +183,7 @@ class _Furniture:
     def _legs(self, obj, rgb, at, yaw, w, d, h, inset=0.06, leg=0.045):
         for sx in (-1, 1):
             for sy in (-1, 1):
-                pos = at + _yaw_offset(yaw, sx * (w / 2 - inset), sy * (d / 2 - inset)) + [0, 0, h / 2]
+                pos = at + yaw_offset(yaw, sx * (w / 2 - inset), sy * (d / 2 - inset)) + [0, 0, h / 2]
                 self.b.box(obj, rgb, (leg, leg, h), pos, yaw)
 
     def table(self, at, yaw, color, category="table", w=1.4, d=0.8, h=0.75) -> float:
@@ -197,13 +197,13 @@ class _Furniture:
         """A chair facing direction `yaw` (its back on the opposite side)."""
         obj, rgb = self.b.add_object("chair", color), PALETTE[color]
         self.b.box(obj, rgb, (0.45, 0.45, 0.05), at + [0, 0, 0.455], yaw)
-        self.b.box(obj, rgb, (0.05, 0.45, 0.45), at + _yaw_offset(yaw, -0.2, 0) + [0, 0, 0.7], yaw)
+        self.b.box(obj, rgb, (0.05, 0.45, 0.45), at + yaw_offset(yaw, -0.2, 0) + [0, 0, 0.7], yaw)
         self._legs(obj, rgb, at, yaw, 0.45, 0.45, 0.43, inset=0.03, leg=0.04)
 
     def office_chair(self, at, yaw, color) -> None:
         obj, rgb = self.b.add_object("office chair", color), PALETTE[color]
         self.b.box(obj, rgb, (0.5, 0.5, 0.08), at + [0, 0, 0.5], yaw)
-        self.b.box(obj, rgb, (0.06, 0.48, 0.5), at + _yaw_offset(yaw, -0.24, 0) + [0, 0, 0.82], yaw)
+        self.b.box(obj, rgb, (0.06, 0.48, 0.5), at + yaw_offset(yaw, -0.24, 0) + [0, 0, 0.82], yaw)
         self.b.cylinder(obj, PALETTE["black"], 0.03, 0.42, at + [0, 0, 0.04])
         for angle in (0.0, np.pi / 2):
             self.b.box(obj, PALETTE["black"], (0.6, 0.06, 0.05), at + [0, 0, 0.05], yaw + angle)
@@ -212,16 +212,16 @@ class _Furniture:
         """A sofa facing `yaw`: seat block, back rest behind, an arm at each end."""
         obj, rgb = self.b.add_object(category, color), PALETTE[color]
         self.b.box(obj, rgb, (0.9, w, 0.42), at + [0, 0, 0.21], yaw)
-        self.b.box(obj, rgb, (0.2, w, 0.4), at + _yaw_offset(yaw, -0.35, 0) + [0, 0, 0.62], yaw)
+        self.b.box(obj, rgb, (0.2, w, 0.4), at + yaw_offset(yaw, -0.35, 0) + [0, 0, 0.62], yaw)
         for side in (-1, 1):
-            self.b.box(obj, rgb, (0.9, 0.18, 0.2), at + _yaw_offset(yaw, 0, side * (w / 2 - 0.09)) + [0, 0, 0.52], yaw)
+            self.b.box(obj, rgb, (0.9, 0.18, 0.2), at + yaw_offset(yaw, 0, side * (w / 2 - 0.09)) + [0, 0, 0.52], yaw)
 
     def bed(self, at, yaw, color) -> None:
         """A bed along `yaw` (head board at the far end)."""
         obj = self.b.add_object("bed", color)
         self.b.box(obj, PALETTE["brown"], (2.0, 1.5, 0.3), at + [0, 0, 0.15], yaw)
         self.b.box(obj, PALETTE[color], (1.95, 1.45, 0.2), at + [0, 0, 0.4], yaw)
-        self.b.box(obj, PALETTE["brown"], (0.06, 1.5, 0.95), at + _yaw_offset(yaw, 0.97, 0) + [0, 0, 0.475], yaw)
+        self.b.box(obj, PALETTE["brown"], (0.06, 1.5, 0.95), at + yaw_offset(yaw, 0.97, 0) + [0, 0, 0.475], yaw)
 
     def block(self, category, at, yaw, color, size) -> None:
         """A one-part object (cabinet, pillow, book, keyboard ...) standing on `at`."""
@@ -231,20 +231,20 @@ class _Furniture:
     def bookshelf(self, at, yaw, color, book_colors: list[str]) -> None:
         obj, rgb = self.b.add_object("bookshelf", color), PALETTE[color]
         for side in (-1, 1):
-            self.b.box(obj, rgb, (0.35, 0.03, 1.8), at + _yaw_offset(yaw, 0, side * 0.4) + [0, 0, 0.9], yaw)
-        self.b.box(obj, rgb, (0.02, 0.8, 1.8), at + _yaw_offset(yaw, -0.165, 0) + [0, 0, 0.9], yaw)
+            self.b.box(obj, rgb, (0.35, 0.03, 1.8), at + yaw_offset(yaw, 0, side * 0.4) + [0, 0, 0.9], yaw)
+        self.b.box(obj, rgb, (0.02, 0.8, 1.8), at + yaw_offset(yaw, -0.165, 0) + [0, 0, 0.9], yaw)
         for z in np.linspace(0.05, 1.75, 5):
             self.b.box(obj, rgb, (0.35, 0.8, 0.03), at + [0, 0, z], yaw)
         for k, book in enumerate(book_colors):  # standing on the shelves, spine out
             shelf_z = np.linspace(0.05, 1.75, 5)[1 + k % 3] + 0.015
-            offset = _yaw_offset(yaw, 0.0, -0.25 + 0.17 * (k // 3) + 0.05 * (k % 2))
+            offset = yaw_offset(yaw, 0.0, -0.25 + 0.17 * (k // 3) + 0.05 * (k % 2))
             self.block("book", at + offset + [0, 0, shelf_z], yaw, book, (0.22, 0.05, 0.26))
 
     def monitor(self, at, yaw, color) -> None:
         obj, rgb = self.b.add_object("monitor", color), PALETTE[color]
         self.b.box(obj, rgb, (0.22, 0.16, 0.015), at + [0, 0, 0.0075], yaw)
         self.b.box(obj, rgb, (0.04, 0.04, 0.14), at + [0, 0, 0.085], yaw)
-        self.b.box(obj, rgb, (0.035, 0.56, 0.34), at + _yaw_offset(yaw, 0.03, 0) + [0, 0, 0.32], yaw)
+        self.b.box(obj, rgb, (0.035, 0.56, 0.34), at + yaw_offset(yaw, 0.03, 0) + [0, 0, 0.32], yaw)
 
     def lamp(self, at, color, height: float) -> None:
         obj = self.b.add_object("lamp", color)
@@ -274,7 +274,7 @@ class _Furniture:
                 self.block("book", pos, yaw + self.rng.uniform(-0.5, 0.5), color, (0.23, 0.16, 0.035))
 
 
-def add_shell(b: _RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, float, float]], spacing: float) -> None:
+def add_shell(b: RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, float, float]], spacing: float) -> None:
     """Floor, ceiling, the four outer walls, then inner wall segments (x0, y0, x1, y1), each along an axis."""
     W, D, H = size
     for name, dims, at in (
@@ -301,8 +301,8 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
     rng = np.random.default_rng(seed)
     size = np.asarray(size, float)
     W, D, _ = size
-    b = _RoomBuilder(rng, spacing)
-    f = _Furniture(b, rng)
+    b = RoomBuilder(rng, spacing)
+    f = Furniture(b, rng)
 
     def spot(x, y, rx=0.12, ry=0.12):
         """A floor point near (x, y), moved by up to (rx, ry) metres."""
@@ -329,7 +329,7 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
     dining_yaw = rng.uniform(-0.15, 0.15)
     top = f.table(dining, dining_yaw, *f.colors(1))
     for (dx, dy, face), color in zip(((0.75, 0, np.pi), (-0.75, 0, 0.0), (0.3, 0.62, -np.pi / 2), (-0.3, -0.62, np.pi / 2)), f.colors(4)):
-        f.chair(dining + _yaw_offset(dining_yaw, dx, dy) + [*rng.uniform(-0.05, 0.05, 2), 0], dining_yaw + face + rng.uniform(-0.2, 0.2), color)
+        f.chair(dining + yaw_offset(dining_yaw, dx, dy) + [*rng.uniform(-0.05, 0.05, 2), 0], dining_yaw + face + rng.uniform(-0.2, 0.2), color)
     f.tabletop_items(dining + [0, 0, top], dining_yaw, int(rng.integers(1, 4)), int(rng.integers(1, 3)), (0.45, 0.22))
 
     # Lounge: sofa against the wall y = D facing the room, coffee table, armchair, TV on a stand.

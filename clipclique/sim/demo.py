@@ -4,9 +4,9 @@
 frames, 2D instance images) and `demo_tum` a TUM RGB-D sequence folder (rgb/, depth/ at factor
 5000, rgb.txt, depth.txt, a 100 Hz groundtruth.txt whose timestamps differ from the images', and
 our object annotations). The real readers read them; nothing downstream knows they are
-synthetic except through the marker file `clipclique_demo.json`. Same seed, same bytes.
+synthetic except through the marker file `clipclique_demo.json` (written last). Same seed, same bytes.
 `demo_apartment` (ScanNet layout) and `demo_desk` (TUM layout) are scenes shaped like real data
-(clipclique.datasets.scenes); their marker also names the detector they are localized with.
+(clipclique.sim.scenes); their marker also names the detector they are localized with.
 
 Files beyond the official layouts (documented for users, read by our readers):
 - ScanNet: `<scene>_descriptions.json`, `{"<objectId>": "a red office chair", ...}`.
@@ -26,10 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.datasets import scenes
-from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES
-from clipclique.datasets.procedural import Room, Walk, make_room, make_walk
-from clipclique.datasets.render import MeshRaycaster, shade, sensor_depth
+from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES, read_json
+from clipclique.raycast import MeshRaycaster
+from clipclique.sim import scenes
+from clipclique.sim.procedural import Room, Walk, make_room, make_walk
+from clipclique.sim.render import sensor_depth, shade
 from clipclique.errors import DatasetError
 from clipclique.types import Pose
 
@@ -62,7 +63,7 @@ class DemoSpec:
 
 @dataclass(frozen=True)
 class SceneSpec(DemoSpec):
-    """A scene shaped like real data (clipclique.datasets.scenes); the marker records it and its detector."""
+    """A scene shaped like real data (clipclique.sim.scenes); the marker records it and its detector."""
 
     scene: str = "apartment"  # "apartment" | "desk"
     detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
@@ -82,8 +83,8 @@ DEMO_SCENES: dict[str, DemoSpec] = {
 }
 
 
-def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) -> Path:
-    """The demo scene folder under `<data_root>/demo/`, generated first if absent or stale."""
+def ensure_scene(name: str, data_root: Path, progress: Progress | None = None) -> Path:
+    """The generated scene `name`'s folder under `<data_root>/demo/`, generated first if absent or stale."""
     spec = DEMO_SCENES[name]
     folder = Path(data_root) / "demo" / name
     marker = folder / DEMO_MARKER
@@ -111,6 +112,13 @@ def ensure_demo(name: str, data_root: Path, progress: Progress | None = None) ->
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return folder
+
+
+def scene_detector(folder: Path) -> str | None:
+    """The `--detector` a generated scene is localized with unless asked: the one its marker names
+    (simulated when it names none: demo, demo_tum); None for a folder the generator did not write."""
+    marker = Path(folder) / DEMO_MARKER
+    return str(read_json(marker).get("detector", "simulated")) if marker.is_file() else None
 
 
 def _marker_version(marker: Path) -> object:

@@ -1,0 +1,70 @@
+"""The registries that pick a back-end by name: detectors (`--detector`) and encoders (`--encoder`).
+
+They sit above both the real back-ends (`clipclique.detectors`, `clipclique.yolo`,
+`clipclique.encoders`) and the simulated ones (`clipclique.sim`), so that neither imports the other.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from clipclique.detectors import Detector, InstanceDetector
+from clipclique.encoders import CHECKPOINT_SUFFIXES, DEFAULT_MODEL, ClipEncoder, Encoder
+from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector
+from clipclique.sim.encoder import SIMULATED_NAME, SimulatedClipEncoder
+from clipclique.yolo import YoloDetector
+
+if TYPE_CHECKING:
+    from clipclique.datasets import Sequence as DatasetSequence
+
+DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "yolo")
+
+
+def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
+                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0) -> Detector:
+    """The back-end a `--detector` value names: gt | annotations | simulated | simulated-yolo | yolo."""
+    if kind == "gt":
+        return InstanceDetector(object_classes, class_names)
+    if kind == "annotations":
+        return InstanceDetector(object_classes, class_names, name="annotations")
+    if kind == "simulated":
+        return SimulatedDetector(InstanceDetector(object_classes, class_names), seed=seed)
+    if kind == "simulated-yolo":
+        return SimulatedYoloDetector(InstanceDetector(object_classes, class_names), seed=seed)
+    if kind == "yolo":
+        return YoloDetector.load(yolo_weights, class_names)
+    raise ClipcliqueError(f"--detector {kind!r}: choose {', '.join(DETECTORS[:-1])} or {DETECTORS[-1]}")
+
+
+def load_encoder(spec: str = "auto", device: str | None = None, batch_size: int = 32,
+                 scene: DatasetSequence | None = None) -> Encoder | None:
+    """The encoder a spec names.
+
+    "auto": real CLIP (ViT-L-14/openai) when its weights are here or downloadable, else None;
+    "simulated": the simulated CLIP (synthetic data with known descriptions only), knowing the
+    descriptions of `scene` (to embed its frames' crops; text needs none); "none": None;
+    "open_clip:MODEL/PRETRAINED" (PRETRAINED a tag or a checkpoint file) or a checkpoint path
+    (ViT-L-14 architecture): real CLIP, or ModelUnavailableError saying what is missing.
+    """
+    if spec == "none":
+        return None
+    if spec in ("simulated", SIMULATED_NAME):
+        return SimulatedClipEncoder(scene.descriptions() if scene is not None else None)
+    if spec == "auto":
+        try:
+            return ClipEncoder.load(device=device, batch_size=batch_size)
+        except ModelUnavailableError:
+            return None
+    if spec.startswith("open_clip:"):
+        model_name, sep, pretrained = spec.removeprefix("open_clip:").partition("/")
+        if not sep or not model_name or not pretrained:
+            raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. open_clip:ViT-L-14/openai")
+        return ClipEncoder.load(model_name, pretrained, device, batch_size)
+    if Path(spec).suffix in CHECKPOINT_SUFFIXES:
+        if not Path(spec).is_file():
+            raise ModelUnavailableError(f"--encoder {spec}: checkpoint file not found")
+        return ClipEncoder.load(DEFAULT_MODEL, spec, device, batch_size)
+    raise ClipcliqueError(
+        f"--encoder {spec!r}: choose auto, simulated, none, open_clip:MODEL/PRETRAINED or a checkpoint file")

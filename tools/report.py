@@ -248,7 +248,7 @@ def scalability_section(results: dict[str, Any], plotted: bool) -> str:
     lines = [
         "## Scalability\n",
         "CLIP-Clique's latency per query as the map grows from 50 to 5,000 landmarks, two ways. Copies are placed as "
-        "separate rooms side by side along x, 2 m apart (`clipclique.synthetic.duplicate_rooms`, copy j's object ids "
+        "separate rooms side by side along x, 2 m apart (`clipclique.sim.synthetic.duplicate_rooms`, copy j's object ids "
         "offset so none repeats); copies stacked in one place would make every mix of copies a clique. Since every "
         "copy looks alike, each query's candidates and cliques multiply with the copies.\n",
         f"- **Scene copies (the paper's set-up)**: the {scene['sequence']} map ({scene['room_landmarks']} landmarks; "
@@ -256,7 +256,7 @@ def scalability_section(results: dict[str, Any], plotted: bool) -> str:
         f"queried with {scene['frames_per_count']} of its cached frames (each the fastest of {scene['fastest_of']} runs).",
         f"- **Synthetic rooms**: a **simulated** room of {synthetic['room_landmarks']} random labelled ellipsoids "
         "(5 x 5 x 1.5 m, 8 classes, simulated CLIP), queried with 10 of its landmarks plus 2 false detections "
-        f"(`clipclique.synthetic`, `tools/bench_core.py`), {synthetic['frames_per_count']} queries per count.\n",
+        f"(`clipclique.sim.synthetic`, `tools/bench_core.py`), {synthetic['frames_per_count']} queries per count.\n",
         "Medians over the queries; \"whole query\" adds the query graph, descriptors and similarity to matching + "
         "inliers + pose.\n",
         "| Set-up | Landmarks | Candidates | Cliques | Matching + inliers + pose [ms] | Whole query [ms] | Caps hit |",

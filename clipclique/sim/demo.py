@@ -28,9 +28,9 @@ import numpy as np
 
 from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES, read_json
 from clipclique.raycast import MeshRaycaster
-from clipclique.sim import scenes
 from clipclique.sim.procedural import Room, Walk, make_room, make_walk
 from clipclique.sim.render import sensor_depth, shade
+from clipclique.sim.scenes import SCENES
 from clipclique.errors import DatasetError
 from clipclique.types import Pose
 
@@ -69,10 +69,10 @@ class SceneSpec(DemoSpec):
     detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
 
     def room(self) -> Room:
-        return scenes.SCENES[self.scene][0](self.seed)
+        return SCENES[self.scene][0](self.seed)
 
     def walk(self, room: Room) -> Walk:
-        return scenes.SCENES[self.scene][1](room, self.seed, self.num_frames, self.duration_s)
+        return SCENES[self.scene][1](room, self.seed, self.num_frames, self.duration_s)
 
 
 DEMO_SCENES: dict[str, DemoSpec] = {

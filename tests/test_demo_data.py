@@ -10,8 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clipclique.datasets import STRUCTURE_CLASSES
-from clipclique.resolve import open_scene
+from clipclique.datasets import READERS, STRUCTURE_CLASSES, open_sequence
+from clipclique.errors import DatasetError
+from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, DemoSpec, ensure_scene, generate
 from clipclique.sim.procedural import PALETTE, make_room, make_walk
 from clipclique.raycast import MeshRaycaster
@@ -43,6 +44,20 @@ def test_ensure_scene_reuses_a_finished_scene(tmp_path):
     folder = small_demo(tmp_path, "demo")
     assert ensure_scene("demo", tmp_path) == folder  # marker present: nothing regenerated
     assert len(open_scene("demo", tmp_path)) == 4
+
+
+def test_readers_never_generate_and_a_generated_scene_is_an_ordinary_dataset_folder(tmp_path):
+    with pytest.raises(DatasetError, match="unknown scene 'demo'"):
+        open_sequence("demo", tmp_path)
+    assert not (tmp_path / "demo").exists()
+    for name, kind, own in (("demo", "scannet", "gt"), ("demo_desk", "tum", "annotations")):
+        sequence = open_sequence(str(small_demo(tmp_path, name)))  # the folder, read as any dataset's
+        assert type(sequence) is READERS[kind] and sequence.kind == kind and sequence.synthetic
+        assert sequence.default_detector == own  # the reader's; the generated scene's own comes from clipclique.sim
+        assert default_detector(sequence) == {"demo": "simulated", "demo_desk": "simulated-yolo"}[name]
+        descriptions = sequence.descriptions()
+        assert set(descriptions) == set(sequence.object_classes()) and len(descriptions) > 10
+        assert all(text.startswith("a ") for text in descriptions.values())
 
 
 def mesh_distances(room, points: np.ndarray) -> np.ndarray:

@@ -2,7 +2,7 @@
 
     .venv/bin/python tools/bench_observations.py [SCENE ...] [--rev d350f9d] [--max-frames 40] [--repeat 3]
 
-The revision's `clipclique/observations.py` and `clipclique/geometry.py` are loaded from git as
+The revision's `clipclique/observations.py`, `geometry.py` and `encoders.py` are loaded from git as
 modules of their own, so both versions run in one process on the same detections (the
 sequence's own detector, run once per frame and not timed). Each frame is fitted `--repeat`
 times by each version, alternating, and the fastest kept, which damps the noise of a shared
@@ -28,6 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (lo
 
 import numpy as np  # noqa: E402
 
+from clipclique.encoders import Crop  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
 from clipclique.observations import Extraction, extract_observations  # noqa: E402
 from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
@@ -38,7 +39,7 @@ CROWDED = 15  # detections: the frames of the target, 15 objects in 15 ms (issue
 
 
 def load_revision(rev: str, directory: Path) -> ModuleType:
-    """`clipclique.observations` as of `rev`, importing that revision's `clipclique.geometry`."""
+    """`clipclique.observations` as of `rev`, importing that revision's `clipclique.geometry` and `.encoders`."""
     def load(name: str) -> ModuleType:
         source = subprocess.run(["git", "show", f"{rev}:clipclique/{name}.py"], cwd=ROOT, capture_output=True,
                                 text=True, check=True).stdout
@@ -50,12 +51,15 @@ def load_revision(rev: str, directory: Path) -> ModuleType:
         spec.loader.exec_module(module)
         return module
 
-    current = sys.modules["clipclique.geometry"]
-    sys.modules["clipclique.geometry"] = load("geometry")  # what the revision's observations module imports
+    imported = ("geometry", "encoders")  # what the revision's observations module imports
+    current = {name: sys.modules[f"clipclique.{name}"] for name in imported}
+    for name in imported:
+        sys.modules[f"clipclique.{name}"] = load(name)
     try:
         return load("observations")
     finally:
-        sys.modules["clipclique.geometry"] = current
+        for name in imported:
+            sys.modules[f"clipclique.{name}"] = current[name]
 
 
 def difference(new: Extraction, old) -> float:
@@ -63,8 +67,9 @@ def difference(new: Extraction, old) -> float:
     same = (new.dropped == old.dropped
             and np.array_equal(new.observations.detection_index, old.observations.detection_index)
             and np.array_equal(new.observations.mask_areas, old.observations.mask_areas)
-            and np.array_equal(new.truncated, old.truncated) and new.contents == old.contents
-            and all(np.array_equal(a, b) for a, b in zip(new.crops, old.crops)))
+            and [crop.truncated for crop in new.crops] == list(old.truncated)
+            and all(shares(crop) in (None, contents) for crop, contents in zip(new.crops, old.contents))
+            and all(np.array_equal(crop.pixels, b) for crop, b in zip(new.crops, old.crops)))
     if not same:
         raise AssertionError("the two versions keep, drop, crop or count differently")
     if not len(new.observations):
@@ -72,6 +77,15 @@ def difference(new: Extraction, old) -> float:
     ours, theirs = new.observations.ellipsoids, old.observations.ellipsoids
     return max(float(np.abs(a - b).max()) for a, b in ((ours.centers, theirs.centers), (ours.axes, theirs.axes),
                                                         (ours.rotations, theirs.rotations)))
+
+
+def shares(crop: Crop) -> tuple[tuple[int, float], ...] | None:
+    """(object id, share of the pixels) per id of a crop's instance image, as the revision's `contents`
+    held them (None without an instance image)."""
+    if crop.instances is None:
+        return None
+    ids, counts = np.unique(crop.instances, return_counts=True)
+    return tuple(zip(ids.tolist(), (counts / counts.sum()).tolist()))
 
 
 def fastest(function, frame, detections, repeat: int) -> tuple[float, object]:

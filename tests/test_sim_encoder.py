@@ -86,3 +86,5 @@ def test_simulated_images_are_deterministic_and_depend_on_content():
     assert float(np.mean(np.sum(first * other, axis=1))) < 0.99
     assert abs(float(first[0] @ first[1])) < 0.5  # different pixels, different noise
     assert SimulatedClipEncoder().encode_images([]).shape == (0, 512)
+    with pytest.raises(ValueError, match="scene"):  # crops need the descriptions of their scene
+        SimulatedClipEncoder().encode_images(crops)

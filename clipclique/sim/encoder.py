@@ -53,7 +53,8 @@ class SimulatedClipEncoder:
     def __init__(self, descriptions: Mapping[int, str] | None = None, dim: int = 512, q_max: float = 0.45,
                  ref_side: float = 96.0, truncated_visibility: float = 0.6, seed: int = 0) -> None:
         self.name = SIMULATED_NAME
-        self.descriptions = dict(descriptions or {})  # dataset object id -> description, the scene's
+        # dataset object id -> description, the scene's; None: bound to no scene (text only)
+        self.descriptions = None if descriptions is None else dict(descriptions)
         self.dim = dim
         self.q_max = q_max
         self.ref_side = ref_side
@@ -84,6 +85,9 @@ class SimulatedClipEncoder:
     def contents(self, crop: Crop) -> tuple[tuple[str | None, float], ...]:
         """What the crop shows: (description, share of its pixels) per object id of its instance image
         (None: unlabelled, structure, or no description); all background without an instance image."""
+        if self.descriptions is None:
+            raise ValueError("the simulated CLIP embeds crops of a scene it knows the descriptions of: "
+                             "SimulatedClipEncoder(scene descriptions), or load_encoder('simulated', scene=sequence)")
         if crop.instances is None:
             return ((None, 1.0),)
         ids, counts = np.unique(crop.instances, return_counts=True)

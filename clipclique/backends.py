@@ -19,12 +19,13 @@ from clipclique.yolo import YoloDetector
 if TYPE_CHECKING:
     from clipclique.datasets import Sequence as DatasetSequence
 
-DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "yolo")
+
+DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "yolo")  # the `--detector` names
 
 
 def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
                   yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0) -> Detector:
-    """The back-end a `--detector` value names: gt | annotations | simulated | simulated-yolo | yolo."""
+    """The back-end a `--detector` value names (`DETECTORS`)."""
     if kind == "gt":
         return InstanceDetector(object_classes, class_names)
     if kind == "annotations":

@@ -15,8 +15,10 @@ first). The cut keeps a branch whose bound ties the N-th best (within float roun
 equal-weight cliques are never lost to the order of the search.
 
 The search runs in slices of `SLICE` branch steps; all its state lives in arrays owned by the
-Python caller, which checks the time limit between slices. numba compiles once per machine
-(`cache=True` keeps the machine code beside the module).
+Python caller (`SearchArrays`: the graph, the scalar state, the scratch of the current first
+vertex, the ranked top list; named tuples numba compiles like plain ones), which checks the time
+limit between slices. numba compiles once per machine (`cache=True` keeps the machine code beside
+the module).
 """
 
 from __future__ import annotations
@@ -24,9 +26,12 @@ from __future__ import annotations
 import itertools
 import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+
+from clipclique.outcomes import CapHit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
 RUNNING, DONE, COUNT_CAP = 0, 1, 2  # search status (state[STATUS])
@@ -34,14 +39,66 @@ OUTER, LEVEL, REACHED, STATUS, FILLED, FRESH, STAMP = range(7)  # slots of the i
 TOLERANCE = 1e-9  # relative slack of the cut against float round-off
 
 
-@dataclass
+@dataclass(kw_only=True)
 class TopCliques:
     """The heaviest maximal cliques, best first, and how the search ended."""
 
     cliques: list[np.ndarray]  # sorted vertex indices
     totals: np.ndarray  # (len(cliques),) summed weight, by `clique_total`
     reached: int  # maximal cliques of at least `min_size` vertices the search reached (not cut)
-    cap: str | None  # "max_cliques" | "time_limit" | None
+    cap: CapHit | None  # MAX_CLIQUES, TIME_LIMIT or None
+
+
+class Problem(NamedTuple):
+    """What is searched: the weighted, grouped graph's vertices and the search's bounds."""
+
+    weights: np.ndarray  # (V,) float64
+    groups: np.ndarray  # (V,) int64, vertices of one group pairwise non-adjacent
+    min_size: int  # smallest clique reported
+    max_cliques: int  # maximal cliques reached before the search stops (COUNT_CAP)
+
+
+class Graph(NamedTuple):
+    """The graph as CSR and the order its vertices are tried in."""
+
+    indptr: np.ndarray  # (V + 1,) neighbours of v: indices[indptr[v]:indptr[v + 1]]
+    indices: np.ndarray  # (2E,)
+    order: np.ndarray  # (V,) vertices, most promising first
+    position: np.ndarray  # (V,) rank of each vertex in `order`
+
+
+class Scratch(NamedTuple):
+    """The current first vertex's neighbourhood as local vertices 0..d-1 (heaviest first) and the
+    Bron-Kerbosch stack over them, one row per level (bitsets of `words` uint64)."""
+
+    local_weight: np.ndarray  # (width,) weight of each local vertex
+    local_group: np.ndarray  # (width,) group of each local vertex
+    local_vertex: np.ndarray  # (width,) graph vertex of each local vertex
+    local_of: np.ndarray  # (V,) local index of each graph vertex, -1 outside the neighbourhood
+    adjacency: np.ndarray  # (width, words) local adjacency bitsets
+    p_sets: np.ndarray  # (width + 1, words) candidates P per level
+    x_sets: np.ndarray  # (width + 1, words) excluded X per level
+    todo: np.ndarray  # (width + 1, words) P minus the pivot's neighbours: branches left per level
+    members: np.ndarray  # (width + 1,) the clique being grown: the first vertex, then local vertices
+    weight_so_far: np.ndarray  # (width + 1,) its weight per level
+    group_stamp: np.ndarray  # (groups,) last bound computation that counted each group
+
+
+class Ranked(NamedTuple):
+    """The top list, best first: `filled` (state[FILLED]) entries of at most `count`."""
+
+    total: np.ndarray  # (count,) summed weight
+    size: np.ndarray  # (count,) members
+    members: np.ndarray  # (count, longest) sorted vertices, the first `size` valid
+
+
+class SearchArrays(NamedTuple):
+    """Everything the search reads and writes between slices."""
+
+    graph: Graph
+    state: np.ndarray  # (7,) int64, slots OUTER..STAMP
+    scratch: Scratch
+    best: Ranked
 
 
 def top_cliques(
@@ -66,25 +123,26 @@ def top_cliques(
     if len(groups) and groups.min() < 0:
         raise ValueError("groups must be non-negative")
     if count < 1 or num_nodes < min_size:
-        return TopCliques([], np.zeros(0), 0, None)
-    arrays = _prepare(edges, num_nodes, weights, groups, count)
-    if arrays is None:
+        return TopCliques(cliques=[], totals=np.zeros(0), reached=0, cap=None)
+    if np.any(groups[edges[:, 0]] == groups[edges[:, 1]]):
         raise ValueError("an edge joins two vertices of one group")
-    state, best_total, best_size, best_members = arrays[4], arrays[-3], arrays[-2], arrays[-1]
+    problem = Problem(weights, groups, min_size, max_cliques)
+    arrays = _prepare(edges, num_nodes, weights, groups, count)
+    state, best = arrays.state, arrays.best
     deadline = time.perf_counter() + time_limit_s
     cap = None
     while True:
-        _search(weights, groups, min_size, max_cliques, SLICE, *arrays)
+        _search(problem, arrays, SLICE)
         if state[STATUS] == COUNT_CAP:
-            cap = "max_cliques"
+            cap = CapHit.MAX_CLIQUES
         if state[STATUS] != RUNNING:
             break
         if time.perf_counter() > deadline:
-            cap = "time_limit"
+            cap = CapHit.TIME_LIMIT
             break
     filled = int(state[FILLED])
-    cliques = [best_members[i, : best_size[i]].copy() for i in range(filled)]
-    return TopCliques(cliques, best_total[:filled].copy(), int(state[REACHED]), cap)
+    cliques = [best.members[i, : best.size[i]].copy() for i in range(filled)]
+    return TopCliques(cliques=cliques, totals=best.total[:filled].copy(), reached=int(state[REACHED]), cap=cap)
 
 
 def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
@@ -100,12 +158,10 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _prepare(edges, num_nodes, weights, groups, count):
-    """The search's arrays: the graph as CSR, the vertex order, scratch and the ranked top list;
-    None when an edge joins two vertices of one group."""
+    """The search's arrays: the graph as CSR, the vertex order, scratch and the ranked top list
+    (no edge may join two vertices of one group: top_cliques checks)."""
     degree = np.zeros(num_nodes, np.int64)
     for e in range(len(edges)):
-        if groups[edges[e, 0]] == groups[edges[e, 1]]:
-            return None
         degree[edges[e, 0]] += 1
         degree[edges[e, 1]] += 1
     indptr = np.zeros(num_nodes + 1, np.int64)
@@ -139,12 +195,13 @@ def _prepare(edges, num_nodes, weights, groups, count):
     state = np.zeros(7, np.int64)
     state[LEVEL] = -1
     longest = max(1, min(width, groups.max() + 1))
-    return (indptr, indices, order, position, state, np.zeros(width), np.zeros(width, np.int64),
-            np.zeros(width, np.int64), np.full(num_nodes, -1, np.int64), np.zeros((width, words), np.uint64),
-            np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
-            np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
-            np.zeros(groups.max() + 1, np.int64), np.zeros(count), np.zeros(count, np.int64),
-            np.zeros((count, longest), np.int64))
+    scratch = Scratch(np.zeros(width), np.zeros(width, np.int64), np.zeros(width, np.int64),
+                      np.full(num_nodes, -1, np.int64), np.zeros((width, words), np.uint64),
+                      np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
+                      np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
+                      np.zeros(groups.max() + 1, np.int64))
+    best = Ranked(np.zeros(count), np.zeros(count, np.int64), np.zeros((count, longest), np.int64))
+    return SearchArrays(Graph(indptr, indices, order, position), state, scratch, best)
 
 
 @njit(cache=True)
@@ -227,10 +284,14 @@ def _threshold(state: np.ndarray, best_total: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _search(weights, groups, min_size, max_cliques, budget, indptr, indices, order, position, state,
-            local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo,
-            members, weight_so_far, group_stamp, best_total, best_size, best_members):
-    """Advance the search by up to `budget` branch steps; all state is in the arrays (see top_cliques)."""
+def _search(problem, arrays, budget):
+    """Advance the search by up to `budget` branch steps; all state is in `arrays` (see top_cliques)."""
+    weights, groups, min_size, max_cliques = problem
+    indptr, indices, order, position = arrays.graph
+    state = arrays.state
+    (local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo, members, weight_so_far,
+     group_stamp) = arrays.scratch
+    best_total, best_size, best_members = arrays.best
     words = adjacency.shape[1]
     clique = np.zeros(members.shape[0], np.int64)
     while budget > 0:

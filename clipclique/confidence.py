@@ -29,7 +29,7 @@ from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
 from clipclique.types import Hypothesis
-from clipclique.verification import MISSED_WEIGHT, Verification
+from clipclique.verification import Verification
 
 MODEL_FORMAT = "clipclique confidence model"
 MODEL_VERSION = 1
@@ -66,7 +66,7 @@ def _missed_in_frame(evidence: Evidence) -> np.ndarray:
 FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
     # The verification score with its missed penalty counted beyond the frame's fewest: the score
     # plus a constant per frame, so monotone in it and with the same margins.
-    "verification_in_frame": (lambda e: e.verification.overlap - MISSED_WEIGHT * _missed_in_frame(e), +1),
+    "verification_in_frame": (lambda e: e.verification.overlap - e.verification.missed_weight * _missed_in_frame(e), +1),
     "margin": (lambda e: _margin(e.verification.score), +1),
     "mean_iou": (lambda e: e.verification.mean_iou, 0),
     "missed_in_frame": (_missed_in_frame, 0),

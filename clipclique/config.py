@@ -11,10 +11,11 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple, get_args, get_origin, get_type_hints
 
 from clipclique.errors import ClipcliqueError
 from clipclique.safeio import read_text
+from clipclique.types import MAX_DEPTH_M
 
 Descriptor = Literal["fused", "clip", "sh", "xview"]
 MatchingStrategy = Literal["adaptive", "knn", "one_to_one"]
@@ -28,54 +29,67 @@ class ConfigError(ClipcliqueError):
     """A configuration file or override is wrong; the message says which key and why."""
 
 
+def ranged(default: Any, low: float, high: float) -> Any:
+    """A setting with its valid range [low, high] beside it (checked by `validate`)."""
+    return field(default=default, metadata={"range": (low, high)})
+
+
 @dataclass
 class GraphConfig:
-    d_adj: float = 0.8  # metres: landmarks closer than this are neighbours
-    max_degree: int = 64  # neighbours kept per node at most (memory bound; real scenes stay under ~30)
-    walk_length: int = 3  # Semantic Histogram path length s (nodes per walk)
-    xview_walks: int = 100  # X-View: random walks per node
-    xview_seed: int = 0
+    d_adj: float = ranged(0.8, 1e-6, 100.0)  # metres: landmarks closer than this are neighbours
+    max_degree: int = ranged(64, 1, 10_000)  # neighbours kept per node at most (memory bound; real scenes stay under ~30)
+    # Semantic Histogram path length s (nodes per walk). Walks grow as degree^(s-1) and codes as
+    # C^s: s = 5 is beyond the paper's 3 and safe.
+    walk_length: int = ranged(3, 1, 5)
+    xview_walks: int = ranged(100, 1, 10_000)  # X-View: random walks per node
+    xview_seed: int = ranged(0, 0, 2**63 - 1)
 
 
 @dataclass
 class SimilarityConfig:
     descriptor: Descriptor = "fused"
-    alpha: float = 0.7  # S = alpha * S_clip + (1 - alpha) * S_sh
+    alpha: float = ranged(0.7, 0.0, 1.0)  # S = alpha * S_clip + (1 - alpha) * S_sh
     # Beyond the paper (0 = the paper's literal SH): S_sh <- w * S_class + (1 - w) * S_sh, so an
     # object with no neighbour within d_adj (an empty histogram) still matches by its class.
-    class_weight: float = 0.3
+    class_weight: float = ranged(0.3, 0.0, 1.0)
     # Beyond the paper (0 = exact labels): weight of a look-alike class (clipclique.lookalikes) in the
     # class term and the query's Semantic Histograms, so a cup detected as "bottle" still finds cups.
-    lookalike_weight: float = 0.6
+    lookalike_weight: float = ranged(0.6, 0.0, 1.0)
 
 
 @dataclass
 class MatchingConfig:
     strategy: MatchingStrategy = "adaptive"
-    k: int = 3  # kNN
-    top_m_fraction: float = 0.25  # adaptive: M = fraction of the landmarks
-    min_similarity: float = 0.0  # candidates at or below this are dropped
+    k: int = ranged(3, 1, 1000)  # kNN
+    top_m_fraction: float = ranged(0.25, 1e-6, 1.0)  # adaptive: M = fraction of the landmarks
+    min_similarity: float = ranged(0.0, -1.0, 1.0)  # candidates at or below this are dropped
+    # Candidates kept at most (the best-scored; matching.cap): more would only flood the
+    # compatibility graph (and memory). Hitting it is reported (CapHit.MAX_CANDIDATES).
+    max_candidates: int = ranged(20_000, 1, 10_000_000)
 
 
 @dataclass
 class InlierConfig:
     method: InlierMethod = "cliques"
-    d_comp: float = 0.3  # metres: rigid distance test of the compatibility graph
+    d_comp: float = ranged(0.3, 1e-6, 100.0)  # metres: rigid distance test of the compatibility graph
     # Beyond the paper (0 = the literal test): a candidate whose observed ellipsoid is smaller than
     # its landmark (a part of a couch, a bed, a counter) has its centre displaced by up to the
     # difference of their semi-axes; the pair test is widened by this fraction of each candidate's
     # largest semi-axis deficit (when it is at least slack_min_deficit), at most max_slack metres per candidate.
-    partial_slack: float = 1.5
-    max_slack: float = 0.8  # metres
-    slack_min_deficit: float = 0.2  # metres (tools/sweep_slack.py: README "Beyond the paper")
-    min_clique_size: int = 3  # fewer cannot fix a 6-DoF pose
-    max_cliques: int = 100_000  # enumeration stops here and says so
-    time_limit_s: float = 1.0  # enumeration stops here and says so
-    ransac_iterations: int = 1000
-    inlier_threshold: float = 0.5  # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
-    seed: int = 0
+    partial_slack: float = ranged(1.5, 0.0, 100.0)
+    max_slack: float = ranged(0.8, 0.0, 100.0)  # metres
+    slack_min_deficit: float = ranged(0.2, 0.0, 100.0)  # metres (tools/sweep_slack.py: README "Beyond the paper")
+    # Landmark pairs the compatibility test may hold in memory (about 100 MB); the best-scored
+    # candidates that fit are kept and the cap reported (CapHit.MAX_PAIRS).
+    max_pairs: int = ranged(2_000_000, 1, 1_000_000_000)
+    min_clique_size: int = ranged(3, 3, 1000)  # fewer than 3 cannot fix a 6-DoF pose
+    max_cliques: int = ranged(100_000, 1, 10_000_000)  # enumeration stops here and says so
+    time_limit_s: float = ranged(1.0, 1e-6, 3600.0)  # enumeration stops here and says so
+    ransac_iterations: int = ranged(1000, 1, 10_000_000)
+    inlier_threshold: float = ranged(0.5, 1e-6, 100.0)  # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
+    seed: int = ranged(0, 0, 2**63 - 1)
     verification: Verification = "overlap"  # RANSAC/PROSAC: projected box overlap (the paper) or 3D centre distance
-    iou_threshold: float = 0.3  # RANSAC/PROSAC overlap verification: box IoU to count as inlier
+    iou_threshold: float = ranged(0.3, 0.0, 1.0)  # RANSAC/PROSAC overlap verification: box IoU to count as inlier
     rerank: Rerank = "none"  # reorder every method's hypotheses by image verification or confidence
 
 
@@ -84,7 +98,42 @@ class PoseConfig:
     weights: PoseWeights = "both"  # w = s_total * w_com ("sim" = s_total only, "com" = w_com only)
     # A correspondence set whose centres are nearly a row (pose.conditioning below this) gives no
     # pose: with 0.1 m centre noise most such poses are over 1 m off (tools/bench_conditioning.py).
-    min_conditioning: float = 0.05
+    min_conditioning: float = ranged(0.05, 0.0, 1.0)
+
+
+@dataclass
+class VerificationConfig:
+    """Image verification of every hypothesis (clipclique.verification)."""
+
+    depth_tolerance: float = ranged(0.5, 1e-6, 100.0)  # metres: depth disagreement at which an overlap counts for nothing
+    missed_weight: float = ranged(0.25, 0.0, 100.0)  # a missed landmark costs a quarter of a perfect overlap
+    min_visible_pixels: int = ranged(1500, 0, 100_000_000)  # projected boxes smaller than this may well go undetected
+    explained_iou: float = ranged(0.1, 0.0, 1.0)  # a detection of the landmark's class overlapping this much explains it
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """How a point set becomes an ellipsoid (clipclique.geometry)."""
+
+    outlier_neighbors: int = ranged(20, 1, 1000)  # statistical outlier removal: neighbours considered
+    outlier_std_ratio: float = ranged(2.0, 1e-6, 1e12)  # ... points farther than mean + ratio * std are cut
+    min_points: int = ranged(30, 4, 10_000_000)  # fewer points than this: no ellipsoid
+    min_axis: float = ranged(0.01, 0.0, 100.0)  # metres: a semi-axis shorter than this is degenerate (flat/line)
+    max_points: int = ranged(20_000, 4, 100_000_000)  # larger sets are subsampled (evenly, deterministic) first
+
+
+@dataclass(frozen=True)
+class ObservationParams:
+    """How a detection becomes an observed ellipsoid (clipclique.observations)."""
+
+    min_mask_pixels: int = ranged(100, 1, 100_000_000)  # smaller masks are too noisy to fit
+    erode_px: int = ranged(2, 0, 100)  # mask erosion before back-projection (kept only if enough pixels survive)
+    # metres: farther depth is unreliable on consumer RGB-D sensors; also the range image
+    # verification projects the map to (types.Camera.max_depth)
+    max_depth: float = ranged(MAX_DEPTH_M, 1e-3, 1000.0)
+    border_px: int = ranged(8, 0, 10_000)  # a mask is truncated when it comes this close to the image border
+    max_border_fraction: float = ranged(0.5, 0.0, 1.0)  # ... and dropped when more of it lies in that band (a sliver)
+    fit: FitParams = field(default_factory=lambda: FitParams(max_points=5000))  # one view is dense: 5000 suffice
 
 
 @dataclass
@@ -95,9 +144,12 @@ class LocalizationConfig:
     matching: MatchingConfig = field(default_factory=MatchingConfig)
     inliers: InlierConfig = field(default_factory=InlierConfig)
     pose: PoseConfig = field(default_factory=PoseConfig)
-    top_n: int = 5
-    success_threshold_m: float = 1.0
-    min_confidence: float = 0.0  # hypotheses less confident are dropped; a frame left without one is not localized
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
+    observations: ObservationParams = field(default_factory=ObservationParams)
+    top_n: int = ranged(5, 1, 1000)
+    success_threshold_m: float = ranged(1.0, 1e-6, 1e5)
+    # hypotheses less confident are dropped; a frame left without one is not localized
+    min_confidence: float = ranged(0.0, 0.0, 1.0)
     confidence_model: str = ""  # JSON file of a refitted confidence model ("": the one shipped in the package)
 
     def to_dict(self) -> dict[str, Any]:
@@ -137,36 +189,6 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
 METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
 
 
-# Bounds that keep every setting meaningful and the work it asks for finite. Semantic Histogram
-# walks grow as degree^(s-1) and their codes as C^s: s = 5 is beyond the paper's 3 and safe.
-RANGES: dict[str, tuple[float, float]] = {
-    "graph.d_adj": (1e-6, 100.0),
-    "graph.max_degree": (1, 10_000),
-    "graph.walk_length": (1, 5),
-    "graph.xview_walks": (1, 10_000),
-    "graph.xview_seed": (0, 2**63 - 1),
-    "similarity.alpha": (0.0, 1.0),
-    "similarity.class_weight": (0.0, 1.0),
-    "similarity.lookalike_weight": (0.0, 1.0),
-    "matching.k": (1, 1000),
-    "matching.top_m_fraction": (1e-6, 1.0),
-    "matching.min_similarity": (-1.0, 1.0),
-    "inliers.d_comp": (1e-6, 100.0),
-    "inliers.partial_slack": (0.0, 100.0),
-    "inliers.max_slack": (0.0, 100.0),
-    "inliers.slack_min_deficit": (0.0, 100.0),
-    "inliers.min_clique_size": (3, 1000),  # fewer than 3 cannot fix a 6-DoF pose
-    "inliers.max_cliques": (1, 10_000_000),
-    "inliers.time_limit_s": (1e-6, 3600.0),
-    "inliers.ransac_iterations": (1, 10_000_000),
-    "inliers.inlier_threshold": (1e-6, 100.0),
-    "inliers.seed": (0, 2**63 - 1),
-    "inliers.iou_threshold": (0.0, 1.0),
-    "pose.min_conditioning": (0.0, 1.0),
-    "top_n": (1, 1000),
-    "success_threshold_m": (1e-6, 1e5),
-    "min_confidence": (0.0, 1.0),
-}
 MAX_CONFIG_BYTES = 1 << 20
 
 
@@ -213,62 +235,70 @@ def parse_assignments(items: list[str]) -> dict[str, Any]:
 
 
 def apply_overrides(config: LocalizationConfig, values: dict[str, Any], source: str) -> None:
-    """Set dotted keys on `config` in place, checking names and types."""
+    """Set dotted keys on `config` in place, checking names and types (a frozen section is replaced)."""
     for dotted, value in values.items():
-        target: Any = config
-        *parents, leaf = dotted.split(".")
-        for part in parents:
-            if not dataclasses.is_dataclass(target) or part not in _field_names(target):
-                raise ConfigError(f"{source}: unknown config section {dotted!r}")
-            target = getattr(target, part)
-        if not dataclasses.is_dataclass(target) or leaf not in _field_names(target):
-            raise ConfigError(f"{source}: unknown config key {dotted!r}")
-        current = getattr(target, leaf)
-        if dataclasses.is_dataclass(current):
-            raise ConfigError(f"{source}: {dotted!r} is a section, set one of its keys")
-        setattr(target, leaf, _coerce(value, current, dotted, source))
+        _set(config, dotted.split("."), value, dotted, source)
     try:
         validate(config)
     except ConfigError as error:
         raise ConfigError(f"{source}: {error}") from None
 
 
+def _set(target: Any, path: list[str], value: Any, dotted: str, source: str) -> Any:
+    """`target` with the setting at `path` changed: itself when mutable, a replaced copy when frozen."""
+    part, rest = path[0], path[1:]
+    if not dataclasses.is_dataclass(target) or part not in _field_names(target):
+        raise ConfigError(f"{source}: unknown config {'section' if rest else 'key'} {dotted!r}")
+    current = getattr(target, part)
+    if rest:
+        new = _set(current, rest, value, dotted, source)
+    elif dataclasses.is_dataclass(current):
+        raise ConfigError(f"{source}: {dotted!r} is a section, set one of its keys")
+    else:
+        new = _coerce(value, current, dotted, source)
+    if target.__dataclass_params__.frozen:
+        return dataclasses.replace(target, **{part: new})
+    setattr(target, part, new)
+    return target
+
+
 def validate(config: LocalizationConfig) -> None:
     """ConfigError naming the first key whose value is out of its range or not one of its choices."""
-    allowed = {
-        "similarity.descriptor": Descriptor,
-        "matching.strategy": MatchingStrategy,
-        "inliers.method": InlierMethod,
-        "pose.weights": PoseWeights,
-        "inliers.verification": Verification,
-        "inliers.rerank": Rerank,
-    }
     if config.method not in METHOD_PRESETS:
         raise ConfigError(f"method = {config.method!r}; choose one of {', '.join(METHOD_PRESETS)} (with --method)")
-    for dotted, literal in allowed.items():
-        value = _get(config, dotted)
-        if value not in literal.__args__:
-            raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(literal.__args__)}")
-    for dotted, value in flat(config).items():
+    for dotted, setting in _settings(config).items():
+        value = setting.value
+        choices = get_args(setting.type) if get_origin(setting.type) is Literal else ()
+        if choices and value not in choices:
+            raise ConfigError(f"{dotted} = {value!r}; choose one of {', '.join(choices)}")
         if isinstance(value, float) and not math.isfinite(value):
             raise ConfigError(f"{dotted} = {value}; must be a finite number")
-    for dotted, (low, high) in RANGES.items():
-        if not low <= (value := _get(config, dotted)) <= high:
-            raise ConfigError(f"{dotted} = {value}; must be within [{low}, {high}]")
+        if setting.range is not None and not setting.range[0] <= value <= setting.range[1]:
+            raise ConfigError(f"{dotted} = {value}; must be within [{setting.range[0]}, {setting.range[1]}]")
 
 
 def flat(tree: Any, prefix: str = "") -> dict[str, Any]:
     """Every setting by its dotted key (`inliers.d_comp`)."""
-    if not dataclasses.is_dataclass(tree):
-        return {prefix.removesuffix("."): tree}
-    return {key: value for f in dataclasses.fields(tree) for key, value in flat(getattr(tree, f.name), f"{prefix}{f.name}.").items()}
+    return {dotted: setting.value for dotted, setting in _settings(tree, prefix).items()}
 
 
-def _get(config: LocalizationConfig, dotted: str) -> Any:
-    value: Any = config
-    for part in dotted.split("."):
-        value = getattr(value, part)
-    return value
+class _Setting(NamedTuple):
+    type: Any  # the field's annotation, resolved (a Literal gives the choices)
+    range: tuple[float, float] | None  # from `ranged`
+    value: Any
+
+
+def _settings(tree: Any, prefix: str = "") -> dict[str, _Setting]:
+    """Every setting of a config (or a section) by its dotted key."""
+    out: dict[str, _Setting] = {}
+    hints = get_type_hints(type(tree))
+    for spec in dataclasses.fields(tree):
+        value = getattr(tree, spec.name)
+        if dataclasses.is_dataclass(value):
+            out.update(_settings(value, f"{prefix}{spec.name}."))
+        else:
+            out[f"{prefix}{spec.name}"] = _Setting(hints[spec.name], spec.metadata.get("range"), value)
+    return out
 
 
 def _field_names(obj: Any) -> set[str]:

@@ -16,24 +16,13 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
+from clipclique.config import FitParams
 from clipclique.types import Ellipsoids, Pose
-
-
-@dataclass(frozen=True)
-class FitParams:
-    """How a point set becomes an ellipsoid."""
-
-    outlier_neighbors: int = 20  # statistical outlier removal: neighbours considered
-    outlier_std_ratio: float = 2.0  # ... points farther than mean + ratio * std are cut
-    min_points: int = 30  # fewer points than this: no ellipsoid
-    min_axis: float = 0.01  # metres: a semi-axis shorter than this is degenerate (flat/line)
-    max_points: int = 20_000  # larger sets are subsampled (evenly, deterministic) first
 
 
 def fit_ellipsoid(points: np.ndarray, params: FitParams = FitParams()) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

@@ -15,7 +15,6 @@ import numpy as np
 from clipclique.config import MatchingConfig
 
 FLAT = 1e-12  # a row whose largest gap is at most this has no gap at all
-MAX_CANDIDATES = 20_000  # more would only flood the compatibility graph (and memory); see `cap`
 
 
 def match(similarity: np.ndarray, config: MatchingConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -31,7 +30,7 @@ def match(similarity: np.ndarray, config: MatchingConfig) -> tuple[np.ndarray, n
     return candidates[keep], scores[keep]
 
 
-def cap(candidates: np.ndarray, scores: np.ndarray, limit: int = MAX_CANDIDATES) -> tuple[np.ndarray, np.ndarray, bool]:
+def cap(candidates: np.ndarray, scores: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """At most `limit` candidates: the best-scored (ties by row), in their original row order;
     and whether any were dropped. A flat similarity on a map of thousands of look-alike landmarks
     would otherwise keep a quarter of the map per observation."""

@@ -16,13 +16,14 @@ import numpy as np
 
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import pose_errors
-from clipclique.pipeline import NOT_CONFIDENT, LocalizationResult
+from clipclique.outcomes import ALGORITHM_STAGES, Failure, FailureKind
+from clipclique.pipeline import LocalizationResult
 from clipclique.types import Map, Observations, Pose
 
 TOP_K = (1, 3, 5)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class FrameEvaluation:
     frame_index: int
     translation_error: float | None  # metres, top-1 pose vs ground truth; None when no pose
@@ -31,7 +32,7 @@ class FrameEvaluation:
     precision: float | None  # top-1 correspondences that are correct (by instance id)
     recall: float  # correct top-1 correspondences / observations whose object is in the map
     num_observations: int
-    failure: str | None
+    failure: Failure | None
     time_s: float  # matching + inliers + pose (the algorithm), seconds
     num_in_map: int = 0  # observations whose object is in the map (recall's denominator)
     has_ground_truth: bool = True  # False: no ground-truth pose, so success is undefined (left out of success@k)
@@ -70,7 +71,7 @@ def evaluate_frame(
         recall=correct / num_in_map if num_in_map else 0.0,
         num_observations=len(observations),
         failure=result.failure,
-        time_s=sum(result.timings.get(stage, 0.0) for stage in ("matching", "inliers", "pose")),
+        time_s=sum(result.timings.get(stage, 0.0) for stage in ALGORITHM_STAGES),
         num_in_map=num_in_map,
         has_ground_truth=gt_pose is not None,
     )
@@ -86,7 +87,7 @@ def summarize(evaluations: list[FrameEvaluation]) -> dict[str, float]:
     for k in TOP_K:
         summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
-    summary["not_confident"] = float(sum(e.failure is not None and e.failure.startswith(NOT_CONFIDENT) for e in evaluations))
+    summary["not_confident"] = float(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT for e in evaluations))
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])
     summary["te_median_m"] = float(np.median(te)) if te else math.nan

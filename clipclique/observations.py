@@ -10,26 +10,17 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from clipclique.config import ObservationParams
 from clipclique.encoders import Crop, Encoder
-from clipclique.geometry import FitParams, fit_ellipsoid_depth, stack_ellipsoids
+from clipclique.geometry import fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Camera, Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
-
-
-@dataclass(frozen=True)
-class ObservationParams:
-    min_mask_pixels: int = 100  # smaller masks are too noisy to fit
-    erode_px: int = 2  # mask erosion before back-projection (kept only if enough pixels survive)
-    max_depth: float = 8.0  # metres: farther depth is unreliable on consumer RGB-D sensors
-    border_px: int = 8  # a mask is truncated when it comes this close to the image border
-    max_border_fraction: float = 0.5  # ... and dropped when more of it lies in that band (a sliver)
-    fit: FitParams = field(default_factory=lambda: FitParams(max_points=5000))  # one view is dense: 5000 suffice
 
 
 @dataclass

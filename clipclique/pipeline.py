@@ -4,12 +4,14 @@ One function composes the stages according to a LocalizationConfig; CLIP-Clique,
 (SH, X-View, CLIP-Loc) and every ablation are configurations of it (`config.METHOD_PRESETS`).
 Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 
-A frame without a pose says why in `LocalizationResult.failure`, naming the stage that lost it:
-"fewer than 3 observations (K)", "fewer than 3 observations with a candidate landmark (k)",
-"no clique of 3 or more compatible correspondences", "no minimal set of 3 distinct,
-non-collinear correspondences" (RANSAC/PROSAC), "no correspondence set determines a pose (each
-is collinear or poorly conditioned)" (every set was degenerate, or nearly a row of objects:
-`config.pose.min_conditioning`), or "no pose with confidence >= P (best c)" (`min_confidence`).
+A frame without a pose says why in `LocalizationResult.failure`, a `outcomes.Failure` naming the
+stage that lost it (its message in quotes): FEW_OBSERVATIONS "fewer than 3 observations (K)",
+FEW_MATCHED "fewer than 3 observations with a candidate landmark (k)", NO_CLIQUE "no clique of 3
+or more compatible correspondences", NO_MINIMAL_SET "no minimal set of 3 distinct, non-collinear
+correspondences" (RANSAC/PROSAC), DEGENERATE "no correspondence set determines a pose (each is
+collinear or poorly conditioned)" (every set was degenerate, or nearly a row of objects:
+`config.pose.min_conditioning`), or NOT_CONFIDENT "no pose with confidence >= P (best c)"
+(`min_confidence`). A bound that cut work short is `LocalizationResult.cap_hit` (`outcomes.CapHit`).
 
 Every method's hypotheses are then verified in the image (`clipclique.verification`) and given a
 calibrated confidence (`clipclique.confidence`) when the observations carry their boxes and camera;
@@ -26,17 +28,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import cliquesearch, confidence, graph, inliers, lookalikes, matching, similarity, verification
+from clipclique import cliquesearch, compatibility, confidence, consensus, graph, lookalikes, matching, similarity, verification
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
+from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
 from clipclique.pose import conditioning, correspondence_weights, fit_rigid_batch
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
-STAGES = ("descriptors", "similarity", "matching", "inliers", "pose", "verification")
-NOT_CONFIDENT = "no pose with confidence >="  # how a frame refused by `min_confidence` says why
-
-
-@dataclass
+@dataclass(kw_only=True)
 class MapIndex:
     """Map-side work done once per map and config."""
 
@@ -50,17 +49,17 @@ class MapIndex:
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
 
 
-@dataclass
+@dataclass(kw_only=True)
 class LocalizationResult:
     hypotheses: list[Hypothesis]  # best first, at most config.top_n
     candidates: np.ndarray  # (C, 2) int (observation index, landmark index) after initial matching
     candidate_scores: np.ndarray  # (C,) similarity of each candidate
     similarity: np.ndarray  # (K, N) the matrix the matching used
     num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
-    cap_hit: str | None  # "max_candidates" | "max_pairs" | "max_cliques" | "time_limit" | None (the first one hit)
-    failure: str | None  # why there is no pose; None on success
+    cap_hit: CapHit | None  # the first bound hit, None when none was
+    failure: Failure | None  # why there is no pose; None on success
     notes: list[str] = field(default_factory=list)
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (STAGES)
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
 
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
@@ -70,7 +69,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
     capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
-    return MapIndex(map, index_key(config), adjacency, histograms, walks, text, kernel, capped)
+    return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
+                    text_embeddings=text, class_kernel=kernel, capped_nodes=capped)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -83,7 +83,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
-    def lap(stage: str) -> None:
+    def lap(stage: Stage) -> None:
         nonlocal clock
         now = time.perf_counter()
         timings[stage] = timings.get(stage, 0.0) + now - clock  # a stage may run in turns
@@ -95,29 +95,33 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     histograms, walks = _graph_descriptors(
         query_graph, observations.class_ids, len(index.map.class_names), config, soft
     )
-    lap("descriptors")
+    lap(Stage.DESCRIPTORS)
     scores, notes = _similarity(observations, index, histograms, walks, config)
     if index.capped_nodes:
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
-    lap("similarity")
-    candidates, candidate_scores, capped = matching.cap(*matching.match(scores, config.matching))
-    lap("matching")
+    lap(Stage.SIMILARITY)
+    candidates, candidate_scores, capped = matching.cap(*matching.match(scores, config.matching),
+                                                        config.matching.max_candidates)
+    lap(Stage.MATCHING)
 
-    result = LocalizationResult([], candidates, candidate_scores, scores, 0, "max_candidates" if capped else None, None, notes, timings)
+    result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=candidate_scores,
+                                similarity=scores, num_cliques=0, cap_hit=CapHit.MAX_CANDIDATES if capped else None,
+                                failure=None, notes=notes, timings=timings)
+    matched = len(np.unique(candidates[:, 0]))
     if len(observations) < 3:
-        result.failure = f"fewer than 3 observations ({len(observations)})"
-    elif len(np.unique(candidates[:, 0])) < 3:
-        result.failure = f"fewer than 3 observations with a candidate landmark ({len(np.unique(candidates[:, 0]))})"
+        result.failure = Failure(kind=FailureKind.FEW_OBSERVATIONS, count=len(observations))
+    elif matched < 3:
+        result.failure = Failure(kind=FailureKind.FEW_MATCHED, count=matched)
     elif config.inliers.method == "cliques":
         _solve_cliques(result, observations, index.map, config, lap)
     else:
         _solve_consensus(result, observations, index.map, config, lap)
     if result.failure is None and not result.hypotheses:
-        result.failure = "no correspondence set determines a pose (each is collinear or poorly conditioned)"
+        result.failure = Failure(kind=FailureKind.DEGENERATE)
     _verify(result, observations, index.map, config)
-    lap("verification")
-    for stage in STAGES:
+    lap(Stage.VERIFICATION)
+    for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
     return result
 
@@ -206,7 +210,8 @@ def _check_classes(observations: Observations, map: Map) -> None:
         )
 
 
-def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
+def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
+                   lap: Callable[[Stage], None]) -> None:
     """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each.
 
     A degenerate clique gives no pose; the search is then asked for twice as many cliques
@@ -214,24 +219,25 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     """
     settings = config.inliers
     candidates, scores = result.candidates, result.candidate_scores
-    slack = inliers.partial_view_slack(
+    slack = compatibility.partial_view_slack(
         observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
         settings.max_slack, settings.slack_min_deficit,
     )
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
-    kept = inliers.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack)
+    kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
+                                               max_pairs=settings.max_pairs)
     if len(kept) < len(candidates):
-        result.cap_hit = result.cap_hit or "max_pairs"
-    edges = kept[inliers.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept])]
+        result.cap_hit = result.cap_hit or CapHit.MAX_PAIRS
+    edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept])]
     wanted, tried = config.top_n, 0
     while True:
         found = cliquesearch.top_cliques(
             edges, len(candidates), scores, wanted, candidates[:, 0], settings.min_clique_size, settings.max_cliques, settings.time_limit_s
         )
-        lap("inliers")
+        lap(Stage.INLIERS)
         fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
         result.hypotheses.extend(fitted[: config.top_n - len(result.hypotheses)])
-        lap("pose")
+        lap(Stage.POSE)
         tried = len(found.cliques)
         if len(result.hypotheses) == config.top_n or tried < wanted or found.cap is not None:
             break
@@ -239,18 +245,19 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if not found.cliques:
-        result.failure = f"no clique of {settings.min_clique_size} or more compatible correspondences"
+        result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
 
 
-def _solve_consensus(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, lap: Callable[[str], None]) -> None:
+def _solve_consensus(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
+                     lap: Callable[[Stage], None]) -> None:
     """RANSAC / PROSAC inlier sets, each refit with the weighted pose."""
     settings = config.inliers
     obs, lm = result.candidates[:, 0], result.candidates[:, 1]
     image = None
     if settings.verification == "overlap":
         verification.require_image(observations, "inliers.verification = overlap (set it to centers otherwise)")
-        image = inliers.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, settings.iou_threshold)
-    consensus = inliers.sample_consensus(
+        image = consensus.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, settings.iou_threshold)
+    found = consensus.sample_consensus(
         observations.ellipsoids.centers,
         map.ellipsoids.centers,
         result.candidates,
@@ -263,12 +270,12 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
         keep=config.top_n,
         image=image,
     )
-    result.num_cliques = consensus.num_hypotheses
-    lap("inliers")
-    result.hypotheses.extend(_hypotheses(result, observations, map, config, consensus.inlier_sets, np.array(consensus.scores)))
-    if not consensus.inlier_sets:
-        result.failure = "no minimal set of 3 distinct, non-collinear correspondences"
-    lap("pose")
+    result.num_cliques = found.num_hypotheses
+    lap(Stage.INLIERS)
+    result.hypotheses.extend(_hypotheses(result, observations, map, config, found.inlier_sets, np.array(found.scores)))
+    if not found.inlier_sets:
+        result.failure = Failure(kind=FailureKind.NO_MINIMAL_SET)
+    lap(Stage.POSE)
 
 
 def _hypotheses(
@@ -313,7 +320,7 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         return
     if not result.hypotheses:
         return
-    checked = verification.verify(result.hypotheses, observations, map)
+    checked = verification.verify(result.hypotheses, observations, map, config.verification)
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
                    model.predict(confidence.Evidence(result.hypotheses, checked, result.similarity, len(observations))))
@@ -331,4 +338,5 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         best = max(h.confidence for h in result.hypotheses)
         result.hypotheses = [h for h in result.hypotheses if h.confidence >= config.min_confidence]
         if not result.hypotheses:
-            result.failure = f"{NOT_CONFIDENT} {config.min_confidence:g} (best {best:.2f})"
+            result.failure = Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=config.min_confidence,
+                                     best_confidence=best)

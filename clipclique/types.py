@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+MAX_DEPTH_M = 8.0  # metres: the default range of an RGB-D camera (config.observations.max_depth)
+
 
 @dataclass(frozen=True)
 class Pose:
@@ -128,7 +130,7 @@ class Camera:
     intrinsics: np.ndarray  # (3, 3)
     width: int  # pixels
     height: int
-    max_depth: float = 8.0  # metres: objects farther than this are not observed
+    max_depth: float = MAX_DEPTH_M  # metres: objects farther than this are not observed
 
 
 @dataclass

@@ -3,12 +3,14 @@
 Per hypothesis (all of a frame's at once), with the map's landmarks projected by
 `clipclique.projection`:
 - overlap: the summed IoU between each corresponding observation's detection box and its
-  landmark's projected box, each weighted by depth agreement, max(0, 1 - |dz| / DEPTH_TOLERANCE),
+  landmark's projected box, each weighted by depth agreement, max(0, 1 - |dz| / depth_tolerance),
   where dz is the observed centre's depth along its ray minus the landmark centre's depth;
-- missed: landmarks projected well inside the image (at least MIN_VISIBLE_PIXELS, half of their
-  box on the image) that no detection of their class overlaps (IoU >= EXPLAINED_IOU): what the
+- missed: landmarks projected well inside the image (at least min_visible_pixels, half of their
+  box on the image) that no detection of their class overlaps (IoU >= explained_iou): what the
   pose says should be seen but was not;
-- score = overlap - MISSED_WEIGHT * missed: the verification score (`Hypothesis.verification`).
+- score = overlap - missed_weight * missed: the verification score (`Hypothesis.verification`).
+
+The constants are settings (`config.VerificationConfig`, `verification.*` keys).
 
 RANSAC / PROSAC verify minimal-set poses by overlap alone (`candidate_overlap`), as CLIP-Loc does.
 """
@@ -19,25 +21,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.projection import Projection, box_area, box_iou, project
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
-DEPTH_TOLERANCE = 0.5  # metres: depth disagreement at which an overlap counts for nothing
-MISSED_WEIGHT = 0.25  # a missed landmark costs a quarter of a perfect overlap
-MIN_VISIBLE_PIXELS = 1500  # projected boxes smaller than this may well go undetected
-EXPLAINED_IOU = 0.1  # a detection of the landmark's class overlapping this much explains it
 
-
-@dataclass
+@dataclass(kw_only=True)
 class Verification:
     """Verification of B hypotheses, one entry each."""
 
-    score: np.ndarray  # (B,) overlap - MISSED_WEIGHT * missed
+    score: np.ndarray  # (B,) overlap - missed_weight * missed
     overlap: np.ndarray  # (B,) depth-weighted summed IoU over the correspondences
     mean_iou: np.ndarray  # (B,) plain IoU averaged over the correspondences
     missed: np.ndarray  # (B,) int, landmarks that should be visible but no detection explains
     depth_error: np.ndarray  # (B,) metres, median |dz| over the correspondences
+    missed_weight: float  # what one missed landmark cost in `score`
 
 
 def require_image(observations: Observations, why: str) -> None:
@@ -47,7 +46,8 @@ def require_image(observations: Observations, why: str) -> None:
                               "(Observations.boxes and .camera, filled by extract_observations)")
 
 
-def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -> Verification:
+def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
+           params: VerificationConfig = VerificationConfig()) -> Verification:
     """Verification of each hypothesis against the observations' boxes and centres."""
     require_image(observations, "image verification")
     camera = observations.camera
@@ -66,14 +66,15 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map) -
     iou = np.where(in_view, box_iou(observations.boxes[obs], seen.boxes[owner, at]), 0.0)
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
     depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
-    agreement = np.clip(1.0 - depth_gap / DEPTH_TOLERANCE, 0.0, None)
+    agreement = np.clip(1.0 - depth_gap / params.depth_tolerance, 0.0, None)
     count = len(hypotheses)
     sizes = np.bincount(owner, minlength=count)
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
     depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
-    missed = _missed(seen, map.class_ids[nearby], observations)
-    return Verification(overlap - MISSED_WEIGHT * missed, overlap, mean_iou, missed, depth_error)
+    missed = _missed(seen, map.class_ids[nearby], observations, params)
+    return Verification(score=overlap - params.missed_weight * missed, overlap=overlap, mean_iou=mean_iou,
+                        missed=missed, depth_error=depth_error, missed_weight=params.missed_weight)
 
 
 def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
@@ -91,12 +92,13 @@ def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks
     return np.where(seen.visible, box_iou(boxes[None], seen.boxes), 0.0)
 
 
-def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations) -> np.ndarray:
+def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
+            params: VerificationConfig) -> np.ndarray:
     """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps."""
     area = box_area(seen.boxes)
-    expected = seen.visible & (area >= MIN_VISIBLE_PIXELS) & (area >= 0.5 * seen.full_areas)
+    expected = seen.visible & (area >= params.min_visible_pixels) & (area >= 0.5 * seen.full_areas)
     hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
     overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
     same_class = class_ids[landmark][:, None] == observations.class_ids[None]
-    explained = ((overlaps >= EXPLAINED_IOU) & same_class).any(axis=1)
+    explained = ((overlaps >= params.explained_iou) & same_class).any(axis=1)
     return np.bincount(hypothesis[~explained], minlength=len(expected))

@@ -25,14 +25,13 @@ from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_conf
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.outputs import Staging
-from clipclique.pipeline import STAGES
+from clipclique.outcomes import ALL_STAGES
 from clipclique.safeio import read_json
 from clipclique.types import Pose
-from localization.run import QUERY_STAGES, FrameOutcome, Run, RunSettings, execute, prepare
+from localization.run import FrameOutcome, Run, RunSettings, execute, prepare
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
-ALL_STAGES = QUERY_STAGES + STAGES
 OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
 
 
@@ -120,7 +119,8 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         "candidates": len(result.candidates),
         "num_cliques": result.num_cliques,
         "cap_hit": result.cap_hit,
-        "failure": result.failure,
+        "failure": None if result.failure is None else result.failure.message,
+        "failure_kind": None if result.failure is None else result.failure.kind.value,
         "notes": result.notes,
         "hypotheses": hypotheses,
         "evaluation": {

@@ -26,14 +26,13 @@ from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from clipclique.observations import ObservationParams, embed, extract_observations
+from clipclique.observations import embed, extract_observations
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records
 
 MAP_DIR = Path("outputs/maps")
 LOC_DIR = Path("outputs/loc")
-QUERY_STAGES = ("detector", "observations", "encoder")  # before the pipeline's own STAGES
 MAX_RUN_NAME = 100  # characters of a run folder's name; longer ones end in a hash
 
 
@@ -91,7 +90,7 @@ class FrameOutcome:
     dropped: dict[str, int]
     result: LocalizationResult
     evaluation: FrameEvaluation
-    timings: dict[str, float]  # seconds: QUERY_STAGES then the pipeline's stages
+    timings: dict[str, float]  # seconds: outcomes.ALL_STAGES
 
 
 @dataclass
@@ -177,17 +176,17 @@ class Seen:
     detections: Detections
     observations: Observations
     dropped: dict[str, int]
-    timings: dict[str, float]  # seconds, QUERY_STAGES
+    timings: dict[str, float]  # seconds, outcomes.QUERY_STAGES
 
 
-def observe(run: Run, frame: Frame, params: ObservationParams = ObservationParams()) -> Seen:
-    """Detect, fit observed ellipsoids, embed their crops."""
+def observe(run: Run, frame: Frame) -> Seen:
+    """Detect, fit observed ellipsoids (`config.observations`), embed their crops."""
     timings: dict[str, float] = {}
     clock = time.perf_counter()
     detections = run.detector.detect(frame)
     timings["detector"] = time.perf_counter() - clock
     clock = time.perf_counter()
-    extraction = extract_observations(frame, detections, params)
+    extraction = extract_observations(frame, detections, run.config.observations)
     timings["observations"] = time.perf_counter() - clock
     clock = time.perf_counter()
     observations = embed(extraction, run.encoder)

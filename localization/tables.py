@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from localization.results import ALL_STAGES
+from clipclique.outcomes import ALL_STAGES
 
 STAGE_HEADERS = {"detector": "det.", "observations": "fit", "encoder": "enc.", "descriptors": "desc.",
                  "similarity": "sim.", "matching": "match", "inliers": "inl.", "verification": "verif"}  # 80 columns

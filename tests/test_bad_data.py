@@ -18,6 +18,7 @@ from clipclique.datasets import open_sequence
 from clipclique.errors import DatasetError, MapFileError
 from clipclique.geometry import backproject, rotation_angle
 from clipclique.mapfile import validate_map
+from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.pose import conditioning
 from clipclique.types import Ellipsoids, Map, Observations, Pose
@@ -61,7 +62,8 @@ def test_a_row_of_objects_gives_no_pose_rather_than_a_confident_wrong_one():
     map, observations, camera = _scene(ROW, noise=0.05)
     result = _localize(map, observations)
     assert result.hypotheses == [] and result.num_cliques == 1  # the one clique, all 5 correct, is refused
-    assert result.failure == "no correspondence set determines a pose (each is collinear or poorly conditioned)"
+    assert result.failure.kind is FailureKind.DEGENERATE
+    assert result.failure.message == "no correspondence set determines a pose (each is collinear or poorly conditioned)"
     accepted = _localize(map, observations, "pose.min_conditioning=0")  # what the issue saw: a pose far off
     assert _error_deg(accepted.hypotheses[0].pose, camera) > 20
 

@@ -5,7 +5,8 @@ import pytest
 
 from clipclique.cliquesearch import clique_total, top_cliques
 from clipclique.config import make_config
-from clipclique.inliers import compatibility_graph, maximal_cliques, rank_cliques
+from clipclique.compatibility import compatibility_graph
+from clipclique.reference_cliques import maximal_cliques, rank_cliques
 from clipclique.pipeline import LocalizationResult, _solve_cliques
 from clipclique.types import Ellipsoids, Map, Observations
 
@@ -94,7 +95,8 @@ def test_a_degenerate_best_clique_is_skipped_and_the_search_goes_on():
     candidates = np.column_stack((np.arange(6), np.arange(6)))
     scores = np.array([0.9, 0.9, 0.9, 0.5, 0.5, 0.5])
     config = make_config("clipclique", overrides={"top_n": 1})
-    result = LocalizationResult([], candidates, scores, np.eye(6), 0, None, None)
+    result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=scores, similarity=np.eye(6),
+                                num_cliques=0, cap_hit=None, failure=None)
     _solve_cliques(result, observations, map, config, lambda stage: None)
     assert len(result.hypotheses) == 1 and result.failure is None
     assert result.hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]

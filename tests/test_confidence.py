@@ -14,13 +14,17 @@ from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
-from clipclique.pipeline import NOT_CONFIDENT, index_map, localize
+from clipclique.config import VerificationConfig
+from clipclique.outcomes import Failure, FailureKind
+from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
-from clipclique.verification import MISSED_WEIGHT, Verification
+from clipclique.verification import Verification
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # tools/ holds scripts, not a package
 
 import calibration  # noqa: E402
+
+MISSED_WEIGHT = VerificationConfig().missed_weight
 
 
 def test_the_shipped_model_is_monotone_in_the_verification_score():
@@ -45,7 +49,8 @@ def test_the_shipped_model_is_monotone_in_the_verification_score():
 def verification_of(overlap: list[float], missed: list[int]) -> Verification:
     overlap, missed = np.array(overlap), np.array(missed)
     size = len(overlap)
-    return Verification(overlap - MISSED_WEIGHT * missed, overlap, np.full(size, 0.5), missed, np.full(size, 0.1))
+    return Verification(score=overlap - MISSED_WEIGHT * missed, overlap=overlap, mean_iou=np.full(size, 0.5), missed=missed,
+                        depth_error=np.full(size, 0.1), missed_weight=MISSED_WEIGHT)
 
 
 def test_missed_landmarks_count_beyond_the_frame_s_fewest():
@@ -143,7 +148,8 @@ def test_min_confidence_reports_unconfident_frames_as_not_localized():
         if before.hypotheses and not kept:
             refused += 1
             best = max(h.confidence for h in before.hypotheses)
-            assert after.failure == f"{NOT_CONFIDENT} {threshold:g} (best {best:.2f})"
+            assert after.failure == Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=threshold, best_confidence=best)
+            assert after.failure.message == f"no pose with confidence >= {threshold:g} (best {best:.2f})"
         evaluations.append(evaluate_frame(after, observations, map, truth, strict, frame))
     assert refused > 0 and sum(e.failure is None for e in evaluations) > 0
     assert summarize(evaluations)["not_confident"] == refused

@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from clipclique.geometry import pose_errors, random_rotation
-from clipclique.inliers import affordable_candidates, compatibility_graph, maximal_cliques, rank_cliques, sample_consensus
+from clipclique.compatibility import affordable_candidates, compatibility_graph
+from clipclique.consensus import sample_consensus
+from clipclique.reference_cliques import maximal_cliques, rank_cliques
 from clipclique.pose import fit_rigid
 from clipclique.types import Pose
 

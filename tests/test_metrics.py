@@ -5,6 +5,7 @@ import pytest
 
 from clipclique.config import make_config
 from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
+from clipclique.outcomes import Failure, FailureKind
 from clipclique.pipeline import LocalizationResult
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 
@@ -25,7 +26,8 @@ TRUTH = Pose(np.eye(3), np.zeros(3))
 def result_with(poses: list[Pose], top1_pairs: np.ndarray) -> LocalizationResult:
     hypotheses = [Hypothesis(p, top1_pairs if i == 0 else top1_pairs[:0], 1.0) for i, p in enumerate(poses)]
     timings = {"descriptors": 5.0, "similarity": 5.0, "matching": 0.001, "inliers": 0.002, "pose": 0.003}
-    return LocalizationResult(hypotheses, np.zeros((0, 2), int), np.zeros(0), np.zeros((5, 4)), 1, None, None, [], timings)
+    return LocalizationResult(hypotheses=hypotheses, candidates=np.zeros((0, 2), int), candidate_scores=np.zeros(0),
+                              similarity=np.zeros((5, 4)), num_cliques=1, cap_hit=None, failure=None, timings=timings)
 
 
 def test_evaluate_frame_scores_poses_and_correspondences():
@@ -44,17 +46,19 @@ def test_evaluate_frame_scores_poses_and_correspondences():
 
 def test_no_pose_and_no_ground_truth():
     failed = result_with([], np.zeros((0, 2), int))
-    failed.failure = "fewer than 3 observations (2)"
+    failed.failure = Failure(kind=FailureKind.FEW_OBSERVATIONS, count=2)
     evaluation = evaluate_frame(failed, OBSERVATIONS, MAP, TRUTH, make_config(), 0)
     assert evaluation.translation_error is None and evaluation.precision is None
     assert evaluation.success == {1: False, 3: False, 5: False} and evaluation.recall == 0.0
-    assert evaluation.failure == "fewer than 3 observations (2)"
+    assert evaluation.failure is failed.failure and evaluation.failure.message == "fewer than 3 observations (2)"
     unknown = evaluate_frame(result_with([TRUTH], np.array([[0, 0]])), OBSERVATIONS, MAP, None, make_config(), 0)
     assert unknown.translation_error is None and unknown.precision == 1.0
 
 
 def evaluation(te, re, success1, precision, recall, in_map=3, time_s=0.01, failure=None):
-    return FrameEvaluation(0, te, re, {1: success1, 3: success1, 5: True}, precision, recall, 5, failure, time_s, in_map)
+    return FrameEvaluation(frame_index=0, translation_error=te, rotation_error=re,
+                           success={1: success1, 3: success1, 5: True}, precision=precision, recall=recall,
+                           num_observations=5, failure=failure, time_s=time_s, num_in_map=in_map)
 
 
 def test_summarize_aggregates_as_documented():
@@ -63,7 +67,7 @@ def test_summarize_aggregates_as_documented():
             evaluation(0.2, 0.1, True, 1.0, 1.0),
             evaluation(4.0, 0.3, False, 0.5, 0.5, time_s=0.03),
             evaluation(0.4, 0.2, True, 0.9, 0.0, in_map=0),  # recall undefined: not averaged
-            evaluation(None, None, False, None, 0.0, failure="no clique"),
+            evaluation(None, None, False, None, 0.0, failure=Failure(kind=FailureKind.NO_CLIQUE, count=3)),
         ]
     )
     assert summary["frames"] == 4

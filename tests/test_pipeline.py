@@ -7,7 +7,8 @@ from clipclique.config import ConfigError, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
-from clipclique.pipeline import STAGES, index_map, localize
+from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
+from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 
 
@@ -36,7 +37,7 @@ def test_each_method_localizes_synthetic_frames(method, success, precision):
     assert summary["precision"] >= precision
     assert summary["te_median_m"] < 0.2 and summary["re_median_deg"] < 5.0
     for result in results:
-        assert set(result.timings) >= set(STAGES)
+        assert set(result.timings) >= set(PIPELINE_STAGES)
         assert len(result.hypotheses) <= 5
         scores = [h.score for h in result.hypotheses]
         assert scores == sorted(scores, reverse=True)
@@ -64,7 +65,8 @@ def test_fewer_than_three_observations_is_a_documented_failure():
     map = synthetic_map(np.random.default_rng(0))
     observations, _ = synthetic_query(map, np.random.default_rng(0), num_visible=2, num_outliers=0)
     result = localize(observations, index_map(map, config), config)
-    assert result.hypotheses == [] and result.failure == "fewer than 3 observations (2)"
+    assert result.hypotheses == [] and result.failure == Failure(kind=FailureKind.FEW_OBSERVATIONS, count=2)
+    assert result.failure.message == "fewer than 3 observations (2)"
     assert result.similarity.shape == (2, len(map))
 
 
@@ -73,7 +75,7 @@ def test_no_candidates_is_a_documented_failure():
     map = synthetic_map(np.random.default_rng(0))
     observations, _ = synthetic_query(map, np.random.default_rng(0))
     result = localize(observations, index_map(map, config), config)
-    assert result.failure.startswith("fewer than 3 observations with a candidate landmark")
+    assert result.failure.kind is FailureKind.FEW_MATCHED
 
 
 def test_missing_embeddings_fall_back_to_sh_for_fused_and_fail_for_clip():
@@ -148,14 +150,14 @@ def test_empty_map_or_frame_fails_cleanly(method):
     )
     result = localize(observations, index_map(empty_map, config), config)
     assert result.similarity.shape == (len(observations), 0) and result.hypotheses == []
-    assert result.failure == "fewer than 3 observations with a candidate landmark (0)"
+    assert result.failure.message == "fewer than 3 observations with a candidate landmark (0)"
     empty_frame = dataclasses.replace(
         observations, ellipsoids=observations.ellipsoids.subset(nothing), class_ids=observations.class_ids[nothing],
         image_embeddings=observations.image_embeddings[nothing], instance_ids=observations.instance_ids[nothing],
         detection_index=nothing,
     )
     result = localize(empty_frame, index_map(map, config), config)
-    assert result.similarity.shape == (0, len(map)) and result.failure == "fewer than 3 observations (0)"
+    assert result.similarity.shape == (0, len(map)) and result.failure == Failure(kind=FailureKind.FEW_OBSERVATIONS, count=0)
 
 
 @pytest.mark.parametrize(

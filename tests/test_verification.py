@@ -7,15 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clipclique import inliers
-from clipclique.config import make_config
+from clipclique import consensus
+from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
 from clipclique.pipeline import index_map, localize
 from clipclique.projection import project
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
-from clipclique.verification import MISSED_WEIGHT, verify
+from clipclique.verification import verify
 
 
 def room() -> tuple[Map, Pose, Observations]:
@@ -57,7 +57,7 @@ def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():
                            observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
     checked = verify([hypothesis(truth, 5)], partial, map)
     assert checked.missed[0] == 1
-    assert checked.score[0] == pytest.approx(5.0 - MISSED_WEIGHT)
+    assert checked.score[0] == pytest.approx(5.0 - VerificationConfig().missed_weight)
 
 
 def test_depth_disagreement_along_the_ray_lowers_the_score():
@@ -73,8 +73,8 @@ def test_ransac_verified_by_overlap_finds_the_true_correspondences():
     map, truth, observations = room()
     wrong = np.column_stack((np.arange(6), (np.arange(6) + 3) % 6))  # same classes, wrong objects
     candidates = np.vstack((np.column_stack((np.arange(6), np.arange(6))), wrong))
-    image = inliers.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, 0.3)
-    found = inliers.sample_consensus(observations.ellipsoids.centers, map.ellipsoids.centers, candidates,
+    image = consensus.ImageEvidence(map.ellipsoids, observations.boxes, observations.camera, 0.3)
+    found = consensus.sample_consensus(observations.ellipsoids.centers, map.ellipsoids.centers, candidates,
                                      np.ones(len(candidates)), iterations=500, threshold=0.5,
                                      rng=np.random.default_rng(0), image=image)
     np.testing.assert_array_equal(candidates[found.inlier_sets[0]], np.column_stack((np.arange(6), np.arange(6))))

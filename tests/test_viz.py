@@ -16,6 +16,7 @@ from viz_scene import recorded_entities, rerun_cli, scene_points, synthetic_run
 from clipclique.config import LocalizationConfig
 from clipclique.graph import semantic_graph
 from clipclique.metrics import evaluate_frame
+from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import ellipsoids3d, encode_depth_png, encode_jpeg, segmentation, voxel_downsample
@@ -278,7 +279,7 @@ def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
     spy = LogSpy(recorder.stream)
     first, second = frames[0], frames[1]
     recorder.log_frame(first.frame, first.detections, first.observations, first.result, first.evaluation)
-    failed = dataclasses.replace(second.result, hypotheses=[], failure="fewer than 3 candidates")
+    failed = dataclasses.replace(second.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2))
     recorder.log_frame(second.frame, second.detections, second.observations, failed, None)
     for rank in (1, 2, 3):
         (clear,) = spy.last(f"world/hypotheses/{rank}")
@@ -297,7 +298,7 @@ def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
     spy = LogSpy(recorder.stream)
     for i, f in enumerate(frames[:3]):
-        result = dataclasses.replace(f.result, hypotheses=[], failure="fewer than 3 candidates") if i == 1 else f.result
+        result = dataclasses.replace(f.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2)) if i == 1 else f.result
         evaluation = evaluate_frame(result, f.observations, map, f.frame.pose, LocalizationConfig(), i)
         recorder.log_frame(f.frame, f.detections, f.observations, result, evaluation)
     recorder.close()

@@ -25,7 +25,6 @@ import json
 import math
 import os
 import platform
-import re
 import subprocess
 import sys
 import time
@@ -47,16 +46,17 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
 
-from bench_core import ALGORITHM, growth_exponent, scalability  # noqa: E402
+from bench_core import growth_exponent, scalability  # noqa: E402
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
 from clipclique.datasets import resolve_data_root  # noqa: E402
 from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
+from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage  # noqa: E402
 from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize  # noqa: E402
 from clipclique.sim import DEMO_SCENES  # noqa: E402
 from clipclique.sim.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
-from localization.run import MAP_DIR, QUERY_STAGES, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
+from localization.run import MAP_DIR, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
 
 import calibration  # noqa: E402
 import literal_reference  # noqa: E402
@@ -131,7 +131,7 @@ def variants() -> list[Variant]:
 class Evaluated(NamedTuple):
     summary: dict[str, float]  # metrics.summarize, plus similarity statistics of true and of other pairs
     notes: list[str]  # the pipeline's notes (e.g. CLIP missing: alpha = 0)
-    failures: dict[str, int]  # frames without a pose, by reason (counts in parentheses dropped)
+    failures: dict[str, int]  # frames without a pose, by Failure.reason
 
 
 @dataclass
@@ -235,7 +235,7 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig, reference: bo
             other.append(result.similarity[~same])
             notes.update(dict.fromkeys(result.notes))
             if result.failure:
-                failures[re.sub(r" \(\d+\)$", "", result.failure)] += 1
+                failures[result.failure.reason] += 1
         summary = summarize(evaluations)
         true, other = np.concatenate(true), np.concatenate(other)
         summary["similarity_true_mean"] = float(true.mean()) if true.size else math.nan
@@ -252,8 +252,10 @@ def literal_localize(observations: Observations, map: Map, alpha: float) -> Loca
     hypotheses = literal_reference.localize(observations, map, alpha=alpha)
     elapsed = time.perf_counter() - start
     no_pairs = np.zeros((0, 2), dtype=np.int64)
-    return LocalizationResult(hypotheses, no_pairs, np.zeros(0), np.full((len(observations), len(map)), np.nan), 0,
-                              None, None if hypotheses else "no pose", timings={"matching": elapsed})
+    return LocalizationResult(hypotheses=hypotheses, candidates=no_pairs, candidate_scores=np.zeros(0),
+                              similarity=np.full((len(observations), len(map)), np.nan), num_cliques=0, cap_hit=None,
+                              failure=None if hypotheses else Failure(kind=FailureKind.NO_POSE),
+                              timings={Stage.MATCHING: elapsed})
 
 
 def mapped_pairs(observations: Observations, map: Map) -> np.ndarray:
@@ -323,7 +325,7 @@ def scene_scalability(sequence: CachedSequence, counts: tuple[int, ...], frames:
                        key=lambda result: sum(result.timings.values())) for frame in queries]
         rows.append({
             "landmarks": len(map),
-            "median_ms": 1e3 * float(np.median([sum(r.timings[s] for s in ALGORITHM) for r in results])),
+            "median_ms": 1e3 * float(np.median([sum(r.timings[s] for s in ALGORITHM_STAGES) for r in results])),
             "median_total_ms": 1e3 * float(np.median([sum(r.timings.values()) for r in results])),
             "candidates": float(np.median([len(r.candidates) for r in results])),
             "cliques": float(np.median([r.num_cliques for r in results])),

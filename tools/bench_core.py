@@ -31,17 +31,16 @@ import numpy as np
 
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.geometry import random_rotation
-from clipclique.inliers import compatibility_graph, maximal_cliques
+from clipclique.compatibility import compatibility_graph
+from clipclique.outcomes import ALGORITHM_STAGES
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
+from clipclique.reference_cliques import maximal_cliques
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import literal_reference  # noqa: E402
-
-ALGORITHM = ("matching", "inliers", "pose")
-
 
 def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int = 0) -> dict:
     """Median and 90th-percentile ms of matching + inliers + pose (and of the full query) for `method`."""
@@ -53,7 +52,7 @@ def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int =
     for _ in range(frames):
         observations, _ = synthetic_query(map, rng)
         timings = localize(observations, index, config).timings
-        algorithm.append(1e3 * sum(timings[s] for s in ALGORITHM))
+        algorithm.append(1e3 * sum(timings[s] for s in ALGORITHM_STAGES))
         total.append(1e3 * sum(timings.values()))
     return {
         "method": method,
@@ -73,7 +72,7 @@ def scalability(
     for count in counts:
         algorithm, total, candidates, cliques, caps = [], [], [], [], 0
         for map, _, _, result in duplicated_room_queries(count, method, room, frames, seed):
-            algorithm.append(1e3 * sum(result.timings[s] for s in ALGORITHM))
+            algorithm.append(1e3 * sum(result.timings[s] for s in ALGORITHM_STAGES))
             total.append(1e3 * sum(result.timings.values()))
             candidates.append(len(result.candidates))
             cliques.append(result.num_cliques)
@@ -194,7 +193,7 @@ def desk_scalability(counts: list[int], frames: int = 30, seed: int = 0) -> list
             observations = desk_query(base, rng)
             result = localize(observations, index, config)
             seconds, enumerated, cap = previous_solve(observations, map, result, config)
-            now.append(1e3 * sum(result.timings[s] for s in ALGORITHM))
+            now.append(1e3 * sum(result.timings[s] for s in ALGORITHM_STAGES))
             before.append(1e3 * (result.timings["matching"] + seconds))
             candidates.append(len(result.candidates))
             cliques.append(enumerated)

@@ -19,10 +19,10 @@ import numpy as np  # noqa: E402
 
 from clipclique.config import METHOD_PRESETS  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
-from clipclique.pipeline import STAGES, index_map, localize  # noqa: E402
-from localization.run import QUERY_STAGES, RunSettings, observe, prepare, selected_frames  # noqa: E402
+from clipclique.outcomes import ALGORITHM_STAGES, PIPELINE_STAGES, QUERY_STAGES  # noqa: E402
+from clipclique.pipeline import index_map, localize  # noqa: E402
+from localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
 
-ALGORITHM_STAGES = ("matching", "inliers", "pose")
 
 
 def positive(text: str) -> int:
@@ -48,7 +48,7 @@ def main() -> None:
     except ClipcliqueError as error:  # a missing map or sequence: one line, as clipclique-loc says it
         parser.exit(2, f"bench_loc: error: {error}\n")
     index = index_map(run.map, run.config)
-    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *STAGES, "algorithm", "no detector")}
+    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm", "no detector")}
     for i in selected_frames(run):
         seen = observe(run, run.sequence[i])
         results = [localize(seen.observations, index, run.config) for _ in range(args.repeat)]

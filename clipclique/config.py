@@ -1,7 +1,9 @@
 """Parameters with the paper's defaults; methods and ablations are configurations of one pipeline.
 
-A configuration is built from a method preset, then optionally a TOML file, then `key=value`
-overrides (`inliers.d_comp=0.4`), and written next to every result so a run can be repeated.
+A configuration is built from a method preset, then optionally a TOML file (or the config.json
+written next to every result, so a run can be repeated), then `key=value` overrides
+(`inliers.d_comp=0.4`). Each setting's valid range sits beside it (`ranged`); every key an earlier
+version wrote is still accepted (tests/test_config.py holds one such config.json).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from pathlib import Path
 from typing import Any, Literal, NamedTuple, get_args, get_origin, get_type_hints
 
 from clipclique.errors import ClipcliqueError
-from clipclique.safeio import read_text
+from clipclique.safeio import read_json, read_text
 from clipclique.types import MAX_DEPTH_M
 
 Descriptor = Literal["fused", "clip", "sh", "xview"]
@@ -197,13 +199,13 @@ def make_config(
     file: Path | None = None,
     overrides: dict[str, Any] | list[str] | None = None,
 ) -> LocalizationConfig:
-    """Preset for `method`, then the TOML `file`, then `overrides` (dotted keys)."""
+    """Preset for `method`, then the TOML or JSON `file`, then `overrides` (dotted keys)."""
     if method not in METHOD_PRESETS:
         raise ConfigError(f"unknown method {method!r}; choose one of {', '.join(METHOD_PRESETS)}")
     config = LocalizationConfig(method=method)
     apply_overrides(config, METHOD_PRESETS[method], source=f"method preset {method}")
     if file is not None:
-        apply_overrides(config, _flatten(load_toml(file)), source=str(file))
+        apply_overrides(config, _flatten(load_file(file)), source=str(file))
     if overrides:
         if isinstance(overrides, list):
             overrides = parse_assignments(overrides)
@@ -211,9 +213,16 @@ def make_config(
     return config
 
 
-def load_toml(path: Path) -> dict[str, Any]:
-    """A TOML config file, read as strict UTF-8 (tomllib's own rule) with a ConfigError naming it otherwise."""
-    text = read_text(Path(path), "config file", ConfigError, limit=MAX_CONFIG_BYTES)
+def load_file(path: Path) -> dict[str, Any]:
+    """A config file: a results folder's config.json (by its suffix), else TOML read as strict UTF-8
+    (tomllib's own rule); a ConfigError naming it when it is neither."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        tree = read_json(path, "config file", ConfigError, limit=MAX_CONFIG_BYTES)
+        if not isinstance(tree, dict):
+            raise ConfigError(f"{path}: a config file holds a JSON object, not a {type(tree).__name__}")
+        return tree
+    text = read_text(path, "config file", ConfigError, limit=MAX_CONFIG_BYTES)
     try:
         return tomllib.loads(text)
     except (tomllib.TOMLDecodeError, RecursionError) as error:

@@ -54,7 +54,7 @@ def run(
     sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
     method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
     top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
-    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters, or a run's config.json", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
                                                       rich_help_panel=ALGORITHM)] = None,
     min_confidence: Annotated[Optional[float], typer.Option(

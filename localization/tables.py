@@ -15,10 +15,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from clipclique.outcomes import ALL_STAGES
+from clipclique.outcomes import ALL_STAGES, Stage
 
-STAGE_HEADERS = {"detector": "det.", "observations": "fit", "encoder": "enc.", "descriptors": "desc.",
-                 "similarity": "sim.", "matching": "match", "inliers": "inl.", "verification": "verif"}  # 80 columns
+STAGE_HEADERS = {Stage.DETECTOR: "det.", Stage.OBSERVATIONS: "fit", Stage.ENCODER: "enc.", Stage.DESCRIPTORS: "desc.",
+                 Stage.SIMILARITY: "sim.", Stage.MATCHING: "match", Stage.INLIERS: "inl.", Stage.POSE: "pose",
+                 Stage.VERIFICATION: "verif"}  # 80 columns
 
 
 def make_console() -> Console:
@@ -90,7 +91,7 @@ def stage_table(documents: list[dict[str, Any]]) -> Table:
     table.add_column("Sequence", no_wrap=True)
     table.add_column("Method", no_wrap=True)
     for stage in ALL_STAGES:
-        table.add_column(STAGE_HEADERS.get(stage, stage), justify="right", no_wrap=True)
+        table.add_column(STAGE_HEADERS[stage], justify="right", no_wrap=True)
     titles, _ = _marks(documents)
     for document, method in zip(documents, titles):
         medians = document["summary"]["stage_ms_median"]

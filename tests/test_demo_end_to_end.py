@@ -15,6 +15,7 @@ from clipclique.resolve import open_scene
 from clipclique.sim.demo import DEMO_SCENES, generate
 from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
+from clipclique.outcomes import FailureKind
 from localization.results import read_results, run_and_save
 from localization.run import RunSettings
 from mapping.build import build_map
@@ -84,8 +85,9 @@ def test_frames_without_enough_observations_are_failures_not_dropped(runs):
     for frame in failed:
         assert frame["hypotheses"] == [] and not any(frame["evaluation"]["success"].values())
         assert frame["evaluation"]["translation_error_m"] is None
-    few = [f for f in failed if f["failure"].startswith("fewer than 3 observations")]
-    assert all(f["observations"] < 3 for f in few)
+    few = [f for f in failed if f["failure_kind"] == FailureKind.FEW_OBSERVATIONS.value]
+    assert all(f["observations"] < 3 and f["failure"] == f"fewer than 3 observations ({f['observations']})"
+               for f in few)
 
 
 def test_results_and_poses_read_back(runs, demo):
@@ -192,7 +194,9 @@ def test_min_confidence_reports_unconfident_frames_as_not_localized(runs, demo, 
     plain = read_results(runs["clipclique"] / "results.json")["frames"]
     strict = read_results(tmp_path / "results.json")
     expected = [f["index"] for f in plain if f["hypotheses"] and max(h["confidence"] for h in f["hypotheses"]) < 0.9]
-    refused = [f["index"] for f in strict["frames"] if (f["failure"] or "").startswith("no pose with confidence >= 0.9")]
+    refused = [f["index"] for f in strict["frames"] if f["failure_kind"] == FailureKind.NOT_CONFIDENT.value]
+    assert all(f["failure"].startswith("no pose with confidence >= 0.9 (best ") for f in strict["frames"]
+               if f["index"] in refused)
     assert refused == expected and refused
     assert strict["summary"]["not_confident"] == len(refused)
     assert f"not localized (no pose with confidence >= 0.9): {len(refused)} of {FRAMES} frames" in printed.output

@@ -273,18 +273,20 @@ def config_cases() -> list[Case]:
     def override(assignment: str, key: str) -> Callable:
         return lambda space, case_dir: (loc_app, space.loc_args("--set", assignment), key)
 
-    def config_file(data: bytes | None, directory: bool = False) -> Callable:
+    def config_file(data: bytes | None, directory: bool = False, name: str = "params.toml") -> Callable:
         def make(space, case_dir):
-            path = case_dir / "params.toml"
+            path = case_dir / name
             path.mkdir() if directory else path.write_bytes(data)
-            return loc_app, space.loc_args("--config", str(path)), "params.toml"
+            return loc_app, space.loc_args("--config", str(path)), name
 
         return make
 
     cases = [Case("config", f"{key}={value}", override(f"{key}={value}", key)) for key in FLOAT_KEYS for value in ("nan", "inf", "-inf")]
     for assignment in ("graph.walk_length=40", "graph.walk_length=0", "inliers.seed=-1", "graph.xview_seed=-3",
                        "top_n=0", "top_n=100000000000000000000", "matching.k=-2", "inliers.min_clique_size=2",
-                       "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000", "method=xyz"):
+                       "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000", "method=xyz",
+                       "observations.max_depth=-1", "observations.fit.min_points=0", "matching.max_candidates=0",
+                       "verification.explained_iou=2", "inliers.max_pairs=-5"):
         cases.append(Case("config", assignment, override(assignment, assignment.partition("=")[0])))
     cases += [
         Case("config", "toml-latin1", config_file(b"[inliers]\n# " + LATIN1 + b"\nd_comp = 0.3\n")),
@@ -292,6 +294,12 @@ def config_cases() -> list[Case]:
         Case("config", "toml-deep", config_file(("x = " + "[" * 100_000 + "]" * 100_000).encode())),
         Case("config", "toml-folder", config_file(None, directory=True)),
         Case("config", "toml-nan", config_file(b"[graph]\nd_adj = nan\n")),
+        Case("config", "json-list", config_file(b"[1, 2]", name="config.json")),
+        Case("config", "json-latin1", config_file(b'{"method": "' + LATIN1 + b'"}', name="config.json")),
+        Case("config", "json-deep", config_file(b"[" * 100_000 + b"]" * 100_000, name="config.json")),
+        Case("config", "json-nan", config_file(b'{"graph": {"d_adj": NaN}}', name="config.json")),
+        Case("config", "json-null", config_file(b'{"inliers": {"d_comp": null}}', name="config.json")),
+        Case("config", "json-section-as-key", config_file(b'{"observations": {"fit": 3}}', name="config.json")),
     ]
     return cases
 

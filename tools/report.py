@@ -274,7 +274,7 @@ def scalability_section(results: dict[str, Any], plotted: bool) -> str:
     lines += ["", f"The paper reports about {PAPER_LANDMARKS_AT_1S} landmarks localized within 1 s, growing quadratically."]
     if scene["exponent_total"] < 1.6:
         lines[-1] += (" Ours grows far more slowly: the compatibility graph is built from a KD-tree's reach instead of "
-                      "testing all pairs of candidates (`clipclique/inliers.py`), and at these sizes fixed per-query "
+                      "testing all pairs of candidates (`clipclique/compatibility.py`), and at these sizes fixed per-query "
                       "costs still weigh heavily.")
     if plotted:
         lines += ["", "![Latency per query against landmark count, log-log](scalability.png)"]

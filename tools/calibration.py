@@ -78,7 +78,7 @@ def collect(sequences: list[SequenceLike], methods: tuple[str, ...] = METHODS) -
                 has_correct.append(any(hits))
                 if not result.hypotheses:
                     continue
-                checked = verification.verify(result.hypotheses, cached.observations, sequence.map)
+                checked = verification.verify(result.hypotheses, cached.observations, sequence.map, config.verification)
                 evidence = confidence.Evidence(result.hypotheses, checked, result.similarity, len(cached.observations))
                 features.append(confidence.feature_matrix(evidence))
                 correct += hits

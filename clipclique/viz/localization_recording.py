@@ -273,7 +273,7 @@ class LocalizationRecorder:
             )
         self.stream.log("log", rr.TextLog(line, level=rr.TextLogLevel.INFO))
         if result.failure is not None:
-            self.stream.log("log", rr.TextLog(f"no pose: {result.failure}", level=rr.TextLogLevel.WARN))
+            self.stream.log("log", rr.TextLog(f"no pose: {result.failure.message}", level=rr.TextLogLevel.WARN))
         if result.cap_hit is not None:
             self.stream.log("log", rr.TextLog(f"bound hit: {result.cap_hit}", level=rr.TextLogLevel.WARN))
         for note in result.notes:

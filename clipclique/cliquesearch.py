@@ -124,8 +124,6 @@ def top_cliques(
         raise ValueError("groups must be non-negative")
     if count < 1 or num_nodes < min_size:
         return TopCliques(cliques=[], totals=np.zeros(0), reached=0, cap=None)
-    if np.any(groups[edges[:, 0]] == groups[edges[:, 1]]):
-        raise ValueError("an edge joins two vertices of one group")
     problem = Problem(weights, groups, min_size, max_cliques)
     arrays = _prepare(edges, num_nodes, weights, groups, count)
     state, best = arrays.state, arrays.best
@@ -158,10 +156,12 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _prepare(edges, num_nodes, weights, groups, count):
-    """The search's arrays: the graph as CSR, the vertex order, scratch and the ranked top list
-    (no edge may join two vertices of one group: top_cliques checks)."""
+    """The search's arrays: the graph as CSR, the vertex order, scratch and the ranked top list;
+    ValueError when an edge joins two vertices of one group."""
     degree = np.zeros(num_nodes, np.int64)
     for e in range(len(edges)):
+        if groups[edges[e, 0]] == groups[edges[e, 1]]:
+            raise ValueError("an edge joins two vertices of one group")
         degree[edges[e, 0]] += 1
         degree[edges[e, 1]] += 1
     indptr = np.zeros(num_nodes + 1, np.int64)

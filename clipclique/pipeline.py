@@ -4,7 +4,7 @@ One function composes the stages according to a LocalizationConfig; CLIP-Clique,
 (SH, X-View, CLIP-Loc) and every ablation are configurations of it (`config.METHOD_PRESETS`).
 Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
 
-A frame without a pose says why in `LocalizationResult.failure`, a `outcomes.Failure` naming the
+A frame without a pose says why in `LocalizationResult.failure`, an `outcomes.Failure` naming the
 stage that lost it (its message in quotes): FEW_OBSERVATIONS "fewer than 3 observations (K)",
 FEW_MATCHED "fewer than 3 observations with a candidate landmark (k)", NO_CLIQUE "no clique of 3
 or more compatible correspondences", NO_MINIMAL_SET "no minimal set of 3 distinct, non-collinear

@@ -13,7 +13,7 @@ import pytest
 from clipclique.config import ConfigError, FitParams, LocalizationConfig, ObservationParams, flat, make_config
 from clipclique.outcomes import CapHit
 from clipclique.pipeline import index_map, localize
-from clipclique.synthetic import synthetic_map, synthetic_query
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 
 # config.json as written before settings moved beside their fields (clipclique defaults)
 EARLIER_CONFIG_JSON = """{"method": "clipclique", "graph": {"d_adj": 0.8, "max_degree": 64, "walk_length": 3,

@@ -3,6 +3,7 @@
 Each output is written to `<name>.partial` beside its target and moved into place by
 `Staging.commit` once everything succeeded; an error, Ctrl-C or SIGTERM before that removes
 the partial files and leaves the previous outputs byte-identical.
+The tools' default output folders (relative to the working folder) are defined here, once.
 """
 
 from __future__ import annotations
@@ -17,6 +18,14 @@ from types import FrameType, TracebackType
 from clipclique.errors import ClipcliqueError
 
 PARTIAL_SUFFIX = ".partial"
+MAP_DIR = Path("outputs/maps")  # clipclique-map writes, clipclique-loc and the benchmark look up
+LOC_DIR = Path("outputs/loc")  # clipclique-loc's run folders
+BENCH_DIR = Path("outputs/bench")  # the benchmark's reports
+
+
+def map_file(scene: str) -> Path:
+    """Where the map of `scene` (its short name, as `datasets.scene_name` gives it) is written and found."""
+    return MAP_DIR / f"{scene}.map.npz"
 
 
 class Staging:

@@ -1,12 +1,13 @@
 """`clipclique-loc`: localize every frame of a sequence against its map and score it.
 
+This module parses the options and prints; the run itself is localization.run.run_and_save.
+
 Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help` is instant.
 """
 
 from __future__ import annotations
 
 import os
-import sys
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional
@@ -16,6 +17,7 @@ import typer
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
 
+TOOL = "clipclique-loc"
 ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
 
 
@@ -93,8 +95,8 @@ def run(
     from rich.progress import Progress
 
     from clipclique.commands import rerun_hint
-    from localization.results import run_and_save
-    from localization.run import RunSettings
+    from clipclique.exits import user_errors
+    from localization.run import RunSettings, run_and_save
     from localization.tables import make_console, print_documents, print_frames
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
@@ -103,13 +105,9 @@ def run(
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, force=force)
     console = make_console()
-    try:
-        with _user_errors(), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-            task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
-            document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
-    except KeyboardInterrupt:
-        print("clipclique-loc: interrupted", file=sys.stderr)
-        raise typer.Exit(130) from None
+    with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
+        task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
+        document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
     if verbose:
         print_frames(console, document)
     if not quiet:
@@ -129,27 +127,13 @@ def run(
 @app.command()
 def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
     """One table of several runs (e.g. outputs/loc/demo/*); each names the settings that set it apart."""
+    from clipclique.exits import user_errors
     from localization.results import read_results
     from localization.tables import make_console, print_documents
 
-    with _user_errors():
+    with user_errors(TOOL):
         documents = [read_results(p / "results.json" if p.is_dir() else p) for p in results]
     print_documents(make_console(), documents)
-
-
-class _user_errors:
-    """Print a ClipcliqueError as one line and exit 2; anything else is a bug and keeps its traceback."""
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind, error, trace) -> bool:
-        from clipclique.errors import ClipcliqueError, one_line
-
-        if isinstance(error, ClipcliqueError):
-            print(f"clipclique-loc: error: {one_line(error)}", file=sys.stderr)
-            raise typer.Exit(2)
-        return False
 
 
 def main() -> None:

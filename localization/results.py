@@ -1,4 +1,5 @@
-"""Results of a run on disk: results.json (summary + every frame), poses.tum, config.json.
+"""Results of a run on disk: results.json (summary + every frame), poses.tum, config.json; their
+writers and the reader. The run that makes them is localization.run.
 
 The files (and recording.rrd) are staged as `*.partial` and moved into place together once the
 run succeeded (clipclique.outputs), so a file that exists is whole and belongs to one run.
@@ -13,10 +14,8 @@ from __future__ import annotations
 
 import json
 import math
-import os
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -24,11 +23,12 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
-from clipclique.outputs import Staging
 from clipclique.outcomes import ALL_STAGES
 from clipclique.safeio import read_json
 from clipclique.types import Pose
-from localization.run import FrameOutcome, Run, RunSettings, execute, prepare
+
+if TYPE_CHECKING:  # the runner (localization.run) writes through this module, not the other way round
+    from localization.run import FrameOutcome, Run
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
@@ -213,66 +213,3 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, np.bool_):
         return bool(value)
     return value
-
-
-def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
-    """Prepare, localize every selected frame, write results (and the .rrd) into
-    `settings.out_dir(sequence name)`; the results document.
-
-    The outputs appear together once the run succeeded; a failed or interrupted run leaves the
-    previous ones as they were and no folder it made empty behind. Without a recording, an earlier
-    run's recording.rrd is removed (it would show other results) and a note says so.
-    """
-    run = prepare(settings)
-    out_dir = settings.out_dir(run.sequence.name)
-    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
-    recording = out_dir / "recording.rrd"
-    try:
-        writable_folder(out_dir)
-        with Staging() as staging:
-            partials = {name: staging.path(out_dir / name) for name in OUTPUT_FILES}  # a folder in the way: refused now
-            if settings.record:
-                from clipclique.viz import LocalizationRecorder
-
-                with LocalizationRecorder(staging.path(recording), run.map, recording_description(run),
-                                          d_adj=run.config.graph.d_adj) as recorder:
-                    execute(run, recorder, progress)
-            else:
-                execute(run, None, progress)
-                if recording.is_file():
-                    staging.remove(recording)
-                    run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
-            document = write_results(run, partials)
-            staging.commit()
-        return document
-    except BaseException:
-        for folder in made:
-            if folder.is_dir() and not any(folder.iterdir()):
-                folder.rmdir()
-        raise
-
-
-def writable_folder(out_dir: Path) -> Path:
-    """`out_dir`, created; a folder that cannot be written is a user error before the run, not a
-    traceback after it."""
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise ClipcliqueError(f"--out {out_dir}: cannot create the folder ({error.strerror})") from None
-    if not os.access(out_dir, os.W_OK | os.X_OK):
-        raise ClipcliqueError(f"--out {out_dir}: the folder is not writable")
-    return out_dir
-
-
-def recording_description(run: Run) -> str:
-    """The recording's text document: what ran, flagged where simulated, and the full config."""
-    description = run_description(run)
-    parts = [f"# {description['method_title']} on {description['sequence']}",
-             f"- map: `{description['map']}` (text embeddings: {description['map_encoder']})"]
-    for role in ("detector", "encoder"):
-        part = description[role]
-        parts.append(f"- {role}: none" if part is None else
-                     f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
-    parts += [f"- note: {note}" for note in run.notes]
-    parts.append(f"\n```json\n{json.dumps(run.config.to_dict(), indent=1)}\n```")
-    return "\n".join(parts)

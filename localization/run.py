@@ -1,4 +1,6 @@
-"""The sequence loop of `clipclique-loc run`: frames -> detections -> observations -> poses -> metrics.
+"""The runner of `clipclique-loc run`: read the sequence and map, then frames -> detections ->
+observations -> poses -> metrics, then write the results (`run_and_save`, what the CLI, the demo and
+the tests call).
 
 Every frame is scored, including those with too few observations (they count as failures).
 Which detector and encoder ran, and whether they are simulated, travels with the results.
@@ -7,12 +9,14 @@ Which detector and encoder ran, and whether they are simulated, travels with the
 from __future__ import annotations
 
 import hashlib
+import json
+import os
 import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, make_config
@@ -23,16 +27,16 @@ from clipclique.encoders import Encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.mapfile import load_map
 from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
+from clipclique.observations import embed, extract_observations
+from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from clipclique.observations import embed, extract_observations
+from localization.results import OUTPUT_FILES, run_description, write_results
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records
 
-MAP_DIR = Path("outputs/maps")
-LOC_DIR = Path("outputs/loc")
 MAX_RUN_NAME = 100  # characters of a run folder's name; longer ones end in a hash
 
 
@@ -77,7 +81,7 @@ class RunSettings:
         return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
     def resolved_map_path(self) -> Path:
-        return self.map_path or MAP_DIR / f"{scene_name(self.sequence)}.map.npz"
+        return self.map_path or map_file(scene_name(self.sequence))
 
 
 @dataclass
@@ -227,3 +231,65 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
             progress(count, len(selected))
     return run
 
+
+def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+    """Prepare, localize every selected frame, write results (and the .rrd) into
+    `settings.out_dir(sequence name)`; the results document.
+
+    The outputs appear together once the run succeeded; a failed or interrupted run leaves the
+    previous ones as they were and no folder it made empty behind. Without a recording, an earlier
+    run's recording.rrd is removed (it would show other results) and a note says so.
+    """
+    run = prepare(settings)
+    out_dir = settings.out_dir(run.sequence.name)
+    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
+    recording = out_dir / "recording.rrd"
+    try:
+        writable_folder(out_dir)
+        with Staging() as staging:
+            partials = {name: staging.path(out_dir / name) for name in OUTPUT_FILES}  # a folder in the way: refused now
+            if settings.record:
+                from clipclique.viz import LocalizationRecorder
+
+                with LocalizationRecorder(staging.path(recording), run.map, recording_description(run),
+                                          d_adj=run.config.graph.d_adj) as recorder:
+                    execute(run, recorder, progress)
+            else:
+                execute(run, None, progress)
+                if recording.is_file():
+                    staging.remove(recording)
+                    run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
+            document = write_results(run, partials)
+            staging.commit()
+        return document
+    except BaseException:
+        for folder in made:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
+
+
+def writable_folder(out_dir: Path) -> Path:
+    """`out_dir`, created; a folder that cannot be written is a user error before the run, not a
+    traceback after it."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ClipcliqueError(f"--out {out_dir}: cannot create the folder ({error.strerror})") from None
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        raise ClipcliqueError(f"--out {out_dir}: the folder is not writable")
+    return out_dir
+
+
+def recording_description(run: Run) -> str:
+    """The recording's text document: what ran, flagged where simulated, and the full config."""
+    description = run_description(run)
+    parts = [f"# {description['method_title']} on {description['sequence']}",
+             f"- map: `{description['map']}` (text embeddings: {description['map_encoder']})"]
+    for role in ("detector", "encoder"):
+        part = description[role]
+        parts.append(f"- {role}: none" if part is None else
+                     f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
+    parts += [f"- note: {note}" for note in run.notes]
+    parts.append(f"\n```json\n{json.dumps(run.config.to_dict(), indent=1)}\n```")
+    return "\n".join(parts)

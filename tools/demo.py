@@ -6,16 +6,16 @@ the simulated stand-ins, and every table and recording says so.
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 from clipclique.commands import command
-from clipclique.errors import ClipcliqueError
-from localization.results import run_and_save
-from localization.run import MAP_DIR, RunSettings
+from clipclique.exits import user_errors
+from clipclique.outputs import MAP_DIR
+from localization.run import RunSettings, run_and_save
 from localization.tables import make_console, print_documents
-from mapping.cli import run_build
+from mapping import tables as map_tables
+from mapping.run import run_build
 
 SEQUENCES = ("demo", "demo_tum")
 METHODS = ("clipclique", "sh", "xview", "cliploc")
@@ -23,19 +23,16 @@ METHODS = ("clipclique", "sh", "xview", "cliploc")
 
 def main() -> None:
     """Run the demo; a ClipcliqueError (data that cannot be written, a broken map) is one line and exit 2."""
-    try:
+    with user_errors("demo"):
         run_demo()
-    except ClipcliqueError as error:
-        print(f"demo: error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
 
 
 def run_demo() -> None:
-    console = make_console()
+    console, map_console = make_console(), map_tables.make_console()
     start = time.perf_counter()
     for sequence in SEQUENCES:
         console.print(f"[bold]building the map of {sequence}[/bold]")
-        run_build(sequence, data_root=None, out=None, encoder_spec=None, rrd=True)
+        map_tables.print_build(map_console, run_build(sequence))
     folders: dict[tuple[str, str], Path] = {}
     documents = []
     for sequence in SEQUENCES:

@@ -1,0 +1,75 @@
+"""The runner of `clipclique-map build`: open the scene, build the map, write it and its recording.
+
+What the CLI, tools/demo.py and the benchmark call; it prints nothing (mapping.tables does).
+The map and its recording are staged and appear together (clipclique.outputs).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from clipclique.backends import load_encoder
+from clipclique.datasets import scene_name
+from clipclique.mapfile import save_map
+from clipclique.outputs import Staging, map_file
+from clipclique.resolve import open_scene
+from clipclique.types import Map
+from mapping.build import BuildReport, Progress, build_map
+
+Bars = Callable[[str], Progress]  # a stage's description -> its progress callback
+GENERATING = "generating the {scene} data (first use)"
+FITTING = "fitting ellipsoids"
+
+
+@dataclass
+class Built:
+    """A finished build: the map, how each instance fared, and the files written."""
+
+    map: Map
+    report: BuildReport
+    encoder_spec: str  # as asked or defaulted (auto, simulated, ...): the summary says why there is no encoder
+    out: Path
+    recording: Path | None  # None with rrd=False
+    stale: Path | None  # an earlier map's recording removed because this build wrote none
+
+
+def run_build(scene: str, data_root: Path | None = None, out: Path | None = None, encoder_spec: str | None = None,
+              rrd: bool = True, bars: Bars | None = None) -> Built:
+    """Open the scene (generating a demo scene on first use), fit the landmarks, embed the descriptions,
+    write the map (and .rrd) to `out`, default outputs/maps/<SCENE>.map.npz (the name clipclique-loc looks up).
+    `bars` gives each stage a progress callback (generating the demo data, fitting)."""
+    started = time.perf_counter()
+    out = out or map_file(scene_name(scene))
+    recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
+    with Staging() as staging:
+        staged_map = staging.path(out)  # a folder in the way is refused before the work
+        staged_recording = staging.path(recording) if rrd else None
+        sequence = open_scene(scene, data_root, bars and bars(GENERATING.format(scene=scene)))
+        spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
+        map, report = build_map(sequence, load_encoder(spec), progress=bars and bars(FITTING))
+        save_map(map, staged_map)
+        if staged_recording is not None:
+            from clipclique.viz import write_map_recording  # rerun is imported only when a build records
+
+            cloud = sequence.scene_cloud()
+            write_map_recording(staged_recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
+        stale = recording if staged_recording is None and recording.is_file() else None
+        if stale:
+            staging.remove(stale)
+        staging.commit()
+    report.timings["total"] = time.perf_counter() - started
+    return Built(map, report, spec, out, recording if rrd else None, stale)
+
+
+def describe(map: Map, scene: str) -> str:
+    """The recording's text document: what the map is and what made it."""
+    source = map.provenance.get("source", {})
+    simulated = " (simulated CLIP: a stand-in for real CLIP on synthetic data)" if map.provenance.get("encoder_simulated") else ""
+    return (
+        f"# Map of {scene}\n\n{len(map)} landmarks, {len(map.class_names)} classes, from a {source.get('kind', '?')} "
+        f"scene{' (synthetic demo)' if source.get('synthetic') else ''}.\n\nText embeddings: {map.encoder}{simulated}.\n\n"
+        f"Left out as structure: {', '.join(map.provenance.get('structure_left_out', []))}."
+    )

@@ -1,0 +1,90 @@
+"""What `clipclique-map build` prints: the landmarks per class, what was left out, where the files are."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import Progress
+from rich.table import Table
+
+from clipclique.commands import rerun_hint
+from clipclique.config import GraphConfig
+from clipclique.types import Map
+from mapping.build import BuildReport, degree_histogram
+from mapping.run import Built
+
+
+def make_console() -> Console:
+    """stderr; piped, a path is never broken over two lines."""
+    return Console(stderr=True, soft_wrap=not sys.stderr.isatty())
+
+
+def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
+    """The summary (verbosity 0), also every landmark (1), or only where the files are (-1)."""
+    if verbosity >= 0:
+        print_summary(console, built.map, built.report, built.encoder_spec)
+    if verbosity > 0:
+        print_landmarks(console, built.map)
+    where = f"map: {built.out}"
+    if built.recording is not None:
+        where += f"\nrecording: {built.recording}  ({rerun_hint(built.recording)})"
+    console.print(escape(where), highlight=False)
+    if built.stale:
+        console.print(f"removed {escape(str(built.stale))}, the recording of an earlier map (--no-rrd)", highlight=False)
+
+
+def bar_on_first_call(progress: Progress, description: str) -> Callable[[int, int], None]:
+    """A progress callback whose bar appears only once there is work (the demo data may exist already)."""
+    task = None
+
+    def update(done: int, total: int) -> None:
+        nonlocal task
+        if task is None:
+            task = progress.add_task(description, total=total)
+        progress.update(task, completed=done, total=total)
+
+    return update
+
+
+def print_summary(console: Console, map: Map, report: BuildReport, spec: str) -> None:
+    """The landmarks per class, what was left out or skipped and why, the encoder and times."""
+    table = Table(title=f"{len(map)} landmarks", title_justify="left")
+    table.add_column("class")
+    table.add_column("landmarks", justify="right")
+    for name in map.class_names:
+        table.add_row(escape(name), str(report.landmarks_per_class[name]))
+    console.print(table)
+    print_graph(console, map)
+    if report.structure:
+        console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
+    for reason, items in report.skipped.items():
+        console.print(escape(f"skipped {len(items)}, {reason}: {', '.join(items)}"), highlight=False)
+    if map.encoder == "none":
+        why = "no CLIP weights found (--encoder auto)" if spec == "auto" else "--encoder none"
+        console.print(f"text embeddings: none ({why}); localization will rank by Semantic Histograms only")
+    else:
+        simulated = " [yellow](simulated)[/]" if map.provenance.get("encoder_simulated") else ""
+        console.print(f"text embeddings: {escape(map.encoder)}{simulated}")
+    timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
+    console.print(f"time: {timings}")
+
+
+def print_landmarks(console: Console, map: Map) -> None:
+    """Every landmark: instance id, class, centre and semi-axes (m), description."""
+    for i in range(len(map)):
+        center = " ".join(f"{v:.2f}" for v in map.ellipsoids.centers[i])
+        axes = " ".join(f"{v:.2f}" for v in map.ellipsoids.axes[i])
+        console.print(f"{map.instance_ids[i]:>4} {map.class_names[map.class_ids[i]]}: centre {center}, "
+                      f"semi-axes {axes}, {map.descriptions[i]!r}", highlight=False, markup=False)
+
+
+def print_graph(console: Console, map: Map) -> None:
+    """The semantic graph's degree histogram at the default d_adj: how much the Semantic Histograms can say."""
+    d_adj = GraphConfig().d_adj
+    counts = degree_histogram(map, d_adj)
+    console.print(f"semantic graph at d_adj {d_adj:g} m, landmarks per degree (0, 1, 2, ...): "
+                  f"{', '.join(str(int(n)) for n in counts)}; {counts[0] / max(len(map), 1):.0%} isolated "
+                  "(no neighbour: their Semantic Histograms are empty)", highlight=False)

@@ -38,9 +38,7 @@ from clipclique.reference_cliques import maximal_cliques
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import literal_reference  # noqa: E402
+from benchmark import literal_reference
 
 def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int = 0) -> dict:
     """Median and 90th-percentile ms of matching + inliers + pose (and of the full query) for `method`."""

@@ -24,8 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-import calibration  # noqa: E402
-import paper_tables  # noqa: E402
+from benchmark import calibration, paper_tables  # noqa: E402
 from localization.results import json_safe  # noqa: E402
 
 PAPER_LANDMARKS_AT_1S = 410  # the paper: about 410 landmarks localized within 1 s, growing quadratically

@@ -46,22 +46,22 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
 
-from bench_core import growth_exponent, scalability  # noqa: E402
+from benchmark import calibration, literal_reference, report  # noqa: E402
+from benchmark.core import growth_exponent, scalability  # noqa: E402
+from benchmark.report import PAPER_LANDMARKS_AT_1S  # noqa: E402
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
 from clipclique.datasets import resolve_data_root  # noqa: E402
-from clipclique.errors import ClipcliqueError, MapFileError  # noqa: E402
+from clipclique.errors import MapFileError  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
 from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage  # noqa: E402
 from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize  # noqa: E402
 from clipclique.sim import DEMO_SCENES  # noqa: E402
 from clipclique.sim.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
-from localization.run import MAP_DIR, Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
-
-import calibration  # noqa: E402
-import literal_reference  # noqa: E402
-import report  # noqa: E402
-from report import PAPER_LANDMARKS_AT_1S  # noqa: E402
+from clipclique.outputs import BENCH_DIR, map_file  # noqa: E402
+from localization.run import Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
+from mapping.run import run_build  # noqa: E402
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"
@@ -165,7 +165,7 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     and the real ones left out, with why."""
     names, skipped = list(DEMO_SCENES), []
     for folder in sorted([*(data_root / "scannet" / "scans").glob("scene*_*"), *(data_root / "tum").glob("rgbd_dataset_*")]):
-        if (MAP_DIR / f"{folder.name}.map.npz").is_file():
+        if map_file(folder.name).is_file():
             names.append(folder.name)
         else:
             skipped.append(f"{folder.name}: no map (build it with `clipclique-map build {folder.name}`)")
@@ -173,17 +173,14 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
 
 
 def ensure_map(name: str, data_root: Path | None) -> None:
-    """Build a missing demo map with clipclique-map (the demo data is generated on first use);
+    """Build a missing demo map as clipclique-map does (the demo data is generated on first use);
     a missing map of any other sequence is the user's to build."""
-    path = MAP_DIR / f"{Path(name).name}.map.npz"
+    path = map_file(Path(name).name)
     if path.is_file():
         return
     if name not in DEMO_SCENES:
         raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
-    command = [sys.executable, "-c", "from mapping.cli import main; main()", "build", name, "--no-rrd"]
-    built = subprocess.run(command + (["--data-root", str(data_root)] if data_root else []), stdout=subprocess.DEVNULL)
-    if built.returncode != 0:  # clipclique-map has printed why on stderr
-        raise MapFileError(f"{path}: building the map of {name} failed (clipclique-map exit status {built.returncode})")
+    run_build(name, data_root, path, rrd=False)
 
 
 def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> CachedSequence:
@@ -453,22 +450,15 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     """Run the suite; a user mistake (unknown sequence, missing map) is one line on stderr and exit 2."""
-    user_errors_exit("bench", run_suite, parse_args(argv))
-
-
-def user_errors_exit(program: str, work: Callable[[argparse.Namespace], None], args: argparse.Namespace) -> None:
-    """`work(args)`; a ClipcliqueError (a user mistake) becomes one line on stderr and exit status 2."""
-    try:
-        work(args)
-    except ClipcliqueError as error:
-        print(f"{program}: error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+    args = parse_args(argv)
+    with user_errors("bench"):
+        run_suite(args)
 
 
 def run_suite(args: argparse.Namespace) -> None:
     started = time.perf_counter()
     stamp = datetime.now(timezone.utc)
-    out = DOCS if args.docs else args.out or Path("outputs") / "bench" / stamp.strftime("%Y%m%d-%H%M%S")
+    out = DOCS if args.docs else args.out or BENCH_DIR / stamp.strftime("%Y%m%d-%H%M%S")
     frames = QUICK_FRAMES if args.quick and args.frames is None else args.frames
     counts = QUICK_COUNTS if args.quick else SCALABILITY_COUNTS
     names, skipped = (args.sequences, []) if args.sequences else available_sequences(resolve_data_root(args.data_root))

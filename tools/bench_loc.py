@@ -18,7 +18,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (lo
 import numpy as np  # noqa: E402
 
 from clipclique.config import METHOD_PRESETS  # noqa: E402
-from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
 from clipclique.outcomes import ALGORITHM_STAGES, PIPELINE_STAGES, QUERY_STAGES  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
 from localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
@@ -42,11 +42,9 @@ def main() -> None:
                         help="config override, e.g. inliers.verification=centers (repeatable)")
     args = parser.parse_args()
 
-    try:
+    with user_errors("bench_loc"):  # a missing map or sequence: one line, as clipclique-loc says it
         run = prepare(RunSettings(args.sequence, args.method, overrides=args.set, max_frames=args.max_frames,
                                   record=False))
-    except ClipcliqueError as error:  # a missing map or sequence: one line, as clipclique-loc says it
-        parser.exit(2, f"bench_loc: error: {error}\n")
     index = index_map(run.map, run.config)
     rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm", "no detector")}
     for i in selected_frames(run):

@@ -29,7 +29,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (lo
 import numpy as np  # noqa: E402
 
 from clipclique.encoders import Crop  # noqa: E402
-from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
 from clipclique.observations import Extraction, extract_observations  # noqa: E402
 from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 
@@ -137,11 +137,9 @@ def main() -> None:
             parser.exit(2, f"bench_observations: error: --rev {args.rev}: {error.stderr.strip()}\n")
         print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (a shared machine gives noisy timings); "
               f"before = {args.rev}, now = the working tree")
-        for scene in args.scenes:
-            try:
+        with user_errors("bench_observations"):  # a missing map or sequence: one line
+            for scene in args.scenes:
                 bench(scene, old, args.max_frames, args.repeat)
-            except ClipcliqueError as error:  # a missing map or sequence: one line
-                parser.exit(2, f"bench_observations: error: {error}\n")
 
 
 if __name__ == "__main__":

@@ -7,10 +7,8 @@ fused (0.7 CLIP + 0.3 SH) and SH only. Gives the table of README "Beyond the pap
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench  # noqa: E402
+from benchmark import suite as bench
 
 SETTINGS = {
     "none": {"inliers.partial_slack": 0.0},

@@ -1,6 +1,7 @@
 # Two commands set up everything on a fresh machine:
 #   make demo   build the demo maps, localize the demo sequences with all four methods
-#   make test   run the test suite
+#   make test   run the test suite (what CI runs)
+#   make test-fast   the unit tests only (tests/unit, no model weights): the quick loop while editing
 # and one regenerates every figure the repository commits:
 #   make docs   make demo, the benchmark into docs/benchmark/ and the README's figures, docs/*.png
 # Both create .venv and install the project with its models extra and the system
@@ -17,7 +18,7 @@ export YOLO_OFFLINE ?= 1
 export YOLO_AUTOINSTALL ?= false
 export HF_HUB_OFFLINE ?= 1
 
-.PHONY: install sysdeps demo test bench docs clean
+.PHONY: install sysdeps demo test test-fast bench docs clean
 
 install: $(STAMP)
 
@@ -45,6 +46,9 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -q tests/unit -m "not models"
 
 bench: $(STAMP)
 	$(PY) tools/bench.py

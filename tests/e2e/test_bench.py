@@ -1,4 +1,4 @@
-"""The benchmark suite (tools/bench.py, tools/report.py): a quick run on the demo, and the report's logic."""
+"""The benchmark suite (benchmark.suite, benchmark.report): a quick run on the demo, and the report's logic."""
 
 from __future__ import annotations
 
@@ -12,14 +12,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from benchmark import report, suite as bench
 from clipclique.config import make_config
 from clipclique.sim.demo import DEMO_SCENES
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts that import each other, not a package
-
-import bench  # noqa: E402
-import report  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 GROUP_LABELS = {group: [v.label for v in bench.variants() if v.group == group]
                 for group in ("methods", "fixes", "descriptors", "inliers", "weights", "matching", "alpha")}

@@ -3,7 +3,6 @@ and results.json / poses.tum read back to what was localized."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
@@ -12,12 +11,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.resolve import open_scene
-from clipclique.sim.demo import DEMO_SCENES, generate
 from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from clipclique.outcomes import FailureKind
-from localization.results import read_results, run_and_save
-from localization.run import RunSettings
+from localization.results import read_results
+from localization.run import RunSettings, run_and_save
 from mapping.build import build_map
 
 pytestmark = pytest.mark.slow
@@ -26,12 +24,10 @@ FRAMES = 60
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory) -> Path:
-    """The demo scene with 60 instead of 120 frames along the same walk, and its map."""
+def demo(tmp_path_factory, demo_data) -> Path:
+    """The demo scene with 60 instead of 120 frames along the same walk (linked), and its map beside it."""
     root = tmp_path_factory.mktemp("data")
-    folder = root / "demo" / "demo"
-    folder.mkdir(parents=True)
-    generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=FRAMES))
+    (root / "demo").symlink_to(demo_data("demo", frames=FRAMES, size=None) / "demo", target_is_directory=True)
     map, _ = build_map(open_scene("demo", root), load_encoder("simulated"))
     save_map(map, root / "demo.map.npz")
     return root
@@ -151,16 +147,17 @@ def test_a_second_run_is_identical(runs, demo, tmp_path):
     assert (runs["clipclique"] / "poses.tum").read_text() == (tmp_path / "poses.tum").read_text()
 
 
-def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys):
+def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys, repository):
     """tools/demo.py: a ClipcliqueError (here an --out folder that cannot be made) is one line and exit 2."""
     import importlib.util
 
     from clipclique.errors import ClipcliqueError
 
-    spec = importlib.util.spec_from_file_location("demo_tool", Path(__file__).resolve().parents[1] / "tools" / "demo.py")
+    spec = importlib.util.spec_from_file_location("demo_tool", repository / "tools" / "demo.py")
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
     monkeypatch.setattr(tool, "run_build", lambda *args, **kwargs: None)
+    monkeypatch.setattr(tool.map_tables, "print_build", lambda *args, **kwargs: None)
 
     def blocked(settings):
         raise ClipcliqueError(f"--out {settings.out_dir('demo')}: cannot create the folder (Not a directory)")

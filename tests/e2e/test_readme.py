@@ -8,7 +8,6 @@ SKIPPED with the reason; a block that is neither run nor listed fails the test.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import re
 import shutil
@@ -20,10 +19,10 @@ from pathlib import Path
 import pytest
 
 from clipclique.config import make_config
-from clipclique.sim.demo import DEMO_SCENES, generate
+from clipclique.sim.demo import DEMO_SCENES
 
 pytestmark = pytest.mark.slow
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository
 README = (ROOT / "README.md").read_text()
 FRAMES = 12
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.MULTILINE | re.DOTALL)
@@ -37,7 +36,7 @@ SKIPPED = {
     "evo_ape tum outputs/loc/demo_tum/clipclique/groundtruth.tum outputs/loc/demo_tum/clipclique/poses.tum":
         "evo is not a dependency (`pip install evo`); its input files are checked by test_evo_files_pair_up",
     "rerun outputs/loc/demo/clipclique/recording.rrd": "opens the viewer's window",
-    "make docs": "reruns the demo and the benchmark (minutes); tests/test_bench.py checks what it wrote",
+    "make docs": "reruns the demo and the benchmark (minutes); tests/e2e/test_bench.py checks what it wrote",
     "make test": "runs this test suite",
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
 }
@@ -62,16 +61,12 @@ def test_every_code_block_says_what_it_is():
 
 
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory) -> tuple[Path, dict[str, str]]:
-    """A scratch repository root: tools, tests and .venv linked, shortened demo data beside it."""
+def workspace(tmp_path_factory, demo_data) -> tuple[Path, dict[str, str]]:
+    """A scratch repository root: tools, tests and .venv linked, shortened demo data elsewhere."""
     root = tmp_path_factory.mktemp("readme")
     for name in ("tools", "tests", ".venv", "pyproject.toml"):
         (root / name).symlink_to(ROOT / name)
-    data = root.parent / f"{root.name}-data"
-    for name in DEMO_SCENES:
-        folder = data / "demo" / name
-        folder.mkdir(parents=True)
-        generate(folder, name, dataclasses.replace(DEMO_SCENES[name], num_frames=FRAMES))
+    data = demo_data(*DEMO_SCENES, frames=FRAMES, size=None)
     env = os.environ | {"CLIPCLIQUE_DATA": str(data), "TERM": "dumb"}
     env.pop("VIRTUAL_ENV", None)
     env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep) if not p.startswith(str(ROOT / ".venv")))

@@ -2,7 +2,7 @@
 four generated scenes, held as one digest per run (timings and paths left out).
 
 A refactoring must leave these digests alone. A change that moves results on purpose re-baselines
-them in the same commit and says which figures moved (`python -m pytest tests/test_results_digest.py
+them in the same commit and says which figures moved (`python -m pytest tests/e2e/test_results_digest.py
 --digests` prints the new values)."""
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ import pytest
 from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
-from localization.results import read_results, run_and_save
-from localization.run import RunSettings
+from localization.results import read_results
+from localization.run import RunSettings, run_and_save
 from mapping.build import build_map
 
 pytestmark = pytest.mark.slow
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 # (scene, method) -> sha256 of the canonical outcome of every frame
 EXPECTED = {

@@ -6,7 +6,6 @@ its recording is being written.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import os
 import signal
@@ -19,7 +18,6 @@ import pytest
 from typer.testing import CliRunner
 
 from clipclique.resolve import open_scene
-from clipclique.sim.demo import DEMO_SCENES, generate
 from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from localization.cli import app
@@ -30,12 +28,10 @@ LOC = Path(sys.executable).with_name("clipclique-loc")
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory) -> Path:
+def demo(tmp_path_factory, demo_data) -> Path:
     """A 60-frame demo at 160 x 120, its map, and the outputs of an earlier recorded run in loc/."""
     root = tmp_path_factory.mktemp("signals")
-    folder = root / "demo" / "demo"
-    folder.mkdir(parents=True)
-    generate(folder, "demo", dataclasses.replace(DEMO_SCENES["demo"], num_frames=60, width=160, height=120))
+    (root / "demo").symlink_to(demo_data("demo", frames=60) / "demo", target_is_directory=True)
     map, _ = build_map(open_scene("demo", root), load_encoder("simulated"))
     save_map(map, root / "demo.map.npz")
     result = CliRunner().invoke(app, args(root, "--max-frames", "3"))

@@ -9,12 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-from viz_scene import CLASSES, load_screenshot_tool, scene_points, synthetic_run
 
-from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
+from clipclique.viz import LocalizationRecorder, class_colors, screenshot as tool, write_map_recording
 from clipclique.viz.style import CORRECT, WRONG
 
-tool = load_screenshot_tool()
 pytestmark = [
     pytest.mark.viewer,
     pytest.mark.skipif(
@@ -34,7 +32,7 @@ def render(path: Path, frame: int | None = None) -> tuple[np.ndarray, list[str]]
     return np.asarray(Image.open(io.BytesIO(shot.png)).convert("RGB")), shot.view_reports
 
 
-def test_map_recording_opens_on_the_framed_landmarks(tmp_path):
+def test_map_recording_opens_on_the_framed_landmarks(tmp_path, synthetic_run, scene_points):
     map, _ = synthetic_run(num_frames=1)
     path = tmp_path / "room.map.rrd"
     write_map_recording(path, map, *scene_points(), "# Synthetic room")
@@ -43,17 +41,17 @@ def test_map_recording_opens_on_the_framed_landmarks(tmp_path):
     assert reports == []  # no view says it failed to show something
     view_3d = image[60:-60, : int(SIZE[0] * 0.58)]
     assert view_3d.std() > 20  # not a blank canvas
-    seen = [pixels_near(view_3d, color) > 100 for color in class_colors(CLASSES)]
+    seen = [pixels_near(view_3d, color) > 100 for color in class_colors(map.class_names)]
     assert sum(seen) >= 4  # most classes' ellipsoids are in the default view, in their colours
 
 
-def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path):
+def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path, synthetic_run):
     map, frames = synthetic_run(num_frames=4)
     path = tmp_path / "recording.rrd"
     with LocalizationRecorder(path, map, "# clipclique on a synthetic room") as recorder:
         for f in frames:
             recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
-    image, reports = render(path, frame=2)  # frame 2 has a wrong top-1 (see viz_scene)
+    image, reports = render(path, frame=2)  # frame 2 has a wrong top-1 (see the synthetic_run fixture)
     assert reports == []
     view_3d = image[60:-60, : int(SIZE[0] * 0.58)]
     assert pixels_near(view_3d, CORRECT) > 500 and pixels_near(view_3d, WRONG) > 500  # candidate lines

@@ -8,7 +8,6 @@ recording and results byte-identical.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import io
 import json
@@ -27,12 +26,10 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from clipclique.sim.demo import DEMO_SCENES, generate
 from localization.cli import app as loc_app
 from mapping.cli import app as map_app
 
 RUNNER = CliRunner()
-SMALL = {"num_frames": 4, "width": 160, "height": 120}
 PWNED = Path("/tmp/clipclique-fuzz-pickle-ran")  # what the hostile pickles would create if ever loaded
 
 
@@ -79,13 +76,10 @@ class Workspace:
 
 
 @pytest.fixture(scope="module")
-def workspace(tmp_path_factory) -> Workspace:
+def workspace(tmp_path_factory, demo_data) -> Workspace:
     """The two small demos, a map with a recording, and a successful earlier run (with its recording)."""
     space = Workspace(tmp_path_factory.mktemp("fuzz"))
-    for name in ("demo", "demo_tum"):
-        folder = space.data / "demo" / name
-        folder.mkdir(parents=True)
-        generate(folder, name, dataclasses.replace(DEMO_SCENES[name], **SMALL))
+    space.data.symlink_to(demo_data("demo", "demo_tum"), target_is_directory=True)  # shared: cases mutate copies
     built = RUNNER.invoke(map_app, space.map_args("demo"))
     assert built.exit_code == 0, built.output
     ran = RUNNER.invoke(loc_app, space.loc_args())

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 from PIL import Image
 from scipy.spatial.transform import Rotation
-from test_scannet import SCENE, write_scene
 from typer.testing import CliRunner
 
 from clipclique.config import make_config
@@ -23,7 +22,8 @@ from clipclique.pipeline import index_map, localize
 from clipclique.pose import conditioning
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 from localization.cli import app as loc_app
-from localization.run import MAP_DIR, RunSettings
+from clipclique.outputs import MAP_DIR
+from localization.run import RunSettings
 from mapping.cli import app as map_app
 
 RUNNER = CliRunner()
@@ -97,18 +97,18 @@ def test_a_map_rotation_with_determinant_minus_one_is_refused():
 
 # ---- ScanNet frames -----------------------------------------------------------------------------------
 
-def test_8_bit_depth_is_refused_naming_the_file(tmp_path):
-    folder, _ = write_scene(tmp_path)
+def test_8_bit_depth_is_refused_naming_the_file(tmp_path, scannet_scene):
+    folder, _ = scannet_scene(tmp_path)
     Image.fromarray(np.full((480, 640), 150, np.uint8)).save(folder / "depth" / "2.png")
     with pytest.raises(DatasetError, match=r"depth/2\.png: 8-bit depth image; depth must be 16-bit"):
-        open_sequence(SCENE, tmp_path)[1]
+        open_sequence(folder.name, tmp_path)[1]
 
 
-def test_depth_at_half_size_gets_intrinsics_rescaled_so_points_land_where_they_are(tmp_path):
-    folder, _ = write_scene(tmp_path)
-    full = open_sequence(SCENE, tmp_path)[0]
+def test_depth_at_half_size_gets_intrinsics_rescaled_so_points_land_where_they_are(tmp_path, scannet_scene):
+    folder, _ = scannet_scene(tmp_path)
+    full = open_sequence(folder.name, tmp_path)[0]
     Image.fromarray(np.full((240, 320), 1500, np.uint16)).save(folder / "depth" / "0.png")  # intrinsic_depth.txt stays 640 x 480
-    half = open_sequence(SCENE, tmp_path)[0]
+    half = open_sequence(folder.name, tmp_path)[0]
     np.testing.assert_allclose(half.intrinsics[:2], full.intrinsics[:2] / 2)
     assert half.instances.shape == (240, 320)
     # the same object pixels back-project to the same place (within the 2-pixel quantization of the half image)
@@ -121,21 +121,21 @@ def test_depth_at_half_size_gets_intrinsics_rescaled_so_points_land_where_they_a
     ("reflection", np.diag([1.0, 1.0, -1.0, 1.0])),
     ("sheared", np.eye(4) + np.eye(4, k=1) * 0.3),
 ])
-def test_non_rigid_ground_truth_poses_are_refused_naming_the_file(tmp_path, name, matrix):
-    folder, _ = write_scene(tmp_path)
+def test_non_rigid_ground_truth_poses_are_refused_naming_the_file(tmp_path, name, matrix, scannet_scene):
+    folder, _ = scannet_scene(tmp_path)
     np.savetxt(folder / "pose" / "2.txt", matrix)
     with pytest.raises(DatasetError, match=r"pose/2\.txt: not a rigid camera pose"):
-        open_sequence(SCENE, tmp_path)
+        open_sequence(folder.name, tmp_path)
 
 
-def test_duplicate_object_ids_are_refused_naming_the_file(tmp_path):
-    folder, _ = write_scene(tmp_path)
-    path = folder / f"{SCENE}.aggregation.json"
+def test_duplicate_object_ids_are_refused_naming_the_file(tmp_path, scannet_scene):
+    folder, _ = scannet_scene(tmp_path)
+    path = folder / f"{folder.name}.aggregation.json"
     document = json.loads(path.read_text())
     document["segGroups"][1]["objectId"] = 0
     path.write_text(json.dumps(document))
     with pytest.raises(DatasetError, match=r"aggregation\.json: objectId 0 appears in more than one segGroup"):
-        open_sequence(SCENE, tmp_path).instances()
+        open_sequence(folder.name, tmp_path).instances()
 
 
 # ---- names ---------------------------------------------------------------------------------------------
@@ -160,16 +160,9 @@ def test_the_default_map_comes_from_the_resolved_scene(tmp_path, monkeypatch):
 # ---- smaller ones --------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def tum(tmp_path_factory) -> Path:
+def tum(demo_data) -> Path:
     """A 4-frame TUM-format demo sequence to copy and edit."""
-    import dataclasses
-
-    from clipclique.sim.demo import DEMO_SCENES, generate
-
-    folder = tmp_path_factory.mktemp("tum") / "demo_tum"
-    folder.mkdir()
-    generate(folder, "demo_tum", dataclasses.replace(DEMO_SCENES["demo_tum"], num_frames=4, width=160, height=120))
-    return folder
+    return demo_data("demo_tum") / "demo" / "demo_tum"
 
 
 def _edited(tum: Path, where: Path, relative: str, text: str | bytes) -> Path:

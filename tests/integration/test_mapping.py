@@ -8,27 +8,24 @@ from typer.testing import CliRunner
 
 from clipclique.datasets import STRUCTURE_CLASSES, Instance
 from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES
 from clipclique.sim.procedural import make_room
 from clipclique.geometry import FitParams
 from clipclique.mapfile import load_map
 from mapping.build import BuildReport, build_map, fit_landmarks
 from mapping.cli import app
-from tests.test_demo_data import SMALL, small_demo
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def data_root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("data")
-    small_demo(root, "demo")
-    small_demo(root, "demo_tum")
-    return root
+def data_root(demo_data):
+    return demo_data("demo", "demo_tum")
 
 
 def object_boxes(name: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Instance id -> (min corner, max corner) of each object's mesh vertices."""
-    room = make_room(SMALL[name].seed)
+    room = make_room(DEMO_SCENES[name].seed)
     owner = room.segment_objects[room.vertex_segments] + 1
     return {o.object_id + 1: (room.vertices[owner == o.object_id + 1].min(0), room.vertices[owner == o.object_id + 1].max(0)) for o in room.objects}
 
@@ -36,7 +33,7 @@ def object_boxes(name: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 def test_scannet_demo_map_matches_the_objects(data_root):
     sequence = open_scene("demo", data_root)
     map, report = build_map(sequence, encoder=None)
-    room = make_room(SMALL["demo"].seed)
+    room = make_room(DEMO_SCENES["demo"].seed)
     objects = [o for o in room.objects if o.category not in STRUCTURE_CLASSES]
     assert report.structure == {"wall": 4, "floor": 1, "ceiling": 1}
     assert [item for items in report.skipped.values() for item in items] == [f"picture #{o.object_id + 1}" for o in objects if o.category == "picture"]
@@ -128,10 +125,10 @@ def test_the_generating_bar_appears_only_when_there_is_work():
     """Demo data that exists is not 'generating the demo data (first use) 0/?'."""
     from rich.progress import Progress
 
-    from mapping.cli import _bar_on_first_call
+    from mapping.tables import bar_on_first_call
 
     progress = Progress()
-    update = _bar_on_first_call(progress, "generating")
+    update = bar_on_first_call(progress, "generating")
     assert progress.tasks == []
     update(1, 4)
     update(2, 4)

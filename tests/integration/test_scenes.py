@@ -1,39 +1,27 @@
-"""The realistic demo scenes (demo_apartment, demo_desk) measured by tools/scene_stats.py against
-../shared/REAL_SCENES.md, on a few frames of each (bands wide enough for so few frames)."""
+"""The realistic demo scenes (demo_apartment, demo_desk) measured by benchmark.scene_stats against
+docs/REAL_SCENES.md, on a few frames of each (bands wide enough for so few frames)."""
 
 from __future__ import annotations
 
 import dataclasses
-import sys
 from collections import Counter
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmark import scene_stats
 from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, generate
 from clipclique.sim.detectors import read_lookalikes
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))  # tools/ holds scripts, not a package
-
-import scene_stats  # noqa: E402
 
 FRAMES = {"demo_apartment": 20, "demo_desk": 16}  # spread over the whole walk, full resolution
 
 
 @pytest.fixture(scope="session")
-def scenes(tmp_path_factory) -> dict[str, scene_stats.SceneStats]:
+def scenes(demo_data) -> dict[str, scene_stats.SceneStats]:
     """Both scenes generated with fewer frames of the same walk, and their statistics."""
-    root = tmp_path_factory.mktemp("scenes")
-    out = {}
-    for name, frames in FRAMES.items():
-        folder = root / "demo" / name
-        folder.mkdir(parents=True)
-        generate(folder, name, dataclasses.replace(DEMO_SCENES[name], num_frames=frames))
-        out[name] = scene_stats.measure(open_scene(name, root))
-    return out
+    return {name: scene_stats.measure(open_scene(name, demo_data(name, frames=frames, size=None)))
+            for name, frames in FRAMES.items()}
 
 
 def test_apartment_map_is_sparse_like_a_scannet_apartment(scenes):

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmark import calibration
 from clipclique import confidence
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
@@ -20,9 +20,6 @@ from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.verification import Verification
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))  # tools/ holds scripts, not a package
-
-import calibration  # noqa: E402
 
 MISSED_WEIGHT = VerificationConfig().missed_weight
 
@@ -169,10 +166,10 @@ def test_held_out_predictions_never_see_their_own_scene():
         calibration.held_out(rows.take(scene == "a"))
 
 
-def test_fit_confidence_needs_two_scenes(tmp_path):
+def test_fit_confidence_needs_two_scenes(tmp_path, repository):
     import subprocess
 
-    tool = Path(__file__).resolve().parents[1] / "tools" / "fit_confidence.py"
+    tool = repository / "tools" / "fit_confidence.py"
     done = subprocess.run([sys.executable, str(tool), "demo", "--out", str(tmp_path / "m.json")], capture_output=True,
                           text=True, cwd=tmp_path)
     assert done.returncode == 2 and done.stderr.strip().splitlines() == [

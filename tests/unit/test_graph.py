@@ -68,11 +68,7 @@ def test_random_walks_follow_edges_and_are_seeded():
 
 
 def test_histograms_equal_walk_enumeration_of_the_literal_reference():
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-    import literal_reference
+    from benchmark import literal_reference
 
     rng = np.random.default_rng(5)
     centers = rng.uniform(0, 2.5, size=(60, 3))

@@ -77,31 +77,31 @@ def test_cli_help_and_missing_map(tmp_path):
 
 def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     """Found before the frames are localized, as one line naming --out (it was a traceback after the run)."""
-    import localization.results as results
+    import localization.run as runner
     from localization.run import RunSettings
 
-    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
-    monkeypatch.setattr(results, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
+    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(runner, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")
     with pytest.raises(ClipcliqueError, match="--out .*a-file/out"):
-        results.run_and_save(RunSettings("demo", out=blocker / "out", record=False))
+        runner.run_and_save(RunSettings("demo", out=blocker / "out", record=False))
 
 
 def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
     """Ctrl-C (or an error) during the frames: the folders the run created are gone, others stay."""
-    import localization.results as results
+    import localization.run as runner
     from localization.run import RunSettings
 
     def interrupted(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(results, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
-    monkeypatch.setattr(results, "execute", interrupted)
+    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(runner, "execute", interrupted)
     (tmp_path / "kept").mkdir()
     for out in (tmp_path / "new" / "run", tmp_path / "kept"):
         with pytest.raises(KeyboardInterrupt):
-            results.run_and_save(RunSettings("demo", out=out, record=False))
+            runner.run_and_save(RunSettings("demo", out=out, record=False))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
 
 
@@ -217,12 +217,12 @@ def test_version_short_help_and_no_developer_notes():
 
 
 def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):
-    import localization.results as results
+    import localization.run as runner
 
     def interrupted(settings, progress):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(results, "run_and_save", interrupted)
+    monkeypatch.setattr(runner, "run_and_save", interrupted)
     result = RUNNER.invoke(app, ["run", "demo", "--no-rrd"])
     assert result.exit_code == 130
     assert result.stderr.strip() == "clipclique-loc: interrupted"  # one line, no traceback

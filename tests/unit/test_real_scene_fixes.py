@@ -1,12 +1,10 @@
 """The fixes for real scenes (issue 9), each pinned on a small hand-made case, and the paper's
 literal reading still available as the `clipclique-paper` preset."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from benchmark import core as bench_core, literal_reference
 from clipclique.config import make_config
 from clipclique.geometry import pose_errors, random_rotation
 from clipclique.compatibility import compatibility_graph, partial_view_slack
@@ -17,8 +15,6 @@ from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
-import literal_reference  # noqa: E402
 
 SH_ONLY = {"similarity.descriptor": "sh"}
 
@@ -142,7 +138,6 @@ def test_literal_reference_agrees_with_the_paper_preset_on_clean_frames(seed):
 def test_top_clique_scores_equal_the_literal_reference_on_desk_clutter():
     """Thousands of maximal cliques per query: the branch-and-bound top-5 scores are those of
     networkx's full enumeration (ties may come in another order)."""
-    import bench_core
 
     config = make_config("clipclique-paper", overrides={"similarity.alpha": 0.0})
     desk = bench_core.desk_map(np.random.default_rng(0))

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import rerun as rr
 from PIL import Image
-from viz_scene import recorded_entities, rerun_cli, scene_points, synthetic_run
 
 from clipclique.config import LocalizationConfig
 from clipclique.graph import semantic_graph
@@ -26,12 +25,12 @@ from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, ma
 
 
 @pytest.fixture(scope="module")
-def run():
+def run(synthetic_run):
     return synthetic_run(num_frames=6, top_n=3)
 
 
 @pytest.fixture(scope="module")
-def map_rrd(tmp_path_factory, run) -> Path:
+def map_rrd(tmp_path_factory, run, scene_points) -> Path:
     path = tmp_path_factory.mktemp("map") / "room.map.rrd"
     points, colors = scene_points()
     write_map_recording(path, run[0], points, colors, "# Synthetic room\nbuilt for a test")
@@ -165,7 +164,7 @@ def test_match_colors_green_right_red_wrong_grey_unknown():
     np.testing.assert_array_equal(correctness_colors(correct), [CORRECT, WRONG, UNKNOWN])
 
 
-def test_map_recording_verifies_and_holds_every_entity(map_rrd, run):
+def test_map_recording_verifies_and_holds_every_entity(map_rrd, run, rerun_cli, recorded_entities):
     verified = rerun_cli("rrd", "verify", str(map_rrd))
     assert verified.returncode == 0, verified.stderr
     entities = recorded_entities(map_rrd)
@@ -192,7 +191,7 @@ def test_a_map_without_landmarks_records_without_warnings(tmp_path, run):
     assert (tmp_path / "empty.rrd").is_file() and (tmp_path / "loc.rrd").is_file()
 
 
-def test_map_recording_scene_is_downsampled(tmp_path, run):
+def test_map_recording_scene_is_downsampled(tmp_path, run, scene_points):
     """120k input points on a 5 cm grid over 7 x 6 m of floor and 7 x 2.5 m of wall: about 24k kept."""
     points, colors = scene_points()
     full, light = tmp_path / "full.rrd", tmp_path / "light.rrd"
@@ -203,7 +202,7 @@ def test_map_recording_scene_is_downsampled(tmp_path, run):
     assert scene_bytes > 24_000 * 15 * 0.3  # ... and the scene is there
 
 
-def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run):
+def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run, rerun_cli, recorded_entities):
     verified = rerun_cli("rrd", "verify", str(loc_rrd))
     assert verified.returncode == 0, verified.stderr
     entities = recorded_entities(loc_rrd)
@@ -242,7 +241,7 @@ def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run):
     assert "TextDocument:text" in entities["/description"][1]
 
 
-def test_localization_recording_has_frame_and_tum_timelines(loc_rrd):
+def test_localization_recording_has_frame_and_tum_timelines(loc_rrd, rerun_cli):
     printed = rerun_cli("rrd", "print", "-vv", "--entity", "/metrics/count/cliques", str(loc_rrd))
     assert "index_name: frame" in printed.stdout and "index_name: time" in printed.stdout
 
@@ -260,7 +259,7 @@ def test_matches_are_coloured_by_ground_truth(tmp_path, run):
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
     spy = LogSpy(recorder.stream)
-    good, bad = frames[0], frames[2]  # frame 2's top-1 is a wrong clique (see viz_scene)
+    good, bad = frames[0], frames[2]  # frame 2's top-1 is a wrong clique (see the synthetic_run fixture)
     for f in (good, bad):
         recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
         (strips, _), (top1, _) = spy.last("world/correspondences/candidates"), spy.last("world/hypotheses/1")

@@ -1,6 +1,6 @@
 """The paper's published figures (CLIP-Clique, Matsuzaki et al., IEEE RA-L 2024), as printed.
 
-Transcribed from ../shared/PAPER_TABLES.md so every report stands them beside ours. Sequences:
+Transcribed from docs/PAPER_TABLES.md so every report stands them beside ours. Sequences:
 ScanNet scene0002_00 ("0002"), scene0017_00 ("0017") with ground-truth 2D instances; TUM fr2/desk
 ("fr2"), fr3/long_office_household ("fr3") with YOLOv8-x detections; CLIP ViT-L/14. Rotation
 errors are in RADIANS as the paper prints them; precision/recall only on ScanNet (None: not given).

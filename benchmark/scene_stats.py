@@ -1,4 +1,4 @@
-"""How much a scene looks like real data: the statistics of ../shared/REAL_SCENES.md, measured.
+"""How much a scene looks like real data: the statistics of docs/REAL_SCENES.md, measured.
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]

@@ -6,7 +6,7 @@
 Every layout is a row of 3 to 6 objects 2 to 6 m long, pushed off its line by a sideways and a
 vertical spread drawn log-uniformly from 1 mm to 1 m, seen by a camera 1 to 4 m away. The
 observed centres carry Gaussian noise (0.1 m per axis: a median offset of 0.15 m, near the
-0.18 m measured on a real ScanNet scan, /work/shared/REAL_SCENES.md) and every correspondence is
+0.18 m measured on a real ScanNet scan, docs/REAL_SCENES.md) and every correspondence is
 correct, so all the error comes from the layout. The table bins layouts by the smaller
 `clipclique.pose.conditioning` of the observed and the map centres (as the pipeline judges) and gives, per bin, the median camera position and rotation
 errors and the share of poses off by more than 1 m (the success threshold): the figure behind

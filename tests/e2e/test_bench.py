@@ -159,12 +159,18 @@ def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
 
 
 def test_a_failed_demo_map_build_is_one_line(tmp_path, monkeypatch, capsys):
+    from clipclique.errors import DatasetError
+
+    def unwritable(*args, **kwargs):
+        raise DatasetError("data/demo: cannot write the demo scene there (Permission denied)")
+
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(bench.subprocess, "run", lambda *args, **kwargs: subprocess.CompletedProcess(args, 2, ""))
+    monkeypatch.setattr(bench, "run_build", unwritable)
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--sequences", "demo", "--quick", "--out", "report"])
     assert exit_info.value.code == 2
-    assert "building the map of demo failed" in capsys.readouterr().err
+    assert capsys.readouterr().err.strip().splitlines() == [  # the progress display ends with an empty line
+        "bench: error: data/demo: cannot write the demo scene there (Permission denied)"]
     assert not (tmp_path / "report").exists()
 
 

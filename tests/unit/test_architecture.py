@@ -80,6 +80,19 @@ def test_the_library_imports_no_tool_runner_or_benchmark(graph):
     assert offenders(graph, ("clipclique",), ("mapping", "localization", "benchmark", "tools")) == []
 
 
+def test_readers_never_import_the_simulation(graph):
+    """A generated scene is an ordinary ScanNet or TUM folder: the readers do not know it was made."""
+    assert offenders(graph, ("clipclique.datasets",), ("clipclique.sim",)) == []
+
+
+def test_only_the_registries_import_the_simulation(graph):
+    """The registries (backends, resolve) sit above the real and the simulated back-ends; the rest of
+    the library, real back-ends included, never reaches into clipclique.sim, and sim never into them."""
+    registries = ("clipclique.backends", "clipclique.resolve")
+    assert offenders(graph, ("clipclique",), ("clipclique.sim",), exempt=("clipclique.sim", *registries)) == []
+    assert offenders(graph, ("clipclique.sim",), registries) == []
+
+
 def test_no_module_imports_a_cli_module(graph):
     """Tools, the benchmark and tests call runners (localization.run, mapping.run), never a CLI."""
     assert sorted(f"{a} imports {b}" for a, targets in graph.items() for b in targets if b in CLI_MODULES) == []

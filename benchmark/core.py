@@ -15,7 +15,7 @@ Part 3: scalability on the demo-like synthetic rooms (about 2 maximal cliques pe
 paper measures it, with the growth exponent (slope of a log-log least-squares line).
 `scalability()` is importable for other benchmark scripts.
 `--literal COUNTS`: only the whole query (descriptors to pose) on the desk scene, the project
-beside `tools/literal_reference.py` (networkx, no caps) on the same queries, SH only.
+beside `benchmark/literal_reference.py` (networkx, no caps) on the same queries, SH only.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark import literal_reference
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.geometry import random_rotation
 from clipclique.compatibility import compatibility_graph
@@ -38,7 +39,6 @@ from clipclique.reference_cliques import maximal_cliques
 from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-from benchmark import literal_reference
 
 def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int = 0) -> dict:
     """Median and 90th-percentile ms of matching + inliers + pose (and of the full query) for `method`."""
@@ -248,7 +248,7 @@ def main() -> None:
     parser.add_argument("--degenerate", type=int, metavar="N",
                         help="only localize one query against N identical overlapping landmarks (peak memory: run under /usr/bin/time -v)")
     parser.add_argument("--literal", type=int, nargs="+", metavar="COUNT",
-                        help="only compare whole desk queries with tools/literal_reference.py at these landmark counts")
+                        help="only compare whole desk queries with benchmark/literal_reference.py at these landmark counts")
     args = parser.parse_args()
     if args.literal:
         print(f"whole query on the desk scene, SH only, {args.desk_frames} queries each (median ms)")

@@ -94,7 +94,7 @@ def header(results: dict[str, Any]) -> str:
         "configuration then localized the same cached observations. Stochastic configurations (RANSAC, PROSAC, "
         "X-View's random walks; marked †) ran with three seeds: tables give the best seed, as the paper does, "
         "and the Top-1 range over the seeds. With seed 0 the cached path gives exactly the numbers of "
-        "`clipclique-loc run` (tests/test_bench.py checks it).\n\n"
+        "`clipclique-loc run` (tests/e2e/test_bench.py checks it).\n\n"
         "Columns: precision and recall of the top-1 hypothesis's correspondences (by object id); TE/RE: median "
         "translation/rotation error of the top-1 pose over frames with a pose; Top-k: frames with a pose within "
         "1 m among the k best (frames without a pose count as failures); Time: median matching + inliers + pose "
@@ -189,7 +189,7 @@ def paper_table(columns: tuple[str, ...], rows: dict[str, dict[str, tuple]], tit
 def table_one(results: dict[str, Any]) -> str:
     parts = ["## Table I: CLIP-Clique and the baselines\n",
              "CLIP-Clique (paper) is the same pipeline with the paper's literal settings (no class term, exact labels, "
-             "the rigid 0.3 m test); the literal reference is `tools/literal_reference.py`, an independent networkx "
+             "the rigid 0.3 m test); the literal reference is `benchmark/literal_reference.py`, an independent networkx "
              "reading of the paper that shares no code with the library, run on the same cached observations. The "
              "paper's Table I follows ours.\n"]
     for name, description in results["sequences"].items():
@@ -353,7 +353,7 @@ def calibration_text(measured: dict[str, Any] | None, plotted: bool) -> str:
     share = accepted["share_of_reachable"]
     lines += [
         f"Every hypothesis of the four methods on {', '.join(measured['sequences'])} ({measured['hypotheses']} in all) "
-        "scored by a confidence model fitted on the other scenes only (leave one scene out; `tools/calibration.py`). "
+        "scored by a confidence model fitted on the other scenes only (leave one scene out; `benchmark/calibration.py`). "
         "The shipped model (`clipclique/data/confidence.json`, `tools/fit_confidence.py`) is fitted on all of them; "
         "these figures measure how that recipe transfers to a scene it has not seen.\n",
         f"- Expected calibration error (10 bins): **{measured['ece']:.3f}** over hypotheses, "

@@ -84,7 +84,7 @@ class Variant:
     label: str
     method: str = "clipclique"
     overrides: tuple[tuple[str, Any], ...] = ()
-    reference: bool = False  # tools/literal_reference.py instead of the pipeline (config: its alpha only)
+    reference: bool = False  # benchmark/literal_reference.py instead of the pipeline (config: its alpha only)
 
     def config(self, seed: int = 0) -> LocalizationConfig:
         return make_config(self.method, overrides={**dict(self.overrides), "inliers.seed": seed,
@@ -243,7 +243,7 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig, reference: bo
 
 
 def literal_localize(observations: Observations, map: Map, alpha: float) -> LocalizationResult:
-    """tools/literal_reference.py on one frame, wrapped as the pipeline's result so it is scored alike
+    """benchmark/literal_reference.py on one frame, wrapped as the pipeline's result so it is scored alike
     (its similarity matrix is not exposed: the similarity statistics of this row are NaN)."""
     start = time.perf_counter()
     hypotheses = literal_reference.localize(observations, map, alpha=alpha)
@@ -285,7 +285,7 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
 
 
 def held_out_calibration(sequences: list[CachedSequence]) -> dict[str, Any]:
-    """The confidence model measured leaving one scene out at a time (tools/calibration.py), or why not."""
+    """The confidence model measured leaving one scene out at a time (benchmark/calibration.py), or why not."""
     if len(sequences) < 2:
         return {"skipped": "a held-out measurement needs two sequences or more"}
     rows = calibration.collect(sequences)

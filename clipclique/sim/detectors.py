@@ -97,7 +97,7 @@ def read_lookalikes(path: Path = LOOKALIKES_FILE) -> dict[str, list[tuple[str, f
 
 @dataclass
 class SimulatedYoloDetector:
-    """Ground truth degraded the way a real YOLO fails on a real desk map (../shared/REAL_SCENES.md).
+    """Ground truth degraded the way a real YOLO fails on a real desk map (docs/REAL_SCENES.md).
 
     - Misses: an object is detected with probability `detect_max * a / (a + half_pixels)` for a
       mask of `a` pixels, times `truncated_factor` when it touches the image border and

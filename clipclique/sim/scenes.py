@@ -1,4 +1,4 @@
-"""Two procedural scenes shaped like real data (../shared/REAL_SCENES.md), for the demo generator.
+"""Two procedural scenes shaped like real data (docs/REAL_SCENES.md), for the demo generator.
 
 - `make_apartment`: a ScanNet-like apartment (7.5 x 8 m inside: open living room and kitchen,
   hall, bedroom, bathroom): 45 objects of 32 classes, most classes once, 6 cabinets, sparse

@@ -3,7 +3,7 @@
 A configuration is built from a method preset, then optionally a TOML file (or the config.json
 written next to every result, so a run can be repeated), then `key=value` overrides
 (`inliers.d_comp=0.4`). Each setting's valid range sits beside it (`ranged`); every key an earlier
-version wrote is still accepted (tests/test_config.py holds one such config.json).
+version wrote is still accepted (tests/unit/test_config.py holds one such config.json).
 """
 
 from __future__ import annotations

@@ -2,9 +2,10 @@
 
 Arrays: `centers` (N, 3), `axes` (N, 3) semi-axes in metres, `rotations` (N, 3, 3) axis
 directions as columns, `class_ids` (N,), `instance_ids` (N,), optionally `text_embeddings`
-(N, D) float32 L2-normalized, and `header`, a JSON string:
-`{"format": "clipclique-map", "schema_version": 1, "class_names": [...], "descriptions": [...],
-"encoder": "...", "provenance": {...}}`. Written to a temporary file and renamed, so a map file
+(N, D) float32 L2-normalized and (schema 2) `class_distributions` (N, C) float64 rows summing
+to 1, and `header`, a JSON string:
+`{"format": "clipclique-map", "schema_version": 2, "class_names": [...], "descriptions": [...],
+"encoder": "...", "provenance": {...}}`. Schema 1 files (no class distributions) still load. Written to a temporary file and renamed, so a map file
 is either complete or absent; every field is checked on load.
 """
 
@@ -16,6 +17,7 @@ import os
 import tempfile
 import zipfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +27,8 @@ from clipclique.safeio import check_text, parse_json
 from clipclique.types import Ellipsoids, Map
 
 FORMAT = "clipclique-map"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+READABLE_VERSIONS = (1, 2)  # 2 added the optional class_distributions
 REQUIRED_ARRAYS = ("header", "centers", "axes", "rotations", "class_ids", "instance_ids")
 # Far beyond any real map (ScanNet scenes hold under 100 objects), and small enough that nothing
 # built from a map (descriptors, recordings) can exhaust memory or time.
@@ -58,6 +61,8 @@ def save_map(map: Map, path: Path) -> None:
     }
     if map.text_embeddings is not None:
         arrays["text_embeddings"] = np.asarray(map.text_embeddings, np.float32)
+    if map.class_distributions is not None:
+        arrays["class_distributions"] = np.asarray(map.class_distributions, np.float64)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -108,6 +113,7 @@ def load_map(path: Path) -> Map:
         text_embeddings=embeddings,
         encoder=header["encoder"],
         provenance=header["provenance"],
+        class_distributions=arrays.get("class_distributions"),
     )
     validate_map(map, str(path))
     return map
@@ -141,7 +147,7 @@ def _read_header(raw: np.ndarray, path: Path) -> dict:
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise MapFileError(f"{path}: not a clipclique map (header format is not {FORMAT!r})")
     version = header.get("schema_version")
-    if version != SCHEMA_VERSION:
+    if version not in READABLE_VERSIONS:
         hint = "newer than this clipclique reads; upgrade clipclique" if isinstance(version, int) and version > SCHEMA_VERSION else "not supported"
         raise MapFileError(f"{path}: map schema version {version!r} is {hint} (this version reads {SCHEMA_VERSION})")
     kinds = {"class_names": list, "descriptions": list, "encoder": str, "provenance": dict}
@@ -191,6 +197,7 @@ def validate_map(map: Map, where: str) -> None:
         fail("ellipsoid rotations are not orthonormal")
     if (np.linalg.det(e.rotations) < 0).any():
         fail(f"ellipsoid rotation {int(np.argmax(np.linalg.det(e.rotations) < 0))} is a reflection (determinant -1)")
+    _validate_distributions(map, fail)
     embeddings = map.text_embeddings
     if embeddings is None:
         if map.encoder != "none":
@@ -202,3 +209,17 @@ def validate_map(map: Map, where: str) -> None:
         fail(f"text_embeddings {np.asarray(embeddings).dtype} {np.shape(embeddings)} should be numbers, one row per landmark ({n})")
     if not np.isfinite(embeddings).all() or (not np.allclose(np.linalg.norm(embeddings, axis=1), 1.0, atol=1e-3)):
         fail("text embeddings must be finite and L2-normalized")
+
+
+def _validate_distributions(map: Map, fail: Callable[[str], None]) -> None:
+    """Class distributions, when present: (N, C) finite probabilities, rows summing to 1."""
+    distributions = map.class_distributions
+    if distributions is None:
+        return
+    shape = (len(map.class_ids), len(map.class_names))
+    if np.shape(distributions) != shape or np.asarray(distributions).dtype.kind not in "fiu":
+        fail(f"class_distributions {np.asarray(distributions).dtype} {np.shape(distributions)} should be numbers of shape {shape}")
+    if not np.isfinite(distributions).all() or (np.asarray(distributions) < 0).any():
+        fail("class_distributions must be finite and non-negative")
+    if not np.allclose(np.sum(distributions, axis=1), 1.0, atol=1e-3):
+        fail("class_distributions rows must sum to 1")

@@ -90,6 +90,10 @@ class Map:
     text_embeddings: np.ndarray | None = None  # (N, D) float32, L2-normalized
     encoder: str = "none"  # name of what made text_embeddings, or "none"
     provenance: dict = field(default_factory=dict)
+    # (N, C) float, rows summing to 1: each landmark's class distribution over class_names, where
+    # the map's source says how sure it is (an imported SLAM map's class counts); None: the classes
+    # are certain (one-hot class_ids). Used only when `similarity.soft_classes` is on.
+    class_distributions: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.class_ids)

@@ -40,7 +40,7 @@ from clipclique.datasets.base import (
     resize_rgb,
 )
 from clipclique import safeio
-from clipclique.errors import DatasetError
+from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import backproject
 from clipclique.types import Frame, Pose
 
@@ -115,6 +115,33 @@ def associate(times: np.ndarray, candidates: np.ndarray, max_diff: float = MAX_T
     left = np.maximum(right - 1, 0)
     nearest = np.where(np.abs(sorted_c[left] - times) <= np.abs(sorted_c[right] - times), left, right)
     return np.where(np.abs(sorted_c[nearest] - times) <= max_diff, order[nearest], -1)
+
+
+def read_objects_table(path: Path, max_id: int = MAX_OBJECT_ID,
+                       error: type[ClipcliqueError] = DatasetError) -> dict[int, tuple[str, str]]:
+    """Object id -> (class, description) of an `id,class,description` CSV (the TUM annotations'
+    objects.csv, and the classes of an imported SLAM map); an empty description becomes the template."""
+    objects: dict[int, tuple[str, str]] = {}
+    reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", error), newline=""))
+    missing = {"id", "class", "description"} - set(reader.fieldnames or ())
+    if missing:
+        raise error(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
+    for row in reader:
+        where = f"{path}, line {reader.line_num}"
+        try:
+            object_id = int(row["id"])
+        except (TypeError, ValueError):
+            raise error(f"{where}: id {row['id']!r} is not an integer") from None
+        if not 1 <= object_id <= max_id:
+            raise error(f"{where}: id {object_id} outside 1..{max_id}")
+        if object_id in objects:
+            raise error(f"{where}: id {object_id} appears twice")
+        name = safeio.check_text(row["class"] or "", f"{where}: class", error).strip()
+        if not name:
+            raise error(f"{where}: class is empty")
+        description = safeio.check_text(row["description"] or "", f"{where}: description", error).strip()
+        objects[object_id] = (name, description or description_template(name))
+    return objects
 
 
 class TumSequence(Sequence):
@@ -199,29 +226,7 @@ class TumSequence(Sequence):
     def _objects(self) -> dict[int, tuple[str, str]]:
         """Annotation id -> (class, description) from annotations/objects.csv (empty without it)."""
         path = self.root / "annotations" / "objects.csv"
-        if not path.exists():
-            return {}
-        objects: dict[int, tuple[str, str]] = {}
-        reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", DatasetError), newline=""))
-        missing = {"id", "class", "description"} - set(reader.fieldnames or ())
-        if missing:
-            raise DatasetError(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
-        for row in reader:
-            where = f"{path}, line {reader.line_num}"
-            try:
-                object_id = int(row["id"])
-            except (TypeError, ValueError):
-                raise DatasetError(f"{where}: id {row['id']!r} is not an integer") from None
-            if not 1 <= object_id <= MAX_OBJECT_ID:
-                raise DatasetError(f"{where}: id {object_id} outside 1..{MAX_OBJECT_ID} (the instance images are 16-bit)")
-            if object_id in objects:
-                raise DatasetError(f"{where}: id {object_id} appears twice")
-            name = safeio.check_text(row["class"] or "", f"{where}: class", DatasetError).strip()
-            if not name:
-                raise DatasetError(f"{where}: class is empty")
-            description = safeio.check_text(row["description"] or "", f"{where}: description", DatasetError).strip()
-            objects[object_id] = (name, description or description_template(name))
-        return objects
+        return read_objects_table(path) if path.exists() else {}
 
     def instances(self) -> list[Instance]:
         """Annotated objects: masked depth of every annotated frame with a pose, in the world frame."""

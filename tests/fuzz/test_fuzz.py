@@ -247,7 +247,7 @@ def map_cases() -> list[Case]:
         "header-deep-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array(_deep_json())),
         "header-not-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array("{not json")),
         "header-bytes": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.frombuffer(b"\x00\xff" * 8, np.uint8)),
-        "schema-version-2": header(lambda h: h.update(schema_version=2)),
+        "schema-version-3": header(lambda h: h.update(schema_version=3)),
         "class-name-nul": header(lambda h: h["class_names"].__setitem__(0, "ch\0air")),
         "class-name-not-text": header(lambda h: h["class_names"].__setitem__(0, 7)),
         "description-megabyte": header(lambda h: h["descriptions"].__setitem__(0, "x" * 1_000_000)),

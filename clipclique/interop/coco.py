@@ -1,0 +1,161 @@
+"""COCO classes and the COCO results format with RLE masks: shared by `--detector file:` and any
+reader of COCO mask files (detectron2, mmdetection and ultralytics `save_json` write them).
+
+Two id schemes name the same 80 classes: the contiguous 0-based ids that OA-SLAM, VOOM and
+GOReloc files use (`COCO80_NAMES[i]`), and the 1-based 91-id scheme with gaps of COCO's own
+annotation files and results (`COCO91_IDS[i]` is class i's id there).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from clipclique.interop.errors import InteropError
+from clipclique.safeio import MAX_JSON_BYTES, decode_text, parse_json, read_bytes
+
+COCO80_NAMES: tuple[str, ...] = (
+    "person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck", "boat", "traffic light",
+    "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
+    "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
+    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
+    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
+    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "couch",
+    "potted plant", "bed", "dining table", "toilet", "tv", "laptop", "mouse", "remote", "keyboard",
+    "cell phone", "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors",
+    "teddy bear", "hair drier", "toothbrush",
+)
+COCO91_IDS: tuple[int, ...] = (
+    1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 27, 28, 31, 32, 33, 34,
+    35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 46, 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62, 63,
+    64, 65, 67, 70, 72, 73, 74, 75, 76, 77, 78, 79, 80, 81, 82, 84, 85, 86, 87, 88, 89, 90,
+)
+COCO91_TO_80: dict[int, int] = {coco91: index for index, coco91 in enumerate(COCO91_IDS)}
+COCO80_INDEX: dict[str, int] = {name: index for index, name in enumerate(COCO80_NAMES)}
+
+
+def coco80_name(category: int, where: str) -> str:
+    """The class name of a 0-based COCO-80 id; InteropError naming `where` outside 0..79."""
+    if not 0 <= category < len(COCO80_NAMES):
+        raise InteropError(f"{where}: category id {category} is not a COCO-80 class id (0..79)")
+    return COCO80_NAMES[category]
+
+
+@dataclass
+class CocoResult:
+    """One detection of a COCO results file."""
+
+    image: str  # the image's file name (from the image list)
+    class_name: str  # COCO name
+    box: np.ndarray  # (4,) xyxy pixels
+    score: float
+    mask: np.ndarray | None  # (H, W) bool, None without a segmentation
+
+
+def decode_rle(segmentation: object, where: str) -> np.ndarray:
+    """(H, W) bool mask of a COCO RLE segmentation `{"size": [h, w], "counts": str | list}`."""
+    from pycocotools import mask as coco_mask
+
+    if not (isinstance(segmentation, dict) and isinstance(segmentation.get("size"), list)
+            and len(segmentation["size"]) == 2 and all(isinstance(v, int) and 0 < v <= 1 << 15 for v in segmentation["size"])
+            and isinstance(segmentation.get("counts"), (str, list))):
+        raise InteropError(f"{where}: segmentation is not an RLE {{'size': [h, w], 'counts': ...}}")
+    height, width = segmentation["size"]
+    counts = segmentation["counts"]
+    if isinstance(counts, list):
+        if not all(isinstance(c, int) and c >= 0 for c in counts) or sum(counts) != height * width:
+            raise InteropError(f"{where}: uncompressed RLE counts must be non-negative integers summing to h*w")
+        rle = coco_mask.frPyObjects({"size": [height, width], "counts": counts}, height, width)
+    else:
+        rle = {"size": [height, width], "counts": counts.encode("ascii", "replace")}
+    try:
+        mask = coco_mask.decode(rle)
+    except Exception as error:  # pycocotools raises bare exceptions on corrupt strings
+        raise InteropError(f"{where}: corrupt RLE counts ({error})") from None
+    if mask.shape != (height, width):
+        raise InteropError(f"{where}: RLE counts do not fill the {height}x{width} mask")
+    return mask.astype(bool)
+
+
+def encode_rle(mask: np.ndarray) -> dict:
+    """The compressed RLE of one (H, W) bool mask, as COCO results store it (counts as text)."""
+    from pycocotools import mask as coco_mask
+
+    rle = coco_mask.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"].decode("ascii")}
+
+
+def _load_json(path: Path, what: str) -> object:
+    text = decode_text(read_bytes(path, MAX_JSON_BYTES, what, InteropError), str(path), InteropError)
+    return parse_json(text, str(path), InteropError)
+
+
+def read_image_list(path: Path) -> dict[int, str]:
+    """image id -> file name from a COCO annotation file's `images` array (or a bare list of them)."""
+    data = _load_json(path, "COCO image list")
+    images = data.get("images") if isinstance(data, dict) else data
+    if not isinstance(images, list):
+        raise InteropError(f"{path}: expected a COCO annotation file with an 'images' list")
+    out = {}
+    for index, image in enumerate(images):
+        if not (isinstance(image, dict) and isinstance(image.get("id"), int) and isinstance(image.get("file_name"), str)):
+            raise InteropError(f"{path}: images[{index}] needs an integer 'id' and a 'file_name'")
+        out[image["id"]] = image["file_name"]
+    return out
+
+
+def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
+    """Every detection of a COCO results file (91-id categories), images named through `images`."""
+    data = _load_json(path, "COCO results file")
+    if not isinstance(data, list):
+        raise InteropError(f"{path}: a COCO results file is a JSON list of detections")
+    out = []
+    for index, entry in enumerate(data):
+        where = f"{path}, detection {index}"
+        if not isinstance(entry, dict):
+            raise InteropError(f"{where}: not an object")
+        image, category, box, score = (entry.get(k) for k in ("image_id", "category_id", "bbox", "score"))
+        if image not in images:
+            raise InteropError(f"{where}: image_id {image!r} is not in the image list")
+        if category not in COCO91_TO_80:
+            raise InteropError(f"{where}: category_id {category!r} is not a COCO class id (1..90)")
+        values = _numbers(box, 4, f"{where}: bbox")
+        if not (isinstance(score, (int, float)) and 0 <= score <= 1):
+            raise InteropError(f"{where}: score {score!r} is not a number in [0, 1]")
+        mask = decode_rle(entry["segmentation"], where) if "segmentation" in entry else None
+        out.append(CocoResult(images[image], COCO80_NAMES[COCO91_TO_80[category]],
+                              np.array([values[0], values[1], values[0] + values[2], values[1] + values[3]]),
+                              float(score), mask))
+    return out
+
+
+def _numbers(value: object, count: int, where: str) -> list[float]:
+    if not (isinstance(value, list) and len(value) == count and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            and np.isfinite(value).all()):
+        raise InteropError(f"{where} should be {count} finite numbers, got {str(value)[:80]}")
+    return [float(v) for v in value]
+
+
+def coco_results(image_ids: list[int], class_names: list[str], boxes: np.ndarray, scores: np.ndarray,
+                 masks: np.ndarray) -> list[dict]:
+    """COCO results entries (91-id categories, xywh boxes, RLE masks) of one image's detections;
+    classes outside COCO are left out (COCO has no id for them)."""
+    out = []
+    for image_id, name, box, score, mask in zip(image_ids, class_names, boxes, scores, masks):
+        if name not in COCO80_INDEX:
+            continue
+        x0, y0, x1, y1 = (float(v) for v in box)
+        out.append({"image_id": int(image_id), "category_id": COCO91_IDS[COCO80_INDEX[name]],
+                    "bbox": [x0, y0, x1 - x0, y1 - y0], "score": float(score), "segmentation": encode_rle(mask)})
+    return out
+
+
+def write_json(path: Path, data: object) -> None:
+    """A JSON file written whole (the caller stages it)."""
+    try:
+        Path(path).write_text(json.dumps(data))
+    except OSError as error:
+        raise InteropError(f"{path}: cannot write ({error.strerror or error})") from None

@@ -57,6 +57,10 @@ class SimilarityConfig:
     # Beyond the paper (0 = exact labels): weight of a look-alike class (clipclique.lookalikes) in the
     # class term and the query's Semantic Histograms, so a cup detected as "bottle" still finds cups.
     lookalike_weight: float = ranged(0.6, 0.0, 1.0)
+    # Beyond the paper (off = hard map classes): where the map holds class distributions (an imported
+    # SLAM map's class counts, clipclique.types.Map.class_distributions), the class term and the map's
+    # Semantic Histograms use them as soft labels instead of the most likely class alone.
+    soft_classes: bool = False
 
 
 @dataclass

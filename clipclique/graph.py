@@ -62,6 +62,7 @@ def semantic_histograms(
     num_classes: int,
     walk_length: int = 3,
     kernel: sp.csr_matrix | None = None,
+    distributions: sp.csr_matrix | None = None,
 ) -> sp.csr_matrix:
     """(N, C^s) L2-normalized Semantic Histograms: every walk of `walk_length` nodes from each node.
 
@@ -73,10 +74,12 @@ def semantic_histograms(
     With a class `kernel` (C, C) (`clipclique.lookalikes`), each node's label is soft: a walk
     counts `prod_i kernel[c(u_i), k_i]` in every bin `(k_1, ..., k_s)`, so a walk through a node
     the detector may have mislabelled (a "bottle" that is a cup) also counts where the true label
-    would have put it. Without a kernel the counts are the exact-label ones.
+    would have put it. Without a kernel the counts are the exact-label ones. With `distributions`
+    (N, C), each node's label row is its own class distribution (a map unsure of its classes).
     """
     n = adjacency.shape[0]
-    labels = _label_rows(np.asarray(class_ids, dtype=np.int64), num_classes, kernel)
+    labels = (sp.csr_matrix(distributions) if distributions is not None
+              else _label_rows(np.asarray(class_ids, dtype=np.int64), num_classes, kernel))
     steps = sp.csr_matrix(adjacency, dtype=np.float64)
     walks = labels
     for _ in range(walk_length - 1):

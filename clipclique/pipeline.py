@@ -46,6 +46,7 @@ class MapIndex:
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
     text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
     class_kernel: sp.csr_matrix | None = None  # (C, C) class similarity (lookalikes.class_kernel)
+    class_distributions: sp.csr_matrix | None = None  # (N, C) the map's soft classes, when similarity.soft_classes uses them
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
 
 
@@ -65,12 +66,14 @@ class LocalizationResult:
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
     adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj, config.graph.max_degree)
-    histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config)
+    soft = (sp.csr_matrix(map.class_distributions)
+            if config.similarity.soft_classes and map.class_distributions is not None else None)
+    histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config, distributions=soft)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
     capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
-                    text_embeddings=text, class_kernel=kernel, capped_nodes=capped)
+                    text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped)
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -129,7 +132,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
 def index_key(config: LocalizationConfig) -> str:
     """The settings a map index depends on, readable and hashable: indexes built alike share it."""
     return (f"descriptor={config.similarity.descriptor}, lookalike_weight={config.similarity.lookalike_weight}, "
-            f"{config.graph}")
+            f"soft_classes={config.similarity.soft_classes}, {config.graph}")
 
 
 def _graph_descriptors(
@@ -138,12 +141,15 @@ def _graph_descriptors(
     num_classes: int,
     config: LocalizationConfig,
     kernel: sp.csr_matrix | None = None,
+    distributions: sp.csr_matrix | None = None,
 ) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
-    """The graph descriptors of one side; `kernel` softens labels (the query side only: the map is not confused)."""
+    """The graph descriptors of one side; `kernel` softens the query's labels (a detector confuses
+    look-alikes), `distributions` the map's where it holds its own class distributions."""
     descriptor = config.similarity.descriptor
     histograms = walks = None
     if descriptor in ("fused", "sh"):
-        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length, kernel)
+        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length, kernel,
+                                               distributions)
     if descriptor == "xview":
         rng = np.random.default_rng(config.graph.xview_seed)
         walks = graph.random_walk_descriptors(
@@ -184,7 +190,8 @@ def _histogram_similarity(
     weight = config.similarity.class_weight
     if weight == 0:
         return sh
-    classes = similarity.class_similarity(observations.class_ids, index.map.class_ids, index.class_kernel)
+    classes = similarity.class_similarity(observations.class_ids, index.map.class_ids, index.class_kernel,
+                                          index.class_distributions)
     return similarity.with_class_term(sh, classes, weight)
 
 

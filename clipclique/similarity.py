@@ -25,9 +25,13 @@ def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix)
     return (query_counts @ present.T).toarray() / np.maximum(walks, 1.0)[:, None]
 
 
-def class_similarity(query_classes: np.ndarray, landmark_classes: np.ndarray, kernel: sp.csr_matrix) -> np.ndarray:
+def class_similarity(query_classes: np.ndarray, landmark_classes: np.ndarray, kernel: sp.csr_matrix,
+                     distributions: sp.csr_matrix | None = None) -> np.ndarray:
     """(K, N) the class kernel between each observation's class and each landmark's: 1 for the same
-    class, the look-alike weight for classes a detector confuses, 0 otherwise."""
+    class, the look-alike weight for classes a detector confuses, 0 otherwise. With the landmarks'
+    class `distributions` (N, C), its expectation over each landmark's classes instead."""
+    if distributions is not None:
+        return (kernel[query_classes] @ distributions.T).toarray()
     return kernel[query_classes][:, landmark_classes].toarray()
 
 

@@ -72,7 +72,7 @@ def decode_rle(segmentation: object, where: str) -> np.ndarray:
     else:
         rle = {"size": [height, width], "counts": counts.encode("ascii", "replace")}
     try:
-        mask = coco_mask.decode(rle)
+        mask = coco_mask.decode([rle])[:, :, 0]  # the list form: the single-object one warns under numpy 2
     except Exception as error:  # pycocotools raises bare exceptions on corrupt strings
         raise InteropError(f"{where}: corrupt RLE counts ({error})") from None
     if mask.shape != (height, width):

@@ -1,0 +1,140 @@
+"""Detection files: the OA-SLAM / VOOM / GOReloc JSON (boxes), COCO results with RLE masks, the box-only
+segmentation, cross-class duplicates, and the COCO file a run writes read back to the same detections."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from clipclique.interop.boxfit import box_mask, ellipse_region
+from clipclique.interop.coco import COCO80_NAMES, decode_rle, encode_rle
+from clipclique.interop.detections import (
+    CocoRecorder,
+    FileDetector,
+    frame_key,
+    merged_duplicates,
+    read_detections,
+    reported_classes,
+)
+from clipclique.interop.errors import InteropError
+from clipclique.types import Detections, Frame
+from localization.detectors import coco_to_vocabulary
+
+INTRINSICS = np.array([[500.0, 0, 80], [0, 500.0, 60], [0, 0, 1]])
+CLASSES = ["book", "cup", "monitor"]
+
+
+def frame(name: str = "1311868164.363181", index: int = 0) -> Frame:
+    """A 160x120 frame: a wall at 2 m, a 'cup' disc of 20 px radius at 1 m centred at (80, 60)."""
+    depth = np.full((120, 160), 2.0, np.float32)
+    v, u = np.mgrid[:120, :160]
+    depth[(u - 80) ** 2 + (v - 60) ** 2 <= 400] = 1.0
+    return Frame(index, 0.0, np.zeros((120, 160, 3), np.uint8), depth, INTRINSICS, None, name=name)
+
+
+def detector(path, **options) -> FileDetector:
+    return FileDetector.load(f"file:{path}", CLASSES, coco_to_vocabulary, **options)
+
+
+def test_frame_keys_drop_folders_and_image_extensions():
+    assert frame_key("rgb/1311868164.363181.png") == frame_key("1311868164.363181.png") == "1311868164.363181"
+    assert frame_key("1311868164.363181") == "1311868164.363181" and frame_key("17") == "17"
+
+
+def test_detection_json_boxes_become_depth_segmented_masks(tmp_path):
+    path = tmp_path / "detections.json"
+    path.write_text(json.dumps([
+        {"file_name": "rgb/1311868164.363181.png", "detections": [
+            {"category_id": 41, "detection_score": 0.9, "bbox": [58, 38, 102, 82]},  # the cup, box a little loose
+            {"category_id": 39, "detection_score": 0.5, "bbox": [59, 39, 101, 81]},  # the same cup as 'bottle'
+            {"category_id": 62, "detection_score": 0.2, "bbox": [0, 0, 30, 30]}]},   # tv -> monitor, low score
+        {"file_name": "3", "detections": [{"category_id": 73, "detection_score": 0.4, "bbox": [0, 0, 10, 10]}]}]))
+    found = detector(path).detect(frame())
+    assert found.class_ids.tolist() == [1, 2] and found.scores.tolist() == [0.9, 0.2]  # bottle not in the map
+    disc = frame().depth == 1.0
+    assert (found.masks[0] & ~disc).sum() == 0 and found.masks[0].sum() > 0.9 * disc.sum()  # the wall rejected
+    assert detector(path, min_score=0.25).detect(frame()).class_ids.tolist() == [1]
+    assert detector(path).detect(frame("other", index=3)).class_ids.tolist() == [0]  # named by frame index
+    assert len(detector(path).detect(frame("unlisted", index=9))) == 0
+
+
+def test_cross_class_duplicates_keep_the_best_report_only():
+    boxes = np.array([[0, 0, 10, 10], [0, 0, 10, 9.5], [0, 0, 10, 9.8], [50, 50, 60, 60]], float)
+    kept = merged_duplicates(boxes, np.array([1, 2, 1, 2]), np.array([0.5, 0.9, 0.7, 0.3]))
+    assert kept.tolist() == [1, 3]  # the cup reports (0, 2) lose to the bottle at IoU 0.95 and 0.98
+    same_class = merged_duplicates(boxes[:3], np.array([1, 1, 1]), np.array([0.5, 0.9, 0.7]))
+    assert same_class.tolist() == [0, 1, 2]  # the detector's own NMS decides those
+
+
+def test_voom_ellipse_is_turned_clockwise_on_screen_by_its_angle():
+    upright = ellipse_region(np.zeros(4), (120, 160), np.array([80, 60, 20, 60, 0.0]))
+    turned = ellipse_region(np.zeros(4), (120, 160), np.array([80, 60, 20, 60, math.pi / 2]))
+    assert np.ptp(np.nonzero(upright)[0]) > 50 > np.ptp(np.nonzero(turned)[0])  # tall, then wide
+    assert (turned == ellipse_region(np.zeros(4), (120, 160), np.array([80, 60, 60, 20, 0.0]))).mean() > 0.99
+
+
+def test_box_mask_keeps_the_nearest_dominant_mode():
+    depth = frame().depth.copy()
+    depth[60:, :] = np.where(depth[60:, :] == 1.0, 1.0, 1.5)  # a table in front of the wall, behind the cup
+    mask = box_mask(depth, INTRINSICS, np.array([58.0, 38, 102, 82]))
+    assert set(np.unique(depth[mask])) == {1.0}
+
+
+@pytest.mark.parametrize("content, problem", [
+    ({"file_name": "a.png"}, "needs 'file_name' and a 'detections' list"),
+    ({"file_name": "a.png", "detections": [{"category_id": 80, "detection_score": 0.5, "bbox": [0, 0, 1, 1]}]},
+     "category id 80 is not a COCO-80 class id"),
+    ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 2, "bbox": [0, 0, 1, 1]}]},
+     "detection_score 2 is not a number in"),
+    ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 0.5, "bbox": [5, 0, 1, 1]}]},
+     "is not a box with x2 > x1"),
+    ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 0.5, "bbox": [0, 0, 1, 1],
+                                            "ellipse": [1, 1, -2, 2, 0]}]}, "ellipse should be"),
+])
+def test_malformed_detection_json_is_one_line_naming_the_entry(tmp_path, content, problem):
+    path = tmp_path / "detections.json"
+    path.write_text(json.dumps([content]))
+    with pytest.raises(InteropError, match=rf"detections.json, entry 0.*{problem}"):
+        read_detections(path)
+
+
+def test_rle_round_trip_and_corrupt_counts():
+    mask = frame().depth == 1.0
+    assert (decode_rle(encode_rle(mask), "here") == mask).all()
+    with pytest.raises(InteropError, match="here: uncompressed RLE counts must"):
+        decode_rle({"size": [2, 2], "counts": [1, 1]}, "here")
+    with pytest.raises(InteropError, match="here: segmentation is not an RLE"):
+        decode_rle({"size": [2], "counts": "x"}, "here")
+
+
+def test_a_recorded_run_read_back_gives_the_same_detections(tmp_path):
+    """What `--detector yolo` writes (COCO results, 91-id classes, RLE masks) reproduces its detections."""
+    shot = frame()
+    disc = shot.depth == 1.0
+    square = np.zeros_like(disc)
+    square[5:25, 100:140] = True
+    original = Detections(np.array([disc, square]), np.array([[60.0, 40, 101, 81], [100, 5, 140, 25]]),
+                          np.array([2, 1]), np.array([0.8312, 0.41]), np.array([-1, -1]))
+    vocabulary = coco_to_vocabulary(dict(enumerate(COCO80_NAMES)), CLASSES)
+    recorder = CocoRecorder(CLASSES, reported_classes(vocabulary, CLASSES))
+    assert recorder.coco_names["monitor"] == "tv"
+    recorder.add(shot, original)
+    recorder.write(tmp_path / "detections.json", tmp_path / "images.json")
+    entries = json.loads((tmp_path / "detections.json").read_text())
+    assert [e["category_id"] for e in entries] == [72, 47]  # tv, cup in COCO's 91-id scheme
+    back = detector(tmp_path / "detections.json").detect(shot)
+    for name in ("masks", "boxes", "class_ids", "scores"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(original, name))
+
+
+def test_coco_results_without_their_image_list_say_how_to_give_it(tmp_path):
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps([{"image_id": 1, "category_id": 47, "bbox": [0, 0, 1, 1], "score": 0.5}]))
+    with pytest.raises(InteropError, match=r"results.json: COCO results name images by id; give the image list with"):
+        read_detections(path)
+    (tmp_path / "list.json").write_text(json.dumps({"images": [{"id": 2, "file_name": "x.png"}]}))
+    with pytest.raises(InteropError, match=r"detection 0: image_id 1 is not in the image list"):
+        read_detections(path, tmp_path / "list.json")

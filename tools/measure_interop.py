@@ -1,0 +1,149 @@
+"""Side-by-side measurements of issue 17 on the generated scenes, one process, same frames.
+
+    .venv/bin/python tools/measure_interop.py box-only [demo_desk demo_apartment] [--max-frames N]
+    .venv/bin/python tools/measure_interop.py soft-classes [demo demo_tum demo_apartment demo_desk]
+
+box-only: each frame's detections (the scene's own detector) fitted twice, from their masks and
+from their boxes alone (the masks replaced by `clipclique.interop.boxfit.box_mask` of the mask's
+box), then localized. Printed: median distance of each box-only observation centre from the mask
+fit of the same detection; median centre error of both against the true landmark (in the camera
+frame, by instance id); top-1 success within 0.5 / 1 / 2 m of both.
+
+soft-classes: a GOReloc-like map of each scene: every landmark's class distribution counted from
+the scene's detector over every frame (seed 1, not the queries' 0), its class the most counted
+(landmarks never detected keep their annotated class). Localized (clipclique and sh) with
+`similarity.soft_classes` off and on; top-1 success within 0.5 / 1 / 2 m.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from clipclique.datasets import open_sequence  # noqa: E402
+from clipclique.encoders import load_encoder  # noqa: E402
+from clipclique.interop.boxfit import box_mask  # noqa: E402
+from clipclique.mapfile import save_map  # noqa: E402
+from clipclique.metrics import evaluate_frame  # noqa: E402
+from clipclique.observations import embed, extract_observations  # noqa: E402
+from clipclique.pipeline import index_map, localize  # noqa: E402
+from clipclique.types import Detections, Map  # noqa: E402
+from localization.run import RunSettings, make_detector, prepare, selected_frames  # noqa: E402
+from mapping.build import build_map  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+THRESHOLDS = (0.5, 1.0, 2.0)
+
+
+def built_map(scene: str, folder: Path) -> Path:
+    path = folder / f"{scene}.map.npz"
+    if not path.exists():
+        map, _ = build_map(open_sequence(scene, ROOT / "data"), load_encoder("simulated"))
+        save_map(map, path)
+    return path
+
+
+def success(errors: list[float | None]) -> str:
+    return " / ".join(f"{100 * np.mean([e is not None and e < t for e in errors]):5.1f}" for t in THRESHOLDS)
+
+
+def box_only(scene: str, folder: Path, max_frames: int | None) -> None:
+    run = prepare(RunSettings(scene, map_path=built_map(scene, folder), data_root=ROOT / "data", max_frames=max_frames))
+    index = index_map(run.map, run.config)
+    centre = {lm: c for lm, c in zip(run.map.instance_ids.tolist(), run.map.ellipsoids.centers)}
+    errors: dict[str, list] = {"mask": [], "box": []}
+    centre_errors: dict[str, list[float]] = {"mask": [], "box": []}
+    apart, kept = [], Counter()
+    for i in selected_frames(run):
+        frame = run.sequence[i]
+        detections = run.detector.detect(frame)
+        boxed = Detections(np.array([box_mask(frame.depth, frame.intrinsics, b) for b in detections.boxes]).reshape(detections.masks.shape),
+                           detections.boxes, detections.class_ids, detections.scores, detections.instance_ids)
+        fitted = {}
+        for variant, dets in (("mask", detections), ("box", boxed)):
+            extraction = extract_observations(frame, dets)
+            observations = embed(extraction, run.encoder, run.truth_descriptions)
+            result = localize(observations, index, run.config)
+            evaluation = evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index)
+            errors[variant].append(evaluation.translation_error)
+            world = frame.pose.inverse()
+            for obs_centre, instance in zip(observations.ellipsoids.centers, observations.instance_ids.tolist()):
+                if instance in centre:
+                    centre_errors[variant].append(float(np.linalg.norm(obs_centre - world.apply(centre[instance]))))
+            fitted[variant] = dict(zip(observations.detection_index.tolist(), observations.ellipsoids.centers))
+            kept[variant] += len(observations)
+        apart += [float(np.linalg.norm(c - fitted["mask"][k])) for k, c in fitted["box"].items() if k in fitted["mask"]]
+    print(f"{scene}: {len(errors['mask'])} frames, detector {run.detector.name}; observations kept: mask {kept['mask']}, "
+          f"box-only {kept['box']}")
+    print(f"  box-only centre vs the mask fit of the same detection: median {100 * np.median(apart):.1f} cm")
+    for variant in ("mask", "box"):
+        print(f"  {variant:>4}: median centre error vs the landmark {100 * np.median(centre_errors[variant]):5.1f} cm; "
+              f"top-1 within 0.5 / 1 / 2 m: {success(errors[variant])} %")
+
+
+def counted_map(scene: str, folder: Path) -> Path:
+    """The scene's map with class distributions counted from its detector (seed 1) over every frame."""
+    run = prepare(RunSettings(scene, map_path=built_map(scene, folder), data_root=ROOT / "data"))
+    detector = make_detector(run.detector.name, run.sequence.object_classes(), run.map.class_names, seed=1)
+    counts = np.zeros((len(run.map), len(run.map.class_names)))
+    row = {instance: i for i, instance in enumerate(run.map.instance_ids.tolist())}
+    for frame in run.sequence:
+        detections = detector.detect(frame)
+        for instance, class_id in zip(detections.instance_ids.tolist(), detections.class_ids.tolist()):
+            if instance in row:
+                counts[row[instance], class_id] += 1
+    never = counts.sum(axis=1) == 0
+    counts[never, run.map.class_ids[never]] = 1
+    distributions = counts / counts.sum(axis=1, keepdims=True)
+    map = dataclasses.replace(run.map, class_ids=counts.argmax(axis=1).astype(np.int64), class_distributions=distributions)
+    path = folder / f"{scene}.counted.map.npz"
+    save_map(map, path)
+    unsure = distributions.max(axis=1) < 1
+    changed = int((map.class_ids != run.map.class_ids).sum())
+    print(f"{scene}: {len(map)} landmarks, {int(unsure.sum())} with more than one class counted, "
+          f"{changed} whose most counted class is not the annotated one")
+    return path
+
+
+def soft_classes(scene: str, folder: Path) -> None:
+    path = counted_map(scene, folder)
+    for method in ("clipclique", "sh"):
+        for soft in (False, True):
+            run = prepare(RunSettings(scene, method=method, map_path=path, data_root=ROOT / "data",
+                                      overrides=[f"similarity.soft_classes={str(soft).lower()}"]))
+            index = index_map(run.map, run.config)
+            errors = []
+            for i in selected_frames(run):
+                frame = run.sequence[i]
+                detections = run.detector.detect(frame)
+                observations = embed(extract_observations(frame, detections), run.encoder, run.truth_descriptions)
+                result = localize(observations, index, run.config)
+                errors.append(evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index).translation_error)
+            print(f"  {method:>10} soft_classes={'on ' if soft else 'off'}: top-1 within 0.5 / 1 / 2 m: {success(errors)} %")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("experiment", choices=("box-only", "soft-classes"))
+    parser.add_argument("scenes", nargs="*")
+    parser.add_argument("--max-frames", type=int)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        if args.experiment == "box-only":
+            for scene in args.scenes or ["demo_desk", "demo_apartment"]:
+                box_only(scene, Path(folder), args.max_frames)
+        else:
+            for scene in args.scenes or ["demo", "demo_tum", "demo_apartment", "demo_desk"]:
+                soft_classes(scene, Path(folder))
+
+
+if __name__ == "__main__":
+    main()

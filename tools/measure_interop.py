@@ -1,6 +1,6 @@
 """Side-by-side measurements of issue 17 on the generated scenes, one process, same frames.
 
-    .venv/bin/python tools/measure_interop.py box-only [demo_desk demo_apartment] [--max-frames N]
+    .venv/bin/python tools/measure_interop.py box-only [demo_desk demo_apartment] [--max-frames N] [--set min_mode_share=0.6]
     .venv/bin/python tools/measure_interop.py soft-classes [demo demo_tum demo_apartment demo_desk]
 
 box-only: each frame's detections (the scene's own detector) fitted twice, from their masks and
@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 from clipclique.datasets import open_sequence  # noqa: E402
 from clipclique.encoders import load_encoder  # noqa: E402
-from clipclique.interop.boxfit import box_mask  # noqa: E402
+from clipclique.interop.boxfit import BoxSegmentation, box_mask  # noqa: E402
 from clipclique.mapfile import save_map  # noqa: E402
 from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.observations import embed, extract_observations  # noqa: E402
@@ -55,7 +55,7 @@ def success(errors: list[float | None]) -> str:
     return " / ".join(f"{100 * np.mean([e is not None and e < t for e in errors]):5.1f}" for t in THRESHOLDS)
 
 
-def box_only(scene: str, folder: Path, max_frames: int | None) -> None:
+def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: BoxSegmentation) -> None:
     run = prepare(RunSettings(scene, map_path=built_map(scene, folder), data_root=ROOT / "data", max_frames=max_frames))
     index = index_map(run.map, run.config)
     centre = {lm: c for lm, c in zip(run.map.instance_ids.tolist(), run.map.ellipsoids.centers)}
@@ -65,7 +65,7 @@ def box_only(scene: str, folder: Path, max_frames: int | None) -> None:
     for i in selected_frames(run):
         frame = run.sequence[i]
         detections = run.detector.detect(frame)
-        boxed = Detections(np.array([box_mask(frame.depth, frame.intrinsics, b) for b in detections.boxes]).reshape(detections.masks.shape),
+        boxed = Detections(np.array([box_mask(frame.depth, frame.intrinsics, b, params=segmentation) for b in detections.boxes]).reshape(detections.masks.shape),
                            detections.boxes, detections.class_ids, detections.scores, detections.instance_ids)
         fitted = {}
         for variant, dets in (("mask", detections), ("box", boxed)):
@@ -135,11 +135,15 @@ def main() -> None:
     parser.add_argument("experiment", choices=("box-only", "soft-classes"))
     parser.add_argument("scenes", nargs="*")
     parser.add_argument("--max-frames", type=int)
+    parser.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a BoxSegmentation setting (clipclique/interop/boxfit.py), for box-only")
     args = parser.parse_args()
+    segmentation = BoxSegmentation(**{key: type(getattr(BoxSegmentation(), key))(value)
+                                      for key, _, value in (item.partition("=") for item in args.set)})
     with tempfile.TemporaryDirectory() as folder:
         if args.experiment == "box-only":
             for scene in args.scenes or ["demo_desk", "demo_apartment"]:
-                box_only(scene, Path(folder), args.max_frames)
+                box_only(scene, Path(folder), args.max_frames, segmentation)
         else:
             for scene in args.scenes or ["demo", "demo_tum", "demo_apartment", "demo_desk"]:
                 soft_classes(scene, Path(folder))

@@ -5,10 +5,16 @@ documented in docs/formats.md ("Box-only detections"):
 1. the ellipse inscribed in the box (VOOM's fitted ellipse when the file has one): the box's
    corners are mostly background;
 2. valid depth there (0 < z <= max depth);
-3. the nearest dominant depth mode: a histogram of those depths in `bin_m` bins, smoothed; the
-   modes holding at least `min_mode_share` of the largest one; the nearest kept (an object sits
-   in front of what its box also shows: the table, the wall behind);
-4. background rejection: only depths from `front_m` in front of the mode to the object's likely
+3. border rejection: the band just outside the box (`band_fraction` of its smaller side, at
+   least `min_band_px`) is background; when its points lie on one plane (a table top under a
+   book, a wall behind a monitor: median residual under `plane_fit_m`), pixels within
+   `plane_reject_m` of that plane are background too;
+4. the nearest dominant depth mode: a histogram of the remaining depths in `bin_m` bins, each
+   pixel weighted by its closeness to the ellipse's centre (1 - r^2: an object fills its box's
+   middle, occluders and neighbours its edges), smoothed; the modes holding at least
+   `min_mode_share` of the largest one; the nearest kept (an object sits in front of what its
+   box also shows);
+5. background rejection: only depths from `front_m` in front of the mode to the object's likely
    depth extent behind it (its smaller lateral size, from the box and the mode's depth, at least
    `min_extent_m`).
 The result is a mask for `clipclique.observations.extract_observations`, which fits it as any.
@@ -29,6 +35,10 @@ class BoxSegmentation:
     min_mode_share: float = 0.3  # a mode counts when it holds this share of the largest
     front_m: float = 0.04  # depths kept in front of the mode
     min_extent_m: float = 0.05  # depths kept behind the mode, at least
+    band_fraction: float = 0.15  # the background band outside the box, of its smaller side
+    min_band_px: int = 3
+    plane_fit_m: float = 0.01  # the band is a plane when its median residual is under this
+    plane_reject_m: float = 0.015  # ... and pixels this close to it are background
     max_depth: float = 8.0
 
 
@@ -55,13 +65,13 @@ def ellipse_region(box: np.ndarray, shape: tuple[int, int], ellipse: np.ndarray 
     return out
 
 
-def nearest_mode(depths: np.ndarray, params: BoxSegmentation) -> float | None:
-    """The depth of the nearest dominant mode of `depths` (metres), None when there are none."""
+def nearest_mode(depths: np.ndarray, weights: np.ndarray, params: BoxSegmentation) -> float | None:
+    """The depth of the nearest dominant mode of `depths` (metres, weighted), None when there are none."""
     if len(depths) == 0:
         return None
     low = float(depths.min())
     bins = max(1, math.ceil((float(depths.max()) - low) / params.bin_m) + 1)
-    counts = np.bincount(((depths - low) / params.bin_m).astype(np.int64), minlength=bins).astype(float)
+    counts = np.bincount(((depths - low) / params.bin_m).astype(np.int64), weights, minlength=bins)
     smooth = np.convolve(counts, np.ones(params.smooth_bins) / params.smooth_bins, mode="same")
     padded = np.r_[-1.0, smooth, -1.0]
     peaks = np.flatnonzero((padded[1:-1] >= padded[:-2]) & (padded[1:-1] > padded[2:]))
@@ -69,12 +79,57 @@ def nearest_mode(depths: np.ndarray, params: BoxSegmentation) -> float | None:
     return low + (dominant[0] + 0.5) * params.bin_m
 
 
+def _points(depth: np.ndarray, intrinsics: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    z = depth[rows, cols].astype(np.float64)
+    return np.column_stack(((cols - intrinsics[0, 2]) * z / intrinsics[0, 0], (rows - intrinsics[1, 2]) * z / intrinsics[1, 1], z))
+
+
+def background_plane(depth: np.ndarray, intrinsics: np.ndarray, box: np.ndarray,
+                     params: BoxSegmentation) -> tuple[np.ndarray, float] | None:
+    """(unit normal, offset) of the plane the band around the box lies on, None when it is not one plane."""
+    height, width = depth.shape
+    band = max(params.min_band_px, round(params.band_fraction * min(box[2] - box[0], box[3] - box[1])))
+    x0, y0 = max(math.floor(box[0]) - band, 0), max(math.floor(box[1]) - band, 0)
+    x1, y1 = min(math.ceil(box[2]) + band, width), min(math.ceil(box[3]) + band, height)
+    ring = np.zeros((y1 - y0, x1 - x0), bool)
+    ring[:, :] = True
+    ring[max(math.floor(box[1]) - y0, 0):math.ceil(box[3]) - y0, max(math.floor(box[0]) - x0, 0):math.ceil(box[2]) - x0] = False
+    window = depth[y0:y1, x0:x1]
+    ring &= (window > 0) & (window <= params.max_depth)
+    rows, cols = np.nonzero(ring)
+    if len(rows) < 20:
+        return None
+    points = _points(depth, intrinsics, rows + y0, cols + x0)
+    centre = np.median(points, axis=0)
+    _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
+    normal = vt[2]
+    residual = np.abs((points - centre) @ normal)
+    if np.median(residual) > params.plane_fit_m:
+        return None
+    inliers = residual <= 2 * params.plane_fit_m  # one refit on the points near the plane
+    centre = points[inliers].mean(axis=0)
+    _, _, vt = np.linalg.svd(points[inliers] - centre, full_matrices=False)
+    return vt[2], float(vt[2] @ centre)
+
+
 def box_mask(depth: np.ndarray, intrinsics: np.ndarray, box: np.ndarray, ellipse: np.ndarray | None = None,
              params: BoxSegmentation = BoxSegmentation()) -> np.ndarray:
     """(H, W) bool: the pixels of a box-only detection's object (module docstring); empty when no depth."""
     region = ellipse_region(box, depth.shape, ellipse)
     valid = region & (depth > 0) & (depth <= params.max_depth)
-    mode = nearest_mode(depth[valid].astype(np.float64), params)
+    rows, cols = np.nonzero(valid)
+    if len(rows) == 0:
+        return valid
+    plane = background_plane(depth, intrinsics, box, params)
+    if plane is not None:
+        normal, offset = plane
+        near = np.abs(_points(depth, intrinsics, rows, cols) @ normal - offset) <= params.plane_reject_m
+        if near.mean() < 0.9:  # a plane covering (nearly) the whole box is the object's own face, not background
+            valid[rows[near], cols[near]] = False
+            rows, cols = rows[~near], cols[~near]
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    radius = ((cols + 0.5 - cx) / max((box[2] - box[0]) / 2, 0.5)) ** 2 + ((rows + 0.5 - cy) / max((box[3] - box[1]) / 2, 0.5)) ** 2
+    mode = nearest_mode(depth[rows, cols].astype(np.float64), np.clip(1.0 - radius, 0.05, 1.0), params)
     if mode is None:
         return valid
     side_px = min(box[2] - box[0], box[3] - box[1])

@@ -9,6 +9,7 @@ annotation files and results (`COCO91_IDS[i]` is class i's id there).
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,7 +73,9 @@ def decode_rle(segmentation: object, where: str) -> np.ndarray:
     else:
         rle = {"size": [height, width], "counts": counts.encode("ascii", "replace")}
     try:
-        mask = coco_mask.decode([rle])[:, :, 0]  # the list form: the single-object one warns under numpy 2
+        with warnings.catch_warnings():  # pycocotools' compiled decode trips a numpy 2 DeprecationWarning
+            warnings.simplefilter("ignore", DeprecationWarning)
+            mask = coco_mask.decode(rle)
     except Exception as error:  # pycocotools raises bare exceptions on corrupt strings
         raise InteropError(f"{where}: corrupt RLE counts ({error})") from None
     if mask.shape != (height, width):

@@ -26,7 +26,7 @@ def read_objects(path: Path) -> dict[int, tuple[str, str]]:
 
 
 def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]] | None = None,
-           encoder: Encoder | None = None, provenance: dict | None = None) -> Map:
+           encoder: Encoder | None = None) -> Map:
     """The clipclique map of imported landmarks: classes (and descriptions) from `objects` by object id
     where given, else the file's; InteropError naming `where` for a landmark left without a class."""
     objects = objects or {}
@@ -58,17 +58,23 @@ def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]
                 distributions[row] /= distributions[row].sum()
     embeddings = None if encoder is None else np.asarray(encoder.encode_text(descriptions), np.float32)
     record = {
-        "source": {"kind": "import", "format": imported.source, "file": where, "synthetic": False}
-        | ({"name": imported.frame} if imported.frame else {}),
+        "source": {"kind": "import", "format": imported.source, "file": where, "synthetic": False,
+                   "name": imported.frame or unaligned_name(where)},
         "source_object_ids": [int(i) for i in imported.object_ids],
         "notes": notes,
         "encoder_simulated": bool(encoder is not None and getattr(encoder, "simulated", False)),
         "tool": "clipclique-map import",
         "version": clipclique.__version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-    } | (provenance or {})
+    }
     return Map(imported.ellipsoids, class_ids, vocabulary, descriptions, np.array(imported.instance_ids, np.int64),
                embeddings, encoder.name if encoder else "none", record, distributions)
+
+
+def unaligned_name(where: str) -> str:
+    """The source name of a map in another system's own frame: never a sequence's, so `clipclique-loc run`
+    refuses it as any sequence's map until it is aligned (or forced)."""
+    return f"{Path(where).name} (its SLAM frame, not aligned to a sequence)"
 
 
 def object_ids(map: Map) -> list[int]:

@@ -1,0 +1,100 @@
+"""The work behind `clipclique-map import` and `clipclique-map export`, as library calls: read, settle
+classes, align, embed, write (staged, so that outputs appear whole or not at all)."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from pathlib import Path
+
+from clipclique.interop.align import Alignment, AlignmentLimits, align_trajectory, aligned_map
+from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
+from clipclique.interop.errors import InteropError
+from clipclique.interop.maps import ImportedMap, MapFormat, read_map
+from clipclique.types import Map
+
+MAP_DIR = Path("outputs") / "maps"
+
+
+class ExportFormat(enum.StrEnum):
+    """The `--format` values of `clipclique-map export`."""
+
+    OASLAM_TXT = "oaslam-txt"
+    JSON = "json"
+
+
+@dataclass
+class AlignmentRequest:
+    """Where the ground truth and the keyframe trajectory come from."""
+
+    sequence: str | None = None  # --align-to: a sequence name or folder (its groundtruth.txt)
+    trajectory: Path | None = None  # --trajectory, else the one saved beside an Osmap map
+    groundtruth: Path | None = None  # --groundtruth, instead of --align-to's
+    with_scale: bool = False  # --scale: monocular maps
+    limits: AlignmentLimits = AlignmentLimits()
+
+    @property
+    def wanted(self) -> bool:
+        return self.sequence is not None or self.groundtruth is not None
+
+
+@dataclass
+class ImportReport:
+    map: Map
+    imported: ImportedMap
+    alignment: Alignment | None
+    sequence_name: str | None  # the sequence the map is now in the frame of
+
+
+def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
+               data_root: Path | None, encoder) -> ImportReport:
+    """The clipclique map of another system's map file, aligned to ground truth when asked."""
+    imported = read_map(path, format)
+    map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder)
+    if not request.wanted:
+        return ImportReport(map, imported, None, imported.frame)
+    if request.sequence is not None and request.groundtruth is not None:
+        raise InteropError("give --align-to or --groundtruth, not both")
+    sequence_name = None
+    groundtruth = request.groundtruth
+    if request.sequence is not None:
+        from clipclique.datasets import open_sequence
+
+        sequence = open_sequence(request.sequence, data_root)
+        if sequence.kind != "tum":
+            raise InteropError(f"--align-to {request.sequence}: a {sequence.kind} scene; alignment needs a TUM "
+                               "sequence's groundtruth.txt (or --groundtruth FILE)")
+        sequence_name, groundtruth = sequence.name, sequence.root / "groundtruth.txt"
+    trajectory = request.trajectory or imported.trajectory
+    if trajectory is None:
+        raise InteropError(f"{path}: no keyframe trajectory beside this map (keyframes_poses_<name>_tum.txt); "
+                           "pass --trajectory FILE")
+    alignment = align_trajectory(trajectory, groundtruth, request.with_scale, request.limits)
+    map = aligned_map(map, alignment, sequence_name or f"{Path(groundtruth).name} frame",
+                      alignment.record(trajectory, groundtruth))
+    return ImportReport(map, imported, alignment, sequence_name)
+
+
+def default_import_path(path: Path, sequence_name: str | None) -> Path:
+    """outputs/maps/<sequence>.map.npz when aligned to a sequence (where `clipclique-loc run` looks), else
+    outputs/maps/<file stem>.map.npz."""
+    return MAP_DIR / f"{sequence_name or path.stem}.map.npz"
+
+
+def export_text(map: Map, format: ExportFormat) -> tuple[str, list[str]]:
+    """The exported file's text and the classes it could not hold."""
+    if format == ExportFormat.OASLAM_TXT:
+        text, unwritable = text_map(map)
+        if not text:
+            raise InteropError(f"no landmark of this map has a COCO class ({', '.join(unwritable)}); "
+                               "an OA-SLAM text map can hold COCO classes only (use --format json)")
+        return text, unwritable
+    if format == ExportFormat.JSON:
+        return landmarks_json(map), []
+    raise InteropError(f"--format {format!r}: choose {' or '.join(ExportFormat)}")
+
+
+def default_export_path(map_path: Path, format: ExportFormat) -> Path:
+    """Beside the map: map_objects_<name>.txt (OA-SLAM's naming) or <name>.landmarks.json."""
+    name = map_path.name.removesuffix(".npz").removesuffix(".map")
+    return map_path.with_name(f"map_objects_{name}.txt" if format == ExportFormat.OASLAM_TXT else f"{name}.landmarks.json")

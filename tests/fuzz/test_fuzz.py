@@ -579,14 +579,80 @@ def name_cases() -> list[Case]:
     return [Case("names", f"loc-{n}", loc(n)) for n in names] + [Case("names", f"map-{n}", build(n)) for n in names]
 
 
-CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+def import_cases() -> list[Case]:
+    """Another system's map given to clipclique-map import: every reader refuses it in one line naming the file."""
+    q = " ".join(f"{v:.8f}" for v in (np.diag([0.09, 0.01, 0.04, -1.0]) + np.outer([0, 0, 0, 0], [0] * 4)).T.ravel())
+    skew = " ".join(f"{v:.8f}" for v in np.array([[0.09, 0.5, 0, 0], [0, 0.01, 0, 0], [0, 0, 0.04, 0], [0, 0, 0, -1]]).T.ravel())
+    good_node = {"id": 5, "translation": [1, 2, 3], "orientation": [1, 0, 0, 0], "radii": [0.1, 0.2, 0.3],
+                 "baseline_label": {"41.0": [1.0, [0, 0, 0]]}}
+    good_landmark = {"id": 1, "class": "cup", "center": [0, 0, 1], "semi_axes": [0.1, 0.1, 0.1],
+                     "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
+
+    def landmarks(**change) -> bytes:
+        return json.dumps({"format": "clipclique-landmarks", "version": 1, "landmarks": [good_landmark | change]}).encode()
+
+    def imported(name: str, data: bytes, *extra: str, files: dict[str, bytes] | None = None, named: str | None = None):
+        def make(space: Workspace, case_dir: Path):
+            for other, content in (files or {}).items():
+                (case_dir / other).write_bytes(content)
+            (case_dir / name).write_bytes(data)
+            return map_app, ["import", str(case_dir / name), "--out", str(space.map), "--encoder", "none", *extra], named or name
+
+        return make
+
+    def osmap(objects: bytes, key: str = "objectsFile") -> Callable:
+        return imported("map_x.yaml", f'%YAML:1.0\n{key}: "map_x.objects"\n'.encode(), files={"map_x.objects": objects},
+                        named="map_x.objects")
+
+    makers = {
+        "text-fields": imported("map_objects_x.txt", b"1 41 1 2 3\n"),
+        "text-words": imported("map_objects_x.txt", ("1 41 " + " ".join(["one"] * 16) + "\n").encode()),
+        "text-category-99": imported("map_objects_x.txt", f"1 99 {q}\n".encode()),
+        "text-asymmetric": imported("map_objects_x.txt", f"1 41 {skew}\n".encode()),
+        "text-not-utf8": imported("map_objects_x.txt", f"1 41 {q}\n".encode() + LATIN1),
+        "text-nul": imported("map_objects_x.txt", f"1 41 {q}\n\0".encode()),
+        "text-empty": imported("map_objects_x.txt", b""),
+        "text-1e300": imported("map_objects_x.txt", ("1 41 " + q.replace("0.00000000", "1e300", 1) + "\n").encode()),
+        "osmap-truncated": osmap(b"\x0a\xff\x01"),
+        "osmap-wire-type-7": osmap(b"\x0f"),
+        "osmap-15-floats": osmap(b"\x0a\x42\x0a\x40\x0a\x3c" + bytes(60)),
+        "osmap-varint-runaway": osmap(b"\x08" + b"\xff" * 20),
+        "osmap-no-objects-key": imported("map_x.yaml", b"%YAML:1.0\nkeyframesFile: x\n"),
+        "osmap-missing-file": imported("map_x.yaml", b'%YAML:1.0\nobjectsFile: "gone.objects"\n', named="gone.objects"),
+        "osmap-escaping-path": imported("map_x.yaml", b'%YAML:1.0\nobjectsFile: "../../maps/demo.map.npz"\n'),
+        "msgloc-not-json": imported("m.json", b"{nodes"),
+        "msgloc-deep": imported("m.json", _deep_json().encode()),
+        "msgloc-nodes-not-list": imported("m.json", b'{"nodes": 3}'),
+        "msgloc-quaternion": imported("m.json", json.dumps({"nodes": [good_node | {"orientation": [3, 0, 0, 0]}]}).encode()),
+        "msgloc-id-text": imported("m.json", json.dumps({"nodes": [good_node | {"id": "x"}]}).encode()),
+        "msgloc-no-label": imported("m.json", json.dumps({"nodes": [{k: v for k, v in good_node.items() if k != "baseline_label"}]}).encode()),
+        "json-version-9": imported("l.json", json.dumps({"format": "clipclique-landmarks", "version": 9}).encode()),
+        "json-rotation": imported("l.json", landmarks(rotation=[[2, 0, 0], [0, 1, 0], [0, 0, 1]])),
+        "json-class-control": imported("l.json", landmarks(**{"class": "c\x1bup"})),
+        "json-distribution": imported("l.json", landmarks(class_distribution={"cup": 0.4})),
+        "voom-without-classes": osmap(b"\x0a\x47\x0a\x42\x0a\x40" + np.diag([0.09, 0.01, 0.04, -1.0]).astype("<f4").tobytes()
+                                      + b"\x10\x07", key="ObjectsFile"),
+        "objects-csv-header": imported("map_objects_x.txt", f"1 41 {q}\n".encode(), "--objects", "placeholder"),
+    }
+    cases = [Case("import", name, make) for name, make in makers.items()]
+
+    def bad_csv(space: Workspace, case_dir: Path):
+        (case_dir / "objects.csv").write_text("id,name\n1,cup\n")
+        app, args, _ = makers["objects-csv-header"](space, case_dir)
+        return app, [a if a != "placeholder" else str(case_dir / "objects.csv") for a in args], "objects.csv"
+
+    cases[-1] = Case("import", "objects-csv-header", bad_csv)
+    return cases
+
+
+CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
     assert len(CASES) >= 100
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
-                                               "outputs", "encoder", "compare", "names"}
+                                               "outputs", "encoder", "compare", "names", "import"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

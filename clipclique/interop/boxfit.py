@@ -39,10 +39,12 @@ class BoxSegmentation:
     min_band_px: int = 3
     plane_fit_m: float = 0.01  # the band is a plane when its median residual is under this
     plane_reject_m: float = 0.015  # ... and pixels this close to it are background
+    ellipse_scale: float = 1.0  # the inscribed ellipse scaled by this (sqrt 2 reaches the box's corners)
     max_depth: float = 8.0
 
 
-def ellipse_region(box: np.ndarray, shape: tuple[int, int], ellipse: np.ndarray | None = None) -> np.ndarray:
+def ellipse_region(box: np.ndarray, shape: tuple[int, int], ellipse: np.ndarray | None = None,
+                   scale: float = 1.0) -> np.ndarray:
     """(H, W) bool: the ellipse inscribed in the xyxy `box`, or VOOM's `[cx, cy, width, height, angle_rad]`
     (full axis lengths; the angle turns the width axis from +x towards +y)."""
     height, width = shape
@@ -51,6 +53,7 @@ def ellipse_region(box: np.ndarray, shape: tuple[int, int], ellipse: np.ndarray 
         a, b, angle = max((box[2] - box[0]) / 2, 0.5), max((box[3] - box[1]) / 2, 0.5), 0.0
     else:
         cx, cy, a, b, angle = ellipse[0], ellipse[1], max(ellipse[2] / 2, 0.5), max(ellipse[3] / 2, 0.5), ellipse[4]
+    a, b = a * scale, b * scale
     reach = max(a, b)
     x0, x1 = max(math.floor(cx - reach), 0), min(math.ceil(cx + reach) + 1, width)
     y0, y1 = max(math.floor(cy - reach), 0), min(math.ceil(cy + reach) + 1, height)
@@ -62,6 +65,9 @@ def ellipse_region(box: np.ndarray, shape: tuple[int, int], ellipse: np.ndarray 
     along = du * math.cos(angle) + dv * math.sin(angle)
     across = -du * math.sin(angle) + dv * math.cos(angle)
     out[y0:y1, x0:x1] = (along / a) ** 2 + (across / b) ** 2 <= 1.0
+    if ellipse is None:  # never beyond the box
+        out[:, :max(math.floor(box[0]), 0)] = out[:, math.ceil(box[2]):] = False
+        out[:max(math.floor(box[1]), 0)] = out[math.ceil(box[3]):] = False
     return out
 
 
@@ -115,7 +121,7 @@ def background_plane(depth: np.ndarray, intrinsics: np.ndarray, box: np.ndarray,
 def box_mask(depth: np.ndarray, intrinsics: np.ndarray, box: np.ndarray, ellipse: np.ndarray | None = None,
              params: BoxSegmentation = BoxSegmentation()) -> np.ndarray:
     """(H, W) bool: the pixels of a box-only detection's object (module docstring); empty when no depth."""
-    region = ellipse_region(box, depth.shape, ellipse)
+    region = ellipse_region(box, depth.shape, ellipse, params.ellipse_scale)
     valid = region & (depth > 0) & (depth <= params.max_depth)
     rows, cols = np.nonzero(valid)
     if len(rows) == 0:

@@ -75,10 +75,9 @@ def import_map(path: Path, format: MapFormat | None, objects: Path | None, reque
     return ImportReport(map, imported, alignment, sequence_name)
 
 
-def default_import_path(path: Path, sequence_name: str | None) -> Path:
-    """outputs/maps/<sequence>.map.npz when aligned to a sequence (where `clipclique-loc run` looks), else
-    outputs/maps/<file stem>.map.npz."""
-    return MAP_DIR / f"{sequence_name or path.stem}.map.npz"
+def default_import_path(path: Path) -> Path:
+    """outputs/maps/<file stem>.map.npz: never the name of a built map, which an import must not replace unasked."""
+    return MAP_DIR / f"{path.stem}.map.npz"
 
 
 def export_text(map: Map, format: ExportFormat) -> tuple[str, list[str]]:

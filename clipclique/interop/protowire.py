@@ -3,7 +3,8 @@
 A message is a sequence of fields `(number << 3 | wire type, value)`: varints (0), 64-bit (1),
 length-delimited bytes (2: strings, sub-messages, packed repeated scalars) and 32-bit (5).
 A repeated scalar may come packed (one length-delimited run) or unpacked (one field each);
-`repeated_*` accept both, as proto3 readers must.
+`repeated_*` accept both, as proto3 readers must. The `encode_*` functions write the packed form
+(tools/interop_example.py writes Osmap files of the generated scenes with them).
 """
 
 from __future__ import annotations
@@ -103,3 +104,28 @@ def repeated_float(fields: Fields, number: int, where: str, double: bool = False
             raise InteropError(f"{where}: field {number} should hold {'doubles' if double else 'floats'}")
         out.extend(struct.unpack(f"<{len(value) // size}{code}", value))
     return out
+
+
+def encode_varint(value: int) -> bytes:
+    """A varint: 7 bits per byte, low bits first, the high bit set on every byte but the last."""
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def encode_field(number: int, value: int | bytes) -> bytes:
+    """One field: a varint for an int, length-delimited bytes (a sub-message, a packed run) otherwise."""
+    if isinstance(value, int):
+        return encode_varint(number << 3) + encode_varint(value)
+    return encode_varint(number << 3 | 2) + encode_varint(len(value)) + value
+
+
+def encode_packed_uints(number: int, values: list[int]) -> bytes:
+    return encode_field(number, b"".join(encode_varint(v) for v in values))
+
+
+def encode_packed_floats(number: int, values: list[float]) -> bytes:
+    return encode_field(number, struct.pack(f"<{len(values)}f", *values))

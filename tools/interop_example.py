@@ -7,7 +7,7 @@ writes, for the scene's map (built with `clipclique-map build` first) and its de
 - `map_desk.yaml` + `map_desk.objects`: a GOReloc Osmap map, ellipsoids as dual quadrics in the
   SLAM frame (the first keyframe's camera), COCO-80 classes, class counts from the scene's
   detector (seed 1) over every frame; landmarks whose class has no COCO name are left out;
-- `keyframes_poses_desk_tum.txt`: every 5th frame's ground-truth pose in that SLAM frame, with
+- `keyframes_poses_desk_tum.txt`: the ground-truth pose of every frame (`--keyframe-every N`: every Nth) in that SLAM frame, with
   5 mm of noise (a SLAM system's keyframes);
 - `detections.json`: the OA-SLAM / VOOM / GOReloc detection JSON, boxes only, of the scene's
   detector (seed 0) on every frame, COCO-80 ids, file names with the `rgb/` prefix.
@@ -39,6 +39,7 @@ def main() -> None:
     parser.add_argument("--scene", default="demo_tum")
     parser.add_argument("--map", type=Path, help="the scene's map [default: outputs/maps/<scene>.map.npz]")
     parser.add_argument("--out", type=Path, default=Path("outputs/example"))
+    parser.add_argument("--keyframe-every", type=int, default=1, help="one keyframe every N frames")
     args = parser.parse_args()
     sequence = open_sequence(args.scene, ROOT / "data")
     map = load_map(args.map or Path("outputs/maps") / f"{args.scene}.map.npz")
@@ -63,7 +64,7 @@ def main() -> None:
             {"category_id": COCO80_INDEX[coco_of[map.class_names[c]]], "detection_score": round(float(s), 3),
              "bbox": [round(float(v), 1) for v in box]}
             for box, c, s in zip(found.boxes, found.class_ids, found.scores) if map.class_names[c] in coco_of]})
-        if frame.index % 5 == 0:
+        if frame.index % args.keyframe_every == 0:
             pose = slam.compose(frame.pose)
             position = pose.translation + rng.normal(0, 0.005, 3)
             keyframes.append(f"{frame.timestamp:.6f} " + " ".join(

@@ -50,6 +50,8 @@ def evaluate_frame(
 
     A correspondence is correct when the observation's ground-truth instance id (not -1) equals
     the landmark's. Recall is 0 when no observed object is in the map (`num_in_map` tells).
+    A map without ground-truth object ids (an imported SLAM map: every id -1) has no precision
+    (None) and no observed object in it, so neither enters the summary's means.
     """
     errors = [pose_errors(h.pose, gt_pose) for h in result.hypotheses] if gt_pose is not None else []
     success = {k: any(te < config.success_threshold_m for te, _ in errors[:k]) for k in TOP_K}
@@ -57,7 +59,7 @@ def evaluate_frame(
     num_in_map = int(np.count_nonzero(known & np.isin(observations.instance_ids, map.instance_ids)))
     precision = None
     correct = 0
-    if result.hypotheses:
+    if result.hypotheses and (map.instance_ids >= 0).any():
         pairs = result.hypotheses[0].correspondences
         observed = observations.instance_ids[pairs[:, 0]]
         correct = int(np.count_nonzero((observed >= 0) & (observed == map.instance_ids[pairs[:, 1]])))

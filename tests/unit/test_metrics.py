@@ -88,3 +88,13 @@ def test_frames_without_ground_truth_do_not_count_in_success():
     summary = summarize([scored, unscored])  # a perfect pose and one that cannot be scored: 100 %, not 50 %
     assert summary["success@1"] == 1.0 and summary["frames"] == 2 and summary["localized"] == 1.0
     assert math.isnan(summarize([unscored])["success@1"])
+
+
+def test_a_map_without_ground_truth_ids_has_no_precision():
+    import dataclasses
+
+    imported = dataclasses.replace(MAP, instance_ids=np.full(len(MAP.instance_ids), -1))
+    pairs = np.array([[0, 0], [1, 2], [2, 2]])
+    evaluation = evaluate_frame(result_with([TRUTH], pairs), OBSERVATIONS, imported, TRUTH, make_config(), 0)
+    assert evaluation.precision is None and evaluation.num_in_map == 0 and evaluation.success[1]
+    assert evaluate_frame(result_with([TRUTH], pairs), OBSERVATIONS, MAP, TRUTH, make_config(), 0).precision == pytest.approx(2 / 3)

@@ -36,7 +36,7 @@ from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.observations import embed, extract_observations  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
 from clipclique.types import Detections, Map  # noqa: E402
-from localization.run import RunSettings, make_detector, prepare, selected_frames  # noqa: E402
+from localization.run import RunSettings, default_detector, make_detector, prepare, selected_frames  # noqa: E402
 from mapping.build import build_map  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -92,7 +92,7 @@ def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: Box
 def counted_map(scene: str, folder: Path) -> Path:
     """The scene's map with class distributions counted from its detector (seed 1) over every frame."""
     run = prepare(RunSettings(scene, map_path=built_map(scene, folder), data_root=ROOT / "data"))
-    detector = make_detector(run.detector.name, run.sequence.object_classes(), run.map.class_names, seed=1)
+    detector = make_detector(default_detector(run.sequence), run.sequence.object_classes(), run.map.class_names, seed=1)
     counts = np.zeros((len(run.map), len(run.map.class_names)))
     row = {instance: i for i, instance in enumerate(run.map.instance_ids.tolist())}
     for frame in run.sequence:

@@ -40,6 +40,8 @@ class BoxSegmentation:
     plane_fit_m: float = 0.01  # the band is a plane when its median residual is under this
     plane_reject_m: float = 0.015  # ... and pixels this close to it are background
     ellipse_scale: float = 1.0  # the inscribed ellipse scaled by this (sqrt 2 reaches the box's corners)
+    grow: bool = False  # keep the depth-continuous surfaces holding the mode instead of a depth band
+    jump_ratio: float = 0.03  # a depth step between neighbours above this fraction of the depth is an edge
     max_depth: float = 8.0
 
 
@@ -139,5 +141,28 @@ def box_mask(depth: np.ndarray, intrinsics: np.ndarray, box: np.ndarray, ellipse
     if mode is None:
         return valid
     side_px = min(box[2] - box[0], box[3] - box[1])
+    if params.grow:
+        return _continuous(depth, valid, mode, params) & (depth <= mode + max(box[2] - box[0], box[3] - box[1]) * mode / intrinsics[0, 0])
     extent = max(params.min_extent_m, side_px * mode / intrinsics[0, 0])
     return valid & (depth >= mode - params.front_m) & (depth <= mode + extent)
+
+
+def _continuous(depth: np.ndarray, valid: np.ndarray, mode: float, params: BoxSegmentation) -> np.ndarray:
+    """The pixels of `valid` joined to the mode's pixels without a depth step (an edge) between neighbours."""
+    from scipy import ndimage
+
+    z = np.where(valid, depth, 0.0).astype(np.float64)
+    limit = params.jump_ratio * np.maximum(z, 1e-6)
+    edge = np.zeros_like(valid)
+    step_x = np.abs(np.diff(z, axis=1)) > np.minimum(limit[:, 1:], limit[:, :-1])
+    step_y = np.abs(np.diff(z, axis=0)) > np.minimum(limit[1:], limit[:-1])
+    edge[:, 1:] |= step_x
+    edge[:, :-1] |= step_x
+    edge[1:] |= step_y
+    edge[:-1] |= step_y
+    labels, count = ndimage.label(valid & ~edge)
+    seeds = labels[(np.abs(z - mode) <= params.bin_m) & (labels > 0)]
+    if count == 0 or len(seeds) == 0:
+        return valid & (np.abs(z - mode) <= params.bin_m)
+    sizes = np.bincount(seeds, minlength=count + 1)
+    return np.isin(labels, np.flatnonzero(sizes >= params.min_mode_share * sizes.max()))

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import MapFormat, read_map
+from clipclique.interop.protowire import encode_varint as varint
 from clipclique.interop.quadric import decode_dual_quadric, encode_dual_quadric
 
 ROTATION = Rotation.from_euler("xyz", [20, -35, 70], degrees=True).as_matrix()
@@ -20,15 +21,6 @@ AXES = np.array([0.3, 0.12, 0.05])
 
 
 # ---- the protobuf wire format, by hand ----------------------------------------------------------
-
-def varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte, value = value & 0x7F, value >> 7
-        out.append(byte | (0x80 if value else 0))
-        if not value:
-            return bytes(out)
-
 
 def key(number: int, wire: int) -> bytes:
     return varint(number << 3 | wire)
@@ -79,6 +71,10 @@ def same_ellipsoid(ellipsoids, i, center=CENTER, axes=AXES, rotation=ROTATION, t
     expected = np.asarray(rotation)[:, np.argsort(axes)]
     np.testing.assert_allclose(np.abs(np.sum(ellipsoids.rotations[i][:, order] * expected, axis=0)), 1, atol=1e-4)
     assert np.linalg.det(ellipsoids.rotations[i]) > 0
+
+
+def test_varints_as_the_protobuf_documentation_writes_them():
+    assert varint(1) == b"\x01" and varint(150) == b"\x96\x01" and varint(300) == b"\xac\x02"
 
 
 # ---- dual quadrics -------------------------------------------------------------------------------

@@ -20,12 +20,17 @@ if TYPE_CHECKING:
     from clipclique.datasets import Sequence as DatasetSequence
 
 
-DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "yolo")  # the `--detector` names
+DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "yolo", "file:PATH")  # the `--detector` names
 
 
 def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
-                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0) -> Detector:
-    """The back-end a `--detector` value names (`DETECTORS`)."""
+                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0, min_score: float = 0.0) -> Detector:
+    """The back-end a `--detector` value names (`DETECTORS`); `file:PATH[,images=LIST]` reads a detection file
+    (`clipclique.interop.detections`). `min_score` drops weaker detections (file: and yolo)."""
+    if kind.startswith("file:"):
+        from clipclique.interop.detections import FileDetector
+
+        return FileDetector.load(kind, class_names, min_score)
     if kind == "gt":
         return InstanceDetector(object_classes, class_names)
     if kind == "annotations":
@@ -35,7 +40,7 @@ def make_detector(kind: str, object_classes: dict[int, str], class_names: list[s
     if kind == "simulated-yolo":
         return SimulatedYoloDetector(InstanceDetector(object_classes, class_names), seed=seed)
     if kind == "yolo":
-        return YoloDetector.load(yolo_weights, class_names)
+        return YoloDetector.load(yolo_weights, class_names, min_score or 0.25)
     raise ClipcliqueError(f"--detector {kind!r}: choose {', '.join(DETECTORS[:-1])} or {DETECTORS[-1]}")
 
 

@@ -43,14 +43,6 @@ class Method(str, Enum):
     cliploc = "cliploc"
 
 
-class DetectorKind(str, Enum):
-    gt = "gt"
-    annotations = "annotations"
-    yolo = "yolo"
-    simulated = "simulated"
-    simulated_yolo = "simulated-yolo"
-
-
 @app.command()
 def run(
     sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
@@ -67,9 +59,12 @@ def run(
                                                      rich_help_panel=INPUTS)] = None,
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
-    detector: Annotated[Optional[DetectorKind], typer.Option(
-        help="\\[default: simulated on demo/demo_tum, simulated-yolo on demo_desk, gt on demo_apartment and "
-             "ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+    detector: Annotated[Optional[str], typer.Option(
+        help="gt | annotations | yolo | simulated | simulated-yolo | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
+             "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
+             "demo_desk, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+    min_score: Annotated[Optional[float], typer.Option(
+        min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(
@@ -102,8 +97,8 @@ def run(
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
-                           detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, force=force)
+                           detector, encoder, yolo_weights, stride, max_frames, out,
+                           record=not no_rrd, force=force, min_score=min_score or 0.0)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)

@@ -33,6 +33,9 @@ if TYPE_CHECKING:  # the runner (localization.run) writes through this module, n
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
 OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
+# --detector yolo also writes what it detected (COCO results, RLE masks, and their image list):
+# `--detector file:<run>/detections.json` reruns it without GPU or weights.
+DETECTIONS_FILE, IMAGES_FILE = "detections.json", "images.json"
 
 
 def write_results(run: Run, partials: dict[str, Path]) -> dict[str, Any]:

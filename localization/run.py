@@ -32,7 +32,9 @@ from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from localization.results import OUTPUT_FILES, run_description, write_results
+from localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, run_description, write_results
+from clipclique.interop.detections import CocoRecorder, reported_classes
+from clipclique.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records
@@ -59,6 +61,7 @@ class RunSettings:
     record: bool = True
     seed: int = 0  # the simulated detector's
     force: bool = False  # accept a map built from another scene
+    min_score: float = 0.0  # detections scoring lower are dropped (file: and yolo detectors)
 
     def out_dir(self, sequence_name: str) -> Path:
         """`--out`, else outputs/loc/<the sequence's resolved name>/<run_name()>."""
@@ -75,7 +78,7 @@ class RunSettings:
         given = {"map": self.map_path and self.map_path.name.removesuffix(".map.npz"), "detector": self.detector,
                  "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
-                 "max_frames": self.max_frames}
+                 "max_frames": self.max_frames, "min_score": self.min_score or None}
         parts += [f"{key}={value}" for key, value in given.items() if value is not None]
         name = re.sub(r"[^\w.,=+-]", "_", "+".join(parts))
         return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
@@ -107,6 +110,8 @@ class Run:
     encoder: Encoder | None
     notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
+    detections_file: CocoRecorder | None = None  # a model's detections, kept to be written as COCO results
+
 
     def summary(self) -> dict[str, float]:
         return summarize([outcome.evaluation for outcome in self.frames])
@@ -126,7 +131,7 @@ def prepare(settings: RunSettings) -> Run:
     check_map_source(map, map_path, sequence.name, settings, notes)
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
-                             settings.seed)
+                             settings.seed, settings.min_score)
     if config.similarity.descriptor in ("clip", "fused"):
         encoder = choose_encoder(settings.encoder, map, notes, sequence)
     else:  # SH and X-View never read CLIP: no model to load, no crops to embed every frame
@@ -141,7 +146,10 @@ def prepare(settings: RunSettings) -> Run:
     if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
-    return Run(settings, config, sequence, map, detector, encoder, notes)
+    recorder = None
+    if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
+        recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
+    return Run(settings, config, sequence, map, detector, encoder, notes, detections_file=recorder)
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
@@ -189,6 +197,8 @@ def observe(run: Run, frame: Frame) -> Seen:
     clock = time.perf_counter()
     detections = run.detector.detect(frame)
     timings["detector"] = time.perf_counter() - clock
+    if run.detections_file is not None:
+        run.detections_file.add(frame, detections)
     clock = time.perf_counter()
     extraction = extract_observations(frame, detections, run.config.observations)
     timings["observations"] = time.perf_counter() - clock
@@ -260,6 +270,8 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
                     staging.remove(recording)
                     run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
             document = write_results(run, partials)
+            if run.detections_file is not None:
+                run.detections_file.write(staging.path(out_dir / DETECTIONS_FILE), staging.path(out_dir / IMAGES_FILE))
             staging.commit()
         return document
     except BaseException:

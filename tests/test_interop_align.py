@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.datasets import open_sequence
+from clipclique.resolve import open_scene
 from clipclique.datasets.tum import read_trajectory
 from clipclique.interop.align import AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.errors import InteropError
@@ -25,7 +25,7 @@ TRUE_ROTATION = Rotation.from_euler("zyx", [37, -12, 105], degrees=True).as_matr
 
 @pytest.fixture(scope="module")
 def demo_map() -> Map:
-    map, _ = build_map(open_sequence("demo_tum", ROOT / "data"), None)
+    map, _ = build_map(open_scene("demo_tum", ROOT / "data"), None)
     return map
 
 

@@ -100,32 +100,32 @@ def test_an_aligned_import_is_taken_as_the_sequences_map(built, tmp_path):
 def test_a_yolo_run_writes_its_detections_and_a_file_rerun_reproduces_it(monkeypatch, built, tmp_path):
     """`--detector yolo` (a stand-in here: no weights) writes COCO results with RLE masks; `--detector file:` on
     them gives the same poses."""
-    from clipclique.detectors import InstanceDetector, SimulatedDetector
-    from clipclique.interop.coco import COCO80_NAMES
+    from clipclique import yolo
+    from clipclique.detectors import InstanceDetector
     from clipclique.interop.detections import reported_classes
+    from clipclique.sim.detectors import SimulatedDetector
     from clipclique.types import Detections
-    from localization import detectors
 
-    class StandInYolo(detectors.YoloDetector):
+    class StandInYolo(yolo.YoloDetector):
         def __init__(self, weights, class_names, confidence=0.25, device=None):
             self.class_names, self.name, self.simulated = class_names, "yolo:stand-in", False
-            self.class_map = detectors.coco_to_vocabulary(dict(enumerate(COCO80_NAMES)), class_names)
+            self.class_map = yolo.coco_to_vocabulary(class_names)
             writable = {class_names.index(name) for name in reported_classes(self.class_map, class_names)}
             self.writable = np.array(sorted(writable))
             self.truth = None
 
         def detect(self, frame):
             if self.truth is None:
-                from clipclique.datasets import open_sequence
+                from clipclique.resolve import open_scene
 
-                objects = open_sequence("demo_tum", ROOT / "data").object_classes()
+                objects = open_scene("demo_tum", ROOT / "data").object_classes()
                 self.truth = SimulatedDetector(InstanceDetector(objects, self.class_names))
             found = self.truth.detect(frame)
             keep = np.isin(found.class_ids, self.writable)
             return Detections(found.masks[keep], found.boxes[keep], found.class_ids[keep], found.scores[keep],
                               np.full(int(keep.sum()), -1))
 
-    monkeypatch.setattr(detectors.YoloDetector, "load", classmethod(lambda cls, *args: StandInYolo(*args)))
+    monkeypatch.setattr(yolo.YoloDetector, "load", classmethod(lambda cls, *args: StandInYolo(*args)))
     first = tmp_path / "yolo"
     args = ["run", "demo_tum", "--data-root", str(ROOT / "data"), "--map", str(built), "--no-rrd", "--max-frames", "12"]
     result = RUNNER.invoke(loc_app, [*args, "--detector", "yolo", "--out", str(first)])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clipclique.interop.boxfit import box_mask, ellipse_region
-from clipclique.interop.coco import COCO80_NAMES, decode_rle, encode_rle
+from clipclique.interop.coco import decode_rle, encode_rle
 from clipclique.interop.detections import (
     CocoRecorder,
     FileDetector,
@@ -21,7 +21,7 @@ from clipclique.interop.detections import (
 )
 from clipclique.interop.errors import InteropError
 from clipclique.types import Detections, Frame
-from localization.detectors import coco_to_vocabulary
+from clipclique.yolo import coco_to_vocabulary
 
 INTRINSICS = np.array([[500.0, 0, 80], [0, 500.0, 60], [0, 0, 1]])
 CLASSES = ["book", "cup", "monitor"]
@@ -36,7 +36,7 @@ def frame(name: str = "1311868164.363181", index: int = 0) -> Frame:
 
 
 def detector(path, **options) -> FileDetector:
-    return FileDetector.load(f"file:{path}", CLASSES, coco_to_vocabulary, **options)
+    return FileDetector.load(f"file:{path}", CLASSES, **options)
 
 
 def test_frame_keys_drop_folders_and_image_extensions():
@@ -118,7 +118,7 @@ def test_a_recorded_run_read_back_gives_the_same_detections(tmp_path):
     square[5:25, 100:140] = True
     original = Detections(np.array([disc, square]), np.array([[60.0, 40, 101, 81], [100, 5, 140, 25]]),
                           np.array([2, 1]), np.array([0.8312, 0.41]), np.array([-1, -1]))
-    vocabulary = coco_to_vocabulary(dict(enumerate(COCO80_NAMES)), CLASSES)
+    vocabulary = coco_to_vocabulary(CLASSES)
     recorder = CocoRecorder(CLASSES, reported_classes(vocabulary, CLASSES))
     assert recorder.coco_names["monitor"] == "tv"
     recorder.add(shot, original)

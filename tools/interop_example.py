@@ -22,14 +22,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.datasets import open_sequence
-from clipclique.interop.coco import COCO80_INDEX, COCO80_NAMES
+from clipclique.resolve import open_scene
+from clipclique.interop.coco import COCO80_INDEX
 from clipclique.interop.detections import reported_classes
 from clipclique.interop.protowire import encode_field, encode_packed_floats, encode_packed_uints
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.mapfile import load_map
-from localization.detectors import coco_to_vocabulary, make_detector
-from localization.run import default_detector
+from clipclique.backends import make_detector
+from clipclique.resolve import default_detector
+from clipclique.yolo import coco_to_vocabulary
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -41,9 +42,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/example"))
     parser.add_argument("--keyframe-every", type=int, default=1, help="one keyframe every N frames")
     args = parser.parse_args()
-    sequence = open_sequence(args.scene, ROOT / "data")
+    sequence = open_scene(args.scene, ROOT / "data")
     map = load_map(args.map or Path("outputs/maps") / f"{args.scene}.map.npz")
-    coco_of = reported_classes(coco_to_vocabulary(dict(enumerate(COCO80_NAMES)), map.class_names), map.class_names)
+    coco_of = reported_classes(coco_to_vocabulary(map.class_names), map.class_names)
     args.out.mkdir(parents=True, exist_ok=True)
     slam = sequence[0].pose.inverse()  # ground truth -> the first keyframe's camera frame
 

@@ -28,15 +28,16 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from clipclique.datasets import open_sequence  # noqa: E402
-from clipclique.encoders import load_encoder  # noqa: E402
+from clipclique.resolve import open_scene  # noqa: E402
+from clipclique.backends import load_encoder, make_detector  # noqa: E402
 from clipclique.interop.boxfit import BoxSegmentation, box_mask  # noqa: E402
 from clipclique.mapfile import save_map  # noqa: E402
 from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.observations import embed, extract_observations  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
 from clipclique.types import Detections, Map  # noqa: E402
-from localization.run import RunSettings, default_detector, make_detector, prepare, selected_frames  # noqa: E402
+from clipclique.resolve import default_detector  # noqa: E402
+from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 from mapping.build import build_map  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -46,7 +47,7 @@ THRESHOLDS = (0.5, 1.0, 2.0)
 def built_map(scene: str, folder: Path) -> Path:
     path = folder / f"{scene}.map.npz"
     if not path.exists():
-        map, _ = build_map(open_sequence(scene, ROOT / "data"), load_encoder("simulated"))
+        map, _ = build_map(open_scene(scene, ROOT / "data"), load_encoder("simulated"))
         save_map(map, path)
     return path
 
@@ -70,7 +71,7 @@ def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: Box
         fitted = {}
         for variant, dets in (("mask", detections), ("box", boxed)):
             extraction = extract_observations(frame, dets)
-            observations = embed(extraction, run.encoder, run.truth_descriptions)
+            observations = embed(extraction, run.encoder)
             result = localize(observations, index, run.config)
             evaluation = evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index)
             errors[variant].append(evaluation.translation_error)
@@ -124,7 +125,7 @@ def soft_classes(scene: str, folder: Path) -> None:
             for i in selected_frames(run):
                 frame = run.sequence[i]
                 detections = run.detector.detect(frame)
-                observations = embed(extract_observations(frame, detections), run.encoder, run.truth_descriptions)
+                observations = embed(extract_observations(frame, detections), run.encoder)
                 result = localize(observations, index, run.config)
                 errors.append(evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index).translation_error)
             print(f"  {method:>10} soft_classes={'on ' if soft else 'off'}: top-1 within 0.5 / 1 / 2 m: {success(errors)} %")

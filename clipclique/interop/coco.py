@@ -1,9 +1,9 @@
 """COCO classes and the COCO results format with RLE masks: shared by `--detector file:` and any
 reader of COCO mask files (detectron2, mmdetection and ultralytics `save_json` write them).
 
-Two id schemes name the same 80 classes: the contiguous 0-based ids that OA-SLAM, VOOM and
-GOReloc files use (`COCO80_NAMES[i]`), and the 1-based 91-id scheme with gaps of COCO's own
-annotation files and results (`COCO91_IDS[i]` is class i's id there).
+Two id schemes name the same 80 classes: the contiguous 0-based ids that OA-SLAM, VOOM, GOReloc
+and YOLO use (`clipclique.yolo.COCO_NAMES[i]`), and the 1-based 91-id scheme with gaps of COCO's
+own annotation files and results (`COCO91_IDS[i]` is class i's id there).
 """
 
 from __future__ import annotations
@@ -16,33 +16,23 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.interop.errors import InteropError
-from clipclique.safeio import MAX_JSON_BYTES, decode_text, parse_json, read_bytes
+from clipclique.safeio import read_json
+from clipclique.yolo import COCO_NAMES
 
-COCO80_NAMES: tuple[str, ...] = (
-    "person", "bicycle", "car", "motorcycle", "airplane", "bus", "train", "truck", "boat", "traffic light",
-    "fire hydrant", "stop sign", "parking meter", "bench", "bird", "cat", "dog", "horse", "sheep", "cow",
-    "elephant", "bear", "zebra", "giraffe", "backpack", "umbrella", "handbag", "tie", "suitcase", "frisbee",
-    "skis", "snowboard", "sports ball", "kite", "baseball bat", "baseball glove", "skateboard", "surfboard",
-    "tennis racket", "bottle", "wine glass", "cup", "fork", "knife", "spoon", "bowl", "banana", "apple",
-    "sandwich", "orange", "broccoli", "carrot", "hot dog", "pizza", "donut", "cake", "chair", "couch",
-    "potted plant", "bed", "dining table", "toilet", "tv", "laptop", "mouse", "remote", "keyboard",
-    "cell phone", "microwave", "oven", "toaster", "sink", "refrigerator", "book", "clock", "vase", "scissors",
-    "teddy bear", "hair drier", "toothbrush",
-)
 COCO91_IDS: tuple[int, ...] = (
     1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 27, 28, 31, 32, 33, 34,
     35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 46, 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62, 63,
     64, 65, 67, 70, 72, 73, 74, 75, 76, 77, 78, 79, 80, 81, 82, 84, 85, 86, 87, 88, 89, 90,
 )
 COCO91_TO_80: dict[int, int] = {coco91: index for index, coco91 in enumerate(COCO91_IDS)}
-COCO80_INDEX: dict[str, int] = {name: index for index, name in enumerate(COCO80_NAMES)}
+COCO80_INDEX: dict[str, int] = {name: index for index, name in enumerate(COCO_NAMES)}
 
 
 def coco80_name(category: int, where: str) -> str:
     """The class name of a 0-based COCO-80 id; InteropError naming `where` outside 0..79."""
-    if not 0 <= category < len(COCO80_NAMES):
+    if not 0 <= category < len(COCO_NAMES):
         raise InteropError(f"{where}: category id {category} is not a COCO-80 class id (0..79)")
-    return COCO80_NAMES[category]
+    return COCO_NAMES[category]
 
 
 @dataclass
@@ -91,14 +81,9 @@ def encode_rle(mask: np.ndarray) -> dict:
     return {"size": [int(v) for v in rle["size"]], "counts": rle["counts"].decode("ascii")}
 
 
-def _load_json(path: Path, what: str) -> object:
-    text = decode_text(read_bytes(path, MAX_JSON_BYTES, what, InteropError), str(path), InteropError)
-    return parse_json(text, str(path), InteropError)
-
-
 def read_image_list(path: Path) -> dict[int, str]:
     """image id -> file name from a COCO annotation file's `images` array (or a bare list of them)."""
-    data = _load_json(path, "COCO image list")
+    data = read_json(path, "COCO image list", InteropError)
     images = data.get("images") if isinstance(data, dict) else data
     if not isinstance(images, list):
         raise InteropError(f"{path}: expected a COCO annotation file with an 'images' list")
@@ -112,7 +97,7 @@ def read_image_list(path: Path) -> dict[int, str]:
 
 def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
     """Every detection of a COCO results file (91-id categories), images named through `images`."""
-    data = _load_json(path, "COCO results file")
+    data = read_json(path, "COCO results file", InteropError)
     if not isinstance(data, list):
         raise InteropError(f"{path}: a COCO results file is a JSON list of detections")
     out = []
@@ -129,7 +114,7 @@ def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
         if not (isinstance(score, (int, float)) and 0 <= score <= 1):
             raise InteropError(f"{where}: score {score!r} is not a number in [0, 1]")
         mask = decode_rle(entry["segmentation"], where) if "segmentation" in entry else None
-        out.append(CocoResult(images[image], COCO80_NAMES[COCO91_TO_80[category]],
+        out.append(CocoResult(images[image], COCO_NAMES[COCO91_TO_80[category]],
                               np.array([values[0], values[1], values[0] + values[2], values[1] + values[3]]),
                               float(score), mask))
     return out

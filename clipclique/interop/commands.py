@@ -58,9 +58,9 @@ def import_map(path: Path, format: MapFormat | None, objects: Path | None, reque
     sequence_name = None
     groundtruth = request.groundtruth
     if request.sequence is not None:
-        from clipclique.datasets import open_sequence
+        from clipclique.resolve import open_scene
 
-        sequence = open_sequence(request.sequence, data_root)
+        sequence = open_scene(request.sequence, data_root)
         if sequence.kind != "tum":
             raise InteropError(f"--align-to {request.sequence}: a {sequence.kind} scene; alignment needs a TUM "
                                "sequence's groundtruth.txt (or --groundtruth FILE)")

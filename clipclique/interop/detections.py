@@ -13,15 +13,15 @@ the frame `1311868164.36`), or by frame index when the file names frames by numb
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path, PurePosixPath
 
 import numpy as np
 
 from clipclique.interop.boxfit import BoxSegmentation, box_mask
 from clipclique.interop.coco import (
-    COCO80_NAMES,
+    COCO80_INDEX,
     coco80_name,
     coco_results,
     read_coco_results,
@@ -31,9 +31,9 @@ from clipclique.interop.coco import (
 from clipclique.interop.errors import InteropError
 from clipclique.safeio import read_json
 from clipclique.types import Detections, Frame
+from clipclique.yolo import COCO_NAMES, coco_to_vocabulary
 
 DUPLICATE_IOU = 0.7  # two boxes of different classes overlapping this much are one object
-ClassMap = Callable[[dict[int, str], list[str]], np.ndarray]  # (COCO id -> name, map vocabulary) -> map class per id
 
 
 @dataclass
@@ -141,12 +141,12 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 @dataclass
 class FileDetector:
-    """Detections of a file, in the map's vocabulary; box-only ones segmented from the depth (boxfit)."""
+    """Detections of a file, in the map's vocabulary (COCO classes mapped as YOLO's are); box-only ones
+    segmented from the depth (boxfit)."""
 
     path: Path
     table: dict[str, list[FileDetection]]
     class_names: list[str]
-    class_map: ClassMap  # how COCO classes become the map's (the detector registry's COCO table)
     min_score: float = 0.0
     segmentation: BoxSegmentation = field(default_factory=BoxSegmentation)
     simulated: bool = False
@@ -156,15 +156,19 @@ class FileDetector:
         return f"file:{self.path.name}"
 
     @classmethod
-    def load(cls, spec: str, class_names: list[str], class_map: ClassMap, min_score: float = 0.0) -> FileDetector:
+    def load(cls, spec: str, class_names: list[str], min_score: float = 0.0) -> FileDetector:
         path, images = parse_spec(spec)
-        return cls(path, read_detections(path, images), class_names, class_map, min_score)
+        return cls(path, read_detections(path, images), class_names, min_score)
+
+    @cached_property
+    def _vocabulary(self) -> np.ndarray:
+        """COCO-80 id -> map class id (-1: dropped), by the COCO table YOLO uses (`clipclique.yolo`)."""
+        return coco_to_vocabulary(self.class_names)
 
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
         listed = self.table.get(frame.name, self.table.get(str(frame.index), []))
-        vocabulary = self.class_map(dict(enumerate(COCO80_NAMES)), self.class_names)
-        index = {name: i for i, name in enumerate(COCO80_NAMES)}
+        vocabulary, index = self._vocabulary, COCO80_INDEX
         kept = [d for d in listed if d.score >= self.min_score and vocabulary[index[d.class_name]] >= 0]
         boxes = np.array([d.box for d in kept]).reshape(-1, 4)
         class_ids = np.array([vocabulary[index[d.class_name]] for d in kept], dtype=np.int64)
@@ -207,7 +211,7 @@ def reported_classes(vocabulary: np.ndarray, class_names: list[str]) -> dict[str
     """Map class -> the first COCO class that `vocabulary` (COCO-80 id -> map class id) maps to it: what a
     detection of that map class is written as, so that reading it back gives the same map class."""
     out: dict[str, str] = {}
-    for coco, mapped in enumerate(vocabulary[:len(COCO80_NAMES)]):
+    for coco, mapped in enumerate(vocabulary[:len(COCO_NAMES)]):
         if mapped >= 0:
-            out.setdefault(class_names[mapped], COCO80_NAMES[coco])
+            out.setdefault(class_names[mapped], COCO_NAMES[coco])
     return out

@@ -102,10 +102,19 @@ def test_malformed_detection_json_is_one_line_naming_the_entry(tmp_path, content
 
 
 def test_rle_round_trip_and_corrupt_counts():
-    mask = frame().depth == 1.0
-    assert (decode_rle(encode_rle(mask), "here") == mask).all()
-    with pytest.raises(InteropError, match="here: uncompressed RLE counts must"):
+    rng = np.random.default_rng(0)
+    for size in rng.integers(1, 60, (100, 2)):  # pycocotools encodes, the reader decodes on its own
+        mask = rng.random(size) < rng.random()
+        assert (decode_rle(encode_rle(mask), "here") == mask).all()
+    for full in (np.zeros((3, 4), bool), np.ones((3, 4), bool)):
+        assert (decode_rle(encode_rle(full), "here") == full).all()
+    assert decode_rle({"size": [2, 2], "counts": [1, 2, 1]}, "here").T.ravel().tolist() == [False, True, True, False]
+    with pytest.raises(InteropError, match=r"here: corrupt RLE counts \(runs of 2 pixels for a 2x2 mask\)"):
         decode_rle({"size": [2, 2], "counts": [1, 1]}, "here")
+    with pytest.raises(InteropError, match="here: corrupt RLE counts .a character outside the RLE alphabet"):
+        decode_rle({"size": [2, 2], "counts": "\u00ff"}, "here")
+    with pytest.raises(InteropError, match="here: corrupt RLE counts .the text ends inside a number"):
+        decode_rle({"size": [2, 2], "counts": "o"}, "here")
     with pytest.raises(InteropError, match="here: segmentation is not an RLE"):
         decode_rle({"size": [2], "counts": "x"}, "here")
 

@@ -9,7 +9,6 @@ own annotation files and results (`COCO91_IDS[i]` is class i's id there).
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,30 +46,47 @@ class CocoResult:
 
 
 def decode_rle(segmentation: object, where: str) -> np.ndarray:
-    """(H, W) bool mask of a COCO RLE segmentation `{"size": [h, w], "counts": str | list}`."""
-    from pycocotools import mask as coco_mask
-
+    """(H, W) bool mask of a COCO RLE segmentation `{"size": [h, w], "counts": str | list}`: runs of 0s
+    and 1s in column-major order, compressed (pycocotools' text form) or not; runs that do not fill
+    exactly h * w pixels are refused."""
     if not (isinstance(segmentation, dict) and isinstance(segmentation.get("size"), list)
             and len(segmentation["size"]) == 2 and all(isinstance(v, int) and 0 < v <= 1 << 15 for v in segmentation["size"])
             and isinstance(segmentation.get("counts"), (str, list))):
         raise InteropError(f"{where}: segmentation is not an RLE {{'size': [h, w], 'counts': ...}}")
     height, width = segmentation["size"]
     counts = segmentation["counts"]
-    if isinstance(counts, list):
-        if not all(isinstance(c, int) and c >= 0 for c in counts) or sum(counts) != height * width:
-            raise InteropError(f"{where}: uncompressed RLE counts must be non-negative integers summing to h*w")
-        rle = coco_mask.frPyObjects({"size": [height, width], "counts": counts}, height, width)
-    else:
-        rle = {"size": [height, width], "counts": counts.encode("ascii", "replace")}
-    try:
-        with warnings.catch_warnings():  # pycocotools' compiled decode trips a numpy 2 DeprecationWarning
-            warnings.simplefilter("ignore", DeprecationWarning)
-            mask = coco_mask.decode(rle)
-    except Exception as error:  # pycocotools raises bare exceptions on corrupt strings
-        raise InteropError(f"{where}: corrupt RLE counts ({error})") from None
-    if mask.shape != (height, width):
-        raise InteropError(f"{where}: RLE counts do not fill the {height}x{width} mask")
-    return mask.astype(bool)
+    if isinstance(counts, str):
+        counts = _string_counts(counts, where)
+    elif not all(isinstance(c, int) and not isinstance(c, bool) for c in counts):
+        raise InteropError(f"{where}: uncompressed RLE counts must be integers")
+    if any(c < 0 for c in counts) or sum(counts) != height * width:
+        raise InteropError(f"{where}: corrupt RLE counts (runs of {sum(counts)} pixels for a {height}x{width} mask)")
+    values = np.arange(len(counts)) % 2 == 1  # runs alternate 0, 1, 0, ...
+    return np.repeat(values, counts).reshape(width, height).T
+
+
+def _string_counts(text: str, where: str) -> list[int]:
+    """The run lengths of pycocotools' compressed RLE text: each a 5-bit-per-character varint ('0' + value,
+    0x20 = more follows, 0x10 of the last = negative), from the third on a difference to the run two before."""
+    counts: list[int] = []
+    position = 0
+    while position < len(text):
+        value = shift = 0
+        while True:
+            if position >= len(text):
+                raise InteropError(f"{where}: corrupt RLE counts (the text ends inside a number)")
+            code = ord(text[position]) - 48
+            if not 0 <= code < 64:
+                raise InteropError(f"{where}: corrupt RLE counts (a character outside the RLE alphabet)")
+            value |= (code & 0x1F) << shift
+            position += 1
+            shift += 5
+            if not code & 0x20:
+                if code & 0x10:
+                    value -= 1 << shift
+                break
+        counts.append(value + counts[-2] if len(counts) > 2 else value)
+    return counts
 
 
 def encode_rle(mask: np.ndarray) -> dict:
@@ -111,6 +127,8 @@ def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
         if category not in COCO91_TO_80:
             raise InteropError(f"{where}: category_id {category!r} is not a COCO class id (1..90)")
         values = _numbers(box, 4, f"{where}: bbox")
+        if values[2] <= 0 or values[3] <= 0:
+            raise InteropError(f"{where}: bbox {box} has no area (width and height must be positive)")
         if not (isinstance(score, (int, float)) and 0 <= score <= 1):
             raise InteropError(f"{where}: score {score!r} is not a number in [0, 1]")
         mask = decode_rle(entry["segmentation"], where) if "segmentation" in entry else None

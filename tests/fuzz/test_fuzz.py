@@ -645,14 +645,58 @@ def import_cases() -> list[Case]:
     return cases
 
 
-CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases()
+def detection_cases() -> list[Case]:
+    """A detection file given to clipclique-loc run --detector file:: each reader refuses it in one line naming it."""
+    good = {"category_id": 41, "detection_score": 0.5, "bbox": [10, 10, 40, 40]}
+    rle = {"size": [120, 160], "counts": "PPYo1"}
+    coco = {"image_id": 0, "category_id": 47, "bbox": [10, 10, 30, 30], "score": 0.5, "segmentation": rle}
+
+    def frames(*detections: dict) -> bytes:
+        return json.dumps([{"file_name": "rgb/x.png", "detections": list(detections)}]).encode()
+
+    def given(name: str, data: bytes, images: bytes | None = None, named: str | None = None):
+        def make(space: Workspace, case_dir: Path):
+            (case_dir / name).write_bytes(data)
+            if images is not None:
+                (case_dir / "images.json").write_bytes(images)
+            return loc_app, space.loc_args("--detector", f"file:{case_dir / name}"), named or name
+
+        return make
+
+    image_list = json.dumps({"images": [{"id": 0, "file_name": "0.png"}]}).encode()
+    makers = {
+        "not-json": given("d.json", b"[{"),
+        "deep": given("d.json", _deep_json().encode()),
+        "not-a-list": given("d.json", b'{"file_name": "x"}'),
+        "no-detections": given("d.json", b'[{"file_name": "x.png"}]'),
+        "category-80": given("d.json", frames(good | {"category_id": 80})),
+        "score-nan": given("d.json", frames(good | {"detection_score": float("nan")})),
+        "bbox-inverted": given("d.json", frames(good | {"bbox": [40, 40, 10, 10]})),
+        "bbox-text": given("d.json", frames(good | {"bbox": "10 10 40 40"})),
+        "ellipse-short": given("d.json", frames(good | {"ellipse": [1, 2, 3]})),
+        "not-utf8": given("d.json", frames(good) + LATIN1),
+        "coco-no-image-list": given("r.json", json.dumps([coco]).encode()),
+        "coco-image-unknown": given("r.json", json.dumps([coco | {"image_id": 5}]).encode(), image_list),
+        "coco-category-0": given("r.json", json.dumps([coco | {"category_id": 0}]).encode(), image_list),
+        "coco-bbox-negative": given("r.json", json.dumps([coco | {"bbox": [10, 10, -5, 30]}]).encode(), image_list),
+        "coco-rle-corrupt": given("r.json", json.dumps([coco | {"segmentation": {"size": [120, 160], "counts": "\u00ff\u00fe"}}]).encode(), image_list),
+        "coco-rle-short": given("r.json", json.dumps([coco | {"segmentation": {"size": [120, 160], "counts": [5, 5]}}]).encode(), image_list),
+        "coco-image-list-broken": given("r.json", json.dumps([coco]).encode(), b'{"images": [{"id": "zero"}]}', named="images.json"),
+        "coco-mask-wrong-size": given("r.json", json.dumps([coco | {"segmentation": {"size": [10, 10], "counts": [100]}}]).encode(),
+                                      image_list),
+    }
+    return [Case("detections", name, make) for name, make in makers.items()]
+
+
+CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
     assert len(CASES) >= 100
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
-                                               "outputs", "encoder", "compare", "names", "import"}
+                                               "outputs", "encoder", "compare", "names", "import",
+                                               "detections"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

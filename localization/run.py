@@ -33,7 +33,8 @@ from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localiz
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, run_description, write_results
-from clipclique.interop.detections import CocoRecorder, reported_classes
+from clipclique.interop.coco import reported_classes
+from clipclique.interop.detections import CocoRecorder
 from clipclique.yolo import YoloDetector
 
 if TYPE_CHECKING:

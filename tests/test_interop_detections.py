@@ -17,8 +17,8 @@ from clipclique.interop.detections import (
     frame_key,
     merged_duplicates,
     read_detections,
-    reported_classes,
 )
+from clipclique.interop.coco import reported_classes
 from clipclique.interop.errors import InteropError
 from clipclique.types import Detections, Frame
 from clipclique.yolo import coco_to_vocabulary

@@ -271,8 +271,12 @@ def test_json_round_trip_is_exact(tmp_path):
 def test_text_round_trip_within_a_micrometre_and_says_what_it_cannot_write(tmp_path):
     map = demo_like_map(tmp_path)
     map.class_names[map.class_ids[0]] = "office chair"  # not a COCO class
-    text, unwritable = text_map(map)
-    assert unwritable == ["office chair"]
+    map.class_names[map.class_ids[1]] = "mug"  # written as COCO's cup
+    text, renamed, unwritable = text_map(map)
+    assert unwritable == [] and renamed == {"office chair": "chair", "mug": "cup"}
+    map.class_names[map.class_ids[0]] = "lamp"  # no COCO class
+    text, renamed, unwritable = text_map(map)
+    assert unwritable == ["lamp"] and renamed == {"mug": "cup"}
     out = tmp_path / "map_objects_x.txt"
     out.write_text(text)
     back = read_map(out, MapFormat.OASLAM_TXT)

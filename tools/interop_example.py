@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.resolve import open_scene
 from clipclique.interop.coco import COCO80_INDEX
-from clipclique.interop.detections import reported_classes
+from clipclique.interop.coco import reported_classes
 from clipclique.interop.protowire import encode_field, encode_packed_floats, encode_packed_uints
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.mapfile import load_map

@@ -165,3 +165,13 @@ def write_json(path: Path, data: object) -> None:
         Path(path).write_text(json.dumps(data))
     except OSError as error:
         raise InteropError(f"{path}: cannot write ({error.strerror or error})") from None
+
+
+def reported_classes(vocabulary: np.ndarray, class_names: list[str]) -> dict[str, str]:
+    """Map class -> the first COCO class that `vocabulary` (COCO-80 id -> map class id) maps to it: what a
+    detection of that map class is written as, so that reading it back gives the same map class."""
+    out: dict[str, str] = {}
+    for coco, mapped in enumerate(vocabulary[:len(COCO_NAMES)]):
+        if mapped >= 0:
+            out.setdefault(class_names[mapped], COCO_NAMES[coco])
+    return out

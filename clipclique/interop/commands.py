@@ -80,16 +80,16 @@ def default_import_path(path: Path) -> Path:
     return MAP_DIR / f"{path.stem}.map.npz"
 
 
-def export_text(map: Map, format: ExportFormat) -> tuple[str, list[str]]:
-    """The exported file's text and the classes it could not hold."""
+def export_text(map: Map, format: ExportFormat) -> tuple[str, dict[str, str], list[str]]:
+    """The exported file's text, the classes written as another COCO class, and those it could not hold."""
     if format == ExportFormat.OASLAM_TXT:
-        text, unwritable = text_map(map)
+        text, renamed, unwritable = text_map(map)
         if not text:
             raise InteropError(f"no landmark of this map has a COCO class ({', '.join(unwritable)}); "
                                "an OA-SLAM text map can hold COCO classes only (use --format json)")
-        return text, unwritable
+        return text, renamed, unwritable
     if format == ExportFormat.JSON:
-        return landmarks_json(map), []
+        return landmarks_json(map), {}, []
     raise InteropError(f"--format {format!r}: choose {' or '.join(ExportFormat)}")
 
 

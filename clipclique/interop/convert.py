@@ -18,6 +18,7 @@ from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import LANDMARKS_FORMAT, LANDMARKS_VERSION, ImportedMap
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.types import Map
+from clipclique.yolo import COCO_TO_MAP
 
 
 def read_objects(path: Path) -> dict[int, tuple[str, str]]:
@@ -85,18 +86,30 @@ def object_ids(map: Map) -> list[int]:
     return [int(i) for i in map.instance_ids]
 
 
-def text_map(map: Map) -> tuple[str, list[str]]:
-    """An OA-SLAM text map of `map` and the classes it cannot hold (not COCO: those landmarks are left out)."""
-    lines, unwritable = [], set()
+def text_map(map: Map) -> tuple[str, dict[str, str], list[str]]:
+    """An OA-SLAM text map of `map`, the classes written as the COCO class that stands for them (the COCO
+    table YOLO uses: `monitor` as `tv`), and the classes it cannot hold (no COCO class: left out)."""
+    lines, renamed, unwritable = [], {}, set()
     for i, object_id in enumerate(object_ids(map)):
         name = map.class_names[map.class_ids[i]]
-        if name not in COCO80_INDEX:
+        coco = coco_class(name)
+        if coco is None:
             unwritable.add(name)
             continue
+        if coco != name:
+            renamed[name] = coco
         quadric = encode_dual_quadric(map.ellipsoids.centers[i], map.ellipsoids.axes[i], map.ellipsoids.rotations[i])
         numbers = " ".join(f"{v:.8f}" for v in quadric.T.ravel())  # column-major
-        lines.append(f"{object_id} {COCO80_INDEX[name]} {numbers}")
-    return "".join(line + "\n" for line in lines), sorted(unwritable)
+        lines.append(f"{object_id} {COCO80_INDEX[coco]} {numbers}")
+    return "".join(line + "\n" for line in lines), renamed, sorted(unwritable)
+
+
+def coco_class(name: str) -> str | None:
+    """The COCO class that stands for a map class: itself, else the first whose candidates in
+    `clipclique.yolo.COCO_TO_MAP` name it (`office chair` -> `chair`), else None."""
+    if name in COCO80_INDEX:
+        return name
+    return next((coco for coco, names in COCO_TO_MAP.items() if name.lower() in names), None)
 
 
 def landmarks_json(map: Map) -> str:

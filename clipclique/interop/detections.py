@@ -31,7 +31,7 @@ from clipclique.interop.coco import (
 from clipclique.interop.errors import InteropError
 from clipclique.safeio import read_json
 from clipclique.types import Detections, Frame
-from clipclique.yolo import COCO_NAMES, coco_to_vocabulary
+from clipclique.yolo import coco_to_vocabulary
 
 DUPLICATE_IOU = 0.7  # two boxes of different classes overlapping this much are one object
 
@@ -206,12 +206,3 @@ class CocoRecorder:
         write_json(results, self.entries)
         write_json(images, {"images": self.images})
 
-
-def reported_classes(vocabulary: np.ndarray, class_names: list[str]) -> dict[str, str]:
-    """Map class -> the first COCO class that `vocabulary` (COCO-80 id -> map class id) maps to it: what a
-    detection of that map class is written as, so that reading it back gives the same map class."""
-    out: dict[str, str] = {}
-    for coco, mapped in enumerate(vocabulary[:len(COCO_NAMES)]):
-        if mapped >= 0:
-            out.setdefault(class_names[mapped], COCO_NAMES[coco])
-    return out

@@ -35,7 +35,7 @@ from clipclique.mapfile import save_map  # noqa: E402
 from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.observations import embed, extract_observations  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
-from clipclique.types import Detections, Map  # noqa: E402
+from clipclique.types import Detections  # noqa: E402
 from clipclique.resolve import default_detector  # noqa: E402
 from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 from mapping.build import build_map  # noqa: E402

@@ -632,16 +632,27 @@ def import_cases() -> list[Case]:
         "json-distribution": imported("l.json", landmarks(class_distribution={"cup": 0.4})),
         "voom-without-classes": osmap(b"\x0a\x47\x0a\x42\x0a\x40" + np.diag([0.09, 0.01, 0.04, -1.0]).astype("<f4").tobytes()
                                       + b"\x10\x07", key="ObjectsFile"),
-        "objects-csv-header": imported("map_objects_x.txt", f"1 41 {q}\n".encode(), "--objects", "placeholder"),
     }
     cases = [Case("import", name, make) for name, make in makers.items()]
 
+    def aligned(name: str, trajectory: bytes) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            (case_dir / name).write_bytes(trajectory)
+            app, args, _ = imported("map_objects_x.txt", f"1 41 {q}\n".encode())(space, case_dir)
+            return app, [*args, "--groundtruth", str(space.data / "demo" / "demo_tum" / "groundtruth.txt"),
+                         "--trajectory", str(case_dir / name)], name
+
+        return make
+
+    cases += [Case("import", "trajectory-bad-line", aligned("kf.txt", b"1.0 0 0 0 0 0 0\n")),
+              Case("import", "trajectory-no-match", aligned("kf.txt", b"5.0 0 0 0 0 0 0 1\n" * 12))]
+
     def bad_csv(space: Workspace, case_dir: Path):
         (case_dir / "objects.csv").write_text("id,name\n1,cup\n")
-        app, args, _ = makers["objects-csv-header"](space, case_dir)
-        return app, [a if a != "placeholder" else str(case_dir / "objects.csv") for a in args], "objects.csv"
+        app, args, _ = imported("map_objects_x.txt", f"1 41 {q}\n".encode(), "--objects", str(case_dir / "objects.csv"))(space, case_dir)
+        return app, args, "objects.csv"
 
-    cases[-1] = Case("import", "objects-csv-header", bad_csv)
+    cases.append(Case("import", "objects-csv-header", bad_csv))
     return cases
 
 

@@ -59,7 +59,7 @@ def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]
                 distributions[row] /= distributions[row].sum()
     embeddings = None if encoder is None else np.asarray(encoder.encode_text(descriptions), np.float32)
     record = {
-        "source": {"kind": "import", "format": imported.source, "file": where, "synthetic": False,
+        "source": {"kind": "import", "format": imported.source.value, "file": where, "synthetic": False,
                    "name": imported.frame or unaligned_name(where)},
         "source_object_ids": [int(i) for i in imported.object_ids],
         "notes": notes,

@@ -43,11 +43,22 @@ class MapFormat(enum.StrEnum):
     JSON = "json"  # clipclique's landmark list
 
 
+class SourceSystem(enum.StrEnum):
+    """What wrote an imported map."""
+
+    OASLAM_TXT = "oaslam-txt"  # an OA-SLAM / VOOM text map
+    GORELOC = "goreloc"
+    OASLAM = "oaslam"
+    VOOM = "voom"
+    MSGLOC = "msgloc"
+    JSON = "json"  # clipclique's landmark list
+
+
 @dataclass
 class ImportedMap:
     """Landmarks read from another system's map, before classes are settled and text embedded."""
 
-    source: str  # what wrote it: "oaslam-txt", "goreloc", "oaslam", "voom", "msgloc", "json"
+    source: SourceSystem
     ellipsoids: Ellipsoids  # in the file's frame
     object_ids: list[int]  # the file's object (track, node) ids
     classes: list[str | None]  # COCO (or the file's) class names; None: the file says none (VOOM)
@@ -118,7 +129,7 @@ def read_text_map(path: Path) -> ImportedMap:
         classes.append(coco80_name(category, where))
         fits.append(decode_dual_quadric(values.reshape(4, 4).T, where))  # column-major
         ids.append(object_id)
-    return ImportedMap("oaslam-txt", _stack(fits), ids, classes, [None] * len(ids))
+    return ImportedMap(SourceSystem.OASLAM_TXT, _stack(fits), ids, classes, [None] * len(ids))
 
 
 def read_osmap_yaml(path: Path) -> dict[str, str]:
@@ -208,7 +219,7 @@ def _read_goreloc(path: Path) -> ImportedMap:
             raise InteropError(f"{where}: every class count is 0")
         classes.append(max(total, key=lambda name: (total[name], -list(total).index(name))))
         distributions.append({name: count / sum(total.values()) for name, count in total.items()})
-    return ImportedMap("goreloc", _stack(fits), ids, classes, distributions)
+    return ImportedMap(SourceSystem.GORELOC, _stack(fits), ids, classes, distributions)
 
 
 def _read_oaslam(path: Path, tracks_path: Path | None) -> ImportedMap:
@@ -227,7 +238,7 @@ def _read_oaslam(path: Path, tracks_path: Path | None) -> ImportedMap:
                                f"{tracks_path or 'the object tracks file (objecttracksFile missing from the .yaml)'}")
         ids.append(track)
         classes.append(coco80_name(categories[track], where))
-    return ImportedMap("oaslam", _stack(fits), ids, classes, [None] * len(ids))
+    return ImportedMap(SourceSystem.OASLAM, _stack(fits), ids, classes, [None] * len(ids))
 
 
 def _read_voom(path: Path) -> ImportedMap:
@@ -236,7 +247,7 @@ def _read_voom(path: Path) -> ImportedMap:
         where = f"{path}, object {index}"
         fits.append(_ellipsoid(element, where))
         ids.append(single_uint(element, 2, where, default=index))
-    return ImportedMap("voom", _stack(fits), ids, [None] * len(ids), [None] * len(ids),
+    return ImportedMap(SourceSystem.VOOM, _stack(fits), ids, [None] * len(ids), [None] * len(ids),
                        notes=["a VOOM map holds no classes: give them with --objects objects.csv (id,class,description)"])
 
 
@@ -308,7 +319,7 @@ def read_msgloc(path: Path) -> ImportedMap:
         classes.append(max(distribution, key=distribution.get))
         distributions.append({name: p / total for name, p in distribution.items()})
     notes = [f"{flipped} nodes had negative radii: their absolute values taken"] if flipped else []
-    return ImportedMap("msgloc", _stack(fits), ids, classes, distributions, notes=notes)
+    return ImportedMap(SourceSystem.MSGLOC, _stack(fits), ids, classes, distributions, notes=notes)
 
 
 def read_landmarks_json(path: Path) -> ImportedMap:
@@ -342,7 +353,7 @@ def read_landmarks_json(path: Path) -> ImportedMap:
         distributions.append(_distribution(item.get("class_distribution"), where))
     frame = data.get("frame")
     frame = None if frame in (None, "unknown") else check_text(frame, f"{path}: frame", InteropError)
-    return ImportedMap("json", _stack(fits), ids, classes, distributions, descriptions, instances, frame=frame)
+    return ImportedMap(SourceSystem.JSON, _stack(fits), ids, classes, distributions, descriptions, instances, frame=frame)
 
 
 def _rotation(value: object, where: str) -> np.ndarray:

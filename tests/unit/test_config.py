@@ -141,6 +141,6 @@ def test_the_runner_fits_observations_with_the_configs_parameters(monkeypatch):
     monkeypatch.setattr(runner, "extract_observations", extract)
     monkeypatch.setattr(runner, "embed", lambda *args: None)
     fake = SimpleNamespace(config=config, detector=SimpleNamespace(detect=lambda frame: None), encoder=None,
-                           truth_descriptions={})
+                           truth_descriptions={}, detections_file=None)
     runner.observe(fake, SimpleNamespace())
     assert seen["params"].min_mask_pixels == 777

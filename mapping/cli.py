@@ -17,6 +17,7 @@ TOOL = "clipclique-map"
 
 DATA_PANEL = "Data"
 OUTPUT_PANEL = "Output"
+ALIGN_PANEL = "Alignment to ground truth"
 
 
 def _print_version(value: bool) -> None:
@@ -70,6 +71,63 @@ def build(
         built = run_build(scene, data_root, out, encoder, not no_rrd,
                           bars=lambda description: bar_on_first_call(progress, description))
     print_build(console, built, verbosity)
+
+
+@app.command("import")
+def import_map(
+    path: Annotated[Path, typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map", show_default=False)],
+    format: Annotated[str | None, typer.Option("--format", help="oaslam-txt | osmap | msgloc | json \\[default: from the file name]", rich_help_panel=DATA_PANEL)] = None,
+    objects: Annotated[Path | None, typer.Option("--objects", help="objects.csv (id,class,description): classes and descriptions by object id", rich_help_panel=DATA_PANEL)] = None,
+    align_to: Annotated[str | None, typer.Option("--align-to", help="fit the keyframe trajectory to this TUM sequence's groundtruth.txt", rich_help_panel=ALIGN_PANEL)] = None,
+    trajectory: Annotated[Path | None, typer.Option("--trajectory", help="keyframe trajectory, TUM text \\[default: the one saved beside the map]", rich_help_panel=ALIGN_PANEL)] = None,
+    groundtruth: Annotated[Path | None, typer.Option("--groundtruth", help="ground truth, TUM text (instead of --align-to)", rich_help_panel=ALIGN_PANEL)] = None,
+    scale: Annotated[bool, typer.Option("--scale", help="fit a scale too (monocular maps)", rich_help_panel=ALIGN_PANEL)] = False,
+    min_keyframes: Annotated[int, typer.Option("--min-keyframes", min=3, help="refuse a fit over fewer matched keyframes", rich_help_panel=ALIGN_PANEL)] = 10,
+    max_rmse: Annotated[float, typer.Option("--max-rmse", min=0.0, help="refuse a fit with a larger RMSE (metres)", rich_help_panel=ALIGN_PANEL)] = 0.05,
+    data_root: Annotated[Path | None, typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL)] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<file name>.map.npz]", rich_help_panel=OUTPUT_PANEL)] = None,
+    encoder: Annotated[str, typer.Option("--encoder", help="text encoder: auto | simulated | none | open_clip:MODEL/TAG | checkpoint file", rich_help_panel=DATA_PANEL)] = "auto",
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
+) -> None:
+    """Import an object map of OA-SLAM, VOOM, GOReloc or MSG-Loc (or a clipclique JSON landmark list), optionally
+    aligned to a sequence's ground truth: the same map file and .rrd as build."""
+    from clipclique.exits import user_errors
+    from clipclique.interop.align import AlignmentLimits
+    from clipclique.interop.commands import AlignmentRequest
+    from clipclique.interop.errors import InteropError
+    from clipclique.interop.maps import MapFormat
+    from mapping.run import run_import
+    from mapping.tables import make_console, print_import
+
+    console = make_console()
+    with user_errors(TOOL):
+        if format is not None and format not in set(MapFormat):
+            raise InteropError(f"--format {format!r}: choose {', '.join(MapFormat)}")
+        request = AlignmentRequest(trajectory=trajectory, with_scale=scale, limits=AlignmentLimits(min_keyframes, max_rmse))
+        imported = run_import(path, MapFormat(format) if format else None, objects, align_to, groundtruth, request,
+                              data_root, out, encoder, not no_rrd)
+    print_import(console, imported, quiet)
+
+
+@app.command()
+def export(
+    map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a clipclique map file (.map.npz)", show_default=False)],
+    format: Annotated[str, typer.Option("--format", help="oaslam-txt | json", show_default=False)],
+    out: Annotated[Path | None, typer.Option("--out", help="\\[default: beside the map: map_objects_<name>.txt or <name>.landmarks.json]", rich_help_panel=OUTPUT_PANEL)] = None,
+) -> None:
+    """Write a map as an OA-SLAM text map or a clipclique JSON landmark list (what import reads back)."""
+    from clipclique.exits import user_errors
+    from clipclique.interop.commands import ExportFormat
+    from clipclique.interop.errors import InteropError
+    from mapping.run import run_export
+    from mapping.tables import make_console, print_export
+
+    with user_errors(TOOL):
+        if format not in set(ExportFormat):
+            raise InteropError(f"--format {format!r}: choose {' or '.join(ExportFormat)}")
+        exported = run_export(map_path, ExportFormat(format), out)
+    print_export(make_console(), exported)
 
 
 def main() -> None:

@@ -1,4 +1,5 @@
-"""The runner of `clipclique-map build`: open the scene, build the map, write it and its recording.
+"""The runners of `clipclique-map build` (open the scene, build the map, write it and its recording),
+`import` (read another system's map, align it, write it and its recording) and `export`.
 
 What the CLI, tools/demo.py and the benchmark call; it prints nothing (mapping.tables does).
 The map and its recording are staged and appear together (clipclique.outputs).
@@ -6,6 +7,7 @@ The map and its recording are staged and appear together (clipclique.outputs).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -13,7 +15,18 @@ from pathlib import Path
 
 from clipclique.backends import load_encoder
 from clipclique.datasets import scene_name
-from clipclique.mapfile import save_map
+from clipclique.interop.commands import (
+    AlignmentRequest,
+    ExportFormat,
+    ImportReport,
+    default_export_path,
+    default_import_path,
+    export_text,
+    import_map,
+)
+from clipclique.interop.errors import InteropError
+from clipclique.interop.maps import MapFormat
+from clipclique.mapfile import load_map, save_map
 from clipclique.outputs import Staging, map_file
 from clipclique.resolve import open_scene
 from clipclique.types import Map
@@ -73,3 +86,73 @@ def describe(map: Map, scene: str) -> str:
         f"scene{' (synthetic demo)' if source.get('synthetic') else ''}.\n\nText embeddings: {map.encoder}{simulated}.\n\n"
         f"Left out as structure: {', '.join(map.provenance.get('structure_left_out', []))}."
     )
+
+
+@dataclass
+class Imported:
+    """A finished import: what was read, how it was aligned, and the files written."""
+
+    path: Path  # the file imported
+    report: ImportReport
+    encoder_spec: str
+    out: Path
+    recording: Path | None  # None with rrd=False
+    seconds: float
+
+
+def run_import(path: Path, format: MapFormat | None = None, objects: Path | None = None, align_to: str | None = None,
+               groundtruth: Path | None = None, request: AlignmentRequest = AlignmentRequest(),
+               data_root: Path | None = None, out: Path | None = None, encoder_spec: str = "auto",
+               rrd: bool = True) -> Imported:
+    """Read another system's map, align it to `align_to`'s groundtruth.txt (or `groundtruth`) when given, embed
+    its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz."""
+    started = time.perf_counter()
+    if align_to is not None and groundtruth is not None:
+        raise InteropError("give --align-to or --groundtruth, not both")
+    if align_to is not None:
+        sequence = open_scene(align_to, data_root)
+        if sequence.kind != "tum":
+            raise InteropError(f"--align-to {align_to}: a {sequence.kind} scene; alignment needs a TUM sequence's "
+                               "groundtruth.txt (or --groundtruth FILE)")
+        request = dataclasses.replace(request, groundtruth=sequence.root / "groundtruth.txt", sequence_name=sequence.name)
+    elif groundtruth is not None:
+        request = dataclasses.replace(request, groundtruth=groundtruth)
+    out = out or default_import_path(path)
+    recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
+    with Staging() as staging:
+        staged_map = staging.path(out)
+        staged_recording = staging.path(recording) if rrd else None
+        report = import_map(path, format, objects, request, load_encoder(encoder_spec))
+        save_map(report.map, staged_map)
+        if staged_recording is not None:
+            from clipclique.viz import write_map_recording
+
+            write_map_recording(staged_recording, report.map, None, None,
+                                description=describe(report.map, report.sequence_name or path.name))
+        staging.commit()
+    return Imported(path, report, encoder_spec, out, recording if rrd else None, time.perf_counter() - started)
+
+
+@dataclass
+class Exported:
+    out: Path
+    written: int  # landmarks written
+    renamed: dict[str, str]  # map class -> the COCO class it was written as
+    unwritable: list[str]  # classes left out
+    left_out: int  # landmarks of those classes
+
+
+def run_export(map_path: Path, format: ExportFormat, out: Path | None = None) -> Exported:
+    """Write a map as an OA-SLAM text map or a JSON landmark list (staged), default beside the map."""
+    map = load_map(map_path)
+    text, renamed, unwritable = export_text(map, format)
+    out = out or default_export_path(map_path, format)
+    with Staging() as staging:
+        staged = staging.path(out)
+        try:
+            staged.write_text(text)
+        except OSError as error:
+            raise InteropError(f"{out}: cannot write ({error.strerror or error})") from None
+        staging.commit()
+    left_out = sum(map.class_names[c] in unwritable for c in map.class_ids)
+    return Exported(out, len(map) - left_out, renamed, unwritable, left_out)

@@ -1,8 +1,9 @@
-"""What `clipclique-map build` prints: the landmarks per class, what was left out, where the files are."""
+"""What `clipclique-map` prints: the landmarks per class, what was left out, how an import fits, where the files are."""
 
 from __future__ import annotations
 
 import sys
+from collections import Counter
 from collections.abc import Callable
 
 from rich.console import Console
@@ -14,7 +15,7 @@ from clipclique.commands import rerun_hint
 from clipclique.config import GraphConfig
 from clipclique.types import Map
 from mapping.build import BuildReport, degree_histogram
-from mapping.run import Built
+from mapping.run import Built, Exported, Imported
 
 
 def make_console() -> Console:
@@ -88,3 +89,40 @@ def print_graph(console: Console, map: Map) -> None:
     console.print(f"semantic graph at d_adj {d_adj:g} m, landmarks per degree (0, 1, 2, ...): "
                   f"{', '.join(str(int(n)) for n in counts)}; {counts[0] / max(len(map), 1):.0%} isolated "
                   "(no neighbour: their Semantic Histograms are empty)", highlight=False)
+
+
+def print_import(console: Console, imported: Imported, quiet: bool = False) -> None:
+    """What was read, its notes, how it fits the ground truth, the landmarks, where the files are."""
+    report, map = imported.report, imported.report.map
+    if not quiet:
+        console.print(f"read {len(map)} objects from {escape(str(imported.path))} ({report.imported.source})"
+                      + (", with class distributions" if map.class_distributions is not None else ""), highlight=False)
+        for note in report.imported.notes:
+            console.print(f"note: {escape(note)}", highlight=False)
+        if report.alignment is not None:
+            fit = report.alignment
+            console.print(f"aligned to {escape(report.sequence_name or 'the ground truth')}: {fit.matched} keyframes matched, "
+                          f"RMSE {fit.rmse_m * 100:.2f} cm, scale {fit.transform.scale:.4f} "
+                          f"({'similarity' if fit.with_scale else 'rigid'})", highlight=False)
+        elif report.sequence_name is not None:
+            console.print(f"in the frame of {escape(report.sequence_name)}, as the file says", highlight=False)
+        else:
+            console.print("not aligned: the map stays in its own frame (clipclique-loc run needs --force; "
+                          "align it with --align-to SEQUENCE)", highlight=False)
+        summary = BuildReport(Counter(map.class_names[c] for c in map.class_ids), encoder=map.encoder)
+        summary.timings["total"] = imported.seconds
+        print_summary(console, map, summary, imported.encoder_spec)
+    where = f"map: {imported.out}"
+    if imported.recording is not None:
+        where += f"\nrecording: {imported.recording}  ({rerun_hint(imported.recording)})"
+    console.print(escape(where), highlight=False)
+
+
+def print_export(console: Console, exported: Exported) -> None:
+    console.print(f"wrote {exported.written} landmarks to {escape(str(exported.out))}", highlight=False)
+    if exported.renamed:
+        console.print("written as their COCO class: " + escape(", ".join(f"{a} as {b}" for a, b in exported.renamed.items())),
+                      highlight=False)
+    if exported.unwritable:
+        console.print(f"left out {exported.left_out} landmarks of classes an OA-SLAM map cannot hold (not COCO): "
+                      f"{escape(', '.join(exported.unwritable))}", highlight=False)

@@ -70,7 +70,7 @@ def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: Box
                            detections.boxes, detections.class_ids, detections.scores, detections.instance_ids)
         fitted = {}
         for variant, dets in (("mask", detections), ("box", boxed)):
-            extraction = extract_observations(frame, dets)
+            extraction = extract_observations(frame, dets, run.config.observations)
             observations = embed(extraction, run.encoder)
             result = localize(observations, index, run.config)
             evaluation = evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index)
@@ -125,7 +125,7 @@ def soft_classes(scene: str, folder: Path) -> None:
             for i in selected_frames(run):
                 frame = run.sequence[i]
                 detections = run.detector.detect(frame)
-                observations = embed(extract_observations(frame, detections), run.encoder)
+                observations = embed(extract_observations(frame, detections, run.config.observations), run.encoder)
                 result = localize(observations, index, run.config)
                 errors.append(evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index).translation_error)
             print(f"  {method:>10} soft_classes={'on ' if soft else 'off'}: top-1 within 0.5 / 1 / 2 m: {success(errors)} %")

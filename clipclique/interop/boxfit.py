@@ -1,7 +1,7 @@
 """A detection box without a mask -> the pixels of its object, from the depth image alone.
 
 Published detection files (OA-SLAM, VOOM, GOReloc) hold boxes, not masks. The segmentation
-(docs/formats.md, "Box-only detections"):
+(docs/import_export.md, "Box-only detections"):
 1. the ellipse inscribed in the box (VOOM's fitted ellipse when the file has one): the box's
    corners are mostly background;
 2. valid depth there (0 < z <= max depth);

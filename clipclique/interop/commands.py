@@ -1,5 +1,5 @@
 """The work behind `clipclique-map import` and `clipclique-map export`, as library calls: read, settle
-classes, align, embed, write (staged, so that outputs appear whole or not at all)."""
+classes, align, embed; the text an export writes. The runner (mapping.run) opens sequences and writes."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from clipclique.interop.align import Alignment, AlignmentLimits, align_trajector
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import ImportedMap, MapFormat, read_map
+from clipclique.encoders import Encoder
+from clipclique.outputs import map_file
 from clipclique.types import Map
-
-MAP_DIR = Path("outputs") / "maps"
 
 
 class ExportFormat(enum.StrEnum):
@@ -25,17 +25,13 @@ class ExportFormat(enum.StrEnum):
 
 @dataclass
 class AlignmentRequest:
-    """Where the ground truth and the keyframe trajectory come from."""
+    """Where the ground truth and the keyframe trajectory come from (the runner resolves --align-to)."""
 
-    sequence: str | None = None  # --align-to: a sequence name or folder (its groundtruth.txt)
+    groundtruth: Path | None = None  # a TUM groundtruth.txt; None: no alignment
+    sequence_name: str | None = None  # the sequence it belongs to, recorded as the map's source
     trajectory: Path | None = None  # --trajectory, else the one saved beside an Osmap map
-    groundtruth: Path | None = None  # --groundtruth, instead of --align-to's
     with_scale: bool = False  # --scale: monocular maps
     limits: AlignmentLimits = AlignmentLimits()
-
-    @property
-    def wanted(self) -> bool:
-        return self.sequence is not None or self.groundtruth is not None
 
 
 @dataclass
@@ -47,37 +43,25 @@ class ImportReport:
 
 
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
-               data_root: Path | None, encoder) -> ImportReport:
+               encoder: Encoder | None) -> ImportReport:
     """The clipclique map of another system's map file, aligned to ground truth when asked."""
     imported = read_map(path, format)
     map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder)
-    if not request.wanted:
+    if request.groundtruth is None:
         return ImportReport(map, imported, None, imported.frame)
-    if request.sequence is not None and request.groundtruth is not None:
-        raise InteropError("give --align-to or --groundtruth, not both")
-    sequence_name = None
-    groundtruth = request.groundtruth
-    if request.sequence is not None:
-        from clipclique.resolve import open_scene
-
-        sequence = open_scene(request.sequence, data_root)
-        if sequence.kind != "tum":
-            raise InteropError(f"--align-to {request.sequence}: a {sequence.kind} scene; alignment needs a TUM "
-                               "sequence's groundtruth.txt (or --groundtruth FILE)")
-        sequence_name, groundtruth = sequence.name, sequence.root / "groundtruth.txt"
     trajectory = request.trajectory or imported.trajectory
     if trajectory is None:
         raise InteropError(f"{path}: no keyframe trajectory beside this map (keyframes_poses_<name>_tum.txt); "
                            "pass --trajectory FILE")
-    alignment = align_trajectory(trajectory, groundtruth, request.with_scale, request.limits)
-    map = aligned_map(map, alignment, sequence_name or f"{Path(groundtruth).name} frame",
-                      alignment.record(trajectory, groundtruth))
-    return ImportReport(map, imported, alignment, sequence_name)
+    alignment = align_trajectory(trajectory, request.groundtruth, request.with_scale, request.limits)
+    map = aligned_map(map, alignment, request.sequence_name or f"{request.groundtruth.name} frame",
+                      alignment.record(trajectory, request.groundtruth))
+    return ImportReport(map, imported, alignment, request.sequence_name)
 
 
 def default_import_path(path: Path) -> Path:
     """outputs/maps/<file stem>.map.npz: never the name of a built map, which an import must not replace unasked."""
-    return MAP_DIR / f"{path.stem}.map.npz"
+    return map_file(path.stem)
 
 
 def export_text(map: Map, format: ExportFormat) -> tuple[str, dict[str, str], list[str]]:

@@ -1,6 +1,6 @@
 """`--detector file:PATH`: detections read from a file instead of a model.
 
-Two formats (docs/formats.md), told apart by their entries:
+Two formats (docs/import_export.md), told apart by their entries:
 - the OA-SLAM / VOOM / GOReloc detection JSON: `[{"file_name", "detections": [{"category_id"
   (COCO-80), "detection_score", "bbox": [x1, y1, x2, y2], "ellipse" (VOOM, optional)}]}]`, boxes
   only: each object's pixels come from the depth inside its box (`clipclique.interop.boxfit`);

@@ -1,4 +1,4 @@
-"""Readers of other systems' object maps, all into one `ImportedMap` (docs/formats.md):
+"""Readers of other systems' object maps, all into one `ImportedMap` (docs/import_export.md):
 
 - OA-SLAM / VOOM text maps (`map_objects_*.txt`): `<track id> <COCO-80 id> <Q* 16 numbers>` per line;
 - Osmap maps by their `.yaml`: GOReloc `.objects` (class counts), OA-SLAM `.mapobjects` +
@@ -323,7 +323,7 @@ def read_msgloc(path: Path) -> ImportedMap:
 
 
 def read_landmarks_json(path: Path) -> ImportedMap:
-    """clipclique's JSON landmark list (docs/formats.md): what `clipclique-map export --format json` writes."""
+    """clipclique's JSON landmark list (docs/import_export.md): what `clipclique-map export --format json` writes."""
     data = read_json(path, "landmark list", InteropError)
     if not isinstance(data, dict) or data.get("format") != LANDMARKS_FORMAT:
         raise InteropError(f"{path}: not a clipclique landmark list (\"format\": \"{LANDMARKS_FORMAT}\" missing)")

@@ -1,4 +1,4 @@
-"""Readers of object-SLAM maps on files written here byte by byte (docs/formats.md), and the writers' round trip."""
+"""Readers of object-SLAM maps on files written here byte by byte (docs/import_export.md), and the writers' round trip."""
 
 from __future__ import annotations
 

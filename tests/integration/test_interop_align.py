@@ -3,6 +3,7 @@ keyframe trajectory moved the same way, comes back within 1 mm and 0.01 degrees.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from clipclique.pose import Similarity
 from clipclique.types import Ellipsoids, Map, Pose
 from mapping.build import build_map
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GROUNDTRUTH = ROOT / "data" / "demo" / "demo_tum" / "groundtruth.txt"
 TRUE_ROTATION = Rotation.from_euler("zyx", [37, -12, 105], degrees=True).as_matrix()  # ground truth <- SLAM
 
@@ -91,3 +92,34 @@ def test_too_few_matched_keyframes_and_a_noisy_fit_are_refused_with_settable_lim
     with pytest.raises(InteropError, match="above the 2 cm allowed"):
         align_trajectory(noisy, GROUNDTRUTH, limits=AlignmentLimits(max_rmse_m=0.02))
     assert align_trajectory(noisy, GROUNDTRUTH).rmse_m == pytest.approx(0.02 * math.sqrt(3), rel=0.15)
+
+
+def test_an_aligned_import_is_taken_as_the_sequences_map(tmp_path, demo_map):
+    """Exported, moved into a SLAM frame, imported with --align-to: back in place, and run as demo_tum's map."""
+    from typer.testing import CliRunner
+
+    from clipclique.interop.convert import landmarks_json
+    from clipclique.mapfile import load_map
+    from localization.cli import app as loc_app
+    from mapping.cli import app as map_app
+
+    runner = CliRunner()
+    truth = Similarity(1.0, Pose(TRUE_ROTATION, np.array([1.5, -0.7, 0.3])))
+    trajectory = slam_files(tmp_path, truth)
+    document = json.loads(landmarks_json(demo_map))
+    shifted = moved(demo_map, truth)
+    for item, center, rotation in zip(document["landmarks"], shifted.ellipsoids.centers, shifted.ellipsoids.rotations):
+        item["center"], item["rotation"] = center.tolist(), rotation.tolist()
+    document["frame"] = "unknown"
+    (tmp_path / "l.json").write_text(json.dumps(document))
+    out = tmp_path / "aligned.map.npz"
+    result = runner.invoke(map_app, ["import", str(tmp_path / "l.json"), "--align-to", "demo_tum", "--data-root", str(ROOT / "data"),
+                                     "--trajectory", str(trajectory), "--encoder", "none", "--no-rrd", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "aligned to demo_tum: 242 keyframes matched, RMSE 0.00 cm, scale 1.0000 (rigid)" in result.output
+    aligned = load_map(out)
+    assert np.abs(aligned.ellipsoids.centers - demo_map.ellipsoids.centers).max() < 1e-3
+    assert aligned.provenance["alignment"]["matched_keyframes"] == 242
+    ran = runner.invoke(loc_app, ["run", "demo_tum", "--data-root", str(ROOT / "data"), "--map", str(out), "--no-rrd",
+                                  "--out", str(tmp_path / "run"), "--max-frames", "3", "-q"])
+    assert ran.exit_code == 0, ran.output  # accepted as demo_tum's map without --force

@@ -15,7 +15,22 @@ from clipclique.mapfile import load_map, save_map
 from clipclique.pipeline import index_map, localize
 from clipclique.similarity import class_similarity
 from clipclique.types import Ellipsoids, Map, Observations
-from test_mapfile import make_map, rewrite
+
+
+def make_map() -> Map:
+    """Five landmarks of two classes."""
+    rng = np.random.default_rng(3)
+    ellipsoids = Ellipsoids(rng.uniform(-3, 3, (5, 3)), rng.uniform(0.05, 1.0, (5, 3)), np.repeat(np.eye(3)[None], 5, axis=0))
+    return Map(ellipsoids, np.arange(5) % 2, ["chair", "table"], [f"a chair number {i}" for i in range(5)], np.arange(5) + 10,
+               provenance={"source": {"name": "test"}})
+
+
+def rewrite(path, **changes) -> None:
+    """Rewrite some arrays of an .npz map file."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {name: data[name] for name in data.files}
+    arrays.update(changes)
+    np.savez(path, **arrays)
 
 
 def with_distributions(map: Map, rows: np.ndarray) -> Map:

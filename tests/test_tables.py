@@ -1,0 +1,75 @@
+"""The terminal tables as a user reads them: `clipclique-loc compare` into a pipe and on an 80-column
+terminal, with the longest real TUM sequence names."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from rich.console import Console
+
+from localization.results import ALL_STAGES, RESULTS_FORMAT, RESULTS_VERSION
+from localization.tables import print_documents
+
+LOC = Path(sys.executable).with_name("clipclique-loc")
+LONGEST = "rgbd_dataset_freiburg3_long_office_household"  # the longest name of a real TUM sequence we read
+
+
+def results(sequence: str, method_title: str, changed: dict, max_frames: int | None = None) -> dict:
+    """A results document as `clipclique-loc run` writes it, with wide numbers in every column."""
+    summary = {"frames": 2488, "precision": 0.875, "recall": 0.5, "te_median_m": 12.345, "re_median_deg": 123.4,
+               "success@1": 0.905, "success@3": 0.95, "success@5": 1.0, "time_ms_median": 1234.5,
+               "stage_ms_median": dict.fromkeys(ALL_STAGES, 1234.5)}
+    run = {"sequence": sequence, "method_title": method_title, "notes": [], "changed": changed,
+           "detector": {"name": "annotations", "simulated": False}, "encoder": {"name": "simulated-clip", "simulated": True},
+           "map": f"outputs/maps/{sequence}.map.npz", "stride": 1, "max_frames": max_frames}
+    return {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "run": run, "summary": summary, "frames": []}
+
+
+def write_runs(tmp_path: Path) -> list[Path]:
+    runs = [results(LONGEST, "CLIP-Clique", {}), results(LONGEST, "CLIP-Clique (paper)", {"inliers.d_comp": 0.6}),
+            results("rgbd_dataset_freiburg2_desk", "CLIP-Loc", {"success_threshold_m": 0.5}),
+            results("rgbd_dataset_freiburg2_desk", "CLIP-Loc", {}, max_frames=20)]
+    paths = []
+    for i, document in enumerate(runs):
+        (tmp_path / str(i)).mkdir()
+        paths.append(tmp_path / str(i) / "results.json")
+        paths[-1].write_text(json.dumps(document))
+    return paths
+
+
+def check_whole(text: str) -> list[str]:
+    """Every cell whole: no `…`, every row's numbers and both sequence names in full."""
+    assert "…" not in text
+    lines = text.splitlines()
+    assert LONGEST in lines and "rgbd_dataset_freiburg2_desk" in lines  # each on a line of its own
+    rows = [line.split() for line in lines if line.lstrip().startswith("CLIP-")]
+    assert len(rows) == 8  # a results row and a stage row per run
+    for row in rows[:2] + rows[4:6]:  # results rows: frames, precision, recall, TE, RE, top-1/3/5, ms
+        assert row[-9:] == ["2488", "0.88", "0.50", "12.35", "123.4", "90.5", "95.0", "100.0", "1234.5"]
+    for row in rows[2:4] + rows[6:]:  # stage rows: 9 stages
+        assert row[-9:] == ["1234"] * 9
+    return lines
+
+
+def test_compare_into_a_pipe_keeps_long_names_and_numbers_whole(tmp_path):
+    paths = write_runs(tmp_path)
+    for columns in ("80", "200"):
+        done = subprocess.run([str(LOC), "compare", *map(str, paths)], capture_output=True, text=True, timeout=120,
+                              env=os.environ | {"COLUMNS": columns})
+        assert done.returncode == 0, done.stderr
+        lines = check_whole(done.stdout)
+        assert lines[-3:] == ["(a) inliers.d_comp=0.6", "(b) success_threshold_m=0.5", "(c) max_frames=20"]
+        assert "within the\nrun's success threshold (0.5, 1 m: see the marks)" in done.stdout  # not "within 1 m"
+
+
+def test_an_80_column_terminal_fits_the_tables_of_the_longest_names(tmp_path):
+    documents = [json.loads(p.read_text()) for p in write_runs(tmp_path)]
+    console = Console(width=80, force_terminal=True, record=True)
+    print_documents(console, documents)
+    text = console.export_text()
+    lines = check_whole(text)
+    assert max(len(line) for line in lines) <= 80

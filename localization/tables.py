@@ -172,5 +172,7 @@ def print_frames(console: Console, document: dict[str, Any]) -> None:
         error = frame["evaluation"]["translation_error_m"]
         outcome = (f"no pose: {frame['failure']}" if frame["failure"] is not None else
                    "pose (no ground truth)" if error is None else f"TE {error:.2f} m")
-        console.print(f"frame {frame['index']} {escape(frame['name'])}: {frame['observations']} observations, "
+        name = "" if frame["name"] == str(frame["index"]) else f" (image {escape(frame['name'])})"  # ScanNet: the number
+        count = frame["observations"]
+        console.print(f"frame {frame['index']}{name}: {count} observation{'' if count == 1 else 's'}, "
                       f"{escape(outcome)}", highlight=False, soft_wrap=True)

@@ -22,6 +22,11 @@ def open_scene(name: str, data_root: Path | None = None,
     return open_sequence(name, data_root)
 
 
+def first_use_notice(name: str, data_root: Path | None = None) -> str | None:
+    """The line to say before `open_scene` generates the scene `name` (tens of seconds); None when it will not."""
+    return sim.first_use_notice(name, resolve_data_root(data_root))
+
+
 def default_detector(sequence: Sequence) -> str:
     """The `--detector` a sequence gets unless asked: a generated scene's own (clipclique.sim), else its
     reader's (gt on ScanNet, annotations on TUM)."""

@@ -57,6 +57,7 @@ def build(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
+    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from clipclique.exits import user_errors
@@ -68,7 +69,8 @@ def build(
     verbosity = verbose - quiet
     with user_errors(TOOL), Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
         built = run_build(scene, data_root, out, encoder, not no_rrd,
-                          bars=lambda description: bar_on_first_call(progress, description))
+                          bars=lambda description: bar_on_first_call(progress, description),
+                          say=lambda line: verbosity >= 0 and progress.console.print(escape(line), highlight=False))
     print_build(console, built, verbosity)
 
 

@@ -15,13 +15,14 @@ from clipclique.backends import load_encoder
 from clipclique.datasets import scene_name
 from clipclique.mapfile import save_map
 from clipclique.outputs import Staging, map_file
-from clipclique.resolve import open_scene
+from clipclique.resolve import first_use_notice, open_scene
 from clipclique.types import Map
 from mapping.build import BuildReport, Progress, build_map
 
 Bars = Callable[[str], Progress]  # a stage's description -> its progress callback
 GENERATING = "generating the {scene} data (first use)"
 FITTING = "fitting ellipsoids"
+PROBING = "--encoder auto: looking for CLIP weights (ViT-L-14/openai; a few seconds)"
 
 
 @dataclass
@@ -37,18 +38,23 @@ class Built:
 
 
 def run_build(scene: str, data_root: Path | None = None, out: Path | None = None, encoder_spec: str | None = None,
-              rrd: bool = True, bars: Bars | None = None) -> Built:
+              rrd: bool = True, bars: Bars | None = None, say: Callable[[str], None] | None = None) -> Built:
     """Open the scene (generating a demo scene on first use), fit the landmarks, embed the descriptions,
     write the map (and .rrd) to `out`, default outputs/maps/<SCENE>.map.npz (the name clipclique-loc looks up).
-    `bars` gives each stage a progress callback (generating the demo data, fitting)."""
+    `bars` gives each stage a progress callback (generating the demo data, fitting); `say` is told, before
+    they start, what the slow first steps are (generating a scene, probing for CLIP weights)."""
     started = time.perf_counter()
     out = out or map_file(scene_name(scene))
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
     with Staging() as staging:
         staged_map = staging.path(out)  # a folder in the way is refused before the work
         staged_recording = staging.path(recording) if rrd else None
+        if say and (notice := first_use_notice(scene, data_root)):
+            say(notice)
         sequence = open_scene(scene, data_root, bars and bars(GENERATING.format(scene=scene)))
         spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
+        if say and spec == "auto":
+            say(PROBING)
         map, report = build_map(sequence, load_encoder(spec), progress=bars and bars(FITTING))
         save_map(map, staged_map)
         if staged_recording is not None:

@@ -1,0 +1,68 @@
+"""A new user's first hour (issue 23), as they type it: `clipclique-map build` and `clipclique-loc run`
+on a shortened demo scene generated on first use."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import pytest
+from rich.console import Console
+from typer.testing import CliRunner
+
+from clipclique.sim import demo
+from localization.cli import app as loc_app
+from localization.tables import print_frames
+from mapping.cli import app as map_app
+
+pytestmark = pytest.mark.slow
+RUNNER = CliRunner()
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def first_use(tmp_path_factory) -> tuple[Path, str]:
+    """A fresh working folder where `clipclique-map build demo` generates the (shortened) demo; its output."""
+    root = tmp_path_factory.mktemp("first-hour")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(root)
+        patch.setitem(demo.DEMO_SCENES, "demo", dataclasses.replace(demo.DEMO_SCENES["demo"], num_frames=FRAMES))
+        patch.setenv("CLIPCLIQUE_DATA", str(root / "data"))
+        built = RUNNER.invoke(map_app, ["build", "demo"])
+        assert built.exit_code == 0, built.output
+    return root, built.output
+
+
+@pytest.fixture
+def in_first_use(first_use, monkeypatch) -> Path:
+    root, _ = first_use
+    monkeypatch.chdir(root)
+    monkeypatch.setenv("CLIPCLIQUE_DATA", str(root / "data"))
+    return root
+
+
+def test_the_first_build_says_it_generates_the_scene(first_use, in_first_use):
+    root, output = first_use
+    assert f"generating the demo scene into {root / 'data' / 'demo' / 'demo'} (first use only" in output.replace("\n", "")
+    again = RUNNER.invoke(map_app, ["build", "demo", "--no-rrd", "--out", "again.map.npz"])
+    assert again.exit_code == 0 and "generating" not in again.output  # generated once
+
+
+def test_encoder_auto_says_it_looks_for_clip_weights(in_first_use):
+    done = RUNNER.invoke(map_app, ["build", "demo", "--encoder", "auto", "--no-rrd", "--out", "auto.map.npz"])
+    assert done.exit_code == 0, done.output
+    assert "--encoder auto: looking for CLIP weights" in done.output
+
+
+def test_verbose_lines_name_each_frame_once_in_plain_words(in_first_use):
+    done = RUNNER.invoke(loc_app, ["run", "demo", "-v", "--no-rrd"])
+    assert done.exit_code == 0, done.output
+    frames = [line for line in done.output.splitlines() if line.startswith("frame ")]
+    assert len(frames) == FRAMES
+    assert all(re.fullmatch(r"frame \d+: \d+ observations?, (TE \d+\.\d\d m|no pose: .+)", line) for line in frames), frames
+    console = Console(width=200, record=True)
+    frame = {"index": 3, "name": "1305031102.175304", "observations": 1, "failure": "fewer than 3 observations (1)",
+             "evaluation": {"translation_error_m": None}}
+    print_frames(console, {"frames": [frame]})
+    assert console.export_text().strip() == "frame 3 (image 1305031102.175304): 1 observation, no pose: fewer than 3 observations (1)"

@@ -213,6 +213,15 @@ def make_config(
     return config
 
 
+def changed_by_overrides(method: str, file: Path | None, overrides: list[str]) -> dict[str, Any]:
+    """The settings `overrides` change over the method's preset and the file, by dotted key in the order given,
+    with their final values: `inliers.d_comp = 0.4` and `inliers.d_comp=0.40` are one change, and one that
+    repeats the value already set is none (what names a run's folder)."""
+    before = flat(make_config(method, file))
+    after = flat(make_config(method, file, overrides))
+    return {key: after[key] for key in parse_assignments(overrides) if after[key] != before[key]}
+
+
 def load_file(path: Path) -> dict[str, Any]:
     """A config file: a results folder's config.json (by its suffix), else TOML read as strict UTF-8
     (tomllib's own rule); a ConfigError naming it when it is neither."""

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from clipclique.commands import command
-from clipclique.config import LocalizationConfig, make_config
+from clipclique.config import LocalizationConfig, changed_by_overrides, make_config
 from clipclique.backends import load_encoder, make_detector
 from clipclique.datasets import Sequence, scene_name
 from clipclique.detectors import Detector
@@ -65,13 +65,15 @@ class RunSettings:
         return self.out or LOC_DIR / sequence_name / self.run_name()
 
     def run_name(self) -> str:
-        """The method, then every setting given that changes the results (`clipclique+inliers.d_comp=0.4`):
-        two ablations never share a folder, and the same command again replaces its own (identical) results."""
+        """The method, then every setting given that changes the results (`clipclique+inliers.d_comp=0.4`, however
+        the --set was spelled; one repeating the preset's value is left out): two ablations never share a folder,
+        and the same command again replaces its own (identical) results."""
         parts = [self.method]
         if self.config_file is not None:  # the file's content, not just its name, decides the results
             content = self.config_file.read_bytes() if self.config_file.is_file() else b""
             parts.append(f"{self.config_file.stem}-{hashlib.sha1(content).hexdigest()[:6]}")
-        parts += self.overrides
+        parts += [f"{key}={value}" for key, value in
+                  changed_by_overrides(self.method, self.config_file, self.overrides).items()]
         given = {"map": self.map_path and self.map_path.name.removesuffix(".map.npz"), "detector": self.detector,
                  "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,

@@ -66,3 +66,13 @@ def test_verbose_lines_name_each_frame_once_in_plain_words(in_first_use):
              "evaluation": {"translation_error_m": None}}
     print_frames(console, {"frames": [frame]})
     assert console.export_text().strip() == "frame 3 (image 1305031102.175304): 1 observation, no pose: fewer than 3 observations (1)"
+
+
+def test_set_spellings_of_one_change_share_a_folder_and_the_presets_value_renames_nothing(in_first_use):
+    folders = []
+    for given in (["inliers.d_comp = 0.4"], ["inliers.d_comp=0.40"], ["inliers.d_comp=0.3"],
+                  ["inliers.d_comp=0.3", "top_n=5", "graph.d_adj=0.8"]):
+        done = RUNNER.invoke(loc_app, ["run", "demo", "-q", "--no-rrd", *[arg for s in given for arg in ("--set", s)]])
+        assert done.exit_code == 0, done.output
+        folders.append(re.search(r"results: (\S+)/ ", done.output).group(1))
+    assert folders == ["outputs/loc/demo/clipclique+inliers.d_comp=0.4"] * 2 + ["outputs/loc/demo/clipclique"] * 2

@@ -157,7 +157,7 @@ def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
     first = RunSettings("demo", config_file=config).run_name()
     config.write_text("[inliers]\nd_comp = 0.5\n")
     assert first.startswith("clipclique+my-") and RunSettings("demo", config_file=config).run_name() != first
-    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["x=" + "9" * 200]).run_name()
+    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["confidence_model=x" + "9" * 200]).run_name()
     assert "/" not in odd and len(odd) == 100
     assert RunSettings("demo", out=tmp_path / "here").out_dir("demo") == tmp_path / "here"
 

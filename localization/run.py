@@ -284,7 +284,9 @@ def writable_folder(out_dir: Path) -> Path:
 
 
 def recording_description(run: Run) -> str:
-    """The recording's text document: what ran, flagged where simulated, and the full config."""
+    """The recording's text document: what ran, flagged where simulated, and the settings changed from the
+    method's preset (the full configuration is config.json beside the recording: a JSON block would fill the
+    panel with its first brace)."""
     description = run_description(run)
     parts = [f"# {description['method_title']} on {description['sequence']}",
              f"- map: `{description['map']}` (text embeddings: {description['map_encoder']})"]
@@ -293,5 +295,8 @@ def recording_description(run: Run) -> str:
         parts.append(f"- {role}: none" if part is None else
                      f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
     parts += [f"- note: {note}" for note in run.notes]
-    parts.append(f"\n```json\n{json.dumps(run.config.to_dict(), indent=1)}\n```")
+    changed = description["changed"]
+    parts.append("- settings changed from the preset: " + (", ".join(f"`{k} = {v}`" for k, v in changed.items())
+                                                          if changed else "none"))
+    parts.append("- full configuration: `config.json` beside this recording")
     return "\n".join(parts)

@@ -76,3 +76,11 @@ def test_set_spellings_of_one_change_share_a_folder_and_the_presets_value_rename
         assert done.exit_code == 0, done.output
         folders.append(re.search(r"results: (\S+)/ ", done.output).group(1))
     assert folders == ["outputs/loc/demo/clipclique+inliers.d_comp=0.4"] * 2 + ["outputs/loc/demo/clipclique"] * 2
+
+
+def test_the_recordings_description_lists_the_changed_settings_not_a_json_block(in_first_use):
+    from localization.run import RunSettings, prepare, recording_description
+
+    text = recording_description(prepare(RunSettings("demo", overrides=["inliers.d_comp=0.4"])))
+    assert "{" not in text
+    assert "- settings changed from the preset: `inliers.d_comp = 0.4`" in text.splitlines()

@@ -58,3 +58,22 @@ def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path, sy
     camera_view = image[60 : int(SIZE[1] * 0.45), int(SIZE[0] * 0.62) :].astype(int)
     grey = (np.ptp(camera_view, axis=-1) < 6) & (camera_view.mean(axis=-1) > 60) & (camera_view.mean(axis=-1) < 170)
     assert grey.mean() > 0.15  # the decoded JPEG's grey background fills the camera view
+
+
+def test_the_screenshot_command_says_when_a_frame_is_beyond_the_recording(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    map, frames = synthetic_run(num_frames=4)
+    path = tmp_path / "recording.rrd"
+    with LocalizationRecorder(path, map, "# clipclique on a synthetic room") as recorder:
+        for f in frames:
+            recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+    tool_path = Path(tool.__file__)
+    env = os.environ | {"PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]])}
+    done = subprocess.run([str(tool_path), str(path), str(tmp_path / "late.png"), "--frame", "500"], env=env,
+                          capture_output=True, text=True, timeout=180)  # executable, as the README writes it
+    assert done.returncode == 0, done.stderr
+    assert "warning: --frame 500: the recording holds frames 0 to 3; showing frame 3" in done.stderr
+    assert (tmp_path / "late.png").is_file()

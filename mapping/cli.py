@@ -74,6 +74,36 @@ def build(
     print_build(console, built, verbosity)
 
 
+@app.command()
+def annotate(
+    sequence: Annotated[str, typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the data root, or its folder",
+                                            show_default=False)],
+    masks: Annotated[Path, typer.Option("--masks", help="folder of instance-id PNGs, each named after its colour "
+                                        "image (file stem or timestamp); 0 = no object", show_default=False)],
+    objects: Annotated[Path, typer.Option("--objects", help="CSV table 'id,class,description' of the mask ids",
+                                          show_default=False)],
+    data_root: Annotated[
+        Path | None,
+        typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
+    ] = None,
+) -> None:
+    """Write SEQUENCE's annotations/ (to build its map) from instance masks made with another tool."""
+    from clipclique.datasets import open_sequence
+    from clipclique.datasets.tum import TumSequence
+    from clipclique.errors import ClipcliqueError
+    from clipclique.exits import user_errors
+    from mapping.annotate import annotate as write_annotations
+    from mapping.tables import make_console, print_annotated
+
+    with user_errors(TOOL):
+        opened = open_sequence(sequence, data_root)
+        if not isinstance(opened, TumSequence):
+            raise ClipcliqueError(f"{sequence}: a {opened.kind} scene; annotate writes the annotations of a TUM-format "
+                                  "sequence (ScanNet scenes carry their own)")
+        done = write_annotations(opened, masks, objects)
+    print_annotated(make_console(), done, sequence)
+
+
 def main() -> None:
     app()
 

@@ -10,10 +10,12 @@ from rich.markup import escape
 from rich.progress import Progress
 from rich.table import Table
 
-from clipclique.commands import rerun_hint
+from clipclique.commands import command, rerun_hint
 from clipclique.config import GraphConfig
+from clipclique.datasets.tum import MAX_TIME_DIFF
 from clipclique.types import Map
 from mapping.build import BuildReport, degree_histogram
+from mapping.annotate import Annotated
 from mapping.run import Built
 
 
@@ -34,6 +36,19 @@ def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
     console.print(escape(where), highlight=False)
     if built.stale:
         console.print(f"removed {escape(str(built.stale))}, the recording of an earlier map (--no-rrd)", highlight=False)
+
+
+def print_annotated(console: Console, done: Annotated, sequence: str) -> None:
+    """What `clipclique-map annotate` wrote, which annotations the map cannot use, and the next command."""
+    console.print(escape(f"annotations: {done.folder}/ ({done.frames} frames, {done.objects} objects)"), highlight=False)
+    if done.without_pose:
+        console.print(escape(f"{len(done.without_pose)} annotated frames have no ground-truth pose within "
+                             f"{MAX_TIME_DIFF} s, so the map cannot use them: {', '.join(done.without_pose[:5])}"
+                             + (", ..." if len(done.without_pose) > 5 else "")), highlight=False)
+    if done.unseen:
+        console.print(escape(f"objects no mask shows (no landmark for them): {', '.join(map(str, done.unseen))}"),
+                      highlight=False)
+    console.print(escape(f"next: {command('clipclique-map')} build {sequence}"), highlight=False)
 
 
 def bar_on_first_call(progress: Progress, description: str) -> Callable[[int, int], None]:

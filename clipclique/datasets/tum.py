@@ -117,6 +117,32 @@ def associate(times: np.ndarray, candidates: np.ndarray, max_diff: float = MAX_T
     return np.where(np.abs(sorted_c[nearest] - times) <= max_diff, order[nearest], -1)
 
 
+def read_objects_table(path: Path) -> dict[int, tuple[str, str]]:
+    """Object id -> (class, description) of an `id,class,description` table (annotations/objects.csv); an empty
+    description becomes "a photo of a <class>"."""
+    objects: dict[int, tuple[str, str]] = {}
+    reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", DatasetError), newline=""))
+    missing = {"id", "class", "description"} - set(reader.fieldnames or ())
+    if missing:
+        raise DatasetError(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
+    for row in reader:
+        where = f"{path}, line {reader.line_num}"
+        try:
+            object_id = int(row["id"])
+        except (TypeError, ValueError):
+            raise DatasetError(f"{where}: id {row['id']!r} is not an integer") from None
+        if not 1 <= object_id <= MAX_OBJECT_ID:
+            raise DatasetError(f"{where}: id {object_id} outside 1..{MAX_OBJECT_ID} (the instance images are 16-bit)")
+        if object_id in objects:
+            raise DatasetError(f"{where}: id {object_id} appears twice")
+        name = safeio.check_text(row["class"] or "", f"{where}: class", DatasetError).strip()
+        if not name:
+            raise DatasetError(f"{where}: class is empty")
+        description = safeio.check_text(row["description"] or "", f"{where}: description", DatasetError).strip()
+        objects[object_id] = (name, description or description_template(name))
+    return objects
+
+
 class TumSequence(Sequence):
     kind = "tum"
     default_detector = "annotations"
@@ -170,8 +196,12 @@ class TumSequence(Sequence):
     def __len__(self) -> int:
         return len(self.rgb_files)
 
+    def frame_name(self, i: int) -> str:
+        """Frame `i`'s name: its colour image's file stem, which names its annotation too."""
+        return Path(self.rgb_files[i]).stem
+
     def _annotation_path(self, i: int) -> Path:
-        return self.root / "annotations" / "instances" / f"{Path(self.rgb_files[i]).stem}.png"
+        return self.root / "annotations" / "instances" / f"{self.frame_name(i)}.png"
 
     def _annotation(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
         path = self._annotation_path(i)
@@ -193,35 +223,13 @@ class TumSequence(Sequence):
         depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
         intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
-        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
+        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=self.frame_name(i))
 
     @cached_property
     def _objects(self) -> dict[int, tuple[str, str]]:
         """Annotation id -> (class, description) from annotations/objects.csv (empty without it)."""
         path = self.root / "annotations" / "objects.csv"
-        if not path.exists():
-            return {}
-        objects: dict[int, tuple[str, str]] = {}
-        reader = csv.DictReader(io.StringIO(safeio.read_text(path, "objects table", DatasetError), newline=""))
-        missing = {"id", "class", "description"} - set(reader.fieldnames or ())
-        if missing:
-            raise DatasetError(f"{path}: header must be 'id,class,description' (missing {', '.join(sorted(missing))})")
-        for row in reader:
-            where = f"{path}, line {reader.line_num}"
-            try:
-                object_id = int(row["id"])
-            except (TypeError, ValueError):
-                raise DatasetError(f"{where}: id {row['id']!r} is not an integer") from None
-            if not 1 <= object_id <= MAX_OBJECT_ID:
-                raise DatasetError(f"{where}: id {object_id} outside 1..{MAX_OBJECT_ID} (the instance images are 16-bit)")
-            if object_id in objects:
-                raise DatasetError(f"{where}: id {object_id} appears twice")
-            name = safeio.check_text(row["class"] or "", f"{where}: class", DatasetError).strip()
-            if not name:
-                raise DatasetError(f"{where}: class is empty")
-            description = safeio.check_text(row["description"] or "", f"{where}: description", DatasetError).strip()
-            objects[object_id] = (name, description or description_template(name))
-        return objects
+        return read_objects_table(path) if path.exists() else {}
 
     def instances(self) -> list[Instance]:
         """Annotated objects: masked depth of every annotated frame with a pose, in the world frame."""

@@ -339,6 +339,40 @@ def tum_cases() -> list[Case]:
     return cases
 
 
+def annotate_cases() -> list[Case]:
+    """The small demo_tum's masks and objects table, moved out of it and one broken, given to clipclique-map annotate."""
+
+    def mutated(change: Callable[[Path, Path], None], names: str) -> Callable:
+        def make(space, case_dir):
+            folder = space.copy("demo_tum", case_dir)
+            masks, table = case_dir / "masks", case_dir / "classes.csv"
+            (folder / "annotations" / "instances").rename(masks)
+            (folder / "annotations" / "objects.csv").rename(table)
+            (folder / "annotations").rmdir()
+            change(masks, table)
+            return map_app, ["annotate", str(folder), "--masks", str(masks), "--objects", str(table)], names
+
+        return make
+
+    def renamed(stem: str) -> Callable[[Path, Path], None]:
+        return lambda masks, table: sorted(masks.glob("*.png"))[0].rename(masks / f"{stem}.png")
+
+    def first(masks: Path) -> Path:
+        return sorted(masks.glob("*.png"))[0]
+
+    cases = [Case("annotate", f"mask-named-{stem}", mutated(renamed(stem), f"{stem}.png"))
+             for stem in ("inf", "-nan", "1e999", "0x1p30", "frame_0001", "9" * 240)]
+    cases += [
+        Case("annotate", "mask-rgb", mutated(lambda m, t: Image.new("RGB", (160, 120)).save(first(m)), "masks")),
+        Case("annotate", "mask-junk", mutated(lambda m, t: first(m).write_bytes(b"\x89PNG junk"), "masks")),
+        Case("annotate", "mask-folder", mutated(lambda m, t: _replace_dir(first(m)), "masks")),
+        Case("annotate", "masks-none", mutated(lambda m, t: shutil.rmtree(m), "masks")),
+        Case("annotate", "objects-latin1", mutated(lambda m, t: _insert(t, b"# " + LATIN1 + b"\n"), "classes.csv")),
+        Case("annotate", "objects-missing-id", mutated(lambda m, t: t.write_text("id,class,description\n"), "classes.csv")),
+    ]
+    return cases
+
+
 def _aggregation(change: Callable[[dict], None]) -> Callable[[Path], None]:
     def write(path: Path) -> None:
         document = json.loads(path.read_text())
@@ -579,14 +613,14 @@ def name_cases() -> list[Case]:
     return [Case("names", f"loc-{n}", loc(n)) for n in names] + [Case("names", f"map-{n}", build(n)) for n in names]
 
 
-CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+CASES = map_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
     assert len(CASES) >= 100
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
-                                               "outputs", "encoder", "compare", "names"}
+                                               "outputs", "encoder", "compare", "names", "annotate"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

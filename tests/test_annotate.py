@@ -1,0 +1,90 @@
+"""`clipclique-map annotate`: a user's own TUM-format recording annotated from instance masks made with
+another tool, then built into a map, as they would type it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+from test_tum import NAME, T0, write_sequence
+from typer.testing import CliRunner
+
+from clipclique.datasets import open_sequence
+from mapping.cli import app
+
+RUNNER = CliRunner()
+RGB_STAMPS = [f"{T0 + dt + 0.0013:.6f}" for dt in (0.0, 0.1, 0.2, 0.3)]  # write_sequence's colour images
+
+
+def own_masks(tmp_path, names: list[str], ids: tuple[int, int] = (7, 8), mode: str = "I;16") -> tuple:
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for name in names:
+        image = np.zeros((480, 640), np.uint16)
+        image[200:280, 300:340], image[200:280, 340:380] = ids
+        Image.fromarray(image.astype(np.uint8) if mode == "L" else image).save(masks / f"{name}.png")
+    table = tmp_path / "classes.csv"
+    table.write_text('id,class,description\n7,monitor,"a black monitor, wide"\n8,cup,\n9,chair,a lone chair\n')
+    return masks, table
+
+
+def annotate(tmp_path, masks, table):
+    return RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--objects", str(table),
+                               "--data-root", str(tmp_path)])
+
+
+def rounded_depth(folder) -> None:
+    """Give write_sequence's flat patch of depth a dome 10 cm deep, so that each object fits an ellipsoid."""
+    rows, cols = np.mgrid[200:280, 300:380]
+    dome = 10000 - 500 * np.sqrt(np.clip(1 - ((rows - 240) / 40) ** 2 - ((cols - 340) / 40) ** 2, 0, 1))
+    for path in (folder / "depth").iterdir():
+        depth = np.asarray(Image.open(path)).astype(np.uint16)
+        depth[200:280, 300:380] = dome
+        Image.fromarray(depth).save(path)
+
+
+def test_masks_named_by_stem_or_timestamp_become_the_sequences_annotations_and_its_map(tmp_path, monkeypatch):
+    folder = write_sequence(tmp_path, annotations=False)
+    rounded_depth(folder)
+    # the first frame by its file stem, the second by a rounded timestamp, 8-bit
+    masks, table = own_masks(tmp_path, [RGB_STAMPS[0]], mode="L")
+    Image.open(masks / f"{RGB_STAMPS[0]}.png").save(masks / f"{float(RGB_STAMPS[1]):.3f}.png")
+    done = annotate(tmp_path, masks, table)
+    assert done.exit_code == 0, done.output
+    assert f"annotations: {folder / 'annotations'}/ (2 frames, 3 objects)" in done.output.replace("\n", "")
+    assert "objects no mask shows (no landmark for them): 9" in done.output
+    sequence = open_sequence(NAME, tmp_path)
+    assert sequence.object_classes() == {7: "monitor", 8: "cup", 9: "chair"}
+    assert [sequence[i].instances is not None for i in range(len(sequence))] == [True, True, False]
+    assert np.count_nonzero(sequence[1].instances == 8) == 80 * 40
+    monkeypatch.chdir(tmp_path)
+    built = RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"])
+    assert built.exit_code == 0, built.output
+    assert "monitor" in built.output and "cup" in built.output
+
+
+@pytest.mark.parametrize("names, problem", [
+    (["photo_0001"], "photo_0001.png: names no colour image of"),
+    (["1311868170.0"], "1311868170.0.png: names no colour image of"),  # no frame within 0.02 s
+    (["nan"], "nan.png: names no colour image of"),
+    ([RGB_STAMPS[0], f"{float(RGB_STAMPS[0]) + 0.001:.6f}"], "a second mask of frame"),
+])
+def test_a_mask_that_names_no_frame_or_a_frame_twice_is_one_line_and_writes_nothing(tmp_path, names, problem):
+    folder = write_sequence(tmp_path, annotations=False)
+    masks, table = own_masks(tmp_path, names)
+    done = annotate(tmp_path, masks, table)
+    assert done.exit_code == 2 and problem in done.output.replace("\n", "") and "Traceback" not in done.output
+    assert sorted(p.name for p in folder.iterdir()) == ["depth", "depth.txt", "groundtruth.txt", "rgb", "rgb.txt"]
+
+
+def test_unknown_ids_wrong_sizes_and_existing_annotations_are_refused(tmp_path):
+    folder = write_sequence(tmp_path, annotations=False)
+    masks, table = own_masks(tmp_path, [RGB_STAMPS[0]], ids=(7, 12))
+    assert "object id 12 is not in" in annotate(tmp_path, masks, table).output.replace("\n", "")
+    Image.fromarray(np.zeros((240, 320), np.uint16)).save(masks / f"{RGB_STAMPS[0]}.png")
+    assert "mask is 320 x 240, the depth image of its frame 640 x 480" in annotate(tmp_path, masks, table).output.replace("\n", "")
+    (folder / "annotations").mkdir()
+    (folder / "annotations" / "objects.csv").write_text("id,class,description\n1,chair,mine\n")
+    refused = annotate(tmp_path, masks, table)
+    assert refused.exit_code == 2 and "exists already; annotate never replaces annotations" in refused.output.replace("\n", "")
+    assert (folder / "annotations" / "objects.csv").read_text() == "id,class,description\n1,chair,mine\n"

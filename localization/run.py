@@ -126,6 +126,8 @@ def prepare(settings: RunSettings) -> Run:
     sequence = open_scene(settings.sequence, settings.data_root)
     notes: list[str] = []
     check_map_source(map, map_path, sequence.name, settings, notes)
+    if gap := sequence.missing_poses():
+        notes.append(f"{gap}; those frames cannot be scored")
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed)

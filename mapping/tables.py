@@ -83,6 +83,8 @@ def print_summary(console: Console, map: Map, report: BuildReport, spec: str) ->
     else:
         simulated = " [yellow](simulated)[/]" if map.provenance.get("encoder_simulated") else ""
         console.print(f"text embeddings: {escape(map.encoder)}{simulated}")
+    for note in report.notes:
+        console.print(escape(f"note: {note}"), highlight=False)
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
     console.print(f"time: {timings}")
 

@@ -88,3 +88,17 @@ def test_unknown_ids_wrong_sizes_and_existing_annotations_are_refused(tmp_path):
     refused = annotate(tmp_path, masks, table)
     assert refused.exit_code == 2 and "exists already; annotate never replaces annotations" in refused.output.replace("\n", "")
     assert (folder / "annotations" / "objects.csv").read_text() == "id,class,description\n1,chair,mine\n"
+
+
+def test_one_scene_has_one_map_whichever_name_is_typed(tmp_path, monkeypatch):
+    folder = write_sequence(tmp_path)
+    rounded_depth(folder)
+    monkeypatch.chdir(tmp_path)
+    built = RUNNER.invoke(app, ["build", "fr2", "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"])
+    assert built.exit_code == 0, built.output
+    assert f"map: outputs/maps/{NAME}.map.npz" in built.output
+    from localization.cli import app as loc_app
+
+    ran = RUNNER.invoke(loc_app, ["run", NAME, "--data-root", str(tmp_path), "--no-rrd", "-q"])
+    assert ran.exit_code == 0, ran.output  # finds the map fr2 built
+    assert sorted(p.name for p in (tmp_path / "outputs" / "maps").iterdir()) == [f"{NAME}.map.npz"]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import re
 from functools import cached_property
 from pathlib import Path
@@ -171,7 +172,28 @@ class TumSequence(Sequence):
         self.rgb_files = [rgb_files[k] for k in keep]
         self.depth_files = [depth_files[to_depth[k]] for k in keep]
         self.poses = [gt_poses[to_pose[k]] if to_pose[k] >= 0 else None for k in keep]
+        self.pose_times = np.sort(gt_times)
         self.intrinsics = self._intrinsics()
+
+    def missing_poses(self) -> str | None:
+        missing = sum(pose is None for pose in self.poses)
+        if not missing:
+            return None
+        path = self.root / "groundtruth.txt"
+        if not path.exists():
+            why = f"there is no {path}"
+        elif not len(self.pose_times):
+            why = f"{path} holds no pose"
+        else:
+            why = f"{path} has no pose within {MAX_TIME_DIFF} s of their colour image"
+            spacing = float(np.median(np.diff(self.pose_times))) if len(self.pose_times) > 1 else math.inf
+            if spacing > MAX_TIME_DIFF:
+                why += (f" (its poses are {spacing:.3g} s apart: record poses at {1 / MAX_TIME_DIFF:g} Hz or more, or "
+                        "write one per colour image with its timestamp)")
+            elif self.timestamps[0] < self.pose_times[0] or self.timestamps[-1] > self.pose_times[-1]:
+                why += (f" (its poses cover {self.pose_times[0]:.3f} to {self.pose_times[-1]:.3f} s, the images "
+                        f"{self.timestamps[0]:.3f} to {self.timestamps[-1]:.3f} s)")
+        return f"{missing} of {len(self)} frames have no ground-truth pose: {why}"
 
     def _intrinsics(self) -> np.ndarray:
         path = self.root / "intrinsics.txt"

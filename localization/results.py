@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import ALL_STAGES
 from clipclique.safeio import read_json
 from clipclique.types import Pose
@@ -171,7 +172,9 @@ RESULTS_SCHEMA: dict[str, Any] = {
     "run": {"sequence": str, "method_title": str, "detector": _NAMED, "encoder": (_NAMED, type(None)), "notes": [str]},
     "summary": {
         **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
-                                    "success@3", "success@5", "time_ms_median")},
+                                    "success@3", "success@5", "time_ms_median", "te_mean_m", "te_p90_m", "re_mean_deg",
+                                    "re_p90_deg")},
+        "success_within_m": {f"{t:g}": _NUMBER for t in SUCCESS_THRESHOLDS_M},
         "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
     },
 }

@@ -20,6 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from clipclique.config import LocalizationConfig
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import ALL_STAGES, Stage
 
 STAGE_HEADERS = {Stage.DETECTOR: "det.", Stage.OBSERVATIONS: "fit", Stage.ENCODER: "enc.", Stage.DESCRIPTORS: "desc.",
@@ -96,8 +97,9 @@ def results_caption(documents: list[dict[str, Any]]) -> str:
     thresholds = sorted({_threshold(d) for d in documents})
     within = (f"within {thresholds[0]:g} m" if len(thresholds) == 1 else
               f"within the run's success threshold ({', '.join(f'{t:g}' for t in thresholds)} m: see the marks)")
-    return (f"TE/RE: medians over frames with a pose. Top-k [%]: frames with a pose {within} among the k best "
-            "(frames without one count as failures). ms: matching + inliers + pose per query.")
+    return (f"TE/RE: medians over frames with a pose (mean, p90: their mean and 90th percentile). Top-k [%]: frames "
+            f"with a pose {within} among the k best (frames without one count as failures). ms: matching + inliers + "
+            "pose per query.")
 
 
 def results_table(documents: list[dict[str, Any]], titles: list[str] | None = None) -> Table:
@@ -115,6 +117,24 @@ def results_table(documents: list[dict[str, Any]], titles: list[str] | None = No
             *(_number(summary[f"success@{k}"], 1, 100.0) for k in (1, 3, 5)),
             _number(summary["time_ms_median"], 1),
         )
+    return table
+
+
+def accuracy_table(documents: list[dict[str, Any]], titles: list[str] | None = None) -> Table:
+    """The top-1 pose of each run (runs of one sequence): success within each of the project's thresholds (%,
+    frames without a pose count as failures) and the mean and 90th percentile of its errors."""
+    table = _compact("Top-1 pose: success within [%], errors")
+    thresholds = SUCCESS_THRESHOLDS_M
+    table.add_column("Method", no_wrap=True)
+    for threshold in thresholds:
+        table.add_column(f"{threshold:g} m", justify="right", no_wrap=True)
+    for column in ("TE mean", "TE p90", "RE mean", "RE p90"):
+        table.add_column(column, justify="right", no_wrap=True)
+    for document, method in zip(documents, titles or _marks(documents)[0]):
+        summary = document["summary"]
+        table.add_row(escape(method), *(_number(summary["success_within_m"][f"{t:g}"], 1, 100.0) for t in thresholds),
+                      _number(summary["te_mean_m"]), _number(summary["te_p90_m"]),
+                      _number(summary["re_mean_deg"], 1), _number(summary["re_p90_deg"], 1))
     return table
 
 
@@ -158,6 +178,7 @@ def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
         console.print()
         console.print(f"[bold]{escape(sequence)}[/]", highlight=False, soft_wrap=True)
         print_whole(console, results_table([documents[i] for i in rows], [titles[i] for i in rows]))
+        print_whole(console, accuracy_table([documents[i] for i in rows], [titles[i] for i in rows]))
         print_whole(console, stage_table([documents[i] for i in rows], [titles[i] for i in rows]))
     console.print()
     for caption in (results_caption(documents), STAGE_CAPTION):

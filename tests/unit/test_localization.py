@@ -49,7 +49,9 @@ def test_read_results_rejects_other_files(tmp_path):
 
 def _document(method: str, success: float, simulated: bool) -> dict:
     summary = {"frames": 10.0, "precision": 0.9, "recall": 0.5, "te_median_m": None, "re_median_deg": 2.0,
-               "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0}
+               "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0,
+               "success_within_m": {"0.25": None, "0.5": success, "1": success, "2": success}, "te_mean_m": None,
+               "te_p90_m": None, "re_mean_deg": 2.0, "re_p90_deg": 3.0}
     return {"run": {"sequence": "demo", "method_title": method, "notes": ["a note"],
                     "detector": {"name": "simulated", "simulated": simulated}, "encoder": None},
             "summary": summary}

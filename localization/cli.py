@@ -116,12 +116,17 @@ def run(
         summary = document["summary"]
         console.print(f"not localized (no pose with confidence >= {min_confidence:g}): "
                       f"{int(summary['not_confident'])} of {int(summary['frames'])} frames")
-    out_dir = escape(str(settings.out_dir(document["run"]["sequence"])))
-    console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
-                  soft_wrap=True)
-    if settings.record:
-        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir(document['run']['sequence']) / 'recording.rrd'))})", highlight=False,
-                      soft_wrap=True)
+    folder = settings.out_dir(document["run"]["sequence"])
+    console.print(f"results: {escape(str(folder))}/ (results.json, poses.tum, groundtruth.tum, config.json)",
+                  highlight=False, soft_wrap=True)
+    recording = document["run"]["recording"]
+    if recording is not None and recording["matches"]:
+        earlier = "" if settings.record else ", an earlier run's with the same results"
+        console.print(escape(f"recording: {folder / recording['file']} ({rerun_hint(folder / recording['file'])}{earlier})"),
+                      highlight=False, soft_wrap=True)
+    elif recording is not None and quiet:  # the notes above say it; under -q, this does (every time)
+        print(f"clipclique-loc: warning: {folder / recording['file']} is an earlier run's and does not show these "
+              "results (run without --no-rrd to replace it)", file=sys.stderr)
 
 
 @app.command()

@@ -12,6 +12,7 @@ beside it holds the ground-truth pose of every frame that has one, on the same t
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from pathlib import Path
@@ -34,12 +35,14 @@ if TYPE_CHECKING:  # the runner (localization.run) writes through this module, n
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
 OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
+RECORDING = "recording.rrd"
 
 
-def write_results(run: Run, partials: dict[str, Path]) -> dict[str, Any]:
+def write_results(run: Run, partials: dict[str, Path], earlier_recording: str | None = None) -> dict[str, Any]:
     """Write results.json, poses.tum, groundtruth.tum and config.json to their staged paths
-    (`OUTPUT_FILES` -> path); the results document. Every text is made before any file is written."""
-    document = results_document(run)
+    (`OUTPUT_FILES` -> path); the results document. Every text is made before any file is written.
+    `earlier_recording`: the results digest of a recording this run leaves beside its results ("" unknown)."""
+    document = results_document(run, earlier_recording)
     texts = {
         "results.json": json.dumps(document, indent=1, allow_nan=False),
         "poses.tum": tum_trajectory(run.frames),
@@ -77,16 +80,49 @@ def changed_settings(config: LocalizationConfig, preset: LocalizationConfig) -> 
     return {key: value for key, value in flat(config).items() if value != defaults[key]}
 
 
-def results_document(run: Run) -> dict[str, Any]:
+def results_document(run: Run, earlier_recording: str | None = None) -> dict[str, Any]:
+    """The results of `run`. Its recording (`run.recording`): the one it wrote, or an earlier run's it left in
+    place (`--no-rrd`, `earlier_recording` its results digest), told apart by the results each shows; one
+    showing other results gets a note, every time."""
     summary = dict(run.summary())
     summary["stage_ms_median"] = stage_medians(run.frames)
+    frames = json_safe([frame_record(outcome) for outcome in run.frames])
+    digest = results_digest(frames)
+    shown = digest if run.settings.record else earlier_recording
+    if shown is not None and shown != digest:
+        recording = run.settings.out_dir(run.sequence.name) / RECORDING
+        run.notes.append(f"{recording} beside these results is an earlier run's and does not show them (--no-rrd "
+                         "leaves it as it is; run without --no-rrd to replace it)")
+    description = run_description(run) | {
+        "results_digest": digest,
+        "recording": None if shown is None else {"file": RECORDING, "results_digest": shown, "matches": shown == digest},
+    }
     return json_safe({
         "format": RESULTS_FORMAT,
         "version": RESULTS_VERSION,
-        "run": run_description(run),
+        "run": description,
         "summary": summary,
-        "frames": [frame_record(outcome) for outcome in run.frames],
+        "frames": frames,
     })
+
+
+def results_digest(frames: list[dict[str, Any]]) -> str:
+    """What a recording shows of a run, hashed: every frame's record without its timings (deterministic runs
+    of the same settings give the same digest, so an earlier recording is known to match or not)."""
+    decided = [{key: value for key, value in frame.items() if key != "timings_ms"} for frame in frames]
+    return hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def earlier_recording(out_dir: Path) -> str | None:
+    """The results digest of the recording already in `out_dir` (as its results.json records it), "" when that
+    cannot be told (no readable results.json beside it), None when there is no recording."""
+    if not (out_dir / RECORDING).is_file():
+        return None
+    try:
+        recording = read_results(out_dir / "results.json")["run"].get("recording") or {}
+    except ClipcliqueError:
+        return ""
+    return str(recording.get("results_digest") or "")
 
 
 def stage_medians(frames: list[FrameOutcome]) -> dict[str, float]:

@@ -32,7 +32,7 @@ from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from localization.results import OUTPUT_FILES, run_description, write_results
+from localization.results import OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records
@@ -241,13 +241,15 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
     `settings.out_dir(sequence name)`; the results document.
 
     The outputs appear together once the run succeeded; a failed or interrupted run leaves the
-    previous ones as they were and no folder it made empty behind. Without a recording, an earlier
-    run's recording.rrd is removed (it would show other results) and a note says so.
+    previous ones as they were and no folder it made empty behind. Without a recording (--no-rrd), an
+    earlier run's recording.rrd is left as it is: a user's file is never removed as a side effect; when it
+    shows other results, results.json and a note say so.
     """
     run = prepare(settings)
     out_dir = settings.out_dir(run.sequence.name)
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
-    recording = out_dir / "recording.rrd"
+    recording = out_dir / RECORDING
+    earlier = None if settings.record else earlier_recording(out_dir)
     try:
         writable_folder(out_dir)
         with Staging() as staging:
@@ -260,10 +262,7 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
                     execute(run, recorder, progress)
             else:
                 execute(run, None, progress)
-                if recording.is_file():
-                    staging.remove(recording)
-                    run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
-            document = write_results(run, partials)
+            document = write_results(run, partials, earlier)
             staging.commit()
         return document
     except BaseException:

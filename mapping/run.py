@@ -11,9 +11,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from clipclique.backends import load_encoder
 from clipclique.datasets import scene_name
-from clipclique.mapfile import save_map
+from clipclique.errors import ClipcliqueError
+from clipclique.mapfile import load_map, save_map
 from clipclique.outputs import Staging, map_file
 from clipclique.resolve import first_use_notice, open_scene
 from clipclique.types import Map
@@ -34,7 +37,7 @@ class Built:
     encoder_spec: str  # as asked or defaulted (auto, simulated, ...): the summary says why there is no encoder
     out: Path
     recording: Path | None  # None with rrd=False
-    stale: Path | None  # an earlier map's recording removed because this build wrote none
+    stale: Path | None  # an earlier map's recording, left in place (--no-rrd), that shows other landmarks
 
 
 def run_build(scene: str, data_root: Path | None = None, out: Path | None = None, encoder_spec: str | None = None,
@@ -62,12 +65,23 @@ def run_build(scene: str, data_root: Path | None = None, out: Path | None = None
 
             cloud = sequence.scene_cloud()
             write_map_recording(staged_recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
-        stale = recording if staged_recording is None and recording.is_file() else None
-        if stale:
-            staging.remove(stale)
+        stale = recording if staged_recording is None and recording.is_file() and not shows_map(out, map) else None
         staging.commit()
     report.timings["total"] = time.perf_counter() - started
     return Built(map, report, spec, out, recording if rrd else None, stale)
+
+
+def shows_map(earlier: Path, map: Map) -> bool:
+    """Whether the map file `earlier` (about to be replaced), and so the recording made with it, holds the
+    same landmarks as `map`; False when it cannot be read."""
+    try:
+        old = load_map(earlier)
+    except (ClipcliqueError, OSError):
+        return False
+    arrays = ("centers", "axes", "rotations")
+    return (all(np.array_equal(getattr(old.ellipsoids, a), getattr(map.ellipsoids, a)) for a in arrays)
+            and np.array_equal(old.class_ids, map.class_ids) and np.array_equal(old.instance_ids, map.instance_ids)
+            and (old.class_names, old.descriptions, old.encoder) == (map.class_names, map.descriptions, map.encoder))
 
 
 def describe(map: Map, scene: str) -> str:

@@ -35,7 +35,8 @@ def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
         where += f"\nrecording: {built.recording}  ({rerun_hint(built.recording)})"
     console.print(escape(where), highlight=False)
     if built.stale:
-        console.print(f"removed {escape(str(built.stale))}, the recording of an earlier map (--no-rrd)", highlight=False)
+        console.print(escape(f"note: {built.stale} is an earlier map's recording and does not show this map (--no-rrd "
+                             "leaves it as it is; build without --no-rrd to replace it)"), highlight=False)
 
 
 def print_annotated(console: Console, done: Annotated, sequence: str) -> None:

@@ -109,9 +109,11 @@ class Run:
     encoder: Encoder | None
     notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
+    reads_instances: bool = True  # the detector reads the frame's instance image (all but YOLO)
+    unannotated: list[str] = field(default_factory=list)  # frames left out: no instance image to detect from
 
-    def summary(self) -> dict[str, float]:
-        return summarize([outcome.evaluation for outcome in self.frames])
+    def summary(self) -> dict[str, object]:
+        return summarize([outcome.evaluation for outcome in self.frames]) | {"not_annotated": len(self.unannotated)}
 
 
 def prepare(settings: RunSettings) -> Run:
@@ -145,7 +147,7 @@ def prepare(settings: RunSettings) -> Run:
     if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
-    return Run(settings, config, sequence, map, detector, encoder, notes)
+    return Run(settings, config, sequence, map, detector, encoder, notes, reads_instances=detector_kind != "yolo")
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
@@ -227,12 +229,22 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
     selected = selected_frames(run)
     for count, i in enumerate(selected, start=1):
         frame = run.sequence[i]
+        if run.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
+            run.unannotated.append(frame.name)
+            continue
         outcome, seen = localize_frame(run, frame, index)
         run.frames.append(outcome)
         if recorder is not None:
             recorder.log_frame(frame, seen.detections, seen.observations, outcome.result, outcome.evaluation)
         if progress is not None:
             progress(count, len(selected))
+    if run.unannotated:
+        shown = ", ".join(run.unannotated[:3]) + (", ..." if len(run.unannotated) > 3 else "")
+        if not run.frames:
+            raise ClipcliqueError(f"{run.sequence.root}: none of the {len(selected)} frames selected has annotations "
+                                  f"for --detector {run.detector.name} to read (e.g. {shown})")
+        run.notes.append(f"{len(run.unannotated)} of {len(selected)} frames have no annotations for the "
+                         f"{run.detector.name} detector: left out, not counted as failures ({shown})")
     return run
 
 

@@ -102,3 +102,22 @@ def test_one_scene_has_one_map_whichever_name_is_typed(tmp_path, monkeypatch):
     ran = RUNNER.invoke(loc_app, ["run", NAME, "--data-root", str(tmp_path), "--no-rrd", "-q"])
     assert ran.exit_code == 0, ran.output  # finds the map fr2 built
     assert sorted(p.name for p in (tmp_path / "outputs" / "maps").iterdir()) == [f"{NAME}.map.npz"]
+
+
+def test_frames_without_annotations_are_left_out_and_counted_not_failed(tmp_path, monkeypatch):
+    """write_sequence annotates one of its three frames: the run scores one, and says the other two are left out."""
+    import json
+
+    from localization.cli import app as loc_app
+
+    folder = write_sequence(tmp_path)
+    rounded_depth(folder)
+    monkeypatch.chdir(tmp_path)
+    assert RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code == 0
+    ran = RUNNER.invoke(loc_app, ["run", NAME, "--data-root", str(tmp_path), "--no-rrd"])
+    assert ran.exit_code == 0, ran.output
+    assert (f"note: 2 of 3 frames have no annotations for the annotations detector: left out, not counted as failures "
+            f"({T0 + 0.1013:.6f}, {T0 + 0.3013:.6f})") in " ".join(ran.output.split())
+    document = json.loads((tmp_path / "outputs" / "loc" / NAME / "clipclique" / "results.json").read_text())
+    assert document["summary"]["frames"] == 1 and document["summary"]["not_annotated"] == 2
+    assert [frame["name"] for frame in document["frames"]] == [RGB_STAMPS[0]]

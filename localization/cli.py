@@ -79,7 +79,9 @@ def run(
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    force: Annotated[bool, typer.Option("--force", help="use a map built from another scene", rich_help_panel=INPUTS)] = False,
+    same_place: Annotated[bool, typer.Option(
+        "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
+                             "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -103,7 +105,7 @@ def run(
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, force=force)
+                           record=not no_rrd, same_place=same_place)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)

@@ -209,7 +209,7 @@ RESULTS_SCHEMA: dict[str, Any] = {
     "summary": {
         **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
                                     "success@3", "success@5", "time_ms_median", "te_mean_m", "te_p90_m", "re_mean_deg",
-                                    "re_p90_deg")},
+                                    "localized")},
         "success_within_m": {f"{t:g}": _NUMBER for t in SUCCESS_THRESHOLDS_M},
         "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
     },

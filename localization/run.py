@@ -58,7 +58,7 @@ class RunSettings:
     out: Path | None = None  # default outputs/loc/<sequence name>/<run_name()>
     record: bool = True
     seed: int = 0  # the simulated detector's
-    force: bool = False  # accept a map built from another scene
+    same_place: bool = False  # the map is of another recording of this place (else such a map is refused)
 
     def out_dir(self, sequence_name: str) -> Path:
         """`--out`, else outputs/loc/<the sequence's resolved name>/<run_name()>."""
@@ -151,14 +151,17 @@ def prepare(settings: RunSettings) -> Run:
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
-    """A map built from another scene gives poses in the wrong world: refused unless forced (then noted)."""
+    """A map of another recording: meant (`--same-place`: noted, with what its poses are) or an accident
+    (refused: poses in another place's frame would be meaningless)."""
     source = map.provenance.get("source", {}).get("name")
     if source is None or source == sequence_name:
         return
-    if not settings.force:
-        raise ClipcliqueError(f"{map_path}: a map of {source}, not of {sequence_name}; its poses would be meaningless "
-                              f"(build it with `{command('clipclique-map')} build {settings.sequence}`, or pass --force)")
-    notes.append(f"the map is of {source}, not of {sequence_name} (--force)")
+    if not settings.same_place:
+        raise ClipcliqueError(f"{map_path}: a map of {source}, not of {sequence_name}; if {sequence_name} is another "
+                              f"recording of the place {source} shows, pass --same-place; else build its own map "
+                              f"(`{command('clipclique-map')} build {settings.sequence}`)")
+    notes.append(f"the map is of {source}, another recording of this place (--same-place): poses are in its frame, "
+                 f"and {sequence_name}'s ground truth scores them only if it shares that frame")
 
 
 def choose_encoder(spec: str | None, map: Map, notes: list[str], sequence: Sequence | None = None) -> Encoder | None:

@@ -97,7 +97,9 @@ def results_caption(documents: list[dict[str, Any]]) -> str:
     thresholds = sorted({_threshold(d) for d in documents})
     within = (f"within {thresholds[0]:g} m" if len(thresholds) == 1 else
               f"within the run's success threshold ({', '.join(f'{t:g}' for t in thresholds)} m: see the marks)")
-    return (f"TE/RE: medians over frames with a pose (mean, p90: their mean and 90th percentile). Top-k [%]: frames "
+    return (f"TE/RE: medians over frames with a pose (mean, p90: their mean and 90th percentile). Posed: frames with a "
+            f"pose, scored or not; {', '.join(f'{t:g}' for t in SUCCESS_THRESHOLDS_M)}: its translation error within "
+            f"that many metres. Top-k [%]: frames "
             f"with a pose {within} among the k best (frames without one count as failures). ms: matching + inliers + "
             "pose per query.")
 
@@ -121,20 +123,21 @@ def results_table(documents: list[dict[str, Any]], titles: list[str] | None = No
 
 
 def accuracy_table(documents: list[dict[str, Any]], titles: list[str] | None = None) -> Table:
-    """The top-1 pose of each run (runs of one sequence): success within each of the project's thresholds (%,
-    frames without a pose count as failures) and the mean and 90th percentile of its errors."""
-    table = _compact("Top-1 pose: success within [%], errors")
-    thresholds = SUCCESS_THRESHOLDS_M
+    """The top-1 pose of each run (runs of one sequence): the frames that got one (%, ground truth or not), its
+    success within each of the project's thresholds (%, frames without a pose count as failures) and the mean and
+    90th percentile of its translation error, the mean of its rotation error."""
+    table = _compact("Top-1 pose [%], its errors")
     table.add_column("Method", no_wrap=True)
-    for threshold in thresholds:
-        table.add_column(f"{threshold:g} m", justify="right", no_wrap=True)
-    for column in ("TE mean", "TE p90", "RE mean", "RE p90"):
+    table.add_column("Posed", justify="right", no_wrap=True)
+    for threshold in SUCCESS_THRESHOLDS_M:
+        table.add_column(f"{threshold:g}", justify="right", no_wrap=True)
+    for column in ("TE mean", "TE p90", "RE mean"):
         table.add_column(column, justify="right", no_wrap=True)
     for document, method in zip(documents, titles or _marks(documents)[0]):
         summary = document["summary"]
-        table.add_row(escape(method), *(_number(summary["success_within_m"][f"{t:g}"], 1, 100.0) for t in thresholds),
-                      _number(summary["te_mean_m"]), _number(summary["te_p90_m"]),
-                      _number(summary["re_mean_deg"], 1), _number(summary["re_p90_deg"], 1))
+        table.add_row(escape(method), _number(summary["localized"], 1, 100.0),
+                      *(_number(summary["success_within_m"][f"{t:g}"], 1, 100.0) for t in SUCCESS_THRESHOLDS_M),
+                      _number(summary["te_mean_m"]), _number(summary["te_p90_m"]), _number(summary["re_mean_deg"], 1))
     return table
 
 

@@ -121,3 +121,36 @@ def test_frames_without_annotations_are_left_out_and_counted_not_failed(tmp_path
     document = json.loads((tmp_path / "outputs" / "loc" / NAME / "clipclique" / "results.json").read_text())
     assert document["summary"]["frames"] == 1 and document["summary"]["not_annotated"] == 2
     assert [frame["name"] for frame in document["frames"]] == [RGB_STAMPS[0]]
+
+
+def test_another_recording_of_the_same_place_is_localized_with_same_place_and_refused_without(tmp_path, monkeypatch):
+    """A second recording of the mapped place, without ground truth: --same-place localizes it against the first
+    one's map, and the table shows how many frames got a pose; without it the map is refused, naming the option."""
+    import shutil
+
+    from localization.cli import app as loc_app
+
+    folder = write_sequence(tmp_path)
+    rounded_depth(folder)
+    ids = np.zeros((480, 640), np.uint16)
+    ids[200:280, 300:330], ids[200:280, 330:350], ids[200:280, 350:380] = 4, 9, 5
+    (folder / "annotations" / "objects.csv").write_text("id,class,description\n4,monitor,\n9,cup,\n5,book,\n")
+    for stamp in RGB_STAMPS[:2]:
+        Image.fromarray(ids).save(folder / "annotations" / "instances" / f"{stamp}.png")
+    second = folder.with_name(NAME + "_second")
+    shutil.copytree(folder, second)
+    (second / "groundtruth.txt").unlink()  # recorded without motion capture
+    monkeypatch.chdir(tmp_path)
+    assert RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code == 0
+    args = ["run", second.name, "--data-root", str(tmp_path), "--map", f"outputs/maps/{NAME}.map.npz", "--no-rrd"]
+    refused = RUNNER.invoke(loc_app, args)
+    assert refused.exit_code == 2
+    assert (f"a map of {NAME}, not of {second.name}; if {second.name} is another recording of the place {NAME} shows, "
+            "pass --same-place") in " ".join(refused.output.split())
+    ran = RUNNER.invoke(loc_app, [*args, "--same-place"])
+    assert ran.exit_code == 0, ran.output
+    text = " ".join(ran.output.split())
+    assert f"note: the map is of {NAME}, another recording of this place (--same-place)" in text
+    row = next(line.split() for line in ran.output.splitlines() if line.startswith("CLIP-Clique") and "-" in line
+               and len(line.split()) == 10)
+    assert row[2] == "100.0" and row[3:7] == ["-"] * 4  # both annotated frames got a pose; nothing to score them by

@@ -51,7 +51,7 @@ def _document(method: str, success: float, simulated: bool) -> dict:
     summary = {"frames": 10.0, "precision": 0.9, "recall": 0.5, "te_median_m": None, "re_median_deg": 2.0,
                "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0,
                "success_within_m": {"0.25": None, "0.5": success, "1": success, "2": success}, "te_mean_m": None,
-               "te_p90_m": None, "re_mean_deg": 2.0, "re_p90_deg": 3.0}
+               "te_p90_m": None, "re_mean_deg": 2.0, "localized": 1.0}
     return {"run": {"sequence": "demo", "method_title": method, "notes": ["a note"],
                     "detector": {"name": "simulated", "simulated": simulated}, "encoder": None},
             "summary": summary}
@@ -192,18 +192,18 @@ def test_compare_marks_runs_that_differ_and_fits_80_columns():
     assert "(a) inliers.d_comp=0.6 matching.strategy=knn" in lines and "(b) similarity.alpha=0.0" in lines
 
 
-def test_a_map_of_another_scene_is_refused_unless_forced():
+def test_a_map_of_another_recording_is_refused_unless_said_to_be_of_the_same_place():
     from localization.run import RunSettings, check_map_source
 
     map = _map("simulated-clip", True)
     map.provenance = {"source": {"name": "demo"}}
     notes: list[str] = []
-    with pytest.raises(ClipcliqueError, match="a map of demo, not of demo_tum.*--force"):
+    with pytest.raises(ClipcliqueError, match="a map of demo, not of demo_tum; if demo_tum is another recording of the "
+                                              "place demo shows, pass --same-place"):
         check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum"), notes)
-    check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum", force=True), notes)
-    assert notes == ["the map is of demo, not of demo_tum (--force)"]
-    check_map_source(map, Path("demo.map.npz"), "demo", RunSettings("demo"), notes)  # its own scene: fine
-    assert len(notes) == 1
+    check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum", same_place=True), notes)
+    assert notes == ["the map is of demo, another recording of this place (--same-place): poses are in its frame, "
+                     "and demo_tum's ground truth scores them only if it shares that frame"]
 
 
 def test_version_short_help_and_no_developer_notes():

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from clipclique.datasets.demo import DEMO_SCENES, generate
+from clipclique.sim.demo import DEMO_SCENES, generate
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent

@@ -9,7 +9,9 @@ version wrote is still accepted (tests/unit/test_config.py holds one such config
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -189,6 +191,20 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
 }
 
 METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
+
+
+def method_key(name: str) -> str:
+    """The method `name` denotes: its key (`clipclique-paper`) or the title the tables print (`CLIP-Clique
+    (paper)`), in any case and punctuation; a ConfigError naming the nearest method otherwise."""
+    folded = {re.sub(r"[^a-z0-9]", "", spelling.lower()): key
+              for key, title in METHOD_TITLES.items() for spelling in (key, title)}
+    typed = re.sub(r"[^a-z0-9]", "", name.lower())
+    if typed in folded:
+        return folded[typed]
+    near = difflib.get_close_matches(typed, folded, n=1, cutoff=0.6)
+    hint = f"did you mean {folded[near[0]]}? " if near else ""
+    raise ConfigError(f"--method {name}: no such method; {hint}choose {', '.join(METHOD_TITLES)} "
+                      f"(or the names the tables print: {', '.join(METHOD_TITLES.values())})")
 
 
 MAX_CONFIG_BYTES = 1 << 20

@@ -35,14 +35,6 @@ def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_ver
     """clipclique-loc: localize RGB-D frames against a landmark map (CLIP-Clique and its baselines)."""
 
 
-class Method(str, Enum):
-    clipclique = "clipclique"
-    clipclique_paper = "clipclique-paper"
-    sh = "sh"
-    xview = "xview"
-    cliploc = "cliploc"
-
-
 class DetectorKind(str, Enum):
     gt = "gt"
     annotations = "annotations"
@@ -54,7 +46,9 @@ class DetectorKind(str, Enum):
 @app.command()
 def run(
     sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
-    method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
+    method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc, or the name a "
+                                             "table prints (CLIP-Clique, X-View, ...)",
+                                        rich_help_panel=ALGORITHM)] = "clipclique",
     top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters, or a run's config.json", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
@@ -97,18 +91,21 @@ def run(
     from rich.progress import Progress
 
     from clipclique.commands import rerun_hint
+    from clipclique.config import method_key
     from clipclique.exits import user_errors
     from localization.run import RunSettings, run_and_save
     from localization.tables import make_console, print_documents, print_frames
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
-    settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
+    with user_errors(TOOL):
+        method = method_key(method)
+    settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, same_place=same_place)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-        task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
+        task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
         document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
     if verbose:
         print_frames(console, document)

@@ -30,7 +30,7 @@ from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.observations import embed, extract_observations
 from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
-from clipclique.resolve import default_detector, open_scene
+from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
 from localization.results import OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 
@@ -122,8 +122,11 @@ def prepare(settings: RunSettings) -> Run:
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
     if not map_path.exists():
-        raise MapFileError(f"{map_path}: no map; build it with `{command('clipclique-map')} build {settings.sequence}` "
-                           "or pass --map PATH")
+        if settings.map_path is not None:
+            raise MapFileError(f"--map {map_path}: no such map file")
+        check_scene(settings.sequence, settings.data_root)  # a misspelt scene: its own error, not "build it"
+        raise MapFileError(f"{map_path}: no map of {settings.sequence} yet; build it with "
+                           f"`{command('clipclique-map')} build {settings.sequence}` (or pass --map PATH)")
     map = load_map(map_path)
     sequence = open_scene(settings.sequence, settings.data_root)
     notes: list[str] = []

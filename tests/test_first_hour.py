@@ -84,3 +84,28 @@ def test_the_recordings_description_lists_the_changed_settings_not_a_json_block(
     text = recording_description(prepare(RunSettings("demo", overrides=["inliers.d_comp=0.4"])))
     assert "{" not in text
     assert "- settings changed from the preset: `inliers.d_comp = 0.4`" in text.splitlines()
+
+
+def test_errors_lead_somewhere_and_read_alike_in_both_tools(in_first_use):
+    def error(app, *args: str) -> str:
+        done = RUNNER.invoke(app, list(args))
+        assert done.exit_code == 2 and "Traceback" not in done.output
+        lines = [line for line in done.output.splitlines() if line.strip()]
+        assert len(" ".join(lines)) > 0 and "Value error" not in done.output
+        return " ".join(done.output.split())
+
+    typo = error(loc_app, "run", "dmeo")
+    assert typo.startswith("clipclique-loc: error: unknown scene 'dmeo'") and typo.endswith("did you mean demo?")
+    assert "build dmeo" not in typo  # no command that would fail too
+    assert error(map_app, "build", "dmeo").startswith("clipclique-map: error: unknown scene 'dmeo'")  # one prefix
+    missing = error(loc_app, "run", "demo", "--map", "elsewhere.map.npz")
+    assert missing == "clipclique-loc: error: --map elsewhere.map.npz: no such map file"
+    method = error(loc_app, "run", "demo", "--method", "clipclque")
+    assert method.startswith("clipclique-loc: error: --method clipclque: no such method; did you mean clipclique?")
+
+
+def test_method_accepts_the_names_the_tables_print(in_first_use):
+    for typed, folder in (("CLIP-Clique", "clipclique"), ("CLIP-Clique (paper)", "clipclique-paper"), ("X-View", "xview")):
+        done = RUNNER.invoke(loc_app, ["run", "demo", "--method", typed, "-q", "--no-rrd"])
+        assert done.exit_code == 0, done.output
+        assert f"results: outputs/loc/demo/{folder}/" in done.output

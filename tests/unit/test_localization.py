@@ -67,12 +67,16 @@ def test_tables_show_the_papers_columns_and_flag_simulated_parts():
         "detector: simulated (SIMULATED)", "encoder: none", "note: a note"]
 
 
-def test_cli_help_and_missing_map(tmp_path):
+def test_cli_help_and_missing_map(tmp_path, monkeypatch):
     assert "--method" in RUNNER.invoke(app, ["run", "--help"]).output
     result = RUNNER.invoke(app, ["run", "demo", "--map", str(tmp_path / "none.map.npz"), "--out", str(tmp_path)])
     assert result.exit_code == 2
-    assert "clipclique-map build demo" in result.output
+    assert f"--map {tmp_path / 'none.map.npz'}: no such map file" in " ".join(result.output.split())
     assert not (tmp_path / "results.json").exists()
+    monkeypatch.chdir(tmp_path)  # no outputs/maps here
+    default = RUNNER.invoke(app, ["run", "demo", "--data-root", str(tmp_path), "--out", str(tmp_path)])
+    assert default.exit_code == 2 and "no map of demo yet; build it with" in " ".join(default.output.split())
+    assert "clipclique-map build demo" in default.output
     bad = RUNNER.invoke(app, ["run", "demo", "--set", "inliers.nope=1", "--map", str(tmp_path / "m.npz")])
     assert bad.exit_code == 2 and "inliers.nope" in bad.output
 

@@ -109,6 +109,7 @@ def summarize(evaluations: list[FrameEvaluation]) -> dict[str, object]:
     summary["success_within_m"] = success_within([e.translation_error for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
     summary["not_confident"] = int(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT for e in evaluations))
+    summary["failures"] = failure_counts(evaluations)
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])
     summary["te_median_m"] = float(np.median(te)) if te else math.nan
@@ -117,6 +118,15 @@ def summarize(evaluations: list[FrameEvaluation]) -> dict[str, object]:
     summary["time_ms_mean"] = _mean([1e3 * e.time_s for e in evaluations])
     summary["time_ms_median"] = float(np.median([1e3 * e.time_s for e in evaluations])) if evaluations else math.nan
     return summary
+
+
+def failure_counts(evaluations: list[FrameEvaluation]) -> dict[str, int]:
+    """Frames without a pose by why (FailureKind values), most frequent first."""
+    counts: dict[str, int] = {}
+    for e in evaluations:
+        if e.failure is not None:
+            counts[e.failure.kind.value] = counts.get(e.failure.kind.value, 0) + 1
+    return dict(sorted(counts.items(), key=lambda item: -item[1]))
 
 
 def _mean(values: list[float]) -> float:

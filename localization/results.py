@@ -1,5 +1,5 @@
-"""Results of a run on disk: results.json (summary + every frame), poses.tum, config.json; their
-writers and the reader. The run that makes them is localization.run.
+"""Results of a run on disk: results.json (summary + every frame), frames.csv (a row per frame), poses.tum,
+config.json; their writers and the reader. The run that makes them is localization.run.
 
 The files (and recording.rrd) are staged as `*.partial` and moved into place together once the
 run succeeded (clipclique.outputs), so a file that exists is whole and belongs to one run.
@@ -12,7 +12,9 @@ beside it holds the ground-truth pose of every frame that has one, on the same t
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
 import json
 import math
 from pathlib import Path
@@ -34,7 +36,7 @@ if TYPE_CHECKING:  # the runner (localization.run) writes through this module, n
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
-OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
+OUTPUT_FILES = ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json")
 RECORDING = "recording.rrd"
 
 
@@ -45,6 +47,7 @@ def write_results(run: Run, partials: dict[str, Path], earlier_recording: str | 
     document = results_document(run, earlier_recording)
     texts = {
         "results.json": json.dumps(document, indent=1, allow_nan=False),
+        "frames.csv": frames_csv(document["frames"]),
         "poses.tum": tum_trajectory(run.frames),
         "groundtruth.tum": tum_ground_truth(run.frames),
         "config.json": json.dumps(run.config.to_dict(), indent=1, allow_nan=False),
@@ -170,6 +173,34 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         },
         "timings_ms": {stage: 1e3 * outcome.timings.get(stage, 0.0) for stage in ALL_STAGES},
     }
+
+
+FRAME_COLUMNS = ("index", "timestamp", "name", "detections", "observations", "candidates", "localized",
+                 "failure_kind", "failure", "translation_error_m", "rotation_error_deg",
+                 *(f"within_{t:g}m" for t in SUCCESS_THRESHOLDS_M), "success_top1", "success_top3", "success_top5",
+                 "precision", "recall", "confidence", "query_ms", "frame_ms")
+
+
+def frames_csv(frames: list[dict[str, Any]]) -> str:
+    """frames.csv: one row per frame of results.json's `frames` (FRAME_COLUMNS), for a spreadsheet or pandas.
+    Empty cells: no value (no pose, no ground truth); booleans 0/1; within_*: the top-1 error below that many
+    metres (empty without ground truth)."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(FRAME_COLUMNS)
+    for frame in frames:
+        evaluation, success = frame["evaluation"], frame["evaluation"]["success"]
+        error = evaluation["translation_error_m"]
+        within = [None if success is None else error is not None and error < t for t in SUCCESS_THRESHOLDS_M]
+        top = frame["hypotheses"][0] if frame["hypotheses"] else {}
+        timings = frame["timings_ms"]
+        row = [frame["index"], frame["timestamp"], frame["name"], frame["detections"], frame["observations"],
+               frame["candidates"], frame["failure"] is None, frame["failure_kind"], frame["failure"], error,
+               evaluation["rotation_error_deg"], *within, *(None if success is None else success[k] for k in "135"),
+               evaluation["precision"], evaluation["recall"], top.get("confidence"),
+               sum(timings[stage] for stage in ("matching", "inliers", "pose")), sum(timings.values())]
+        writer.writerow(["" if v is None else int(v) if isinstance(v, bool) else v for v in row])
+    return text.getvalue()
 
 
 def tum_trajectory(frames: list[FrameOutcome]) -> str:

@@ -157,6 +157,16 @@ def stage_table(documents: list[dict[str, Any]], titles: list[str] | None = None
     return table
 
 
+def failure_line(document: dict[str, Any], title: str) -> str | None:
+    """Why the run's frames without a pose have none, most frequent first (results.json's summary.failures)."""
+    summary = document["summary"]
+    failures = summary.get("failures") or {}
+    if not failures:
+        return None
+    reasons = ", ".join(f"{count} {kind.replace('_', ' ')}" for kind, count in failures.items())
+    return f"{title}: {sum(failures.values())} of {summary['frames']} frames without a pose: {reasons}"
+
+
 def run_banner(document: dict[str, Any]) -> str:
     """Which detector and encoder ran, flagged when simulated, and the run's notes."""
     run = document["run"]
@@ -183,6 +193,9 @@ def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
         print_whole(console, results_table([documents[i] for i in rows], [titles[i] for i in rows]))
         print_whole(console, accuracy_table([documents[i] for i in rows], [titles[i] for i in rows]))
         print_whole(console, stage_table([documents[i] for i in rows], [titles[i] for i in rows]))
+        for i in rows:
+            if line := failure_line(documents[i], titles[i]):
+                console.print(escape(line), highlight=False, soft_wrap=not console.is_terminal)  # piped: whole
     console.print()
     for caption in (results_caption(documents), STAGE_CAPTION):
         console.print(caption, highlight=False, markup=False)  # prose: wraps at the console's width

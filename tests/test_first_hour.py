@@ -109,3 +109,27 @@ def test_method_accepts_the_names_the_tables_print(in_first_use):
         done = RUNNER.invoke(loc_app, ["run", "demo", "--method", typed, "-q", "--no-rrd"])
         assert done.exit_code == 0, done.output
         assert f"results: outputs/loc/demo/{folder}/" in done.output
+
+
+def test_a_run_writes_a_row_per_frame_and_counts_its_failures(in_first_use):
+    import csv
+    import json
+    from collections import Counter
+
+    done = RUNNER.invoke(loc_app, ["run", "demo", "--no-rrd", "--set", "inliers.min_clique_size=4"])
+    assert done.exit_code == 0, done.output
+    folder = in_first_use / "outputs" / "loc" / "demo" / "clipclique+inliers.min_clique_size=4"
+    document = json.loads((folder / "results.json").read_text())
+    with open(folder / "frames.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    assert [int(row["index"]) for row in rows] == [frame["index"] for frame in document["frames"]]
+    for row, frame in zip(rows, document["frames"]):
+        error = frame["evaluation"]["translation_error_m"]
+        assert row["translation_error_m"] == ("" if error is None else str(error))
+        assert row["within_1m"] == str(int(error is not None and error < 1.0))
+        assert row["localized"] == str(int(frame["failure"] is None)) and row["failure_kind"] == (frame["failure_kind"] or "")
+    kinds = Counter(frame["failure_kind"] for frame in document["frames"] if frame["failure_kind"])
+    assert document["summary"]["failures"] == dict(kinds) and isinstance(document["summary"]["frames"], int)
+    assert kinds, "the shortened demo has frames without a pose"  # and the console names why
+    reasons = ", ".join(f"{n} {kind.replace('_', ' ')}" for kind, n in kinds.most_common())
+    assert f"frames without a pose: {reasons}" in " ".join(done.output.split())

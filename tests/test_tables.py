@@ -24,6 +24,7 @@ def results(sequence: str, method_title: str, changed: dict, max_frames: int | N
                "success@1": 0.905, "success@3": 0.95, "success@5": 1.0, "time_ms_median": 1234.5,
                "success_within_m": {"0.25": 0.5, "0.5": 0.75, "1": 0.905, "2": 1.0}, "te_mean_m": 12.345,
                "te_p90_m": 99.99, "re_mean_deg": 123.4, "localized": 0.955,
+               "failures": {"few_observations": 100, "no_clique": 12},
                "stage_ms_median": dict.fromkeys(ALL_STAGES, 1234.5)}
     run = {"sequence": sequence, "method_title": method_title, "notes": [], "changed": changed,
            "detector": {"name": "annotations", "simulated": False}, "encoder": {"name": "simulated-clip", "simulated": True},
@@ -48,7 +49,7 @@ def check_whole(text: str) -> list[str]:
     assert "…" not in text
     lines = text.splitlines()
     assert LONGEST in lines and "rgbd_dataset_freiburg2_desk" in lines  # each on a line of its own
-    rows = [line.split() for line in lines if line.lstrip().startswith("CLIP-")]
+    rows = [line.split() for line in lines if line.startswith("CLIP-") and "without a pose" not in line]
     assert len(rows) == 12  # a results, an accuracy and a stage row per run
     for row in rows[:2] + rows[6:8]:  # results rows: frames, precision, recall, TE, RE, top-1/3/5, ms
         assert row[-9:] == ["2488", "0.88", "0.50", "12.35", "123.4", "90.5", "95.0", "100.0", "1234.5"]
@@ -67,6 +68,7 @@ def test_compare_into_a_pipe_keeps_long_names_and_numbers_whole(tmp_path):
         assert done.returncode == 0, done.stderr
         lines = check_whole(done.stdout)
         assert lines[-3:] == ["(a) inliers.d_comp=0.6", "(b) success_threshold_m=0.5", "(c) max_frames=20"]
+        assert "CLIP-Loc (c): 112 of 2488 frames without a pose: 100 few observations, 12 no clique" in lines
         assert "within the run's success threshold (0.5, 1 m: see the marks)" in " ".join(done.stdout.split())  # not "within 1 m"
 
 

@@ -51,7 +51,7 @@ def digests(folder: Path) -> dict[str, str]:
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signum):
     before = digests(demo / "loc")
-    assert set(before) == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    assert set(before) == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
     # A shell starting a job in the background (`make test &`, nohup) hands it SIGINT ignored, and
     # Python keeps an inherited SIG_IGN: the child gets the default back, as a terminal gives it.
     process = subprocess.Popen([str(LOC), *args(demo)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -71,7 +71,7 @@ def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signu
 def test_no_rrd_never_deletes_the_recording_and_says_each_time_it_shows_other_results(demo, tmp_path):
     out = tmp_path / "loc"
     out.mkdir()
-    for name in ("results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"):
+    for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"):
         (out / name).write_bytes((demo / "loc" / name).read_bytes())  # a recorded run of 3 frames
     recorded = (out / "recording.rrd").read_bytes()
 

@@ -84,7 +84,7 @@ def workspace(tmp_path_factory, demo_data) -> Workspace:
     assert built.exit_code == 0, built.output
     ran = RUNNER.invoke(loc_app, space.loc_args())
     assert ran.exit_code == 0, ran.output
-    assert {p.name for p in space.loc.iterdir()} == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    assert {p.name for p in space.loc.iterdir()} == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
     return space
 
 
@@ -510,7 +510,7 @@ def output_cases() -> list[Case]:
         args[args.index("--out") + 1] = str(case_dir / "m.map.npz")
         return map_app, args, "m.map.rrd"
 
-    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
+    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
     return cases + [Case("outputs", "out-is-a-file", out_is_file), Case("outputs", "map-out-is-a-folder", map_out_folder),
                     Case("outputs", "map-recording-is-a-folder", map_recording_folder)]
 

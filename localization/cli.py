@@ -129,14 +129,15 @@ def run(
 
 
 @app.command()
-def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
+def compare(results: Annotated[list[Path], typer.Argument(
+        help="results.json files, run folders, or folders of run folders (outputs/loc/demo)")]) -> None:
     """One table of several runs (e.g. outputs/loc/demo/*); each names the settings that set it apart."""
     from clipclique.exits import user_errors
-    from localization.results import read_results
+    from localization.results import read_results, results_files
     from localization.tables import make_console, print_documents
 
     with user_errors(TOOL):
-        documents = [read_results(p / "results.json" if p.is_dir() else p) for p in results]
+        documents = [read_results(path) for given in results for path in results_files(given)]
     print_documents(make_console(), documents)
 
 

@@ -222,6 +222,20 @@ def tum_line(timestamp: float, pose: Pose) -> str:
     return " ".join(f"{v:.6f}" for v in (timestamp, *pose.translation, *quaternion))
 
 
+def results_files(path: Path) -> list[Path]:
+    """The results.json files `path` names: itself, its folder's, or, for a folder of run folders (a sequence's
+    outputs/loc/<sequence>), each run's in name order; a folder with none is an error naming it."""
+    path = Path(path)
+    if not path.is_dir():
+        return [path]
+    if (path / "results.json").exists():
+        return [path / "results.json"]
+    runs = sorted(run / "results.json" for run in path.iterdir() if (run / "results.json").is_file())
+    if not runs:
+        raise ClipcliqueError(f"{path}: holds no results.json, nor run folders that do")
+    return runs
+
+
 def read_results(path: Path) -> dict[str, Any]:
     """A results.json, checked to hold everything the tables read."""
     document = read_json(Path(path), "results file")

@@ -181,11 +181,16 @@ def run_banner(document: dict[str, Any]) -> str:
 
 
 def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
-    """What ran (once per distinct banner); per sequence its name, the results table and the stage
-    timings; what the columns mean; what each mark changed."""
-    for banner in dict.fromkeys(run_banner(d) for d in documents):
-        console.print(escape(banner), highlight=False, soft_wrap=True)  # notes name paths: never broken
+    """What ran (once per distinct banner, under the runs it is of when there are several); per sequence its
+    name, the results, accuracy and stage tables and why frames have no pose; what the columns mean; what each
+    mark changed."""
     titles, legend = _marks(documents)
+    banners = [run_banner(d) for d in documents]
+    for banner in dict.fromkeys(banners):
+        if len(set(banners)) > 1:  # tie each to its runs
+            runs = [f"{d['run']['sequence']} {title}" for d, title, b in zip(documents, titles, banners) if b == banner]
+            console.print(escape(f"runs: {', '.join(runs)}"), highlight=False, soft_wrap=True)
+        console.print(escape(banner), highlight=False, soft_wrap=True)  # notes name paths: never broken
     for sequence in dict.fromkeys(d["run"]["sequence"] for d in documents):
         rows = [i for i, d in enumerate(documents) if d["run"]["sequence"] == sequence]
         console.print()

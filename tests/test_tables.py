@@ -79,3 +79,20 @@ def test_an_80_column_terminal_fits_the_tables_of_the_longest_names(tmp_path):
     text = console.export_text()
     lines = check_whole(text)
     assert max(len(line) for line in lines) <= 80
+
+
+def test_compare_takes_a_folder_of_runs_and_ties_each_detector_to_its_runs(tmp_path):
+    (tmp_path / "loc").mkdir()
+    paths = write_runs(tmp_path / "loc")  # loc/0 ... loc/3, each a run folder
+    document = json.loads(paths[3].read_text())
+    document["run"]["detector"] = {"name": "yolo:yolov8x-seg.pt", "simulated": False}
+    paths[3].write_text(json.dumps(document))
+    done = subprocess.run([str(LOC), "compare", str(tmp_path / "loc")], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    lines = check_whole(done.stdout)
+    assert lines[:6] == [f"runs: {LONGEST} CLIP-Clique, {LONGEST} CLIP-Clique (paper) (a), "
+                         "rgbd_dataset_freiburg2_desk CLIP-Loc (b)", "detector: annotations",
+                         "encoder: simulated-clip (SIMULATED)", "runs: rgbd_dataset_freiburg2_desk CLIP-Loc (c)",
+                         "detector: yolo:yolov8x-seg.pt", "encoder: simulated-clip (SIMULATED)"]
+    empty = subprocess.run([str(LOC), "compare", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert empty.returncode == 2 and f"{tmp_path}: holds no results.json, nor run folders that do" in empty.stderr

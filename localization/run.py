@@ -9,7 +9,6 @@ Which detector and encoder ran, and whether they are simulated, travels with the
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import re
 import time

@@ -30,7 +30,7 @@ from clipclique.errors import DatasetError
 
 
 @dataclass
-class Annotated:
+class AnnotationReport:
     """What `annotate` wrote."""
 
     folder: Path  # the sequence's annotations/
@@ -40,7 +40,7 @@ class Annotated:
     unseen: list[int]  # ids of the table that no mask shows
 
 
-def annotate(sequence: TumSequence, masks: Path, table: Path) -> Annotated:
+def annotate(sequence: TumSequence, masks: Path, table: Path) -> AnnotationReport:
     """Check every mask in `masks` against `sequence` and the ids of `table`, then write the annotations."""
     target = sequence.root / "annotations"
     if target.exists():
@@ -76,7 +76,7 @@ def annotate(sequence: TumSequence, masks: Path, table: Path) -> Annotated:
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     without_pose = [sequence.frame_name(i) for i in frames if sequence.poses[i] is None]
-    return Annotated(target, len(files), without_pose, len(objects), sorted(set(objects) - seen))
+    return AnnotationReport(target, len(files), without_pose, len(objects), sorted(set(objects) - seen))
 
 
 def frames_of(sequence: TumSequence, files: list[Path]) -> list[int]:

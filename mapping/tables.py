@@ -15,7 +15,7 @@ from clipclique.config import GraphConfig
 from clipclique.datasets.tum import MAX_TIME_DIFF
 from clipclique.types import Map
 from mapping.build import BuildReport, degree_histogram
-from mapping.annotate import Annotated
+from mapping.annotate import AnnotationReport
 from mapping.run import Built
 
 
@@ -39,7 +39,7 @@ def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
                              "leaves it as it is; build without --no-rrd to replace it)"), highlight=False)
 
 
-def print_annotated(console: Console, done: Annotated, sequence: str) -> None:
+def print_annotated(console: Console, done: AnnotationReport, sequence: str) -> None:
     """What `clipclique-map annotate` wrote, which annotations the map cannot use, and the next command."""
     console.print(escape(f"annotations: {done.folder}/ ({done.frames} frames, {done.objects} objects)"), highlight=False)
     if done.without_pose:

@@ -405,7 +405,7 @@ def test_crowded_detection_labels_show_on_hover_only():
 
 
 
-def test_the_localization_layout_hides_the_semantic_graph(loc_rrd):
+def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_entities):
     """A dense map's graph (the desk's: hundreds of edges) buries the matches: the 3D view opens without it."""
     overrides = {path: columns for path, (_, columns) in recorded_entities(loc_rrd).items() if "/overrides/" in path}
     assert [columns for path, columns in overrides.items() if "/overrides/world/map/graph" in path] == [

@@ -15,7 +15,7 @@ import pytest
 
 from clipclique.sim.demo import DEMO_SCENES, generate
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 MODEL_MODULES = ("torch", "torchvision", "open_clip", "ultralytics", "cv2")
 BLOCKER = f"""import importlib.abc, sys

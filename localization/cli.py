@@ -8,6 +8,7 @@ Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help
 from __future__ import annotations
 
 import os
+import sys
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional

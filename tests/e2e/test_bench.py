@@ -240,7 +240,7 @@ def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkey
 
 
 def test_bench_loc_user_mistakes_are_one_line(tmp_path):
-    for args, expected in ((["nosuch"], "no map"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
+    for args, expected in ((["nosuch"], "unknown scene 'nosuch'"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
         done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr

@@ -4,13 +4,16 @@
 #   make test-fast   the unit tests only (tests/unit, no model weights): the quick loop while editing
 # and one regenerates every figure the repository commits:
 #   make docs   make demo, the benchmark into docs/benchmark/ and the README's figures, docs/*.png
-# Both create .venv and install the project with its models extra and the system
-# libraries it needs (open3d: libusb; headless screenshots: Mesa's Vulkan driver).
+# Each creates .venv with what it needs and the system libraries (open3d: libusb; headless
+# screenshots: Mesa's Vulkan driver): the demo runs only simulated parts, so `make demo` installs
+# the core alone (no torch: PyPI's Linux torch carries ~15 CUDA libraries, GPU or not); `make test`,
+# `make bench` and `make docs` add the models extra (torch, open_clip, ultralytics) and pytest.
 
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+CORE   := $(VENV)/.installed-core
 STAMP  := $(VENV)/.installed
 APT_PACKAGES := libusb-1.0-0 libgomp1 mesa-vulkan-drivers
 
@@ -32,16 +35,20 @@ sysdeps:
 	  else echo "warning: install these system packages yourself:$$missing"; fi; \
 	fi
 
-$(STAMP): pyproject.toml
+$(CORE): pyproject.toml
 	$(MAKE) sysdeps
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e .
+	touch $(CORE)
+
+$(STAMP): $(CORE)
 	# torch first, pinned to a build whose torchvision imports beside it
 	$(PY) -m pip install -q torch==2.14.1 torchvision==0.29.1
 	$(PY) -m pip install -q -e '.[models,dev]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+demo: $(CORE)
 	$(PY) tools/demo.py
 
 test: $(STAMP)
@@ -53,8 +60,9 @@ test-fast: $(STAMP)
 bench: $(STAMP)
 	$(PY) tools/bench.py
 
-docs: demo
+docs: $(STAMP) demo
 	$(PY) tools/bench.py --docs
+	$(PY) tools/scene_stats.py demo_apartment demo_desk --readme README.md
 	$(PY) tools/screenshot.py outputs/maps/demo.map.rrd docs/map_recording.png
 	$(PY) tools/screenshot.py outputs/loc/demo/clipclique/recording.rrd docs/localization_recording.png --frame 102
 

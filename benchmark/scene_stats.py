@@ -2,6 +2,7 @@
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
+    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk --readme README.md   (what `make docs` runs)
 
 Everything goes through the project's own code: the map from `mapping.build.build_map`, the frames
 from the dataset reader, the detections from `clipclique.backends`, the observed ellipsoids from
@@ -30,10 +31,12 @@ from clipclique.graph import semantic_graph
 from clipclique.observations import ObservationParams, extract_observations
 from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Detections, Frame, Map
+from benchmark.report import update_readme
 from mapping.build import build_map
 
 NEAR_M = 3.5  # "objects in view within 3.5 m" (REAL_SCENES.md, desk)
 FAR_OFFSET_M = 0.3  # d_comp: offsets beyond it fail the rigid distance test
+DETECTOR_FAULTS = ("miss_rate", "false_positive_share", "confusion_share")  # rows that are 0 for ground truth
 
 # REAL_SCENES.md's figures, by the scene layout they describe; None where the real data has none.
 REAL = {
@@ -181,22 +184,37 @@ def rows(stats: SceneStats, frames: int) -> list[tuple[str, str, str]]:
     ]
 
 
+def markdown_table(scene: str, detector: str | None = None, frames: int | None = None,
+                   data_root: Path | None = None) -> str:
+    """The statistics of `scene` beside the real scan's, as a Markdown table (the detector's fault rows only
+    when a detector other than ground truth ran)."""
+    sequence = open_scene(scene, data_root)
+    stats = measure(sequence, detector, frames)
+    real = REAL[sequence.kind]
+    title = "ScanNet apartment" if sequence.kind == "scannet" else "TUM fr2/desk map"
+    lines = [f"| {scene}: statistic | measured | real {title} (REAL_SCENES.md) |", "|---|---|---|"]
+    for key, label, value in rows(stats, len(stats.observations)):
+        if key not in DETECTOR_FAULTS or stats.detector != "ground-truth":
+            lines.append(f"| {label} | {value} | {real[key] or '-'} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scene", help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
+    parser.add_argument("scenes", nargs="+", help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
     parser.add_argument("--detector", help="detector whose faults are measured [default: the scene's]")
     parser.add_argument("--frames", type=int, help="frames spread over the sequence [default: all]")
     parser.add_argument("--data-root", type=Path)
+    parser.add_argument("--readme", type=Path, help="write each table into this file's region "
+                        "`<!-- figures:scene_stats_SCENE -->` instead of printing it")
     args = parser.parse_args(argv)
-    sequence = open_scene(args.scene, args.data_root)
-    stats = measure(sequence, args.detector, args.frames)
-    frames = len(stats.observations)
-    real = REAL[sequence.kind]
-    title = "ScanNet apartment" if sequence.kind == "scannet" else "TUM fr2/desk map"
-    print(f"| {args.scene}: statistic | measured | real {title} (REAL_SCENES.md) |")
-    print("|---|---|---|")
-    for key, label, value in rows(stats, frames):
-        print(f"| {label} | {value} | {real[key] or '-'} |")
+    tables = {f"scene_stats_{scene}": markdown_table(scene, args.detector, args.frames, args.data_root)
+              for scene in args.scenes}
+    if args.readme is None:
+        print("\n".join(tables.values()), end="")
+    else:
+        args.readme.write_text(update_readme(args.readme.read_text(), tables))
+        print(f"{', '.join(args.scenes)}: statistics regenerated in {args.readme}")
     return 0
 
 

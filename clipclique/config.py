@@ -9,7 +9,9 @@ version wrote is still accepted (tests/unit/test_config.py holds one such config
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -195,6 +197,20 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
 METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
 
 
+def method_key(name: str) -> str:
+    """The method `name` denotes: its key (`clipclique-paper`) or the title the tables print (`CLIP-Clique
+    (paper)`), in any case and punctuation; a ConfigError naming the nearest method otherwise."""
+    folded = {re.sub(r"[^a-z0-9]", "", spelling.lower()): key
+              for key, title in METHOD_TITLES.items() for spelling in (key, title)}
+    typed = re.sub(r"[^a-z0-9]", "", name.lower())
+    if typed in folded:
+        return folded[typed]
+    near = difflib.get_close_matches(typed, folded, n=1, cutoff=0.6)
+    hint = f"did you mean {folded[near[0]]}? " if near else ""
+    raise ConfigError(f"--method {name}: no such method; {hint}choose {', '.join(METHOD_TITLES)} "
+                      f"(or the names the tables print: {', '.join(METHOD_TITLES.values())})")
+
+
 MAX_CONFIG_BYTES = 1 << 20
 
 
@@ -215,6 +231,15 @@ def make_config(
             overrides = parse_assignments(overrides)
         apply_overrides(config, overrides, source="command line")
     return config
+
+
+def changed_by_overrides(method: str, file: Path | None, overrides: list[str]) -> dict[str, Any]:
+    """The settings `overrides` change over the method's preset and the file, by dotted key in the order given,
+    with their final values: `inliers.d_comp = 0.4` and `inliers.d_comp=0.40` are one change, and one that
+    repeats the value already set is none (what names a run's folder)."""
+    before = flat(make_config(method, file))
+    after = flat(make_config(method, file, overrides))
+    return {key: after[key] for key in parse_assignments(overrides) if after[key] != before[key]}
 
 
 def load_file(path: Path) -> dict[str, Any]:

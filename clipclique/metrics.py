@@ -21,6 +21,10 @@ from clipclique.pipeline import LocalizationResult
 from clipclique.types import Map, Observations, Pose
 
 TOP_K = (1, 3, 5)
+# The project's success thresholds (metres of top-1 translation error), the one definition every summary,
+# table and benchmark reports "success within" by; the paper's Top-k uses config.success_threshold_m (1 m).
+SUCCESS_THRESHOLDS_M = (0.25, 0.5, 1.0, 2.0)
+ERROR_PERCENTILES = (75, 90, 95)  # beside the median (te_median_m, re_median_deg), the paper's column
 
 
 @dataclass(kw_only=True)
@@ -79,24 +83,52 @@ def evaluate_frame(
     )
 
 
-def summarize(evaluations: list[FrameEvaluation]) -> dict[str, float]:
+def success_within(errors: list[float | None], thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS_M) -> dict[str, float]:
+    """Per threshold (keyed `"0.25"`, `"1"`, ...), the fraction of `errors` (one per frame with ground truth; None:
+    no pose, a failure) below it; NaN without frames."""
+    return {f"{t:g}": _mean([float(e is not None and e < t) for e in errors]) for t in thresholds}
+
+
+def error_statistics(values: list[float], name: str, unit: str) -> dict[str, float]:
+    """The mean and ERROR_PERCENTILES of `values`, keyed `<name>_mean_<unit>`, `<name>_p90_<unit>`, ...; NaN
+    without values."""
+    statistics = {f"{name}_mean_{unit}": _mean(values)}
+    for p in ERROR_PERCENTILES:
+        statistics[f"{name}_p{p}_{unit}"] = float(np.percentile(values, p)) if values else math.nan
+    return statistics
+
+
+def summarize(evaluations: list[FrameEvaluation]) -> dict[str, object]:
     """The paper's columns over frames: success@1/3/5 (fractions), precision, recall, median TE (m)
-    and RE (deg), time per query (ms), and the frames left without a pose by `min_confidence`.
-    A column with no frame to average over is NaN."""
+    and RE (deg), time per query (ms), and the frames left without a pose by `min_confidence`; beside them
+    top-1 success within each of SUCCESS_THRESHOLDS_M (`success_within_m`) and the mean and percentiles of
+    TE and RE. A column with no frame to average over is NaN."""
     te = [e.translation_error for e in evaluations if e.translation_error is not None]
     re = [e.rotation_error for e in evaluations if e.rotation_error is not None]
-    summary = {"frames": float(len(evaluations))}
+    summary: dict[str, object] = {"frames": len(evaluations)}
     for k in TOP_K:
         summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations if e.has_ground_truth])
+    summary["success_within_m"] = success_within([e.translation_error for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
-    summary["not_confident"] = float(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT for e in evaluations))
+    summary["not_confident"] = int(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT for e in evaluations))
+    summary["failures"] = failure_counts(evaluations)
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])
     summary["te_median_m"] = float(np.median(te)) if te else math.nan
     summary["re_median_deg"] = float(np.degrees(np.median(re))) if re else math.nan
+    summary |= error_statistics(te, "te", "m") | error_statistics([math.degrees(r) for r in re], "re", "deg")
     summary["time_ms_mean"] = _mean([1e3 * e.time_s for e in evaluations])
     summary["time_ms_median"] = float(np.median([1e3 * e.time_s for e in evaluations])) if evaluations else math.nan
     return summary
+
+
+def failure_counts(evaluations: list[FrameEvaluation]) -> dict[str, int]:
+    """Frames without a pose by why (FailureKind values), most frequent first."""
+    counts: dict[str, int] = {}
+    for e in evaluations:
+        if e.failure is not None:
+            counts[e.failure.kind.value] = counts.get(e.failure.kind.value, 0) + 1
+    return dict(sorted(counts.items(), key=lambda item: -item[1]))
 
 
 def _mean(values: list[float]) -> float:

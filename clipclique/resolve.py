@@ -6,11 +6,13 @@ opened as the ordinary dataset folder it is; every other name goes to the datase
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Callable
 from pathlib import Path
 
 from clipclique import sim
-from clipclique.datasets import Sequence, open_folder, open_sequence, resolve_data_root
+from clipclique.datasets import TUM_SHORT_NAMES, Sequence, open_folder, open_sequence, resolve_data_root
+from clipclique.errors import DatasetError, one_line
 
 
 def open_scene(name: str, data_root: Path | None = None,
@@ -19,7 +21,36 @@ def open_scene(name: str, data_root: Path | None = None,
     generating a generated scene under `<data_root>/demo/` on first use (`progress` per frame)."""
     if name in sim.DEMO_SCENES:
         return open_folder(sim.ensure_scene(name, resolve_data_root(data_root), progress))
-    return open_sequence(name, data_root)
+    try:
+        return open_sequence(name, data_root)
+    except DatasetError as error:
+        if (near := nearest_scene(name, data_root)) is None:
+            raise
+        raise DatasetError(f"{one_line(error)}; did you mean {near}?") from None
+
+
+def check_scene(name: str, data_root: Path | None = None) -> None:
+    """Refuse a name that names no scene (with the nearest one that does), generating nothing."""
+    if name not in sim.DEMO_SCENES:
+        open_scene(name, data_root)
+
+
+def nearest_scene(name: str, data_root: Path | None = None) -> str | None:
+    """For a name that is no scene here (not generated, not a short or dataset name whose folder exists, not a
+    path), the nearest one that is; None otherwise, and when none is near."""
+    root = resolve_data_root(data_root)
+    folders = [folder.name for parent in (root / "tum", root / "scannet" / "scans") if parent.is_dir()
+               for folder in parent.iterdir() if folder.is_dir()]
+    known = [*sim.DEMO_SCENES, *TUM_SHORT_NAMES, *folders]
+    if name in known or "/" in name or Path(name).exists():
+        return None
+    near = difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+    return near[0] if near else None
+
+
+def first_use_notice(name: str, data_root: Path | None = None) -> str | None:
+    """The line to say before `open_scene` generates the scene `name` (tens of seconds); None when it will not."""
+    return sim.first_use_notice(name, resolve_data_root(data_root))
 
 
 def default_detector(sequence: Sequence) -> str:

@@ -8,7 +8,7 @@ Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help
 from __future__ import annotations
 
 import os
-from enum import Enum
+import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -35,18 +35,14 @@ def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_ver
     """clipclique-loc: localize RGB-D frames against a landmark map (CLIP-Clique and its baselines)."""
 
 
-class Method(str, Enum):
-    clipclique = "clipclique"
-    clipclique_paper = "clipclique-paper"
-    sh = "sh"
-    xview = "xview"
-    cliploc = "cliploc"
 
 
 @app.command()
 def run(
     sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
-    method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline", rich_help_panel=ALGORITHM)] = Method.clipclique,
+    method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc, or the name a "
+                                             "table prints (CLIP-Clique, X-View, ...)",
+                                        rich_help_panel=ALGORITHM)] = "clipclique",
     top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters, or a run's config.json", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
@@ -74,7 +70,9 @@ def run(
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    force: Annotated[bool, typer.Option("--force", help="use a map built from another scene", rich_help_panel=INPUTS)] = False,
+    same_place: Annotated[bool, typer.Option(
+        "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
+                             "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -90,18 +88,21 @@ def run(
     from rich.progress import Progress
 
     from clipclique.commands import rerun_hint
+    from clipclique.config import method_key
     from clipclique.exits import user_errors
     from localization.run import RunSettings, run_and_save
     from localization.tables import make_console, print_documents, print_frames
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
-    settings = RunSettings(sequence, method.value, config, overrides, map_path, data_root,
+    with user_errors(TOOL):
+        method = method_key(method)
+    settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, force=force, min_score=min_score or 0.0)
+                           record=not no_rrd, same_place=same_place, min_score=min_score or 0.0)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-        task = progress.add_task(escape(f"{sequence} / {method.value}"), total=None)
+        task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
         document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
     if verbose:
         print_frames(console, document)
@@ -111,23 +112,29 @@ def run(
         summary = document["summary"]
         console.print(f"not localized (no pose with confidence >= {min_confidence:g}): "
                       f"{int(summary['not_confident'])} of {int(summary['frames'])} frames")
-    out_dir = escape(str(settings.out_dir(document["run"]["sequence"])))
-    console.print(f"results: {out_dir}/ (results.json, poses.tum, groundtruth.tum, config.json)", highlight=False,
-                  soft_wrap=True)
-    if settings.record:
-        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir(document['run']['sequence']) / 'recording.rrd'))})", highlight=False,
-                      soft_wrap=True)
+    folder = settings.out_dir(document["run"]["sequence"])
+    console.print(f"results: {escape(str(folder))}/ (results.json, frames.csv, poses.tum, groundtruth.tum, config.json)",
+                  highlight=False, soft_wrap=True)
+    recording = document["run"]["recording"]
+    if recording is not None and recording["matches"]:
+        earlier = "" if settings.record else ", an earlier run's with the same results"
+        console.print(escape(f"recording: {folder / recording['file']} ({rerun_hint(folder / recording['file'])}{earlier})"),
+                      highlight=False, soft_wrap=True)
+    elif recording is not None and quiet:  # the notes above say it; under -q, this does (every time)
+        print(f"clipclique-loc: warning: {folder / recording['file']} is an earlier run's and does not show these "
+              "results (run without --no-rrd to replace it)", file=sys.stderr)
 
 
 @app.command()
-def compare(results: Annotated[list[Path], typer.Argument(help="results.json files or their folders")]) -> None:
+def compare(results: Annotated[list[Path], typer.Argument(
+        help="results.json files, run folders, or folders of run folders (outputs/loc/demo)")]) -> None:
     """One table of several runs (e.g. outputs/loc/demo/*); each names the settings that set it apart."""
     from clipclique.exits import user_errors
-    from localization.results import read_results
+    from localization.results import read_results, results_files
     from localization.tables import make_console, print_documents
 
     with user_errors(TOOL):
-        documents = [read_results(p / "results.json" if p.is_dir() else p) for p in results]
+        documents = [read_results(path) for given in results for path in results_files(given)]
     print_documents(make_console(), documents)
 
 

@@ -1,5 +1,5 @@
-"""Results of a run on disk: results.json (summary + every frame), poses.tum, config.json; their
-writers and the reader. The run that makes them is localization.run.
+"""Results of a run on disk: results.json (summary + every frame), frames.csv (a row per frame), poses.tum,
+config.json; their writers and the reader. The run that makes them is localization.run.
 
 The files (and recording.rrd) are staged as `*.partial` and moved into place together once the
 run succeeded (clipclique.outputs), so a file that exists is whole and belongs to one run.
@@ -12,6 +12,9 @@ beside it holds the ground-truth pose of every frame that has one, on the same t
 
 from __future__ import annotations
 
+import csv
+import hashlib
+import io
 import json
 import math
 from pathlib import Path
@@ -23,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import ALL_STAGES
 from clipclique.safeio import read_json
 from clipclique.types import Pose
@@ -32,18 +36,21 @@ if TYPE_CHECKING:  # the runner (localization.run) writes through this module, n
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
-OUTPUT_FILES = ("results.json", "poses.tum", "groundtruth.tum", "config.json")
+OUTPUT_FILES = ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json")
+RECORDING = "recording.rrd"
 # --detector yolo also writes what it detected (COCO results, RLE masks, and their image list):
 # `--detector file:<run>/detections.json` reruns it without GPU or weights.
 DETECTIONS_FILE, IMAGES_FILE = "detections.json", "images.json"
 
 
-def write_results(run: Run, partials: dict[str, Path]) -> dict[str, Any]:
+def write_results(run: Run, partials: dict[str, Path], earlier_recording: str | None = None) -> dict[str, Any]:
     """Write results.json, poses.tum, groundtruth.tum and config.json to their staged paths
-    (`OUTPUT_FILES` -> path); the results document. Every text is made before any file is written."""
-    document = results_document(run)
+    (`OUTPUT_FILES` -> path); the results document. Every text is made before any file is written.
+    `earlier_recording`: the results digest of a recording this run leaves beside its results ("" unknown)."""
+    document = results_document(run, earlier_recording)
     texts = {
         "results.json": json.dumps(document, indent=1, allow_nan=False),
+        "frames.csv": frames_csv(document["frames"]),
         "poses.tum": tum_trajectory(run.frames),
         "groundtruth.tum": tum_ground_truth(run.frames),
         "config.json": json.dumps(run.config.to_dict(), indent=1, allow_nan=False),
@@ -79,16 +86,49 @@ def changed_settings(config: LocalizationConfig, preset: LocalizationConfig) -> 
     return {key: value for key, value in flat(config).items() if value != defaults[key]}
 
 
-def results_document(run: Run) -> dict[str, Any]:
+def results_document(run: Run, earlier_recording: str | None = None) -> dict[str, Any]:
+    """The results of `run`. Its recording (`run.recording`): the one it wrote, or an earlier run's it left in
+    place (`--no-rrd`, `earlier_recording` its results digest), told apart by the results each shows; one
+    showing other results gets a note, every time."""
     summary = dict(run.summary())
     summary["stage_ms_median"] = stage_medians(run.frames)
+    frames = json_safe([frame_record(outcome) for outcome in run.frames])
+    digest = results_digest(frames)
+    shown = digest if run.settings.record else earlier_recording
+    if shown is not None and shown != digest:
+        recording = run.settings.out_dir(run.sequence.name) / RECORDING
+        run.notes.append(f"{recording} beside these results is an earlier run's and does not show them (--no-rrd "
+                         "leaves it as it is; run without --no-rrd to replace it)")
+    description = run_description(run) | {
+        "results_digest": digest,
+        "recording": None if shown is None else {"file": RECORDING, "results_digest": shown, "matches": shown == digest},
+    }
     return json_safe({
         "format": RESULTS_FORMAT,
         "version": RESULTS_VERSION,
-        "run": run_description(run),
+        "run": description,
         "summary": summary,
-        "frames": [frame_record(outcome) for outcome in run.frames],
+        "frames": frames,
     })
+
+
+def results_digest(frames: list[dict[str, Any]]) -> str:
+    """What a recording shows of a run, hashed: every frame's record without its timings (deterministic runs
+    of the same settings give the same digest, so an earlier recording is known to match or not)."""
+    decided = [{key: value for key, value in frame.items() if key != "timings_ms"} for frame in frames]
+    return hashlib.sha256(json.dumps(decided, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def earlier_recording(out_dir: Path) -> str | None:
+    """The results digest of the recording already in `out_dir` (as its results.json records it), "" when that
+    cannot be told (no readable results.json beside it), None when there is no recording."""
+    if not (out_dir / RECORDING).is_file():
+        return None
+    try:
+        recording = read_results(out_dir / "results.json")["run"].get("recording") or {}
+    except ClipcliqueError:
+        return ""
+    return str(recording.get("results_digest") or "")
 
 
 def stage_medians(frames: list[FrameOutcome]) -> dict[str, float]:
@@ -138,6 +178,34 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
     }
 
 
+FRAME_COLUMNS = ("index", "timestamp", "name", "detections", "observations", "candidates", "localized",
+                 "failure_kind", "failure", "translation_error_m", "rotation_error_deg",
+                 *(f"within_{t:g}m" for t in SUCCESS_THRESHOLDS_M), "success_top1", "success_top3", "success_top5",
+                 "precision", "recall", "confidence", "query_ms", "frame_ms")
+
+
+def frames_csv(frames: list[dict[str, Any]]) -> str:
+    """frames.csv: one row per frame of results.json's `frames` (FRAME_COLUMNS), for a spreadsheet or pandas.
+    Empty cells: no value (no pose, no ground truth); booleans 0/1; within_*: the top-1 error below that many
+    metres (empty without ground truth)."""
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(FRAME_COLUMNS)
+    for frame in frames:
+        evaluation, success = frame["evaluation"], frame["evaluation"]["success"]
+        error = evaluation["translation_error_m"]
+        within = [None if success is None else error is not None and error < t for t in SUCCESS_THRESHOLDS_M]
+        top = frame["hypotheses"][0] if frame["hypotheses"] else {}
+        timings = frame["timings_ms"]
+        row = [frame["index"], frame["timestamp"], frame["name"], frame["detections"], frame["observations"],
+               frame["candidates"], frame["failure"] is None, frame["failure_kind"], frame["failure"], error,
+               evaluation["rotation_error_deg"], *within, *(None if success is None else success[k] for k in "135"),
+               evaluation["precision"], evaluation["recall"], top.get("confidence"),
+               sum(timings[stage] for stage in ("matching", "inliers", "pose")), sum(timings.values())]
+        writer.writerow(["" if v is None else int(v) if isinstance(v, bool) else v for v in row])
+    return text.getvalue()
+
+
 def tum_trajectory(frames: list[FrameOutcome]) -> str:
     lines = ["# timestamp tx ty tz qx qy qz qw (top-1 camera-to-world pose; frames without a pose omitted)"]
     for outcome in frames:
@@ -157,6 +225,20 @@ def tum_line(timestamp: float, pose: Pose) -> str:
     return " ".join(f"{v:.6f}" for v in (timestamp, *pose.translation, *quaternion))
 
 
+def results_files(path: Path) -> list[Path]:
+    """The results.json files `path` names: itself, its folder's, or, for a folder of run folders (a sequence's
+    outputs/loc/<sequence>), each run's in name order; a folder with none is an error naming it."""
+    path = Path(path)
+    if not path.is_dir():
+        return [path]
+    if (path / "results.json").exists():
+        return [path / "results.json"]
+    runs = sorted(run / "results.json" for run in path.iterdir() if (run / "results.json").is_file())
+    if not runs:
+        raise ClipcliqueError(f"{path}: holds no results.json, nor run folders that do")
+    return runs
+
+
 def read_results(path: Path) -> dict[str, Any]:
     """A results.json, checked to hold everything the tables read."""
     document = read_json(Path(path), "results file")
@@ -174,7 +256,9 @@ RESULTS_SCHEMA: dict[str, Any] = {
     "run": {"sequence": str, "method_title": str, "detector": _NAMED, "encoder": (_NAMED, type(None)), "notes": [str]},
     "summary": {
         **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
-                                    "success@3", "success@5", "time_ms_median")},
+                                    "success@3", "success@5", "time_ms_median", "te_mean_m", "te_p90_m", "re_mean_deg",
+                                    "localized")},
+        "success_within_m": {f"{t:g}": _NUMBER for t in SUCCESS_THRESHOLDS_M},
         "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
     },
 }

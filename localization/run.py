@@ -9,7 +9,6 @@ Which detector and encoder ran, and whether they are simulated, travels with the
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import re
 import time
@@ -19,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from clipclique.commands import command
-from clipclique.config import LocalizationConfig, make_config
+from clipclique.config import LocalizationConfig, changed_by_overrides, make_config
 from clipclique.backends import load_encoder, make_detector
 from clipclique.datasets import Sequence, scene_name
 from clipclique.detectors import Detector
@@ -30,9 +29,9 @@ from clipclique.metrics import FrameEvaluation, evaluate_frame, summarize
 from clipclique.observations import embed, extract_observations
 from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
-from clipclique.resolve import default_detector, open_scene
+from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Frame, Map, Observations, Pose
-from localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, run_description, write_results
+from localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder
 from clipclique.yolo import YoloDetector
@@ -61,7 +60,7 @@ class RunSettings:
     out: Path | None = None  # default outputs/loc/<sequence name>/<run_name()>
     record: bool = True
     seed: int = 0  # the simulated detector's
-    force: bool = False  # accept a map built from another scene
+    same_place: bool = False  # the map is of another recording of this place (else such a map is refused)
     min_score: float = 0.0  # detections scoring lower are dropped (file: and yolo detectors)
 
     def out_dir(self, sequence_name: str) -> Path:
@@ -69,13 +68,15 @@ class RunSettings:
         return self.out or LOC_DIR / sequence_name / self.run_name()
 
     def run_name(self) -> str:
-        """The method, then every setting given that changes the results (`clipclique+inliers.d_comp=0.4`):
-        two ablations never share a folder, and the same command again replaces its own (identical) results."""
+        """The method, then every setting given that changes the results (`clipclique+inliers.d_comp=0.4`, however
+        the --set was spelled; one repeating the preset's value is left out): two ablations never share a folder,
+        and the same command again replaces its own (identical) results."""
         parts = [self.method]
         if self.config_file is not None:  # the file's content, not just its name, decides the results
             content = self.config_file.read_bytes() if self.config_file.is_file() else b""
             parts.append(f"{self.config_file.stem}-{hashlib.sha1(content).hexdigest()[:6]}")
-        parts += self.overrides
+        parts += [f"{key}={value}" for key, value in
+                  changed_by_overrides(self.method, self.config_file, self.overrides).items()]
         given = {"map": self.map_path and self.map_path.name.removesuffix(".map.npz"), "detector": self.detector,
                  "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
@@ -111,11 +112,12 @@ class Run:
     encoder: Encoder | None
     notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
+    reads_instances: bool = True  # the detector reads the frame's instance image (not YOLO, not a detection file)
+    unannotated: list[str] = field(default_factory=list)  # frames left out: no instance image to detect from
     detections_file: CocoRecorder | None = None  # a model's detections, kept to be written as COCO results
 
-
-    def summary(self) -> dict[str, float]:
-        return summarize([outcome.evaluation for outcome in self.frames])
+    def summary(self) -> dict[str, object]:
+        return summarize([outcome.evaluation for outcome in self.frames]) | {"not_annotated": len(self.unannotated)}
 
 
 def prepare(settings: RunSettings) -> Run:
@@ -124,12 +126,17 @@ def prepare(settings: RunSettings) -> Run:
     config = make_config(settings.method, settings.config_file, settings.overrides)
     map_path = settings.resolved_map_path()
     if not map_path.exists():
-        raise MapFileError(f"{map_path}: no map; build it with `{command('clipclique-map')} build {settings.sequence}` "
-                           "or pass --map PATH")
+        if settings.map_path is not None:
+            raise MapFileError(f"--map {map_path}: no such map file")
+        check_scene(settings.sequence, settings.data_root)  # a misspelt scene: its own error, not "build it"
+        raise MapFileError(f"{map_path}: no map of {settings.sequence} yet; build it with "
+                           f"`{command('clipclique-map')} build {settings.sequence}` (or pass --map PATH)")
     map = load_map(map_path)
     sequence = open_scene(settings.sequence, settings.data_root)
     notes: list[str] = []
     check_map_source(map, map_path, sequence.name, settings, notes)
+    if gap := sequence.missing_poses():
+        notes.append(f"{gap}; those frames cannot be scored")
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed, settings.min_score)
@@ -150,18 +157,23 @@ def prepare(settings: RunSettings) -> Run:
     recorder = None
     if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
-    return Run(settings, config, sequence, map, detector, encoder, notes, detections_file=recorder)
+    reads_instances = not (detector_kind == "yolo" or detector_kind.startswith("file:"))
+    return Run(settings, config, sequence, map, detector, encoder, notes, reads_instances=reads_instances,
+               detections_file=recorder)
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
-    """A map built from another scene gives poses in the wrong world: refused unless forced (then noted)."""
+    """A map of another recording: meant (`--same-place`: noted, with what its poses are) or an accident
+    (refused: poses in another place's frame would be meaningless)."""
     source = map.provenance.get("source", {}).get("name")
     if source is None or source == sequence_name:
         return
-    if not settings.force:
-        raise ClipcliqueError(f"{map_path}: a map of {source}, not of {sequence_name}; its poses would be meaningless "
-                              f"(build it with `{command('clipclique-map')} build {settings.sequence}`, or pass --force)")
-    notes.append(f"the map is of {source}, not of {sequence_name} (--force)")
+    if not settings.same_place:
+        raise ClipcliqueError(f"{map_path}: a map of {source}, not of {sequence_name}; if {sequence_name} is another "
+                              f"recording of the place {source} shows, pass --same-place; else build its own map "
+                              f"(`{command('clipclique-map')} build {settings.sequence}`)")
+    notes.append(f"the map is of {source}, another recording of this place (--same-place): poses are in its frame, "
+                 f"and {sequence_name}'s ground truth scores them only if it shares that frame")
 
 
 def choose_encoder(spec: str | None, map: Map, notes: list[str], sequence: Sequence | None = None) -> Encoder | None:
@@ -234,12 +246,22 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
     selected = selected_frames(run)
     for count, i in enumerate(selected, start=1):
         frame = run.sequence[i]
+        if run.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
+            run.unannotated.append(frame.name)
+            continue
         outcome, seen = localize_frame(run, frame, index)
         run.frames.append(outcome)
         if recorder is not None:
             recorder.log_frame(frame, seen.detections, seen.observations, outcome.result, outcome.evaluation)
         if progress is not None:
             progress(count, len(selected))
+    if run.unannotated:
+        shown = ", ".join(run.unannotated[:3]) + (", ..." if len(run.unannotated) > 3 else "")
+        if not run.frames:
+            raise ClipcliqueError(f"{run.sequence.root}: none of the {len(selected)} frames selected has annotations "
+                                  f"for --detector {run.detector.name} to read (e.g. {shown})")
+        run.notes.append(f"{len(run.unannotated)} of {len(selected)} frames have no annotations for the "
+                         f"{run.detector.name} detector: left out, not counted as failures ({shown})")
     return run
 
 
@@ -248,13 +270,15 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
     `settings.out_dir(sequence name)`; the results document.
 
     The outputs appear together once the run succeeded; a failed or interrupted run leaves the
-    previous ones as they were and no folder it made empty behind. Without a recording, an earlier
-    run's recording.rrd is removed (it would show other results) and a note says so.
+    previous ones as they were and no folder it made empty behind. Without a recording (--no-rrd), an
+    earlier run's recording.rrd is left as it is: a user's file is never removed as a side effect; when it
+    shows other results, results.json and a note say so.
     """
     run = prepare(settings)
     out_dir = settings.out_dir(run.sequence.name)
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
-    recording = out_dir / "recording.rrd"
+    recording = out_dir / RECORDING
+    earlier = None if settings.record else earlier_recording(out_dir)
     try:
         writable_folder(out_dir)
         with Staging() as staging:
@@ -267,10 +291,7 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
                     execute(run, recorder, progress)
             else:
                 execute(run, None, progress)
-                if recording.is_file():
-                    staging.remove(recording)
-                    run.notes.append(f"{recording} of an earlier run was removed (--no-rrd: it would not match these results)")
-            document = write_results(run, partials)
+            document = write_results(run, partials, earlier)
             if run.detections_file is not None:
                 run.detections_file.write(staging.path(out_dir / DETECTIONS_FILE), staging.path(out_dir / IMAGES_FILE))
             staging.commit()
@@ -295,7 +316,9 @@ def writable_folder(out_dir: Path) -> Path:
 
 
 def recording_description(run: Run) -> str:
-    """The recording's text document: what ran, flagged where simulated, and the full config."""
+    """The recording's text document: what ran, flagged where simulated, and the settings changed from the
+    method's preset (the full configuration is config.json beside the recording: a JSON block would fill the
+    panel with its first brace)."""
     description = run_description(run)
     parts = [f"# {description['method_title']} on {description['sequence']}",
              f"- map: `{description['map']}` (text embeddings: {description['map_encoder']})"]
@@ -304,5 +327,8 @@ def recording_description(run: Run) -> str:
         parts.append(f"- {role}: none" if part is None else
                      f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
     parts += [f"- note: {note}" for note in run.notes]
-    parts.append(f"\n```json\n{json.dumps(run.config.to_dict(), indent=1)}\n```")
+    changed = description["changed"]
+    parts.append("- settings changed from the preset: " + (", ".join(f"`{k} = {v}`" for k, v in changed.items())
+                                                          if changed else "none"))
+    parts.append("- full configuration: `config.json` beside this recording")
     return "\n".join(parts)

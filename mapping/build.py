@@ -38,6 +38,7 @@ class BuildReport:
     skipped: dict[str, list[str]] = field(default_factory=dict)  # reason -> ["chair #12", ...]
     timings: dict[str, float] = field(default_factory=dict)  # seconds: "read", "fit", "encode"
     encoder: str = "none"
+    notes: list[str] = field(default_factory=list)  # facts about the input the user must see (frames without a pose)
 
     def skip(self, reason: str, instance: Instance) -> None:
         self.skipped.setdefault(reason, []).append(f"{instance.class_name} #{instance.instance_id}")
@@ -88,8 +89,11 @@ def build_map(
     start = time.perf_counter()
     kept, fits = fit_landmarks(instances, params, report, progress)
     report.timings["fit"] = time.perf_counter() - start
+    if gap := sequence.missing_poses():
+        report.notes.append(f"{gap}; their annotations are not in the map")
     if not kept:
-        raise DatasetError(f"{sequence.root}: no landmarks to map: {_nothing_kept(instances, report)}")
+        cause = f"; {gap}" if gap else ""
+        raise DatasetError(f"{sequence.root}: no landmarks to map: {_nothing_kept(instances, report)}{cause}")
     class_names = sorted({i.class_name for i in kept})
     report.landmarks_per_class.update(i.class_name for i in kept)
 

@@ -58,6 +58,7 @@ def build(
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
+    from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from clipclique.exits import user_errors
@@ -69,7 +70,8 @@ def build(
     verbosity = verbose - quiet
     with user_errors(TOOL), Progress(*columns, console=console, transient=True, disable=verbosity < 0) as progress:
         built = run_build(scene, data_root, out, encoder, not no_rrd,
-                          bars=lambda description: bar_on_first_call(progress, description))
+                          bars=lambda description: bar_on_first_call(progress, description),
+                          say=lambda line: verbosity >= 0 and progress.console.print(escape(line), highlight=False))
     print_build(console, built, verbosity)
 
 
@@ -128,6 +130,36 @@ def export(
             raise InteropError(f"--format {format!r}: choose {' or '.join(ExportFormat)}")
         exported = run_export(map_path, ExportFormat(format), out)
     print_export(make_console(), exported)
+
+
+@app.command()
+def annotate(
+    sequence: Annotated[str, typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the data root, or its folder",
+                                            show_default=False)],
+    masks: Annotated[Path, typer.Option("--masks", help="folder of instance-id PNGs, each named after its colour "
+                                        "image (file stem or timestamp); 0 = no object", show_default=False)],
+    objects: Annotated[Path, typer.Option("--objects", help="CSV table 'id,class,description' of the mask ids",
+                                          show_default=False)],
+    data_root: Annotated[
+        Path | None,
+        typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
+    ] = None,
+) -> None:
+    """Write SEQUENCE's annotations/ (to build its map) from instance masks made with another tool."""
+    from clipclique.datasets import open_sequence
+    from clipclique.datasets.tum import TumSequence
+    from clipclique.errors import ClipcliqueError
+    from clipclique.exits import user_errors
+    from mapping.annotate import annotate as write_annotations
+    from mapping.tables import make_console, print_annotated
+
+    with user_errors(TOOL):
+        opened = open_sequence(sequence, data_root)
+        if not isinstance(opened, TumSequence):
+            raise ClipcliqueError(f"{sequence}: a {opened.kind} scene; annotate writes the annotations of a TUM-format "
+                                  "sequence (ScanNet scenes carry their own)")
+        done = write_annotations(opened, masks, objects)
+    print_annotated(make_console(), done, sequence)
 
 
 def main() -> None:

@@ -13,8 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from clipclique.backends import load_encoder
 from clipclique.datasets import scene_name
+from clipclique.errors import ClipcliqueError
 from clipclique.interop.commands import (
     AlignmentRequest,
     ExportFormat,
@@ -28,13 +31,14 @@ from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import MapFormat
 from clipclique.mapfile import load_map, save_map
 from clipclique.outputs import Staging, map_file
-from clipclique.resolve import open_scene
+from clipclique.resolve import first_use_notice, open_scene
 from clipclique.types import Map
 from mapping.build import BuildReport, Progress, build_map
 
 Bars = Callable[[str], Progress]  # a stage's description -> its progress callback
 GENERATING = "generating the {scene} data (first use)"
 FITTING = "fitting ellipsoids"
+PROBING = "--encoder auto: looking for CLIP weights (ViT-L-14/openai; a few seconds)"
 
 
 @dataclass
@@ -46,22 +50,27 @@ class Built:
     encoder_spec: str  # as asked or defaulted (auto, simulated, ...): the summary says why there is no encoder
     out: Path
     recording: Path | None  # None with rrd=False
-    stale: Path | None  # an earlier map's recording removed because this build wrote none
+    stale: Path | None  # an earlier map's recording, left in place (--no-rrd), that shows other landmarks
 
 
 def run_build(scene: str, data_root: Path | None = None, out: Path | None = None, encoder_spec: str | None = None,
-              rrd: bool = True, bars: Bars | None = None) -> Built:
+              rrd: bool = True, bars: Bars | None = None, say: Callable[[str], None] | None = None) -> Built:
     """Open the scene (generating a demo scene on first use), fit the landmarks, embed the descriptions,
     write the map (and .rrd) to `out`, default outputs/maps/<SCENE>.map.npz (the name clipclique-loc looks up).
-    `bars` gives each stage a progress callback (generating the demo data, fitting)."""
+    `bars` gives each stage a progress callback (generating the demo data, fitting); `say` is told, before
+    they start, what the slow first steps are (generating a scene, probing for CLIP weights)."""
     started = time.perf_counter()
     out = out or map_file(scene_name(scene))
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
     with Staging() as staging:
         staged_map = staging.path(out)  # a folder in the way is refused before the work
         staged_recording = staging.path(recording) if rrd else None
+        if say and (notice := first_use_notice(scene, data_root)):
+            say(notice)
         sequence = open_scene(scene, data_root, bars and bars(GENERATING.format(scene=scene)))
         spec = encoder_spec or ("simulated" if sequence.synthetic else "auto")
+        if say and spec == "auto":
+            say(PROBING)
         map, report = build_map(sequence, load_encoder(spec), progress=bars and bars(FITTING))
         save_map(map, staged_map)
         if staged_recording is not None:
@@ -69,12 +78,23 @@ def run_build(scene: str, data_root: Path | None = None, out: Path | None = None
 
             cloud = sequence.scene_cloud()
             write_map_recording(staged_recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
-        stale = recording if staged_recording is None and recording.is_file() else None
-        if stale:
-            staging.remove(stale)
+        stale = recording if staged_recording is None and recording.is_file() and not shows_map(out, map) else None
         staging.commit()
     report.timings["total"] = time.perf_counter() - started
     return Built(map, report, spec, out, recording if rrd else None, stale)
+
+
+def shows_map(earlier: Path, map: Map) -> bool:
+    """Whether the map file `earlier` (about to be replaced), and so the recording made with it, holds the
+    same landmarks as `map`; False when it cannot be read."""
+    try:
+        old = load_map(earlier)
+    except (ClipcliqueError, OSError):
+        return False
+    arrays = ("centers", "axes", "rotations")
+    return (all(np.array_equal(getattr(old.ellipsoids, a), getattr(map.ellipsoids, a)) for a in arrays)
+            and np.array_equal(old.class_ids, map.class_ids) and np.array_equal(old.instance_ids, map.instance_ids)
+            and (old.class_names, old.descriptions, old.encoder) == (map.class_names, map.descriptions, map.encoder))
 
 
 def describe(map: Map, scene: str) -> str:

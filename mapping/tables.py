@@ -11,10 +11,12 @@ from rich.markup import escape
 from rich.progress import Progress
 from rich.table import Table
 
-from clipclique.commands import rerun_hint
+from clipclique.commands import command, rerun_hint
 from clipclique.config import GraphConfig
+from clipclique.datasets.tum import MAX_TIME_DIFF
 from clipclique.types import Map
 from mapping.build import BuildReport, degree_histogram
+from mapping.annotate import AnnotationReport
 from mapping.run import Built, Exported, Imported
 
 
@@ -34,7 +36,21 @@ def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
         where += f"\nrecording: {built.recording}  ({rerun_hint(built.recording)})"
     console.print(escape(where), highlight=False)
     if built.stale:
-        console.print(f"removed {escape(str(built.stale))}, the recording of an earlier map (--no-rrd)", highlight=False)
+        console.print(escape(f"note: {built.stale} is an earlier map's recording and does not show this map (--no-rrd "
+                             "leaves it as it is; build without --no-rrd to replace it)"), highlight=False)
+
+
+def print_annotated(console: Console, done: AnnotationReport, sequence: str) -> None:
+    """What `clipclique-map annotate` wrote, which annotations the map cannot use, and the next command."""
+    console.print(escape(f"annotations: {done.folder}/ ({done.frames} frames, {done.objects} objects)"), highlight=False)
+    if done.without_pose:
+        console.print(escape(f"{len(done.without_pose)} annotated frames have no ground-truth pose within "
+                             f"{MAX_TIME_DIFF} s, so the map cannot use them: {', '.join(done.without_pose[:5])}"
+                             + (", ..." if len(done.without_pose) > 5 else "")), highlight=False)
+    if done.unseen:
+        console.print(escape(f"objects no mask shows (no landmark for them): {', '.join(map(str, done.unseen))}"),
+                      highlight=False)
+    console.print(escape(f"next: {command('clipclique-map')} build {sequence}"), highlight=False)
 
 
 def bar_on_first_call(progress: Progress, description: str) -> Callable[[int, int], None]:
@@ -69,6 +85,8 @@ def print_summary(console: Console, map: Map, report: BuildReport, spec: str) ->
     else:
         simulated = " [yellow](simulated)[/]" if map.provenance.get("encoder_simulated") else ""
         console.print(f"text embeddings: {escape(map.encoder)}{simulated}")
+    for note in report.notes:
+        console.print(escape(f"note: {note}"), highlight=False)
     timings = ", ".join(f"{k} {v:.1f} s" for k, v in report.timings.items())
     console.print(f"time: {timings}")
 
@@ -107,7 +125,7 @@ def print_import(console: Console, imported: Imported, quiet: bool = False) -> N
         elif report.sequence_name is not None:
             console.print(f"in the frame of {escape(report.sequence_name)}, as the file says", highlight=False)
         else:
-            console.print("not aligned: the map stays in its own frame (clipclique-loc run needs --force; "
+            console.print("not aligned: the map stays in its own frame (clipclique-loc run needs --same-place; "
                           "align it with --align-to SEQUENCE)", highlight=False)
         summary = BuildReport(Counter(map.class_names[c] for c in map.class_ids), encoder=map.encoder)
         summary.timings["total"] = imported.seconds

@@ -1,5 +1,5 @@
-"""Shared test options and fixtures: generated demo scenes, a tiny ScanNet scene in the official
-formats, and a small synthetic room with hand-made localization results for the recording tests.
+"""Shared test options and fixtures: generated demo scenes, a tiny ScanNet scene and a tiny TUM sequence in
+the official formats, and a small synthetic room with hand-made localization results for the recording tests.
 
 Tests are grouped by layer: unit/ (fast library tests, `make test-fast`), integration/ (readers
 and tools on generated scenes), e2e/ (full runs, the benchmark, the README), fuzz/ (hostile inputs).
@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
+from scipy.spatial.transform import Rotation
 
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import look_at
@@ -79,7 +81,6 @@ TSV_ROWS = ["2\tchair\tchair\t4646\t5\t4\tchair\tchair\tChair", "10\toffice chai
 def write_scannet_scene(root: Path, tsv: bool = False, descriptions: bool = True) -> tuple[Path, dict[str, np.ndarray]]:
     """Scene scene0007_00 under root/scannet/scans: an office chair (objectId 0), a plain chair (1) and a
     wall (2), plus 3 exported frames; its folder and each object's points."""
-    from PIL import Image
     from plyfile import PlyData, PlyElement
 
     folder = root / "scannet" / "scans" / SCANNET_SCENE
@@ -129,6 +130,55 @@ def write_scannet_scene(root: Path, tsv: bool = False, descriptions: bool = True
         instance[100:200, 100:300] = 1  # objectId 0 + 1
         Image.fromarray(instance).save(folder / "instance-filt" / f"{n}.png")
     return folder, parts
+
+
+TUM_NAME = "rgbd_dataset_freiburg2_desk"
+TUM_T0 = 1311868164.0
+
+
+def write_tum_sequence(root: Path, annotations: bool = True, rounded: bool = False) -> Path:
+    """A tiny TUM sequence in the official formats: four colour frames 0.1 s apart (the third has no depth image
+    within 20 ms), a 100 Hz trajectory, two objects annotated in the first frame. `rounded`: the patch of depth
+    they cover is a dome 10 cm deep instead of flat, so that each object fits an ellipsoid (a map builds)."""
+    folder = root / "tum" / TUM_NAME
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    rgb_times = TUM_T0 + np.array([0.0, 0.1, 0.2, 0.3]) + 0.0013
+    depth_times = TUM_T0 + np.array([0.008, 0.111, 0.245, 0.289])  # 0.2 s frame: nearest depth 45 ms away
+    rgb_lines, depth_lines = ["# color images", "# timestamp filename"], ["# depth maps", "# timestamp filename"]
+    for t in rgb_times:
+        Image.fromarray(np.full((480, 640, 3), 90, np.uint8)).save(folder / "rgb" / f"{t:.6f}.png")
+        rgb_lines.append(f"{t:.6f} rgb/{t:.6f}.png")
+    for t in depth_times:
+        depth = np.zeros((480, 640), np.uint16)
+        depth[200:280, 300:380] = 10000  # 2 m at factor 5000
+        if rounded:
+            rows, cols = np.mgrid[200:280, 300:380]
+            depth[200:280, 300:380] -= (500 * np.sqrt(np.clip(1 - ((rows - 240) / 40) ** 2 - ((cols - 340) / 40) ** 2,
+                                                              0, 1))).astype(np.uint16)
+        Image.fromarray(depth).save(folder / "depth" / f"{t:.6f}.png")
+        depth_lines.append(f"{t:.6f} depth/{t:.6f}.png")
+    (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
+    (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
+    gt = ["# ground truth trajectory", "# timestamp tx ty tz qx qy qz qw"]
+    for k, t in enumerate(TUM_T0 - 0.05 + np.arange(0, 0.5, 0.01)):  # 100 Hz, own phase
+        q = Rotation.from_euler("z", 0.01 * k).as_quat()
+        gt.append(f"{t:.4f} {1 + 0.01 * k:.4f} 2.0000 3.0000 " + " ".join(f"{v:.6f}" for v in q))
+    (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
+    if annotations:
+        (folder / "annotations" / "instances").mkdir(parents=True)
+        (folder / "annotations" / "objects.csv").write_text('id,class,description\n4,monitor,"a black monitor, wide"\n9,cup,\n')
+        ids = np.zeros((480, 640), np.uint16)
+        ids[200:280, 300:340] = 4
+        ids[200:280, 340:380] = 9
+        Image.fromarray(ids).save(folder / "annotations" / "instances" / f"{rgb_times[0]:.6f}.png")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def tum_sequence() -> Callable[..., Path]:
+    """write_tum_sequence (its folder is tum/TUM_NAME; colour images at TUM_T0 + 0.0013, + 0.1013, ...)."""
+    return write_tum_sequence
 
 
 @pytest.fixture(scope="session")

@@ -85,8 +85,11 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
 
 
 def scene_name(name: str) -> str:
-    """The name output files of SCENE are named after: a short or dataset name as typed, else the
-    name of the folder a path leads to (`seq/sub/..` is `seq`), so that outputs never land in `..`."""
+    """The name output files of SCENE are named after: a dataset name (a short one resolved: `fr2` is
+    rgbd_dataset_freiburg2_desk, so that one scene has one map whichever name is typed), else the name of the
+    folder a path leads to (`seq/sub/..` is `seq`), so that outputs never land in `..`."""
+    if name in TUM_SHORT_NAMES:
+        return TUM_SHORT_NAMES[name]
     if name.startswith("rgbd_dataset_"):
         return _folder_name(name, Path("<data root>") / "tum")
     folder = Path(os.path.abspath(name)).name if ("/" in name or name in (".", "..")) else name

@@ -73,6 +73,11 @@ class Sequence(ABC):
     def descriptions(self) -> dict[int, str]:
         """Dataset object id -> description of the objects that can be landmarks (no structure)."""
 
+    def missing_poses(self) -> str | None:
+        """How many frames have no ground-truth pose and why, for the messages a user reads (a map built
+        without them, a run that cannot be scored); None when every frame has one."""
+        return None
+
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""
         return None

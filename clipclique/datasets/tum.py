@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import re
 from functools import cached_property
 from pathlib import Path
@@ -133,7 +134,7 @@ def read_objects_table(path: Path, max_id: int = MAX_OBJECT_ID,
         except (TypeError, ValueError):
             raise error(f"{where}: id {row['id']!r} is not an integer") from None
         if not 1 <= object_id <= max_id:
-            raise error(f"{where}: id {object_id} outside 1..{max_id}")
+            raise error(f"{where}: id {object_id} outside 1..{max_id} (the instance images are 16-bit)")
         if object_id in objects:
             raise error(f"{where}: id {object_id} appears twice")
         name = safeio.check_text(row["class"] or "", f"{where}: class", error).strip()
@@ -172,7 +173,28 @@ class TumSequence(Sequence):
         self.rgb_files = [rgb_files[k] for k in keep]
         self.depth_files = [depth_files[to_depth[k]] for k in keep]
         self.poses = [gt_poses[to_pose[k]] if to_pose[k] >= 0 else None for k in keep]
+        self.pose_times = np.sort(gt_times)
         self.intrinsics = self._intrinsics()
+
+    def missing_poses(self) -> str | None:
+        missing = sum(pose is None for pose in self.poses)
+        if not missing:
+            return None
+        path = self.root / "groundtruth.txt"
+        if not path.exists():
+            why = f"there is no {path}"
+        elif not len(self.pose_times):
+            why = f"{path} holds no pose"
+        else:
+            why = f"{path} has no pose within {MAX_TIME_DIFF} s of their colour image"
+            spacing = float(np.median(np.diff(self.pose_times))) if len(self.pose_times) > 1 else math.inf
+            if spacing > MAX_TIME_DIFF:
+                why += (f" (its poses are {spacing:.3g} s apart: record poses at {1 / MAX_TIME_DIFF:g} Hz or more, or "
+                        "write one per colour image with its timestamp)")
+            elif self.timestamps[0] < self.pose_times[0] or self.timestamps[-1] > self.pose_times[-1]:
+                why += (f" (its poses cover {self.pose_times[0]:.3f} to {self.pose_times[-1]:.3f} s, the images "
+                        f"{self.timestamps[0]:.3f} to {self.timestamps[-1]:.3f} s)")
+        return f"{missing} of {len(self)} frames have no ground-truth pose: {why}"
 
     def _intrinsics(self) -> np.ndarray:
         path = self.root / "intrinsics.txt"
@@ -197,8 +219,12 @@ class TumSequence(Sequence):
     def __len__(self) -> int:
         return len(self.rgb_files)
 
+    def frame_name(self, i: int) -> str:
+        """Frame `i`'s name: its colour image's file stem, which names its annotation too."""
+        return Path(self.rgb_files[i]).stem
+
     def _annotation_path(self, i: int) -> Path:
-        return self.root / "annotations" / "instances" / f"{Path(self.rgb_files[i]).stem}.png"
+        return self.root / "annotations" / "instances" / f"{self.frame_name(i)}.png"
 
     def _annotation(self, i: int, shape: tuple[int, int]) -> np.ndarray | None:
         path = self._annotation_path(i)
@@ -220,7 +246,7 @@ class TumSequence(Sequence):
         depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
         intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
-        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=Path(self.rgb_files[i]).stem)
+        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=self.frame_name(i))
 
     @cached_property
     def _objects(self) -> dict[int, tuple[str, str]]:

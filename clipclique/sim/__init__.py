@@ -9,6 +9,6 @@
 The dataset readers (clipclique.datasets) never import this package; it writes their layouts.
 """
 
-from clipclique.sim.demo import DEMO_SCENES, ensure_scene, scene_detector
+from clipclique.sim.demo import DEMO_SCENES, ensure_scene, first_use_notice, scene_detector
 
-__all__ = ["DEMO_SCENES", "ensure_scene", "scene_detector"]
+__all__ = ["DEMO_SCENES", "ensure_scene", "first_use_notice", "scene_detector"]

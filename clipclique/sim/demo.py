@@ -83,12 +83,28 @@ DEMO_SCENES: dict[str, DemoSpec] = {
 }
 
 
+def is_generated(name: str, data_root: Path) -> bool:
+    """Whether the generated scene `name` is under `<data_root>/demo/` in the current generator's version."""
+    marker = Path(data_root) / "demo" / name / DEMO_MARKER
+    return marker.is_file() and _marker_version(marker) == GENERATOR_VERSION
+
+
+def first_use_notice(name: str, data_root: Path) -> str | None:
+    """The line a command prints before it generates a scene (tens of seconds); None when there is nothing to
+    generate."""
+    if name not in DEMO_SCENES or is_generated(name, data_root):
+        return None
+    spec = DEMO_SCENES[name]
+    return (f"generating the {name} scene into {Path(data_root) / 'demo' / name} (first use only: {spec.num_frames} "
+            "frames rendered on the CPU, about a minute)")
+
+
 def ensure_scene(name: str, data_root: Path, progress: Progress | None = None) -> Path:
     """The generated scene `name`'s folder under `<data_root>/demo/`, generated first if absent or stale."""
     spec = DEMO_SCENES[name]
     folder = Path(data_root) / "demo" / name
     marker = folder / DEMO_MARKER
-    if marker.is_file() and _marker_version(marker) == GENERATOR_VERSION:
+    if is_generated(name, data_root):
         return folder
     if folder.exists() and not marker.is_file():  # not ours (ours are moved into place whole): never delete it
         raise DatasetError(
@@ -131,6 +147,8 @@ def _marker_version(marker: Path) -> object:
 
 def generate(folder: Path, name: str, spec: DemoSpec, progress: Progress | None = None) -> None:
     """Render the scene `name` into `folder` in the layout of `spec`; the marker file goes last."""
+    if progress:
+        progress(0, spec.num_frames)  # the bar shows from the start: the room, its mesh and ray caster take seconds
     room = spec.room()
     walk = spec.walk(room)
     writer = ScanNetWriter(folder, name, room) if spec.layout == "scannet" else TumWriter(folder, room, walk, spec)

@@ -53,6 +53,9 @@ def localization_blueprint(centers: np.ndarray) -> rrb.Blueprint:
                     name="3D: map, cameras, matches",
                     origin="world",
                     eye_controls=framing(centers),
+                    # a dense map's semantic graph (the desk's: hundreds of edges) would bury the matches;
+                    # the map recording shows it, here it is one click away (the eye icon in the blueprint)
+                    overrides={"world/map/graph": rrb.EntityBehavior(visible=False)},
                 ),
                 rrb.TextDocumentView(name="legend", origin="legend"),
                 row_shares=[5, 1],

@@ -7,6 +7,7 @@ import io
 import numpy as np
 import rerun as rr
 from PIL import Image
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from clipclique.types import Detections, Ellipsoids, Pose
@@ -95,14 +96,36 @@ def segmentation(detections: Detections, shape: tuple[int, int]) -> np.ndarray:
     return np.where(masks.any(axis=0), ids[top], 0).astype(np.min_scalar_type(ids.max()))
 
 
-def boxes2d(detections: Detections, class_names: list[str]) -> rr.Boxes2D:
-    labels = [f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)]
-    return rr.Boxes2D(
-        array=detections.boxes,
-        array_format=rr.Box2DFormat.XYXY,
-        class_ids=annotation_ids(detections.class_ids),
-        labels=labels,
-    )
+BOX_LABEL_WIDTH = 3.0  # a box label (`potted plant 0.51`) is about this many times wider than tall
+BOX_LABEL_SPACING = 32.0  # image pixels: labels whose anchors are nearer (across: x BOX_LABEL_WIDTH) would overlap
+
+
+def boxes2d(detections: Detections, class_names: list[str]) -> tuple[rr.Boxes2D, rr.Boxes2D]:
+    """The detection boxes with a visible label where it does not crowd a larger box's (the viewer draws it
+    under the box's centre), and the crowded ones labelled on hover only."""
+    labels = np.array([f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)], dtype=object)
+    boxes = np.asarray(detections.boxes, dtype=np.float64).reshape(-1, 4)
+    anchors = np.column_stack(((boxes[:, 0] + boxes[:, 2]) / 2 / BOX_LABEL_WIDTH, boxes[:, 3]))
+    shown = spread_labels(anchors, (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), BOX_LABEL_SPACING)
+    class_ids = annotation_ids(detections.class_ids)
+    return tuple(rr.Boxes2D(array=boxes[keep], array_format=rr.Box2DFormat.XYXY, class_ids=class_ids[keep],
+                            labels=labels[keep].tolist(), show_labels=visible)
+                 for keep, visible in ((shown, True), (~shown, False)))
+
+
+def spread_labels(centers: np.ndarray, sizes: np.ndarray, spacing: float) -> np.ndarray:
+    """(N,) bool: which landmarks show their label. Largest first, a label is kept when no kept one is
+    within `spacing` (in the units of `centers`), so a dining table with its chairs, cups and books shows a few
+    labels, not a heap; the same in the image for detection boxes."""
+    shown = np.zeros(len(centers), bool)
+    if len(centers) == 0:
+        return shown
+    neighbours = cKDTree(centers).query_ball_point(centers, spacing)
+    for i in np.argsort(-sizes, kind="stable"):
+        shown[i] = not shown[neighbours[i]].any()
+    return shown
+
+
 
 
 def voxel_downsample(

@@ -46,7 +46,9 @@ LEGEND = (
     "(ranks 2-5 faded), observations placed by it · **Lines** thin: candidate matches, thick: an estimated "
     "camera's clique; green correct, red wrong, grey no ground-truth object · **Dots** top-1 positions so far, "
     "green within 1 m · **Ellipsoids** landmarks in class colours (hover for any label) · **Cyan** semantic-graph "
-    "edges · **Error plots** a gap and a red cross where a frame has no pose"
+    "edges, hidden at first (show `world/map/graph` in the blueprint panel) · **Camera** detection boxes labelled "
+    "where they do not crowd (hover the rest), projected landmarks of the top-1 pose with the IoU of those "
+    "supporting it · **Error plots** a gap and a red cross where a frame has no pose"
 )
 
 
@@ -117,7 +119,9 @@ class LocalizationRecorder:
             f"{CAMERA}/detections/masks",
             rr.SegmentationImage(segmentation(detections, (height, width)), opacity=0.45, draw_order=1.0),
         )
-        self.stream.log(f"{CAMERA}/detections/boxes", boxes2d(detections, self.map.class_names))
+        labelled, crowded = boxes2d(detections, self.map.class_names)
+        self.stream.log(f"{CAMERA}/detections/boxes", labelled)
+        self.stream.log(f"{CAMERA}/detections/crowded_boxes", crowded)
 
     def _log_cameras(self, frame: Frame, result: LocalizationResult, evaluation: FrameEvaluation | None) -> None:
         height, width = frame.rgb.shape[:2]
@@ -200,7 +204,8 @@ class LocalizationRecorder:
 
     def _log_projection(self, observations: Observations, result: LocalizationResult) -> None:
         """The map projected into the image under the top-1 pose: an ellipse outline per landmark in view,
-        in its class colour, labelled with its class and (when it supports the pose) the IoU with its detection."""
+        in its class colour; those supporting the pose labelled with the IoU with their detection (the detection's
+        box names the class), the others on hover."""
         path = f"{CAMERA}/projected_landmarks"
         if not result.hypotheses or observations.camera is None:
             self.stream.log(path, rr.Clear(recursive=False))
@@ -211,10 +216,10 @@ class LocalizationRecorder:
         supporting = dict(map(tuple, np.asarray(result.hypotheses[0].correspondences)[:, ::-1].tolist()))
         labels = []
         for landmark in shown:
-            label = self.map.class_names[self.map.class_ids[landmark]]
+            label = ""
             if landmark in supporting and observations.boxes is not None:
                 iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
-                label += f" IoU {iou:.2f}"
+                label = f"IoU {iou:.2f}"
             labels.append(label)
         self.stream.log(
             path,

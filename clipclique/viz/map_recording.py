@@ -7,13 +7,12 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from clipclique.config import GraphConfig
 from clipclique.graph import semantic_graph
 from clipclique.types import Map
 from clipclique.viz.blueprints import map_blueprint
-from clipclique.viz.convert import ellipsoids3d, voxel_downsample
+from clipclique.viz.convert import ellipsoids3d, spread_labels, voxel_downsample
 from clipclique.viz.recording import RecordingFile
 from clipclique.viz.style import annotation_context
 
@@ -51,7 +50,7 @@ def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
     """Static map entities shared by the map and localization recordings."""
     stream.log("/", annotation_context(map.class_names), static=True)
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    shown = spread_labels(map.ellipsoids.centers, map.ellipsoids.axes.prod(axis=1))
+    shown = spread_labels(map.ellipsoids.centers, map.ellipsoids.axes.prod(axis=1), LABEL_SPACING)
     labels = [map.class_names[c] if keep else "" for c, keep in zip(map.class_ids, shown)]
     # hover values; rerun warns about an AnyValues with nothing in it, so a map without landmarks has none
     hover = [rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids))] if len(map) else []
@@ -62,18 +61,6 @@ def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
         rr.LineStrips3D(map.ellipsoids.centers[edges], colors=GRAPH_COLOR, radii=rr.Radius.ui_points(2.0)),
         static=True,
     )
-
-
-def spread_labels(centers: np.ndarray, sizes: np.ndarray, spacing: float = LABEL_SPACING) -> np.ndarray:
-    """(N,) bool: which landmarks show their label. Largest first, a label is kept when no kept one is
-    within `spacing`, so a dining table with its chairs, cups and books shows a few labels, not a heap."""
-    shown = np.zeros(len(centers), bool)
-    if len(centers) == 0:
-        return shown
-    neighbours = cKDTree(centers).query_ball_point(centers, spacing)
-    for i in np.argsort(-sizes, kind="stable"):
-        shown[i] = not shown[neighbours[i]].any()
-    return shown
 
 
 def map_summary(map: Map, d_adj: float) -> str:

@@ -14,6 +14,7 @@ import argparse
 import os
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ class Screenshot:
     png: bytes
     view_reports: list[str]  # "view name: severity: summary" for each view that failed to show something
     seconds: float
+    warnings: list[str]  # what was asked but not shown (a --frame the recording does not hold)
 
 
 def software_vulkan_available() -> bool:
@@ -69,6 +71,9 @@ def render(
             while client.get_state().loading:
                 _check_time(deadline, "loading the recording")
                 time.sleep(0.2)
+            warnings: list[str] = []
+            if frame is not None:
+                frame = _frame_held(client, frame, warnings)
             if frame is not None:
                 client.set_time("frame", sequence=frame, play_state="paused")
             time.sleep(max(0.0, start + STARTUP_TOAST_S - time.monotonic()))
@@ -85,7 +90,22 @@ def render(
             except subprocess.TimeoutExpired:
                 viewer.kill()
                 viewer.wait()
-    return Screenshot(png, reports, time.monotonic() - start)
+    return Screenshot(png, reports, time.monotonic() - start, warnings)
+
+
+def _frame_held(client: ViewerClient, frame: int, warnings: list[str]) -> int | None:
+    """`frame` within the range of the loaded recording's `frame` timeline (the nearest end beyond it, with a
+    warning); None, with a warning, when the recording has no such timeline (a map recording)."""
+    timelines = [t for r in client.get_state().recordings for t in r.timelines if t.name == "frame"]
+    if not timelines or timelines[0].start is None or timelines[0].end is None:
+        warnings.append(f"--frame {frame}: the recording has no frame timeline (a map recording?); showing it whole")
+        return None
+    first, last = timelines[0].start, timelines[0].end
+    if first <= frame <= last:
+        return frame
+    shown = min(max(frame, first), last)
+    warnings.append(f"--frame {frame}: the recording holds frames {first} to {last}; showing frame {shown}")
+    return shown
 
 
 def _free_port() -> int:
@@ -146,6 +166,8 @@ def main() -> None:
     partial = args.output.with_name(args.output.name + ".partial")
     partial.write_bytes(shot.png)
     os.replace(partial, args.output)
+    for warning in shot.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     print(f"{args.output}: {len(shot.png) / 1e6:.2f} MB in {shot.seconds:.1f} s")
     for report in shot.view_reports:
         print(f"view report: {report}")

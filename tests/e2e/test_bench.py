@@ -240,7 +240,7 @@ def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkey
 
 
 def test_bench_loc_user_mistakes_are_one_line(tmp_path):
-    for args, expected in ((["nosuch"], "no map"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
+    for args, expected in ((["nosuch"], "unknown scene 'nosuch'"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
         done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr
@@ -259,6 +259,26 @@ def test_update_readme_replaces_only_its_regions():
     assert report.update_readme(text, {"benchmark": "new\n"}) == "a\n<!-- figures:benchmark -->\nnew\n<!-- /figures -->\nb\n"
     with pytest.raises(ValueError, match="do not match"):
         report.update_readme("no region\n", {"benchmark": "new\n"})
+    other = text + "<!-- figures:scene_stats_demo_desk -->\n| x |\n<!-- /figures -->\n"  # another generator's region
+    assert report.update_readme(other, {"benchmark": "new\n"}).endswith("<!-- figures:scene_stats_demo_desk -->\n| x |\n"
+                                                                         "<!-- /figures -->\n")
+
+
+def test_make_docs_regenerates_every_readme_region(tmp_path):
+    """Each generated region of the README has a `make docs` step that writes it."""
+    import shutil
+
+    for name in ("Makefile", "pyproject.toml"):
+        shutil.copy(ROOT / name, tmp_path / name)
+    (tmp_path / ".venv").mkdir()
+    for stamp in (".installed-core", ".installed"):
+        (tmp_path / ".venv" / stamp).touch()
+    steps = subprocess.run(["make", "-n", "docs"], cwd=tmp_path, capture_output=True, text=True, check=True).stdout
+    names = [name for _, name, _, _ in report.README_REGION.findall((ROOT / "README.md").read_text())]
+    scenes = [name.removeprefix("scene_stats_") for name in names if name.startswith("scene_stats_")]
+    assert sorted(names) == ["benchmark", *(f"scene_stats_{scene}" for scene in scenes)] and scenes
+    assert "tools/bench.py --docs" in steps
+    assert f"tools/scene_stats.py {' '.join(scenes)} --readme README.md" in steps
 
 
 @pytest.mark.slow

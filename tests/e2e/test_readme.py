@@ -8,6 +8,7 @@ SKIPPED with the reason; a block that is neither run nor listed fails the test.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -16,6 +17,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clipclique.config import make_config
@@ -128,6 +130,14 @@ def test_evo_files_pair_up(workspace):
               for name in ("groundtruth.tum", "poses.tum")}
     assert len(stamps["groundtruth.tum"]) == FRAMES
     assert set(stamps["poses.tum"]) <= set(stamps["groundtruth.tum"]) and stamps["poses.tum"]
+    # what the README says of evo_ape's figures: its median and mean are results.json's TE median and mean
+    positions = {name: {line.split()[0]: np.array(line.split()[1:4], float) for line in
+                        (folder / name).read_text().splitlines() if not line.startswith("#")}
+                 for name in ("groundtruth.tum", "poses.tum")}
+    ape = [np.linalg.norm(p - positions["groundtruth.tum"][t]) for t, p in positions["poses.tum"].items()]
+    summary = json.loads((folder / "results.json").read_text())["summary"]
+    assert np.median(ape) == pytest.approx(summary["te_median_m"], abs=2e-6)  # poses.tum rounds to the micrometre
+    assert np.mean(ape) == pytest.approx(summary["te_mean_m"], abs=2e-6)
     if shutil.which("evo_ape"):
         done = subprocess.run(["evo_ape", "tum", folder / "groundtruth.tum", folder / "poses.tum"], capture_output=True,
                               text=True)

@@ -7,6 +7,7 @@ its recording is being written.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import signal
 import subprocess
@@ -50,7 +51,7 @@ def digests(folder: Path) -> dict[str, str]:
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signum):
     before = digests(demo / "loc")
-    assert set(before) == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    assert set(before) == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
     # A shell starting a job in the background (`make test &`, nohup) hands it SIGINT ignored, and
     # Python keeps an inherited SIG_IGN: the child gets the default back, as a terminal gives it.
     process = subprocess.Popen([str(LOC), *args(demo)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -67,26 +68,46 @@ def test_a_signal_mid_run_leaves_no_partial_and_the_previous_outputs(demo, signu
     assert digests(demo / "loc") == before  # no *.partial, earlier files byte-identical
 
 
-def test_no_rrd_after_a_recorded_run_removes_the_stale_recording_and_says_so(demo, tmp_path):
+def test_no_rrd_never_deletes_the_recording_and_says_each_time_it_shows_other_results(demo, tmp_path):
     out = tmp_path / "loc"
     out.mkdir()
-    for name in ("results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"):
-        (out / name).write_bytes((demo / "loc" / name).read_bytes())
-    command = args(demo, "--max-frames", "2", "--no-rrd")
-    command[command.index("--out") + 1] = str(out)
-    result = CliRunner().invoke(app, command)
-    assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in out.iterdir()) == ["config.json", "groundtruth.tum", "poses.tum", "results.json"]
-    assert f"note: {out / 'recording.rrd'} of an earlier run was removed (--no-rrd: it would not match these results)" \
-        in result.output.replace("\n", "")
+    for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"):
+        (out / name).write_bytes((demo / "loc" / name).read_bytes())  # a recorded run of 3 frames
+    recorded = (out / "recording.rrd").read_bytes()
+
+    def run(*extra: str) -> tuple[subprocess.CompletedProcess, dict]:
+        command = args(demo, *extra)
+        command[command.index("--out") + 1] = str(out)
+        done = subprocess.run([str(LOC), *command], capture_output=True, text=True, timeout=300,
+                              env={**os.environ, "COLUMNS": "200"})
+        assert done.returncode == 0, done.stderr
+        assert (out / "recording.rrd").read_bytes() == recorded  # byte-identical, never deleted
+        return done, json.loads((out / "results.json").read_text())["run"]
+
+    stale = f"{out / 'recording.rrd'} beside these results is an earlier run's and does not show them"
+    for _ in range(2):  # every time, not only the first
+        done, described = run("--max-frames", "2", "--no-rrd")
+        assert stale in " ".join(done.stdout.split())
+        assert described["recording"] == {"file": "recording.rrd", "results_digest": described["recording"]["results_digest"],
+                                          "matches": False}
+        assert described["recording"]["results_digest"] != described["results_digest"]
+    quiet, _ = run("--max-frames", "2", "--no-rrd", "-q")
+    assert f"clipclique-loc: warning: {out / 'recording.rrd'} is an earlier run's and does not show these results" \
+        in quiet.stderr
+    same, described = run("--max-frames", "3", "--no-rrd")  # the recorded run's settings: the recording shows these
+    assert described["recording"]["matches"] and "earlier run's and does not show" not in same.stdout + same.stderr
+    assert "an earlier run's with the same results" in same.stdout
 
 
-def test_map_build_with_no_rrd_removes_the_earlier_maps_recording_and_says_so(demo, tmp_path):
+def test_map_build_with_no_rrd_keeps_the_earlier_maps_recording_and_says_when_it_shows_another_map(demo, tmp_path):
     from mapping.cli import app as map_app
 
     out = tmp_path / "demo.map.npz"
     (tmp_path / "demo.map.rrd").write_bytes(b"an earlier map's recording")
     result = CliRunner().invoke(map_app, ["build", "demo", "--data-root", str(demo), "--out", str(out), "--no-rrd"])
     assert result.exit_code == 0, result.output
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.map.npz"]
-    assert f"removed {tmp_path / 'demo.map.rrd'}, the recording of an earlier map (--no-rrd)" in result.output.replace("\n", "")
+    assert (tmp_path / "demo.map.rrd").read_bytes() == b"an earlier map's recording"
+    assert (f"note: {tmp_path / 'demo.map.rrd'} is an earlier map's recording and does not show this map"
+            in result.output.replace("\n", ""))  # no map was there before: the recording shows another
+    again = CliRunner().invoke(map_app, ["build", "demo", "--data-root", str(demo), "--out", str(out), "--no-rrd"])
+    assert again.exit_code == 0 and "does not show this map" not in again.output  # the same landmarks as before

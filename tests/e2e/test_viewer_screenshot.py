@@ -45,12 +45,18 @@ def test_map_recording_opens_on_the_framed_landmarks(tmp_path, synthetic_run, sc
     assert sum(seen) >= 4  # most classes' ellipsoids are in the default view, in their colours
 
 
-def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path, synthetic_run):
+def four_frame_recording(path: Path, synthetic_run) -> Path:
+    """A localization recording of 4 frames of the synthetic room (frame 2 with a wrong top-1, see the
+    synthetic_run fixture)."""
     map, frames = synthetic_run(num_frames=4)
-    path = tmp_path / "recording.rrd"
     with LocalizationRecorder(path, map, "# clipclique on a synthetic room") as recorder:
         for f in frames:
             recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+    return path
+
+
+def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path, synthetic_run):
+    path = four_frame_recording(tmp_path / "recording.rrd", synthetic_run)
     image, reports = render(path, frame=2)  # frame 2 has a wrong top-1 (see the synthetic_run fixture)
     assert reports == []
     view_3d = image[60:-60, : int(SIZE[0] * 0.58)]
@@ -58,3 +64,18 @@ def test_localization_recording_opens_with_camera_matches_and_plots(tmp_path, sy
     camera_view = image[60 : int(SIZE[1] * 0.45), int(SIZE[0] * 0.62) :].astype(int)
     grey = (np.ptp(camera_view, axis=-1) < 6) & (camera_view.mean(axis=-1) > 60) & (camera_view.mean(axis=-1) < 170)
     assert grey.mean() > 0.15  # the decoded JPEG's grey background fills the camera view
+
+
+def test_the_screenshot_command_says_when_a_frame_is_beyond_the_recording(tmp_path, synthetic_run):
+    import os
+    import subprocess
+    import sys
+
+    path = four_frame_recording(tmp_path / "recording.rrd", synthetic_run)
+    tool_path = Path(__file__).resolve().parents[2] / "tools" / "screenshot.py"
+    env = os.environ | {"PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ["PATH"]])}
+    done = subprocess.run([str(tool_path), str(path), str(tmp_path / "late.png"), "--frame", "500"], env=env,
+                          capture_output=True, text=True, timeout=180)  # executable, as the README writes it
+    assert done.returncode == 0, done.stderr
+    assert "warning: --frame 500: the recording holds frames 0 to 3; showing frame 3" in done.stderr
+    assert (tmp_path / "late.png").is_file()

@@ -84,7 +84,7 @@ def workspace(tmp_path_factory, demo_data) -> Workspace:
     assert built.exit_code == 0, built.output
     ran = RUNNER.invoke(loc_app, space.loc_args())
     assert ran.exit_code == 0, ran.output
-    assert {p.name for p in space.loc.iterdir()} == {"results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    assert {p.name for p in space.loc.iterdir()} == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
     return space
 
 
@@ -339,6 +339,40 @@ def tum_cases() -> list[Case]:
     return cases
 
 
+def annotate_cases() -> list[Case]:
+    """The small demo_tum's masks and objects table, moved out of it and one broken, given to clipclique-map annotate."""
+
+    def mutated(change: Callable[[Path, Path], None], names: str) -> Callable:
+        def make(space, case_dir):
+            folder = space.copy("demo_tum", case_dir)
+            masks, table = case_dir / "masks", case_dir / "classes.csv"
+            (folder / "annotations" / "instances").rename(masks)
+            (folder / "annotations" / "objects.csv").rename(table)
+            (folder / "annotations").rmdir()
+            change(masks, table)
+            return map_app, ["annotate", str(folder), "--masks", str(masks), "--objects", str(table)], names
+
+        return make
+
+    def renamed(stem: str) -> Callable[[Path, Path], None]:
+        return lambda masks, table: sorted(masks.glob("*.png"))[0].rename(masks / f"{stem}.png")
+
+    def first(masks: Path) -> Path:
+        return sorted(masks.glob("*.png"))[0]
+
+    cases = [Case("annotate", f"mask-named-{stem}", mutated(renamed(stem), f"{stem}.png"))
+             for stem in ("inf", "-nan", "1e999", "0x1p30", "frame_0001", "9" * 240)]
+    cases += [
+        Case("annotate", "mask-rgb", mutated(lambda m, t: Image.new("RGB", (160, 120)).save(first(m)), "masks")),
+        Case("annotate", "mask-junk", mutated(lambda m, t: first(m).write_bytes(b"\x89PNG junk"), "masks")),
+        Case("annotate", "mask-folder", mutated(lambda m, t: _replace_dir(first(m)), "masks")),
+        Case("annotate", "masks-none", mutated(lambda m, t: shutil.rmtree(m), "masks")),
+        Case("annotate", "objects-latin1", mutated(lambda m, t: _insert(t, b"# " + LATIN1 + b"\n"), "classes.csv")),
+        Case("annotate", "objects-missing-id", mutated(lambda m, t: t.write_text("id,class,description\n"), "classes.csv")),
+    ]
+    return cases
+
+
 def _aggregation(change: Callable[[dict], None]) -> Callable[[Path], None]:
     def write(path: Path) -> None:
         document = json.loads(path.read_text())
@@ -476,7 +510,7 @@ def output_cases() -> list[Case]:
         args[args.index("--out") + 1] = str(case_dir / "m.map.npz")
         return map_app, args, "m.map.rrd"
 
-    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
+    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
     return cases + [Case("outputs", "out-is-a-file", out_is_file), Case("outputs", "map-out-is-a-folder", map_out_folder),
                     Case("outputs", "map-recording-is-a-folder", map_recording_folder)]
 
@@ -699,7 +733,7 @@ def detection_cases() -> list[Case]:
     return [Case("detections", name, make) for name, make in makers.items()]
 
 
-CASES = map_cases() + config_cases() + tum_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
+CASES = map_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
@@ -707,7 +741,7 @@ def test_the_suite_is_large_and_covers_every_family():
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
                                                "outputs", "encoder", "compare", "names", "import",
-                                               "detections"}
+                                               "detections", "annotate"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

@@ -122,4 +122,4 @@ def test_an_aligned_import_is_taken_as_the_sequences_map(tmp_path, demo_map):
     assert aligned.provenance["alignment"]["matched_keyframes"] == 242
     ran = runner.invoke(loc_app, ["run", "demo_tum", "--data-root", str(ROOT / "data"), "--map", str(out), "--no-rrd",
                                   "--out", str(tmp_path / "run"), "--max-frames", "3", "-q"])
-    assert ran.exit_code == 0, ran.output  # accepted as demo_tum's map without --force
+    assert ran.exit_code == 0, ran.output  # accepted as demo_tum's map without --same-place

@@ -163,6 +163,9 @@ class _Scene:
     def instances(self):
         return self._instances
 
+    def missing_poses(self):
+        return None
+
 
 def test_a_scene_without_landmarks_is_a_user_error_not_an_invalid_map(tmp_path):
     from clipclique.backends import load_encoder

@@ -49,7 +49,9 @@ def test_read_results_rejects_other_files(tmp_path):
 
 def _document(method: str, success: float, simulated: bool) -> dict:
     summary = {"frames": 10.0, "precision": 0.9, "recall": 0.5, "te_median_m": None, "re_median_deg": 2.0,
-               "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0}
+               "success@1": success, "success@3": success, "success@5": success, "time_ms_median": 3.0,
+               "success_within_m": {"0.25": None, "0.5": success, "1": success, "2": success}, "te_mean_m": None,
+               "te_p90_m": None, "re_mean_deg": 2.0, "localized": 1.0}
     return {"run": {"sequence": "demo", "method_title": method, "notes": ["a note"],
                     "detector": {"name": "simulated", "simulated": simulated}, "encoder": None},
             "summary": summary}
@@ -58,19 +60,23 @@ def _document(method: str, success: float, simulated: bool) -> dict:
 def test_tables_show_the_papers_columns_and_flag_simulated_parts():
     table = results_table([_document("CLIP-Clique", 0.8, True), _document("SH", 0.25, True)])
     headers = [Text.from_markup(c.header).plain for c in table.columns]
-    assert headers[3:] == ["Prec.", "Rec.", "TE [m]", "RE [°]", "Top-1", "Top-3", "Top-5", "ms"]
-    top1 = list(table.columns[7].cells)
-    assert top1 == ["80.0", "25.0"] and list(table.columns[5].cells) == ["-", "-"]
+    assert headers[2:] == ["Prec.", "Rec.", "TE [m]", "RE [°]", "Top-1", "Top-3", "Top-5", "ms"]
+    top1 = list(table.columns[6].cells)
+    assert top1 == ["80.0", "25.0"] and list(table.columns[4].cells) == ["-", "-"]
     assert run_banner(_document("SH", 0.2, True)).splitlines() == [
         "detector: simulated (SIMULATED)", "encoder: none", "note: a note"]
 
 
-def test_cli_help_and_missing_map(tmp_path):
+def test_cli_help_and_missing_map(tmp_path, monkeypatch):
     assert "--method" in RUNNER.invoke(app, ["run", "--help"]).output
     result = RUNNER.invoke(app, ["run", "demo", "--map", str(tmp_path / "none.map.npz"), "--out", str(tmp_path)])
     assert result.exit_code == 2
-    assert "clipclique-map build demo" in result.output
+    assert f"--map {tmp_path / 'none.map.npz'}: no such map file" in " ".join(result.output.split())
     assert not (tmp_path / "results.json").exists()
+    monkeypatch.chdir(tmp_path)  # no outputs/maps here
+    default = RUNNER.invoke(app, ["run", "demo", "--data-root", str(tmp_path), "--out", str(tmp_path)])
+    assert default.exit_code == 2 and "no map of demo yet; build it with" in " ".join(default.output.split())
+    assert "clipclique-map build demo" in default.output
     bad = RUNNER.invoke(app, ["run", "demo", "--set", "inliers.nope=1", "--map", str(tmp_path / "m.npz")])
     assert bad.exit_code == 2 and "inliers.nope" in bad.output
 
@@ -157,7 +163,7 @@ def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
     first = RunSettings("demo", config_file=config).run_name()
     config.write_text("[inliers]\nd_comp = 0.5\n")
     assert first.startswith("clipclique+my-") and RunSettings("demo", config_file=config).run_name() != first
-    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["x=" + "9" * 200]).run_name()
+    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["confidence_model=x" + "9" * 200]).run_name()
     assert "/" not in odd and len(odd) == 100
     assert RunSettings("demo", out=tmp_path / "here").out_dir("demo") == tmp_path / "here"
 
@@ -183,24 +189,25 @@ def test_compare_marks_runs_that_differ_and_fits_80_columns():
     text = console.export_text()
     lines = text.splitlines()
     assert max(len(line) for line in lines) <= 80 and "…" not in text
-    rows = [line for line in lines if line.startswith("demo_tum")]
-    assert [row.split("  ")[0].split(" ", 1)[1].strip() for row in rows[:4]] == [
+    assert "demo_tum" in lines  # the sequence heads its tables
+    rows = [line for line in lines if line.startswith("CLIP-")]
+    assert [row.split("  ")[0].strip() for row in rows[:4]] == [
         "CLIP-Clique", "CLIP-Clique (a)", "CLIP-Clique (a)", "CLIP-Loc (b)"]
     assert "(a) inliers.d_comp=0.6 matching.strategy=knn" in lines and "(b) similarity.alpha=0.0" in lines
 
 
-def test_a_map_of_another_scene_is_refused_unless_forced():
+def test_a_map_of_another_recording_is_refused_unless_said_to_be_of_the_same_place():
     from localization.run import RunSettings, check_map_source
 
     map = _map("simulated-clip", True)
     map.provenance = {"source": {"name": "demo"}}
     notes: list[str] = []
-    with pytest.raises(ClipcliqueError, match="a map of demo, not of demo_tum.*--force"):
+    with pytest.raises(ClipcliqueError, match="a map of demo, not of demo_tum; if demo_tum is another recording of the "
+                                              "place demo shows, pass --same-place"):
         check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum"), notes)
-    check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum", force=True), notes)
-    assert notes == ["the map is of demo, not of demo_tum (--force)"]
-    check_map_source(map, Path("demo.map.npz"), "demo", RunSettings("demo"), notes)  # its own scene: fine
-    assert len(notes) == 1
+    check_map_source(map, Path("demo.map.npz"), "demo_tum", RunSettings("demo_tum", same_place=True), notes)
+    assert notes == ["the map is of demo, another recording of this place (--same-place): poses are in its frame, "
+                     "and demo_tum's ground truth scores them only if it shares that frame"]
 
 
 def test_version_short_help_and_no_developer_notes():

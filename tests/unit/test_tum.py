@@ -13,54 +13,17 @@ from clipclique.datasets import open_sequence
 from clipclique.datasets.tum import INTRINSICS, TumSequence, associate
 from clipclique.errors import DatasetError
 
-NAME = "rgbd_dataset_freiburg2_desk"
-T0 = 1311868164.0
-
-
-def write_sequence(root: Path, annotations: bool = True) -> Path:
-    """Four colour frames 0.1 s apart; the third has no depth image within 20 ms."""
-    folder = root / "tum" / NAME
-    (folder / "rgb").mkdir(parents=True)
-    (folder / "depth").mkdir()
-    rgb_times = T0 + np.array([0.0, 0.1, 0.2, 0.3]) + 0.0013
-    depth_times = T0 + np.array([0.008, 0.111, 0.245, 0.289])  # 0.2 s frame: nearest depth 45 ms away
-    rgb_lines, depth_lines = ["# color images", "# timestamp filename"], ["# depth maps", "# timestamp filename"]
-    for t in rgb_times:
-        Image.fromarray(np.full((480, 640, 3), 90, np.uint8)).save(folder / "rgb" / f"{t:.6f}.png")
-        rgb_lines.append(f"{t:.6f} rgb/{t:.6f}.png")
-    for t in depth_times:
-        depth = np.zeros((480, 640), np.uint16)
-        depth[200:280, 300:380] = 10000  # 2 m at factor 5000
-        Image.fromarray(depth).save(folder / "depth" / f"{t:.6f}.png")
-        depth_lines.append(f"{t:.6f} depth/{t:.6f}.png")
-    (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
-    (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
-    gt = ["# ground truth trajectory", "# timestamp tx ty tz qx qy qz qw"]
-    for k, t in enumerate(T0 - 0.05 + np.arange(0, 0.5, 0.01)):  # 100 Hz, own phase
-        q = Rotation.from_euler("z", 0.01 * k).as_quat()
-        gt.append(f"{t:.4f} {1 + 0.01 * k:.4f} 2.0000 3.0000 " + " ".join(f"{v:.6f}" for v in q))
-    (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
-    if annotations:
-        (folder / "annotations" / "instances").mkdir(parents=True)
-        (folder / "annotations" / "objects.csv").write_text('id,class,description\n4,monitor,"a black monitor, wide"\n9,cup,\n')
-        ids = np.zeros((480, 640), np.uint16)
-        ids[200:280, 300:340] = 4
-        ids[200:280, 340:380] = 9
-        Image.fromarray(ids).save(folder / "annotations" / "instances" / f"{rgb_times[0]:.6f}.png")
-    return folder
-
-
 def test_association_pairs_nearest_and_drops_unmatched():
     np.testing.assert_array_equal(associate(np.array([1.0, 2.0, 3.0, 4.0]), np.array([3.015, 0.99, 2.5, 4.03])), [1, -1, 0, -1])
     np.testing.assert_array_equal(associate(np.array([1.0]), np.array([])), [-1])
 
 
-def test_frames_depth_and_poses(tmp_path):
-    write_sequence(tmp_path)
+def test_frames_depth_and_poses(tmp_path, tum_sequence):
+    tum_sequence(tmp_path)
     seq = open_sequence("fr2", tmp_path)
     assert isinstance(seq, TumSequence) and seq.kind == "tum"
     assert len(seq) == 3  # the 0.2 s frame has no depth within 20 ms
-    np.testing.assert_allclose(seq.timestamps - T0, [0.0013, 0.1013, 0.3013], atol=1e-6)
+    np.testing.assert_allclose(seq.timestamps - 1311868164.0, [0.0013, 0.1013, 0.3013], atol=1e-6)
     assert seq.depth_files[1].endswith("1311868164.111000.png")
     frame = seq[2]
     assert frame.depth[240, 320] == pytest.approx(2.0) and frame.depth[0, 0] == 0
@@ -71,8 +34,8 @@ def test_frames_depth_and_poses(tmp_path):
     np.testing.assert_allclose(frame.intrinsics, [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
 
 
-def test_annotations_become_world_points(tmp_path):
-    write_sequence(tmp_path)
+def test_annotations_become_world_points(tmp_path, tum_sequence):
+    tum_sequence(tmp_path)
     seq = open_sequence("fr2", tmp_path)
     assert seq.object_classes() == {4: "monitor", 9: "cup"}
     assert seq[0].instances[240, 320] == 4 and seq[1].instances is None
@@ -90,8 +53,8 @@ def test_annotations_become_world_points(tmp_path):
     assert len(cup.points) == 20 * 40
 
 
-def test_groundtruth_is_read_strictly(tmp_path):
-    folder = write_sequence(tmp_path)
+def test_groundtruth_is_read_strictly(tmp_path, tum_sequence):
+    folder = tum_sequence(tmp_path)
     lines = (folder / "groundtruth.txt").read_text().splitlines()
     lines[3] = "1311868164.0000 1.0 2.0 3.0 0 0 0"
     (folder / "groundtruth.txt").write_text("\n".join(lines) + "\n")
@@ -99,8 +62,8 @@ def test_groundtruth_is_read_strictly(tmp_path):
         open_sequence("fr2", tmp_path)
 
 
-def test_intrinsics_need_a_known_camera_or_a_file(tmp_path):
-    folder = write_sequence(tmp_path)
+def test_intrinsics_need_a_known_camera_or_a_file(tmp_path, tum_sequence):
+    folder = tum_sequence(tmp_path)
     renamed = folder.rename(folder.parent / "my_sequence")
     with pytest.raises(DatasetError, match="no freiburg1/2/3 and there is no intrinsics.txt"):
         open_sequence(str(renamed))
@@ -108,8 +71,8 @@ def test_intrinsics_need_a_known_camera_or_a_file(tmp_path):
     np.testing.assert_allclose(open_sequence(str(renamed)).intrinsics, [[600, 0, 320], [0, 601, 240], [0, 0, 1]])
 
 
-def test_annotation_errors_name_the_file(tmp_path):
-    folder = write_sequence(tmp_path)
+def test_annotation_errors_name_the_file(tmp_path, tum_sequence):
+    folder = tum_sequence(tmp_path)
     (folder / "annotations" / "objects.csv").write_text("id,class,description\n4,monitor,x\n")
     with pytest.raises(DatasetError, match=r"instances/1311868164\.001300\.png: object id 9 is not in annotations/objects\.csv"):
         open_sequence("fr2", tmp_path).instances()

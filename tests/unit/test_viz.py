@@ -20,7 +20,8 @@ from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import ellipsoids3d, encode_depth_png, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
-from clipclique.viz.map_recording import CEILING_MARGIN, below_landmarks, graph_edges, spread_labels
+from clipclique.viz.convert import spread_labels
+from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness, palette
 
 
@@ -90,8 +91,8 @@ def test_labels_are_spread_over_crowded_landmarks():
     """A table with chairs around it and cups on it shows the table's and the far chairs' labels only."""
     centers = np.array([[0, 0, 0.4], [0.1, 0.1, 0.8], [-0.1, 0.0, 0.8], [0.9, 0, 0.45], [-0.9, 0, 0.45], [3, 3, 0.4]])
     sizes = np.array([1.0, 0.001, 0.001, 0.1, 0.1, 0.1])
-    np.testing.assert_array_equal(spread_labels(centers, sizes), [True, False, False, True, True, True])
-    assert spread_labels(np.zeros((0, 3)), np.zeros(0)).shape == (0,)
+    np.testing.assert_array_equal(spread_labels(centers, sizes, LABEL_SPACING), [True, False, False, True, True, True])
+    assert spread_labels(np.zeros((0, 3)), np.zeros(0), LABEL_SPACING).shape == (0,)
 
 
 def test_ellipsoids_carry_rerun_quaternions_and_annotation_ids():
@@ -387,3 +388,25 @@ def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):
         medians.append(np.median(ious))
     assert medians[0] > 0.35 and medians[1] < medians[0] - 0.2, medians
     recorder.close()
+
+
+def test_crowded_detection_labels_show_on_hover_only():
+    """Of boxes whose labels (under each box's centre) would overlap, the largest keeps its visible label."""
+    from clipclique.types import Detections
+    from clipclique.viz.convert import boxes2d
+
+    boxes = np.array([[100, 100, 300, 200], [150, 150, 250, 210], [400, 100, 460, 200], [100, 300, 200, 400]], float)
+    detections = Detections(masks=np.zeros((4, 480, 640), bool), boxes=boxes, class_ids=np.array([0, 1, 2, 0]),
+                            scores=np.full(4, 0.5), instance_ids=np.arange(4))
+    labelled, crowded = boxes2d(detections, ["chair", "cup", "tv"])
+    assert labelled.labels.as_arrow_array().to_pylist() == ["chair 0.50", "tv 0.50", "chair 0.50"]
+    assert crowded.labels.as_arrow_array().to_pylist() == ["cup 0.50"]  # its label would sit 10 px from the chair's
+    assert crowded.show_labels.as_arrow_array().to_pylist() == [False]
+
+
+
+def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_entities):
+    """A dense map's graph (the desk's: hundreds of edges) buries the matches: the 3D view opens without it."""
+    overrides = {path: columns for path, (_, columns) in recorded_entities(loc_rrd).items() if "/overrides/" in path}
+    assert [columns for path, columns in overrides.items() if "/overrides/world/map/graph" in path] == [
+        {"EntityBehavior:visible"}]

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -320,10 +320,11 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         return
     if not result.hypotheses:
         return
-    checked = verification.verify(result.hypotheses, observations, map, config.verification)
+    seen, hypotheses, similarity_seen = _with_boxes(observations, result.hypotheses, result.similarity)
+    checked = verification.verify(hypotheses, seen, map, config.verification)
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
-                   model.predict(confidence.Evidence(result.hypotheses, checked, result.similarity, len(observations))))
+                   model.predict(confidence.Evidence(hypotheses, checked, similarity_seen, len(seen))))
     for rank, hypothesis in enumerate(result.hypotheses):
         hypothesis.verification = float(checked.score[rank])
         hypothesis.confidence = None if probability is None else float(probability[rank])
@@ -340,3 +341,20 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         if not result.hypotheses:
             result.failure = Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=config.min_confidence,
                                      best_confidence=best)
+
+
+def _with_boxes(observations: Observations, hypotheses: list[Hypothesis],
+                similarity: np.ndarray) -> tuple[Observations, list[Hypothesis], np.ndarray]:
+    """What verification and confidence may read: the observations with a box in the query image, each
+    hypothesis with its correspondences among them (renumbered), and their rows of the similarity.
+    Unchanged when every observation has a box (a single frame)."""
+    if observations.has_box is None or observations.has_box.all():
+        return observations, hypotheses, similarity
+    kept = np.flatnonzero(observations.has_box)
+    renumber = np.full(len(observations), -1)
+    renumber[kept] = np.arange(len(kept))
+    narrowed = []
+    for hypothesis in hypotheses:
+        pairs = hypothesis.correspondences[observations.has_box[hypothesis.correspondences[:, 0]]]
+        narrowed.append(replace(hypothesis, correspondences=np.column_stack((renumber[pairs[:, 0]], pairs[:, 1]))))
+    return observations.subset(kept), narrowed, similarity[kept]

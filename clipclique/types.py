@@ -145,9 +145,19 @@ class Observations:
     boxes: np.ndarray | None = None  # (K, 4) float xyxy pixels: the detection box (image verification needs it)
     mask_areas: np.ndarray | None = None  # (K,) int, pixels of the detection mask
     camera: Camera | None = None  # None: the query cannot be verified in the image
+    # (K,) bool: the observation has a box in the query image (a fused window's objects the newest frame does
+    # not see have none; verification and confidence leave those out). None: every observation has one.
+    has_box: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.class_ids)
+
+    def subset(self, index: np.ndarray) -> Observations:
+        """The observations at `index`, in that order (camera kept)."""
+        pick = lambda array: None if array is None else array[index]  # noqa: E731
+        return Observations(self.ellipsoids.subset(index), self.class_ids[index], pick(self.image_embeddings),
+                            self.instance_ids[index], self.detection_index[index], pick(self.boxes),
+                            pick(self.mask_areas), self.camera, pick(self.has_box))
 
 
 @dataclass

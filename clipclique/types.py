@@ -94,6 +94,18 @@ class Map:
     def __len__(self) -> int:
         return len(self.class_ids)
 
+    def subset(self, index: np.ndarray) -> Map:
+        """The landmarks at `index`, in that order, with the same vocabulary."""
+        return Map(self.ellipsoids.subset(index), self.class_ids[index], list(self.class_names),
+                   [self.descriptions[i] for i in np.asarray(index).ravel()], self.instance_ids[index],
+                   None if self.text_embeddings is None else self.text_embeddings[index], self.encoder,
+                   dict(self.provenance))
+
+    def transformed(self, pose: Pose) -> Map:
+        """The same map expressed in the frame `pose` maps into."""
+        return Map(self.ellipsoids.transformed(pose), self.class_ids, list(self.class_names), list(self.descriptions),
+                   self.instance_ids, self.text_embeddings, self.encoder, dict(self.provenance))
+
 
 @dataclass
 class Frame:

@@ -47,7 +47,7 @@ AMBIGUOUS_MARGIN = 0.15  # a competitor within this fraction of the best's simil
 SEARCHED = 4  # hypotheses asked of the pipeline per candidate reported (near-duplicates are merged)
 # Logistic confidence, P = sigmoid(BIAS + SIZE_WEIGHT * log(correspondences) + MARGIN_WEIGHT * margin),
 # fitted by tools/fit_align_confidence.py (its output says how well it is calibrated).
-BIAS, SIZE_WEIGHT, MARGIN_WEIGHT = -6.0, 2.0, 8.0
+BIAS, SIZE_WEIGHT, MARGIN_WEIGHT = -7.009, 2.251, 15.571
 TRANSLATION_FLOOR_M = 0.01  # the information matrix's translation sigma is at least this
 INFORMATION_CAP = 1e6  # ... and no entry exceeds this
 

@@ -102,7 +102,8 @@ def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> MapAlign
     _confidences(candidates)
     best = candidates[0].score if candidates else 0.0
     competitors = [i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates else []
-    return MapAlignment(candidates[:config.top_n], len(competitors) > 1, competitors, vocabulary, result.failure, notes)
+    return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
+                        vocabulary, result.failure, notes)
 
 
 def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[list[str], np.ndarray, dict[str, str | None]]:

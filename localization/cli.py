@@ -142,6 +142,49 @@ def compare(results: Annotated[list[Path], typer.Argument(
     print_documents(make_console(), documents)
 
 
+@app.command()
+def align(
+    query_map: Annotated[Path, typer.Argument(metavar="MAP_A", help="the map to align (the query map)")],
+    map_path: Annotated[Path, typer.Argument(metavar="MAP_B", help="the map to align it into")],
+    method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline's descriptors", rich_help_panel=ALGORITHM)] = Method.clipclique,
+    top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
+                                                      rich_help_panel=ALGORITHM)] = None,
+    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/align/A_into_B]", rich_help_panel=OUTPUT)] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
+) -> None:
+    """The transform taking MAP_A's coordinates into MAP_B's: JSON, a g2o edge and a recording of both maps."""
+    from rich.markup import escape
+
+    from clipclique.commands import rerun_hint
+    from clipclique.exits import user_errors
+    from localization.align import AlignSettings, align_and_save
+    from localization.tables import make_console
+
+    overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    settings = AlignSettings(query_map, map_path, method.value, config, overrides, out, record=not no_rrd)
+    with user_errors(TOOL):
+        document = align_and_save(settings)
+    console = make_console()
+    for note in document["notes"]:
+        console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
+    if not document["candidates"]:
+        console.print(f"no alignment: {escape(str(document['failure']))}", highlight=False)
+    for candidate in document["candidates"]:
+        console.print(f"{candidate['rank']}: confidence {candidate['confidence']:.2f}, "
+                      f"{len(candidate['correspondences'])} correspondences, rms {candidate['rms_m']:.3f} m",
+                      highlight=False)
+    if document["ambiguous"]:
+        console.print(f"AMBIGUOUS: candidates {document['competitors']} score alike; the map repeats what the "
+                      "query map holds", highlight=False)
+    out_dir = escape(str(settings.out_dir()))
+    console.print(f"results: {out_dir}/ (alignment.json, alignment.g2o)", highlight=False, soft_wrap=True)
+    if settings.record:
+        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
+                      highlight=False, soft_wrap=True)
+
+
 def main() -> None:
     # A query's matrices are tiny: BLAS threads only wait for busy cores (up to ~10 ms a query
     # on 2 cores, tools/bench.py). numpy is not imported yet, so this takes effect.

@@ -122,3 +122,28 @@ def test_g2o_edge_holds_the_transform_and_a_positive_information_matrix():
     information = np.zeros((6, 6))
     information[np.triu_indices(6)] = values[7:]
     assert np.all(np.diag(information) > 0) and np.count_nonzero(information - np.diag(np.diag(information))) == 0
+
+
+def test_align_command_writes_json_g2o_and_a_recording(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from clipclique.mapfile import save_map
+    from localization.cli import app
+
+    rng = np.random.default_rng(2)
+    room = synthetic_map(rng, 40)
+    x = room.ellipsoids.centers[:, 0]
+    truth = Pose(random_rotation(rng), np.array([0.5, -1.0, 2.0]))
+    save_map(moved(room.subset(np.flatnonzero(x < 3.2)), truth, rng, noise=0.0), tmp_path / "a.map.npz")
+    save_map(room.subset(np.flatnonzero(x > 1.8)), tmp_path / "b.map.npz")
+    result = CliRunner().invoke(app, ["align", str(tmp_path / "a.map.npz"), str(tmp_path / "b.map.npz"),
+                                      "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    document = json.loads((tmp_path / "out" / "alignment.json").read_text())
+    np.testing.assert_allclose(document["candidates"][0]["matrix"], truth.matrix(), atol=1e-9)
+    assert document["ambiguous"] is False and document["candidates"][0]["confidence"] > 0.5
+    edge = (tmp_path / "out" / "alignment.g2o").read_text().splitlines()
+    assert edge[0].startswith("# vertex 0: ") and edge[1].split()[3:6] == [f"{v:.9g}" for v in truth.translation]
+    assert (tmp_path / "out" / "recording.rrd").stat().st_size > 1000

@@ -613,14 +613,32 @@ def name_cases() -> list[Case]:
     return [Case("names", f"loc-{n}", loc(n)) for n in names] + [Case("names", f"map-{n}", build(n)) for n in names]
 
 
-CASES = map_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+def align_cases() -> list[Case]:
+    """The damaged and hostile map files of `map_cases`, given to clipclique-loc align as MAP_A (and a few as MAP_B)."""
+
+    def align(case: Case, role: str) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            _, args, named = case.make(space, case_dir)
+            bad = args[args.index("--map") + 1]
+            pair = [bad, str(space.map)] if role == "query" else [str(space.map), bad]
+            return loc_app, ["align", *pair, "--out", str(space.loc / "align")], named
+
+        return make
+
+    cases = map_cases()
+    return ([Case("align", f"{case.name}-as-query", align(case, "query")) for case in cases]
+            + [Case("align", f"{case.name}-as-map", align(case, "map")) for case in cases[:6]])
+
+
+CASES = map_cases() + align_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
     assert len(CASES) >= 100
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
-                                               "outputs", "encoder", "compare", "names", "annotate"}
+                                               "outputs", "encoder", "compare", "names", "annotate",
+                                               "align"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

@@ -25,9 +25,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from clipclique.datasets.tum import MAX_TIME_DIFF, associate, read_trajectory
+from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import rotation_angle
 from clipclique.types import Pose
 
+GROUND_TRUTH = "groundtruth"  # the source name of ground truth with simulated drift
 DIRECTION_WANDER = 0.1  # per step: how fast the drift's direction turns (radians, roughly)
 
 
@@ -40,11 +42,27 @@ class Odometry:
     simulated: bool
 
 
+def open_odometry(source: str, drift_percent: float, seed: int, timestamps: np.ndarray,
+                  truth: list[Pose | None]) -> Odometry:
+    """`source` GROUND_TRUTH (with the simulated drift) or a TUM trajectory file, for frames at `timestamps`."""
+    if source == GROUND_TRUTH:
+        return drifting(truth, drift_percent, seed)
+    if drift_percent:
+        raise ClipcliqueError(f"--odometry-drift simulates drift on ground truth (--odometry {GROUND_TRUTH}), "
+                              f"not on {source}")
+    return from_trajectory(Path(source), timestamps)
+
+
 def from_trajectory(path: Path, timestamps: np.ndarray, max_diff: float = MAX_TIME_DIFF) -> Odometry:
-    """The poses of a TUM trajectory file nearest in time to each frame's timestamp (DatasetError on a bad file)."""
-    times, poses = read_trajectory(Path(path))
+    """The poses of a TUM trajectory file nearest in time to each frame's timestamp (DatasetError on a bad
+    file or one that matches no frame)."""
+    path = Path(path)
+    times, poses = read_trajectory(path)
     nearest = associate(np.asarray(timestamps, np.float64), times, max_diff)
-    return Odometry([poses[k] if k >= 0 else None for k in nearest], Path(path).name, simulated=False)
+    if len(timestamps) and (nearest < 0).all():
+        raise DatasetError(f"{path}: no pose within {max_diff} s of any frame's timestamp (frames at "
+                           f"{timestamps[0]:.3f} .. {timestamps[-1]:.3f} s)")
+    return Odometry([poses[k] if k >= 0 else None for k in nearest], path.name, simulated=False)
 
 
 def drifting(truth: list[Pose | None], percent: float, seed: int = 0) -> Odometry:

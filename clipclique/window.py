@@ -29,6 +29,7 @@ frame sees come first, in the newest frame's order, so their indices are the new
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,45 @@ class Fusion:
     observations: Observations  # in the newest frame's camera coordinates
     members: list[np.ndarray]  # per fused observation, (M, 2) int rows (source frame, observation index there)
     moved: list[Ellipsoids]  # per source frame, its observations moved into the newest frame
+
+
+@dataclass
+class WindowQuery:
+    """The query of one newest frame: its window fused, and what went into it."""
+
+    fusion: Fusion
+    frames: list[int]  # the frames fused, oldest first, the newest last
+    poses: list[Pose]  # their cameras in the newest camera's frame (odometry)
+    without_odometry: int  # frames of the window left out for want of odometry
+
+    @property
+    def observations(self) -> Observations:
+        return self.fusion.observations
+
+
+class Windower:
+    """Fused queries along a sequence; each frame's observations are made once and kept while a window needs them."""
+
+    def __init__(self, config: WindowConfig, odometry: list[Pose | None], class_names: list[str]) -> None:
+        self.config = config
+        self.odometry = odometry  # camera-to-odometry-world per frame of the sequence, None where unknown
+        self.class_names = class_names
+        self._seen: dict[int, Observations] = {}
+
+    def query(self, newest: int, observations: Observations,
+              observe: Callable[[int], Observations]) -> WindowQuery:
+        """The window ending at frame `newest` (whose `observations` are given); `observe(i)` makes an
+        earlier frame's when no earlier query made them."""
+        members = window_frames(newest, self.config)
+        poses, kept = relative_poses([self.odometry[i] for i in members])
+        frames = [i for i, keep in zip(members, kept) if keep]
+        self._seen = {i: seen for i, seen in self._seen.items() if i >= members[0]}
+        self._seen[newest] = observations
+        for i in frames:
+            if i not in self._seen:
+                self._seen[i] = observe(i)
+        fused = fusion([self._seen[i] for i in frames], poses, self.config, self.class_names)
+        return WindowQuery(fused, frames, poses, int(np.count_nonzero(~kept)))
 
 
 def window_frames(newest: int, config: WindowConfig) -> list[int]:

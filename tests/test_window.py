@@ -10,7 +10,7 @@ from clipclique.config import make_config
 from clipclique.geometry import look_at
 from clipclique.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations, Pose
-from clipclique.window import WindowConfig, fuse, fusion, relative_poses, window_frames
+from clipclique.window import WindowConfig, Windower, fuse, fusion, relative_poses, window_frames
 
 NAMES = ["cup", "bottle", "chair", "book"]
 CUP, BOTTLE, CHAIR, BOOK = range(4)
@@ -145,3 +145,25 @@ def test_verification_and_confidence_read_only_observations_with_a_box():
     assert best.verification == pytest.approx(expected.score[0])
     full = verification.verify([best], query, map)
     assert best.verification != pytest.approx(full.score[0])
+
+
+def test_windower_observes_each_frame_once_and_counts_frames_without_odometry():
+    sets = {i: frame([[-0.1 * i, 0.0, 2.0]], [CUP], instances=[1]) for i in range(6)}  # a cup at world x = 0
+    odometry = [shift(0.1 * i) for i in range(6)]
+    odometry[3] = None
+    observed = []
+
+    def observe(i):
+        observed.append(i)
+        return sets[i]
+
+    windower = Windower(WindowConfig(size=3), odometry, NAMES)
+    queries = [windower.query(i, sets[i], observe) for i in range(6)]
+    assert observed == []  # every earlier frame was some query's newest
+    assert [q.frames for q in queries] == [[0], [0, 1], [0, 1, 2], [3], [2, 4], [4, 5]]
+    assert [q.without_odometry for q in queries] == [0, 0, 0, 2, 1, 1]
+    # the camera moves, the cup stays: one object, where the newest camera sees it
+    assert len(queries[2].observations) == 1
+    np.testing.assert_allclose(queries[2].observations.ellipsoids.centers[0], [-0.2, 0.0, 2.0], atol=1e-12)
+    strided = Windower(WindowConfig(size=2, step=2), [shift(0.0)] * 6, NAMES)
+    assert strided.query(5, sets[5], observe).frames == [3, 5] and observed == [3]

@@ -29,7 +29,7 @@ from clipclique.config import LocalizationConfig, make_config  # noqa: E402
 from clipclique.geometry import pose_errors  # noqa: E402
 from clipclique.odometry import drifting  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
-from clipclique.window import WindowConfig, fuse, relative_poses, window_frames  # noqa: E402
+from clipclique.window import WindowConfig, Windower  # noqa: E402
 
 THRESHOLDS = (0.5, 1.0)
 CONFIGS = {"CLIP-Clique": [], "SH only (alpha=0)": ["similarity.alpha=0"]}
@@ -51,20 +51,16 @@ def window_success(sequence: CachedSequence, config: LocalizationConfig, window:
                    drift: float, seed: int) -> dict[str, float]:
     """Top-1 success within each threshold over the frames with ground truth, and the mean observations per query."""
     frames = sequence.frames
-    odometry = drifting([frame.gt_pose for frame in frames], drift, seed).poses
+    windower = Windower(window, drifting([frame.gt_pose for frame in frames], drift, seed).poses, sequence.map.class_names)
     index = index_map(sequence.map, config)
     errors, sizes, dropped = [], [], 0
-    for newest in range(len(frames)):
-        members = window_frames(newest, window)
-        poses, kept = relative_poses([odometry[i] for i in members])
-        dropped += int(np.count_nonzero(~kept))
-        observations = fuse([frames[i].observations for i, keep in zip(members, kept) if keep], poses, window,
-                            sequence.map.class_names)
-        result = localize(observations, index, config)
-        sizes.append(len(observations))
-        if frames[newest].gt_pose is None:
-            continue
-        errors.append(pose_errors(result.hypotheses[0].pose, frames[newest].gt_pose)[0] if result.hypotheses else np.inf)
+    for newest, frame in enumerate(frames):
+        query = windower.query(newest, frame.observations, lambda i: frames[i].observations)
+        dropped += query.without_odometry
+        result = localize(query.observations, index, config)
+        sizes.append(len(query.observations))
+        if frame.gt_pose is not None:
+            errors.append(pose_errors(result.hypotheses[0].pose, frame.gt_pose)[0] if result.hypotheses else np.inf)
     errors = np.array(errors)
     return {**{f"within_{t:g}m": float(np.mean(errors < t)) for t in THRESHOLDS},
             "observations_mean": float(np.mean(sizes)), "frames": len(errors), "dropped_frames": dropped}

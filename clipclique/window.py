@@ -57,6 +57,7 @@ class Fusion:
     observations: Observations  # in the newest frame's camera coordinates
     members: list[np.ndarray]  # per fused observation, (M, 2) int rows (source frame, observation index there)
     moved: list[Ellipsoids]  # per source frame, its observations moved into the newest frame
+    sources: list[Observations]  # per source frame, its observations as given (its own camera's coordinates)
 
 
 @dataclass
@@ -122,12 +123,12 @@ def fusion(observations: list[Observations], poses: list[Pose], config: WindowCo
     newest = observations[-1]
     if len(observations) == 1:
         members = [np.array([[0, k]]) for k in range(len(newest))]
-        return Fusion(newest, members, moved)
+        return Fusion(newest, members, moved, observations)
     same = _class_kernel(observations, class_names)
     clusters: list[list[tuple[int, int]]] = [[(len(observations) - 1, k)] for k in range(len(newest))]
     for frame in range(len(observations) - 2, -1, -1):
         _assign(frame, observations, moved, clusters, same, config.overlap)
-    return Fusion(_merge(observations, moved, clusters), [np.array(c) for c in clusters], moved)
+    return Fusion(_merge(observations, moved, clusters), [np.array(c) for c in clusters], moved, observations)
 
 
 def relative_poses(odometry: list[Pose | None]) -> tuple[list[Pose], np.ndarray]:

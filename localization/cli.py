@@ -19,7 +19,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
                   context_settings={"help_option_names": ["-h", "--help"]})
 
 TOOL = "clipclique-loc"
-ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
+ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "Output"
 
 
 def _print_version(value: bool) -> None:
@@ -77,6 +77,16 @@ def run(
     same_place: Annotated[bool, typer.Option(
         "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
                              "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
+    window: Annotated[int, typer.Option(min=1, help="localize each frame with the K - 1 frames before it, fused by "
+                                               "odometry", metavar="K", rich_help_panel=WINDOW)] = 1,
+    window_step: Annotated[int, typer.Option(min=1, help="the window takes every S-th frame back from the newest",
+                                             metavar="S", rich_help_panel=WINDOW)] = 1,
+    odometry: Annotated[Optional[str], typer.Option(
+        help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or groundtruth "
+             "(with --odometry-drift, simulated)", rich_help_panel=WINDOW)] = None,
+    odometry_drift: Annotated[float, typer.Option(min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, "
+                                                  "percent of the distance travelled", metavar="PCT",
+                                                  rich_help_panel=WINDOW)] = 0.0,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -103,7 +113,8 @@ def run(
         method = method_key(method)
     settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector.value if detector else None, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, same_place=same_place)
+                           record=not no_rrd, same_place=same_place, window=window, window_step=window_step,
+                           odometry=odometry, odometry_drift=odometry_drift)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)

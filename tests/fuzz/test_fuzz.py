@@ -630,7 +630,32 @@ def align_cases() -> list[Case]:
             + [Case("align", f"{case.name}-as-map", align(case, "map")) for case in cases[:6]])
 
 
-CASES = map_cases() + align_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+def odometry_cases() -> list[Case]:
+    """Broken --odometry trajectory files for clipclique-loc run --window."""
+    good = "0 0 0 0 0 0 0 1\n1 0.1 0 0 0 0 0 1\n2 0.2 0 0 0 0 0 1\n3 0.3 0 0 0 0 0 1\n"
+
+    def odometry(write: Callable[[Path], None]) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            path = case_dir / "vo.tum"
+            path.write_text(good)
+            write(path)
+            return loc_app, space.loc_args("--window", "2", "--odometry", str(path)), "vo.tum"
+
+        return make
+
+    return [
+        Case("odometry", "nan", odometry(lambda p: _insert(p, b"1.5 nan 0 0 0 0 0 1\n"))),
+        Case("odometry", "seven-columns", odometry(lambda p: _insert(p, b"1.5 0 0 0 0 0 1\n"))),
+        Case("odometry", "zero-quaternion", odometry(lambda p: _insert(p, b"1.5 0 0 0 0 0 0 0\n"))),
+        Case("odometry", "latin1", odometry(lambda p: _insert(p, b"# " + LATIN1 + b"\n"))),
+        Case("odometry", "utf16", odometry(lambda p: p.write_bytes(p.read_text().encode("utf-16")))),
+        Case("odometry", "folder", odometry(_replace_dir)),
+        Case("odometry", "missing", odometry(lambda p: p.unlink())),
+        Case("odometry", "no-matching-time", odometry(lambda p: p.write_text("1700000000 0 0 0 0 0 0 1\n"))),
+    ]
+
+
+CASES = map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
@@ -638,7 +663,7 @@ def test_the_suite_is_large_and_covers_every_family():
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
                                                "outputs", "encoder", "compare", "names", "annotate",
-                                               "align"}
+                                               "align", "odometry"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import make_config
 from clipclique.geometry import random_rotation, rotation_angle
 from clipclique.mapalign import align_maps, g2o_edge, shared_vocabulary
-from clipclique.synthetic import duplicate_rooms, synthetic_map
+from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
 
 CONFIG = make_config("clipclique")

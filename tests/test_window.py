@@ -8,7 +8,7 @@ import pytest
 from clipclique import pipeline, verification
 from clipclique.config import make_config
 from clipclique.geometry import look_at
-from clipclique.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
+from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations, Pose
 from clipclique.window import WindowConfig, Windower, fuse, fusion, relative_poses, window_frames
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from clipclique.datasets import open_sequence
-from clipclique.encoders import load_encoder
+from clipclique.resolve import open_scene
+from clipclique.backends import load_encoder
 from clipclique.mapfile import save_map
 from localization.cli import app
 from localization.results import run_and_save, tum_line
@@ -21,7 +21,7 @@ SCENE = "demo_apartment"  # ground-truth instances: quick to observe
 
 @pytest.fixture(scope="module")
 def map_path(tmp_path_factory) -> Path:
-    map, _ = build_map(open_sequence(SCENE, ROOT / "data"), load_encoder("simulated"))
+    map, _ = build_map(open_scene(SCENE, ROOT / "data"), load_encoder("simulated"))
     path = tmp_path_factory.mktemp("maps") / f"{SCENE}.map.npz"
     save_map(map, path)
     return path
@@ -49,7 +49,7 @@ def test_simulated_odometry_windows_are_recorded_per_frame(map_path, tmp_path):
 
 
 def test_a_trajectory_file_matched_by_time_and_frames_without_odometry_counted(map_path, tmp_path):
-    timestamps, truth = open_sequence(SCENE, ROOT / "data").trajectory()
+    timestamps, truth = open_scene(SCENE, ROOT / "data").trajectory()
     lines = [tum_line(t, pose) for i, (t, pose) in enumerate(zip(timestamps, truth)) if i != 2]
     (tmp_path / "vo.tum").write_text("\n".join(lines) + "\n")
     document = run_and_save(settings(map_path, tmp_path / "w", window=3, odometry=str(tmp_path / "vo.tum")))

@@ -27,7 +27,7 @@ from scipy.special import expit, log_expit
 from clipclique import mapalign
 from clipclique.config import make_config
 from clipclique.geometry import random_rotation, rotation_angle
-from clipclique.synthetic import duplicate_rooms, synthetic_map
+from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
 
 KINDS = ("split", "submap", "unrelated", "copies")

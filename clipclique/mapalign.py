@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from clipclique import lookalikes
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import rotation_angle
+from clipclique.outcomes import Failure
 from clipclique.pipeline import index_map, localize
 from clipclique.pose import DegeneratePoseError, fit_rigid
 from clipclique.types import Map, Observations, Pose
@@ -73,7 +74,7 @@ class MapAlignment:
     ambiguous: bool  # another candidate scores within AMBIGUOUS_MARGIN of the best
     competitors: list[int]  # indices into candidates scoring within AMBIGUOUS_MARGIN of the best (the best included)
     vocabulary: dict[str, str | None]  # query class name -> the map class it was matched to (None: added)
-    failure: str | None  # why there is no candidate; None when there is one
+    failure: Failure | None  # why the pipeline found no transform; None when it found one
     notes: list[str] = field(default_factory=list)
 
 

@@ -147,3 +147,16 @@ def test_align_command_writes_json_g2o_and_a_recording(tmp_path):
     edge = (tmp_path / "out" / "alignment.g2o").read_text().splitlines()
     assert edge[0].startswith("# vertex 0: ") and edge[1].split()[3:6] == [f"{v:.9g}" for v in truth.translation]
     assert (tmp_path / "out" / "recording.rrd").stat().st_size > 1000
+
+
+def test_a_map_too_small_to_align_says_why(tmp_path):
+    from localization.align import AlignSettings, alignment_document
+
+    rng = np.random.default_rng(0)
+    room = synthetic_map(rng, 40)
+    query = room.subset(np.arange(2))
+    alignment = align_maps(query, room, CONFIG)
+    assert alignment.candidates == [] and not alignment.ambiguous
+    document = alignment_document(AlignSettings(tmp_path / "a", tmp_path / "b"), alignment, query, room)
+    assert document["failure"] == "fewer than 3 observations (2)" and document["failure_kind"] == "few_observations"
+    assert document["g2o"] is None

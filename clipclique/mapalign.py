@@ -1,5 +1,8 @@
 """Map-to-map alignment: the rigid transform taking one object map (the query map) into another.
 
+The entry point is `clipclique.pipeline.align_maps(query_map, map, config)`; this module prepares the
+query (`as_query`) and turns the pipeline's hypotheses into candidates (`conclude`).
+
 Multi-session mapping and object-based loop closing need the transform between two object maps of
 one place. The query map is given to the localization pipeline as if it were one huge frame:
 its landmarks become observations (centres, axes, classes; the text embeddings stand in for image
@@ -29,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,9 +42,11 @@ from clipclique import lookalikes
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import rotation_angle
 from clipclique.outcomes import Failure
-from clipclique.pipeline import index_map, localize
 from clipclique.pose import DegeneratePoseError, fit_rigid
 from clipclique.types import Map, Observations, Pose
+
+if TYPE_CHECKING:
+    from clipclique.pipeline import LocalizationResult
 
 DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than this ...
 DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
@@ -78,25 +84,38 @@ class MapAlignment:
     notes: list[str] = field(default_factory=list)
 
 
-def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> MapAlignment:
-    """The top transforms of `query_map` into `map`, with confidences; module docstring."""
+@dataclass
+class AlignmentQuery:
+    """The query map as the pipeline's query, and the map in the shared vocabulary (`as_query`)."""
+
+    observations: Observations  # the query map's landmarks, classes in the shared vocabulary
+    map: Map  # the map with the shared vocabulary
+    config: LocalizationConfig  # the config the pipeline runs with (`_alignment_config`)
+    vocabulary: dict[str, str | None]  # query class name -> the map class it matched (None: added)
+    notes: list[str]
+
+
+def as_query(query_map: Map, map: Map, config: LocalizationConfig) -> AlignmentQuery:
+    """What `clipclique.pipeline.align_maps` localizes: the query map's landmarks as observations."""
     names, query_ids, vocabulary = shared_vocabulary(query_map.class_names, map.class_names)
-    target = replace(map, class_names=names)
     notes: list[str] = []
     settings = _alignment_config(config, query_map, map, notes)
     observations = Observations(query_map.ellipsoids, query_ids[query_map.class_ids],
                                 None if settings.similarity.alpha == 0 else query_map.text_embeddings,
                                 query_map.instance_ids, np.arange(len(query_map)))
-    result = localize(observations, index_map(target, settings), settings)
-    notes += result.notes
-    kernel = lookalikes.class_kernel(names, 1.0)
-    like = kernel[observations.class_ids][:, target.class_ids].toarray() > 0  # (query, map) classes alike
+    return AlignmentQuery(observations, replace(map, class_names=names), settings, vocabulary, notes)
+
+
+def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, config: LocalizationConfig) -> MapAlignment:
+    """The pipeline's hypotheses as distinct, refined, ranked candidates with confidences (module docstring)."""
+    kernel = lookalikes.class_kernel(query.map.class_names, 1.0)
+    like = kernel[query.observations.class_ids][:, query.map.class_ids].toarray() > 0  # (query, map) classes alike
     candidates: list[Candidate] = []
     for hypothesis in result.hypotheses:
         if any(_same_transform(hypothesis.pose, c.pose, query_map) for c in candidates):
             continue
-        refined = _refined(hypothesis.pose, hypothesis.correspondences, observations, target, like,
-                           result.similarity, settings.inliers.d_comp)
+        refined = _refined(hypothesis.pose, hypothesis.correspondences, query.observations, query.map, like,
+                           result.similarity, query.config.inliers.d_comp)
         if not any(_same_transform(refined.pose, c.pose, query_map) for c in candidates):  # converged onto another
             candidates.append(refined)
     candidates.sort(key=lambda c: -c.score)
@@ -104,7 +123,7 @@ def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> MapAlign
     best = candidates[0].score if candidates else 0.0
     competitors = [i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates else []
     return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
-                        vocabulary, result.failure, notes)
+                        query.vocabulary, result.failure, query.notes + result.notes)
 
 
 def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[list[str], np.ndarray, dict[str, str | None]]:

@@ -28,7 +28,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import cliquesearch, compatibility, confidence, consensus, graph, lookalikes, matching, similarity, verification
+from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
+                        similarity, verification)
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
@@ -124,6 +125,14 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
     return result
+
+
+def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> mapalign.MapAlignment:
+    """The top transforms taking `query_map`'s coordinates into `map`'s, with their confidences and whether
+    the answer is ambiguous: the query map localized as one frame (clipclique.mapalign)."""
+    query = mapalign.as_query(query_map, map, config)
+    result = localize(query.observations, index_map(query.map, query.config), query.config)
+    return mapalign.conclude(result, query, query_map, config)
 
 
 def index_key(config: LocalizationConfig) -> str:

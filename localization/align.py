@@ -17,9 +17,10 @@ from typing import Any
 
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.mapalign import MapAlignment, align_maps, g2o_edge
+from clipclique.mapalign import MapAlignment, g2o_edge
 from clipclique.mapfile import load_map
 from clipclique.outputs import Staging
+from clipclique.pipeline import align_maps
 from clipclique.types import Map
 
 ALIGNMENT_FORMAT = "clipclique-loc alignment"

@@ -26,6 +26,7 @@ from scipy.special import expit, log_expit
 
 from clipclique import mapalign
 from clipclique.config import make_config
+from clipclique.pipeline import align_maps
 from clipclique.geometry import random_rotation, rotation_angle
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
@@ -70,7 +71,7 @@ def collect(seeds: range) -> tuple[np.ndarray, np.ndarray, list[str]]:
     features, labels, kinds = [], [], []
     for seed in seeds:
         for kind, query, map, truth in cases(seed):
-            for candidate in mapalign.align_maps(query, map, config).candidates:
+            for candidate in align_maps(query, map, config).candidates:
                 features.append((math.log(max(len(candidate.correspondences), 1)), candidate.margin))
                 labels.append(is_right(candidate, truth, query))
                 kinds.append(kind)

@@ -42,7 +42,7 @@ SKIPPED = {
     "make test": "runs this test suite",
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
     ".venv/bin/python tools/bench_window.py --step 1": "localizes both realistic scenes 40 times each (minutes); "
-                                                       "tests/test_bench_window.py runs it on a few frames",
+                                                       "tests/integration/test_bench_window.py runs it on a few frames",
 }
 
 

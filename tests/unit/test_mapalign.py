@@ -12,7 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.config import make_config
 from clipclique.geometry import random_rotation, rotation_angle
-from clipclique.mapalign import align_maps, g2o_edge, shared_vocabulary
+from clipclique.mapalign import g2o_edge, shared_vocabulary
+from clipclique.pipeline import align_maps
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
 

@@ -1,23 +1,20 @@
-"""tools/bench_window.py on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
+"""benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tools"))
+from benchmark.suite import cache_sequence, ensure_map
+from benchmark.window import table, window_success
+from clipclique.config import make_config
+from clipclique.geometry import pose_errors
+from clipclique.pipeline import index_map, localize
+from clipclique.window import WindowConfig
 
-from bench import cache_sequence, ensure_map  # noqa: E402
-from bench_window import table, window_success  # noqa: E402
-
-from clipclique.config import make_config  # noqa: E402
-from clipclique.geometry import pose_errors  # noqa: E402
-from clipclique.pipeline import index_map, localize  # noqa: E402
-from clipclique.window import WindowConfig  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.slow
 

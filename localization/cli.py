@@ -157,7 +157,8 @@ def compare(results: Annotated[list[Path], typer.Argument(
 def align(
     query_map: Annotated[Path, typer.Argument(metavar="MAP_A", help="the map to align (the query map)")],
     map_path: Annotated[Path, typer.Argument(metavar="MAP_B", help="the map to align it into")],
-    method: Annotated[Method, typer.Option(help="CLIP-Clique or a baseline's descriptors", rich_help_panel=ALGORITHM)] = Method.clipclique,
+    method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc (whose descriptors "
+                                             "and matching align the maps)", rich_help_panel=ALGORITHM)] = "clipclique",
     top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
@@ -169,13 +170,14 @@ def align(
     from rich.markup import escape
 
     from clipclique.commands import rerun_hint
+    from clipclique.config import method_key
     from clipclique.exits import user_errors
     from localization.align import AlignSettings, align_and_save
     from localization.tables import make_console
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
-    settings = AlignSettings(query_map, map_path, method.value, config, overrides, out, record=not no_rrd)
     with user_errors(TOOL):
+        settings = AlignSettings(query_map, map_path, method_key(method), config, overrides, out, record=not no_rrd)
         document = align_and_save(settings)
     console = make_console()
     for note in document["notes"]:

@@ -22,7 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
-from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.errors import ModelUnavailableError
 from clipclique.safeio import parse_json
 
 DEFAULT_MODEL = "ViT-L-14"

@@ -46,6 +46,30 @@ LOOKALIKE_PAIRS: tuple[tuple[str, str], ...] = (
     ("counter", "kitchen counter"),
 )
 
+# Unordered pairs of names that two vocabularies give one class (COCO, NYU40 / ScanNet, free text): a
+# map of one vocabulary aligned to a map of another matches them as the same class
+# (clipclique.mapalign). Each pair is a look-alike pair too.
+SYNONYM_PAIRS: tuple[tuple[str, str], ...] = (
+    ("couch", "sofa"),
+    ("tv", "monitor"),
+    ("tv", "television"),
+    ("book", "books"),
+    ("dining table", "table"),
+    ("shelf", "bookshelf"),
+    ("counter", "kitchen counter"),
+    ("cabinet", "kitchen cabinet"),
+)
+
+
+def synonym(name: str, vocabulary: list[str]) -> int | None:
+    """Index in `vocabulary` of `name` (any case) or of a synonym of it; None when neither is there."""
+    index = {entry.lower(): i for i, entry in enumerate(vocabulary)}
+    name = name.lower()
+    if name in index:
+        return index[name]
+    return next((index[b if a == name else a] for a, b in SYNONYM_PAIRS
+                 if name in (a, b) and (b if a == name else a) in index), None)
+
 
 def class_kernel(class_names: list[str], lookalike_weight: float) -> sp.csr_matrix:
     """(C, C) sparse kernel: 1 on the diagonal, `lookalike_weight` between look-alike classes of the vocabulary."""

@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique import cliquesearch, compatibility, confidence, consensus, graph, lookalikes, matching, similarity, verification
+from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
+                        similarity, verification)
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
@@ -127,6 +128,14 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
     return result
+
+
+def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> mapalign.MapAlignment:
+    """The top transforms taking `query_map`'s coordinates into `map`'s, with their confidences and whether
+    the answer is ambiguous: the query map localized as one frame (clipclique.mapalign)."""
+    query = mapalign.as_query(query_map, map, config)
+    result = localize(query.observations, index_map(query.map, query.config), query.config)
+    return mapalign.conclude(result, query, query_map, config)
 
 
 def index_key(config: LocalizationConfig) -> str:
@@ -327,10 +336,11 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         return
     if not result.hypotheses:
         return
-    checked = verification.verify(result.hypotheses, observations, map, config.verification)
+    seen, hypotheses, similarity_seen = _with_boxes(observations, result.hypotheses, result.similarity)
+    checked = verification.verify(hypotheses, seen, map, config.verification)
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
-                   model.predict(confidence.Evidence(result.hypotheses, checked, result.similarity, len(observations))))
+                   model.predict(confidence.Evidence(hypotheses, checked, similarity_seen, len(seen))))
     for rank, hypothesis in enumerate(result.hypotheses):
         hypothesis.verification = float(checked.score[rank])
         hypothesis.confidence = None if probability is None else float(probability[rank])
@@ -347,3 +357,20 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         if not result.hypotheses:
             result.failure = Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=config.min_confidence,
                                      best_confidence=best)
+
+
+def _with_boxes(observations: Observations, hypotheses: list[Hypothesis],
+                similarity: np.ndarray) -> tuple[Observations, list[Hypothesis], np.ndarray]:
+    """What verification and confidence may read: the observations with a box in the query image, each
+    hypothesis with its correspondences among them (renumbered), and their rows of the similarity.
+    Unchanged when every observation has a box (a single frame)."""
+    if observations.has_box is None or observations.has_box.all():
+        return observations, hypotheses, similarity
+    kept = np.flatnonzero(observations.has_box)
+    renumber = np.full(len(observations), -1)
+    renumber[kept] = np.arange(len(kept))
+    narrowed = []
+    for hypothesis in hypotheses:
+        pairs = hypothesis.correspondences[observations.has_box[hypothesis.correspondences[:, 0]]]
+        narrowed.append(replace(hypothesis, correspondences=np.column_stack((renumber[pairs[:, 0]], pairs[:, 1]))))
+    return observations.subset(kept), narrowed, similarity[kept]

@@ -98,6 +98,18 @@ class Map:
     def __len__(self) -> int:
         return len(self.class_ids)
 
+    def subset(self, index: np.ndarray) -> Map:
+        """The landmarks at `index`, in that order, with the same vocabulary."""
+        return Map(self.ellipsoids.subset(index), self.class_ids[index], list(self.class_names),
+                   [self.descriptions[i] for i in np.asarray(index).ravel()], self.instance_ids[index],
+                   None if self.text_embeddings is None else self.text_embeddings[index], self.encoder,
+                   dict(self.provenance))
+
+    def transformed(self, pose: Pose) -> Map:
+        """The same map expressed in the frame `pose` maps into."""
+        return Map(self.ellipsoids.transformed(pose), self.class_ids, list(self.class_names), list(self.descriptions),
+                   self.instance_ids, self.text_embeddings, self.encoder, dict(self.provenance))
+
 
 @dataclass
 class Frame:
@@ -149,9 +161,19 @@ class Observations:
     boxes: np.ndarray | None = None  # (K, 4) float xyxy pixels: the detection box (image verification needs it)
     mask_areas: np.ndarray | None = None  # (K,) int, pixels of the detection mask
     camera: Camera | None = None  # None: the query cannot be verified in the image
+    # (K,) bool: the observation has a box in the query image (a fused window's objects the newest frame does
+    # not see have none; verification and confidence leave those out). None: every observation has one.
+    has_box: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.class_ids)
+
+    def subset(self, index: np.ndarray) -> Observations:
+        """The observations at `index`, in that order (camera kept)."""
+        pick = lambda array: None if array is None else array[index]  # noqa: E731
+        return Observations(self.ellipsoids.subset(index), self.class_ids[index], pick(self.image_embeddings),
+                            self.instance_ids[index], self.detection_index[index], pick(self.boxes),
+                            pick(self.mask_areas), self.camera, pick(self.has_box))
 
 
 @dataclass

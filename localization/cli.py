@@ -18,7 +18,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
                   context_settings={"help_option_names": ["-h", "--help"]})
 
 TOOL = "clipclique-loc"
-ALGORITHM, INPUTS, OUTPUT = "Algorithm", "Inputs", "Output"
+ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "Output"
 
 
 def _print_version(value: bool) -> None:
@@ -73,6 +73,16 @@ def run(
     same_place: Annotated[bool, typer.Option(
         "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
                              "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
+    window: Annotated[int, typer.Option(min=1, help="localize each frame with the K - 1 frames before it, fused by "
+                                               "odometry", metavar="K", rich_help_panel=WINDOW)] = 1,
+    window_step: Annotated[int, typer.Option(min=1, help="the window takes every S-th frame back from the newest",
+                                             metavar="S", rich_help_panel=WINDOW)] = 1,
+    odometry: Annotated[Optional[str], typer.Option(
+        help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or groundtruth "
+             "(with --odometry-drift, simulated)", rich_help_panel=WINDOW)] = None,
+    odometry_drift: Annotated[float, typer.Option(min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, "
+                                                  "percent of the distance travelled", metavar="PCT",
+                                                  rich_help_panel=WINDOW)] = 0.0,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -99,7 +109,8 @@ def run(
         method = method_key(method)
     settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, same_place=same_place, min_score=min_score or 0.0)
+                           record=not no_rrd, same_place=same_place, min_score=min_score or 0.0, window=window,
+                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
@@ -136,6 +147,51 @@ def compare(results: Annotated[list[Path], typer.Argument(
     with user_errors(TOOL):
         documents = [read_results(path) for given in results for path in results_files(given)]
     print_documents(make_console(), documents)
+
+
+@app.command()
+def align(
+    query_map: Annotated[Path, typer.Argument(metavar="MAP_A", help="the map to align (the query map)")],
+    map_path: Annotated[Path, typer.Argument(metavar="MAP_B", help="the map to align it into")],
+    method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc (whose descriptors "
+                                             "and matching align the maps)", rich_help_panel=ALGORITHM)] = "clipclique",
+    top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
+    set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
+                                                      rich_help_panel=ALGORITHM)] = None,
+    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/align/A_into_B]", rich_help_panel=OUTPUT)] = None,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
+) -> None:
+    """The transform taking MAP_A's coordinates into MAP_B's: JSON, a g2o edge and a recording of both maps."""
+    from rich.markup import escape
+
+    from clipclique.commands import rerun_hint
+    from clipclique.config import method_key
+    from clipclique.exits import user_errors
+    from localization.align import AlignSettings, align_and_save
+    from localization.tables import make_console
+
+    overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    with user_errors(TOOL):
+        settings = AlignSettings(query_map, map_path, method_key(method), config, overrides, out, record=not no_rrd)
+        document = align_and_save(settings)
+    console = make_console()
+    for note in document["notes"]:
+        console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
+    if not document["candidates"]:
+        console.print(f"no alignment: {escape(str(document['failure']))}", highlight=False)
+    for candidate in document["candidates"]:
+        console.print(f"{candidate['rank']}: confidence {candidate['confidence']:.2f}, "
+                      f"{len(candidate['correspondences'])} correspondences, rms {candidate['rms_m']:.3f} m",
+                      highlight=False)
+    if document["ambiguous"]:
+        console.print(f"AMBIGUOUS: candidates {document['competitors']} score alike; the map repeats what the "
+                      "query map holds", highlight=False)
+    out_dir = escape(str(settings.out_dir()))
+    console.print(f"results: {out_dir}/ (alignment.json, alignment.g2o)", highlight=False, soft_wrap=True)
+    if settings.record:
+        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
+                      highlight=False, soft_wrap=True)
 
 
 def main() -> None:

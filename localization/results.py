@@ -77,6 +77,10 @@ def run_description(run: Run) -> dict[str, Any]:
         "sequence_frames": len(run.sequence),
         "name": settings.run_name(),
         "changed": changed_settings(run.config, make_config(settings.method)),
+        **({} if run.odometry is None else {"window": {
+            "size": settings.window, "step": settings.window_step,
+            "odometry": {"name": run.odometry.name, "simulated": run.odometry.simulated,
+                         "drift_percent": settings.odometry_drift if run.odometry.simulated else None}}}),
     }
 
 
@@ -91,6 +95,8 @@ def results_document(run: Run, earlier_recording: str | None = None) -> dict[str
     place (`--no-rrd`, `earlier_recording` its results digest), told apart by the results each shows; one
     showing other results gets a note, every time."""
     summary = dict(run.summary())
+    if run.odometry is not None:
+        summary["window_frames_without_odometry"] = sum(f.window.without_odometry for f in run.frames)
     summary["stage_ms_median"] = stage_medians(run.frames)
     frames = json_safe([frame_record(outcome) for outcome in run.frames])
     digest = results_digest(frames)
@@ -175,6 +181,10 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
             "observations_in_map": evaluation.num_in_map,
         },
         "timings_ms": {stage: 1e3 * outcome.timings.get(stage, 0.0) for stage in ALL_STAGES},
+        **({} if outcome.window is None else {"window": {
+            "frames": outcome.window.frames, "without_odometry": outcome.window.without_odometry,
+            "observations_with_box": int(outcome.window.observations.has_box.sum())
+            if outcome.window.observations.has_box is not None else evaluation.num_observations}}),
     }
 
 

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, changed_by_overrides, make_config
 from clipclique.backends import load_encoder, make_detector
@@ -30,7 +32,9 @@ from clipclique.observations import embed, extract_observations
 from clipclique.outputs import LOC_DIR, Staging, map_file
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import check_scene, default_detector, open_scene
-from clipclique.types import Detections, Frame, Map, Observations, Pose
+from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
+from clipclique.odometry import GROUND_TRUTH, Odometry, open_odometry
+from clipclique.window import WindowConfig, WindowQuery, Windower
 from localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder
@@ -59,9 +63,13 @@ class RunSettings:
     max_frames: int | None = None
     out: Path | None = None  # default outputs/loc/<sequence name>/<run_name()>
     record: bool = True
-    seed: int = 0  # the simulated detector's
+    seed: int = 0  # the simulated detector's (and the simulated odometry drift's)
     same_place: bool = False  # the map is of another recording of this place (else such a map is refused)
     min_score: float = 0.0  # detections scoring lower are dropped (file: and yolo detectors)
+    window: int = 1  # K: localize each frame with the K - 1 before it (every window_step-th), fused by odometry
+    window_step: int = 1
+    odometry: str | None = None  # "groundtruth" or a TUM trajectory file; needed with window > 1
+    odometry_drift: float = 0.0  # percent, simulated on ground truth
 
     def out_dir(self, sequence_name: str) -> Path:
         """`--out`, else outputs/loc/<the sequence's resolved name>/<run_name()>."""
@@ -81,6 +89,10 @@ class RunSettings:
                  "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
                  "max_frames": self.max_frames, "min_score": self.min_score or None}
+        if self.window > 1:
+            given |= {"window": self.window, "window_step": self.window_step if self.window_step != 1 else None,
+                      "odometry": Path(self.odometry).name if self.odometry else None,
+                      "drift": self.odometry_drift or None}
         parts += [f"{key}={value}" for key, value in given.items() if value is not None]
         name = re.sub(r"[^\w.,=+-]", "_", "+".join(parts))
         return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
@@ -100,6 +112,7 @@ class FrameOutcome:
     result: LocalizationResult
     evaluation: FrameEvaluation
     timings: dict[str, float]  # seconds: outcomes.ALL_STAGES
+    window: WindowQuery | None = None  # the fused window this frame was localized with (--window)
 
 
 @dataclass
@@ -115,6 +128,7 @@ class Run:
     reads_instances: bool = True  # the detector reads the frame's instance image (not YOLO, not a detection file)
     unannotated: list[str] = field(default_factory=list)  # frames left out: no instance image to detect from
     detections_file: CocoRecorder | None = None  # a model's detections, kept to be written as COCO results
+    odometry: Odometry | None = None  # with a window
 
     def summary(self) -> dict[str, object]:
         return summarize([outcome.evaluation for outcome in self.frames]) | {"not_annotated": len(self.unannotated)}
@@ -159,7 +173,22 @@ def prepare(settings: RunSettings) -> Run:
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
     reads_instances = not (detector_kind == "yolo" or detector_kind.startswith("file:"))
     return Run(settings, config, sequence, map, detector, encoder, notes, reads_instances=reads_instances,
-               detections_file=recorder)
+               detections_file=recorder, odometry=window_odometry(settings, sequence))
+
+
+def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | None:
+    """The odometry a window needs (None without a window); refusals say which option is missing."""
+    if settings.window < 1 or settings.window_step < 1:
+        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: both must be 1 or more")
+    if settings.window == 1:
+        if settings.odometry is not None or settings.odometry_drift:
+            raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")
+        return None
+    if settings.odometry is None:
+        raise ClipcliqueError(f"--window {settings.window} needs --odometry FILE.tum (a metric trajectory) or "
+                              f"--odometry {GROUND_TRUTH} (with --odometry-drift PCT, simulated)")
+    timestamps, truth = sequence.trajectory()
+    return open_odometry(settings.odometry, settings.odometry_drift, settings.seed, timestamps, truth)
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:
@@ -239,20 +268,45 @@ def selected_frames(run: Run) -> range:
     return selected
 
 
+def localize_window(run: Run, frame: Frame, index: MapIndex, windower: Windower) -> tuple[FrameOutcome, Seen]:
+    """Observe the frame, fuse its window (earlier frames observed when no earlier query did), localize, score."""
+    seen = observe(run, frame)
+    query = windower.query(frame.index, seen.observations, lambda i: earlier_observations(run, run.sequence[i]))
+    result = localize(query.observations, index, run.config)
+    evaluation = evaluate_frame(result, query.observations, run.map, frame.pose, run.config, frame.index)
+    outcome = FrameOutcome(frame.index, frame.timestamp, frame.name, frame.pose, len(seen.detections), seen.dropped,
+                           result, evaluation, seen.timings | result.timings, query)
+    return outcome, seen
+
+
+def earlier_observations(run: Run, frame: Frame) -> Observations:
+    """A window's earlier frame observed; nothing seen where the detector reads an instance image the frame lacks."""
+    if run.reads_instances and frame.instances is None:
+        empty = np.zeros(0, np.int64)
+        return Observations(Ellipsoids.empty(), empty, None, empty, empty)
+    return observe(run, frame).observations
+
+
 def execute(run: Run, recorder: LocalizationRecorder | None = None,
             progress: Callable[[int, int], None] | None = None) -> Run:
-    """Localize the selected frames; log each to `recorder` when given."""
+    """Localize the selected frames (each with its window when asked); log each to `recorder` when given."""
     index = index_map(run.map, run.config)
     selected = selected_frames(run)
+    windower = None if run.odometry is None else Windower(
+        WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
     for count, i in enumerate(selected, start=1):
         frame = run.sequence[i]
         if run.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
             run.unannotated.append(frame.name)
             continue
-        outcome, seen = localize_frame(run, frame, index)
+        outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)
         run.frames.append(outcome)
         if recorder is not None:
-            recorder.log_frame(frame, seen.detections, seen.observations, outcome.result, outcome.evaluation)
+            observations = seen.observations if outcome.window is None else outcome.window.observations
+            recorder.log_frame(frame, seen.detections, observations, outcome.result, outcome.evaluation)
+            if outcome.window is not None:
+                top1 = outcome.result.hypotheses[0].pose if outcome.result.hypotheses else None
+                recorder.log_window(outcome.window, frame.pose or top1)
         if progress is not None:
             progress(count, len(selected))
     if run.unannotated:
@@ -326,6 +380,9 @@ def recording_description(run: Run) -> str:
         part = description[role]
         parts.append(f"- {role}: none" if part is None else
                      f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
+    if run.odometry is not None:
+        parts.append(f"- window: {run.settings.window} frames, step {run.settings.window_step}; odometry: "
+                     f"{run.odometry.name}{' — **simulated**' if run.odometry.simulated else ''}")
     parts += [f"- note: {note}" for note in run.notes]
     changed = description["changed"]
     parts.append("- settings changed from the preset: " + (", ".join(f"`{k} = {v}`" for k, v in changed.items())

@@ -62,7 +62,13 @@ def _inputs(run: dict[str, Any]) -> dict[str, Any]:
     """The run's inputs, those left at their default (all frames, every frame) as None."""
     return {"detector": run["detector"]["name"], "encoder": (run["encoder"] or {}).get("name"),
             "map": run.get("map"), "stride": run.get("stride") if run.get("stride", 1) != 1 else None,
-            "max_frames": run.get("max_frames")}
+            "max_frames": run.get("max_frames"), "window": _window(run)}
+
+
+def _window(run: dict[str, Any]) -> str | None:
+    """`K/S odometry` of a windowed run (its odometry's name says when it is simulated), None for single frames."""
+    window = run.get("window")
+    return None if window is None else f"{window['size']}/{window['step']} {window['odometry']['name']}"
 
 
 def run_settings(document: dict[str, Any], documents: list[dict[str, Any]]) -> str:
@@ -176,6 +182,10 @@ def run_banner(document: dict[str, Any]) -> str:
         f"detector: {detector['name']}{' (SIMULATED)' if detector['simulated'] else ''}",
         "encoder: none" if encoder is None else f"encoder: {encoder['name']}{' (SIMULATED)' if encoder['simulated'] else ''}",
     ]
+    if "window" in run:
+        window = run["window"]
+        odometry = window["odometry"]
+        lines.append(f"window: {window['size']} frames, step {window['step']}; odometry: {odometry['name']}")
     lines += [f"note: {note}" for note in run["notes"]]
     return "\n".join(lines)
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from clipclique import safeio
 from clipclique.errors import DatasetError
-from clipclique.types import Frame
+from clipclique.types import Frame, Pose
 
 # Room structure, not landmarks: left out of maps and ground-truth detections.
 STRUCTURE_CLASSES = frozenset({"wall", "floor", "ceiling"})
@@ -81,6 +81,12 @@ class Sequence(ABC):
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""
         return None
+
+    def trajectory(self) -> tuple[np.ndarray, list[Pose | None]]:
+        """(timestamps (F,), ground-truth camera-to-world pose or None) of every frame; readers that know them
+        without decoding images say so cheaper."""
+        frames = [self[i] for i in range(len(self))]
+        return np.array([frame.timestamp for frame in frames]), [frame.pose for frame in frames]
 
     def __iter__(self) -> Iterator[Frame]:
         return (self[i] for i in range(len(self)))

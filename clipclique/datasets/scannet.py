@@ -101,6 +101,9 @@ class ScanNetScene(Sequence):
     def __len__(self) -> int:
         return len(self.frame_numbers)
 
+    def trajectory(self) -> tuple[np.ndarray, list[Pose | None]]:
+        return np.array(self.frame_numbers, np.float64), list(self.poses)
+
     def __getitem__(self, i: int) -> Frame:
         i = self._check_index(i)
         n = self.frame_numbers[i]

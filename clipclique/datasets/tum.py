@@ -223,6 +223,9 @@ class TumSequence(Sequence):
         """Frame `i`'s name: its colour image's file stem, which names its annotation too."""
         return Path(self.rgb_files[i]).stem
 
+    def trajectory(self) -> tuple[np.ndarray, list[Pose | None]]:
+        return self.timestamps.copy(), list(self.poses)
+
     def _annotation_path(self, i: int) -> Path:
         return self.root / "annotations" / "instances" / f"{self.frame_name(i)}.png"
 

@@ -14,7 +14,7 @@ import rerun.blueprint as rrb
 
 from clipclique.config import GraphConfig
 from clipclique.projection import box_iou, ellipse_outlines, project
-from clipclique.types import Detections, Frame, Map, Observations, Pose
+from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
@@ -31,10 +31,14 @@ from clipclique.viz.style import (
 if TYPE_CHECKING:
     from clipclique.metrics import FrameEvaluation
     from clipclique.pipeline import LocalizationResult
+    from clipclique.window import WindowQuery
 
 CAMERA = "world/camera/gt"  # holds the query image and overlays, so they hang in the ground-truth frustum
 DEPTH = "depth"  # outside `world`: subsampled (see convert), shown in its own 2D view, not projected
 UNIX_TIME_MIN = 1e9  # TUM stamps are Unix seconds (> 2001); ScanNet's are frame numbers
+WINDOW_SOURCES = "world/window/sources"  # a fused window's source observations (window localization)
+WINDOW_PATH = "world/window/odometry"  # ... and its cameras by odometry
+WINDOW_COLOR = (120, 120, 255)
 GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
 LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
@@ -48,7 +52,8 @@ LEGEND = (
     "green within 1 m · **Ellipsoids** landmarks in class colours (hover for any label) · **Cyan** semantic-graph "
     "edges, hidden at first (show `world/map/graph` in the blueprint panel) · **Camera** detection boxes labelled "
     "where they do not crowd (hover the rest), projected landmarks of the top-1 pose with the IoU of those "
-    "supporting it · **Error plots** a gap and a red cross where a frame has no pose"
+    "supporting it · **Error plots** a gap and a red cross where a frame has no pose · **Blue** (window "
+    "localization) the window's source observations, older frames darker, and its cameras by odometry"
 )
 
 
@@ -94,6 +99,27 @@ class LocalizationRecorder:
         self._log_metrics(observations, result, evaluation)
         self._log_text(frame, observations, result, evaluation)
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
+
+    def log_window(self, query: WindowQuery, placement: Pose | None) -> None:
+        """The fused window of the frame just logged: each source frame's observations moved into the newest
+        camera (newest brightest, older ones fading) and the odometry path of the window's cameras, placed by
+        `placement` (the ground truth, else the top-1 estimate)."""
+        if placement is None:
+            for path in (WINDOW_SOURCES, WINDOW_PATH):
+                self.stream.log(path, rr.Clear(recursive=False))
+            return
+        moved = query.fusion.moved
+        ages = np.repeat(np.arange(len(moved))[::-1], [len(e) for e in moved])  # 0 = the newest frame
+        shade = np.clip(255 - 40 * ages, 60, 255).astype(np.uint8)
+        stacked = Ellipsoids(*(np.concatenate([getattr(e, name) for e in moved]).reshape(shape)
+                               for name, shape in (("centers", (-1, 3)), ("axes", (-1, 3)), ("rotations", (-1, 3, 3)))))
+        classes = np.concatenate([sources.class_ids for sources in query.fusion.sources]).astype(np.int64)
+        self.stream.log(WINDOW_SOURCES, ellipsoids3d(stacked.transformed(placement), classes,
+                                                     colors=np.column_stack((shade // 2, shade // 2, shade)),
+                                                     fill_mode="MajorWireframe", show_labels=False),
+                        rr.AnyValues(frame=np.repeat(query.frames, [len(e) for e in moved])))
+        cameras = placement.apply(np.array([pose.translation for pose in query.poses]))
+        self.stream.log(WINDOW_PATH, rr.LineStrips3D([cameras], colors=WINDOW_COLOR, radii=rr.Radius.ui_points(2.0)))
 
     def close(self) -> None:
         self._recording.close()
@@ -214,10 +240,11 @@ class LocalizationRecorder:
         seen = project(self.map.ellipsoids, pose.rotation[None], pose.translation[None], observations.camera)
         shown = np.flatnonzero(seen.visible[0])
         supporting = dict(map(tuple, np.asarray(result.hypotheses[0].correspondences)[:, ::-1].tolist()))
+        boxed = np.ones(len(observations), bool) if observations.has_box is None else observations.has_box
         labels = []
         for landmark in shown:
             label = ""
-            if landmark in supporting and observations.boxes is not None:
+            if landmark in supporting and observations.boxes is not None and boxed[supporting[landmark]]:
                 iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
                 label = f"IoU {iou:.2f}"
             labels.append(label)

@@ -43,6 +43,8 @@ SKIPPED = {
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
     "mkdir -p data/tum && curl -L https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":
         "downloads TUM fr2/desk and needs a published object map; the block after it runs the same commands on generated files",
+    ".venv/bin/python tools/bench_window.py --step 1": "localizes both realistic scenes 40 times each (minutes); "
+                                                       "tests/integration/test_bench_window.py runs it on a few frames",
 }
 
 

@@ -613,6 +613,49 @@ def name_cases() -> list[Case]:
     return [Case("names", f"loc-{n}", loc(n)) for n in names] + [Case("names", f"map-{n}", build(n)) for n in names]
 
 
+def align_cases() -> list[Case]:
+    """The damaged and hostile map files of `map_cases`, given to clipclique-loc align as MAP_A (and a few as MAP_B)."""
+
+    def align(case: Case, role: str) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            _, args, named = case.make(space, case_dir)
+            bad = args[args.index("--map") + 1]
+            pair = [bad, str(space.map)] if role == "query" else [str(space.map), bad]
+            return loc_app, ["align", *pair, "--out", str(space.loc / "align")], named
+
+        return make
+
+    cases = map_cases()
+    return ([Case("align", f"{case.name}-as-query", align(case, "query")) for case in cases]
+            + [Case("align", f"{case.name}-as-map", align(case, "map")) for case in cases[:6]])
+
+
+def odometry_cases() -> list[Case]:
+    """Broken --odometry trajectory files for clipclique-loc run --window."""
+    good = "0 0 0 0 0 0 0 1\n1 0.1 0 0 0 0 0 1\n2 0.2 0 0 0 0 0 1\n3 0.3 0 0 0 0 0 1\n"
+
+    def odometry(write: Callable[[Path], None]) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            path = case_dir / "vo.tum"
+            path.write_text(good)
+            write(path)
+            return loc_app, space.loc_args("--window", "2", "--odometry", str(path)), "vo.tum"
+
+        return make
+
+    return [
+        Case("odometry", "nan", odometry(lambda p: _insert(p, b"1.5 nan 0 0 0 0 0 1\n"))),
+        Case("odometry", "seven-columns", odometry(lambda p: _insert(p, b"1.5 0 0 0 0 0 1\n"))),
+        Case("odometry", "zero-quaternion", odometry(lambda p: _insert(p, b"1.5 0 0 0 0 0 0 0\n"))),
+        Case("odometry", "latin1", odometry(lambda p: _insert(p, b"# " + LATIN1 + b"\n"))),
+        Case("odometry", "utf16", odometry(lambda p: p.write_bytes(p.read_text().encode("utf-16")))),
+        Case("odometry", "folder", odometry(_replace_dir)),
+        Case("odometry", "missing", odometry(lambda p: p.unlink())),
+        Case("odometry", "no-matching-time", odometry(lambda p: p.write_text("1700000000 0 0 0 0 0 0 1\n"))),
+    ]
+
+
+
 def import_cases() -> list[Case]:
     """Another system's map given to clipclique-map import: every reader refuses it in one line naming the file."""
     q = " ".join(f"{v:.8f}" for v in (np.diag([0.09, 0.01, 0.04, -1.0]) + np.outer([0, 0, 0, 0], [0] * 4)).T.ravel())
@@ -733,7 +776,7 @@ def detection_cases() -> list[Case]:
     return [Case("detections", name, make) for name, make in makers.items()]
 
 
-CASES = map_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
+CASES = map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
@@ -741,7 +784,8 @@ def test_the_suite_is_large_and_covers_every_family():
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
                                                "outputs", "encoder", "compare", "names", "import",
-                                               "detections", "annotate"}
+                                               "detections", "annotate",
+                                               "align", "odometry"}
 
 
 @pytest.mark.parametrize("case", CASES, ids=str)

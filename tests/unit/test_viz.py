@@ -410,3 +410,26 @@ def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_enti
     overrides = {path: columns for path, (_, columns) in recorded_entities(loc_rrd).items() if "/overrides/" in path}
     assert [columns for path, columns in overrides.items() if "/overrides/world/map/graph" in path] == [
         {"EntityBehavior:visible"}]
+
+
+def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path, run):
+    from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
+    from clipclique.window import WindowConfig, Windower
+
+    map, frames = run
+    windower = Windower(WindowConfig(size=2), [f.frame.pose for f in frames], map.class_names)
+    query = windower.query(1, frames[1].observations, lambda i: frames[i].observations)
+    newest = frames[1]
+    with LocalizationRecorder(tmp_path / "window.rrd", map, "# window") as recorder:
+        spy = LogSpy(recorder.stream)
+        recorder.log_frame(newest.frame, newest.detections, query.observations, newest.result, newest.evaluation)
+        recorder.log_window(query, newest.frame.pose)
+    sources = spy.last(WINDOW_SOURCES)[0]
+    count = len(frames[0].observations) + len(frames[1].observations)
+    centers = np.array(sources.centers.as_arrow_array().to_pylist(), float)
+    assert len(centers) == count
+    # every source observation lands in the world where its own frame's ground truth puts it
+    expected = np.vstack([f.frame.pose.apply(f.observations.ellipsoids.centers) for f in frames[:2]])
+    np.testing.assert_allclose(centers, expected, atol=1e-4)
+    path = spy.last(WINDOW_PATH)[0].strips.as_arrow_array().to_pylist()[0]
+    np.testing.assert_allclose(path, [f.frame.pose.translation for f in frames[:2]], atol=1e-4)

@@ -18,7 +18,7 @@ from clipclique.types import Detections, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile
+from clipclique.viz.recording import RecordingFile, Worker
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -53,7 +53,11 @@ LEGEND = (
 
 
 class LocalizationRecorder:
-    """Writes one `.rrd` for a localization run; use as a context manager or call `close`."""
+    """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
+
+    `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
+    recording costs the localization loop next to nothing. Call `flush` to wait for it.
+    """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
         self.map = map
@@ -72,6 +76,7 @@ class LocalizationRecorder:
             rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
             static=True,
         )
+        self._worker = Worker("clipclique-recording")
 
     def log_frame(
         self,
@@ -81,7 +86,22 @@ class LocalizationRecorder:
         result: LocalizationResult,
         evaluation: FrameEvaluation | None,
     ) -> None:
-        """Log one localized frame; `evaluation` is None without ground truth."""
+        """Queue one localized frame for logging; `evaluation` is None without ground truth. The arguments
+        must not change afterwards (the run loop makes new ones every frame)."""
+        self._worker.submit(lambda: self._write_frame(frame, detections, observations, result, evaluation))
+
+    def flush(self) -> None:
+        """Wait until every queued frame is logged."""
+        self._worker.drain()
+
+    def _write_frame(
+        self,
+        frame: Frame,
+        detections: Detections,
+        observations: Observations,
+        result: LocalizationResult,
+        evaluation: FrameEvaluation | None,
+    ) -> None:
         self.stream.set_time("frame", sequence=frame.index)
         if frame.timestamp >= UNIX_TIME_MIN:
             self.stream.set_time("time", timestamp=frame.timestamp)
@@ -96,6 +116,11 @@ class LocalizationRecorder:
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
 
     def close(self) -> None:
+        try:
+            self._worker.stop()
+        except BaseException:
+            self._recording.abort()
+            raise
         self._recording.close()
 
     def __enter__(self) -> LocalizationRecorder:
@@ -104,7 +129,11 @@ class LocalizationRecorder:
     def __exit__(
         self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
     ) -> None:
-        self._recording.__exit__(kind, error, trace)
+        if kind is None:
+            self.close()
+        else:
+            self._worker.stop(discard=True)
+            self._recording.abort()
 
     def _blueprint(self) -> rrb.Blueprint:
         """The default layout, its 3D view framing the landmarks and the ground-truth trajectory."""

@@ -11,9 +11,17 @@ def clip_similarity(image_embeddings: np.ndarray, text_embeddings: np.ndarray) -
     return np.asarray(image_embeddings, np.float64) @ np.asarray(text_embeddings, np.float64).T
 
 
-def histogram_similarity(query: sp.csr_matrix, landmarks: sp.csr_matrix) -> np.ndarray:
-    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1]."""
-    return (query @ landmarks.T).toarray()
+def histogram_similarity(query: sp.csr_matrix, landmarks_by_bin: sp.csr_matrix) -> np.ndarray:
+    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1].
+
+    `landmarks_by_bin` is the map's (N, C^s) histograms transposed to a (C^s, N) CSR matrix
+    (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query."""
+    return (query @ landmarks_by_bin).toarray()
+
+
+def by_bin(landmarks: sp.csr_matrix) -> sp.csr_matrix:
+    """(C^s, N) the histograms transposed, as the CSR matrix scipy converts `landmarks.T` to in a product."""
+    return landmarks.T.tocsr()
 
 
 def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix) -> np.ndarray:
@@ -25,10 +33,16 @@ def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix)
     return (query_counts @ present.T).toarray() / np.maximum(walks, 1.0)[:, None]
 
 
-def class_similarity(query_classes: np.ndarray, landmark_classes: np.ndarray, kernel: sp.csr_matrix) -> np.ndarray:
+def class_similarity(query_classes: np.ndarray, kernel_by_landmark: np.ndarray) -> np.ndarray:
     """(K, N) the class kernel between each observation's class and each landmark's: 1 for the same
-    class, the look-alike weight for classes a detector confuses, 0 otherwise."""
-    return kernel[query_classes][:, landmark_classes].toarray()
+    class, the look-alike weight for classes a detector confuses, 0 otherwise. `kernel_by_landmark`
+    is `kernel_columns(kernel, landmark_classes)`, made once per map."""
+    return kernel_by_landmark[query_classes]
+
+
+def kernel_columns(kernel: sp.csr_matrix, landmark_classes: np.ndarray) -> np.ndarray:
+    """(C, N) dense: the kernel between every class and each landmark's class."""
+    return kernel.toarray()[:, landmark_classes]
 
 
 def with_class_term(histogram: np.ndarray, classes: np.ndarray, weight: float) -> np.ndarray:

@@ -2,7 +2,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from clipclique.graph import semantic_graph, semantic_histograms
-from clipclique.similarity import clip_similarity, fuse, histogram_similarity, walk_similarity
+from clipclique.similarity import by_bin, clip_similarity, fuse, histogram_similarity, walk_similarity
 
 
 def test_histogram_similarity_is_cosine_of_histograms():
@@ -10,11 +10,11 @@ def test_histogram_similarity_is_cosine_of_histograms():
     centers = rng.uniform(0, 3, size=(30, 3))
     classes = rng.integers(0, 5, 30)
     histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 5)
-    similarity = histogram_similarity(histograms[:4], histograms)
+    similarity = histogram_similarity(histograms[:4], by_bin(histograms))
     dense = histograms.toarray()
     np.testing.assert_allclose(similarity, dense[:4] @ dense.T)
     connected = np.flatnonzero(np.linalg.norm(dense, axis=1) > 0)[:4]
-    np.testing.assert_allclose(histogram_similarity(histograms[connected], histograms[connected]).diagonal(), 1.0)
+    np.testing.assert_allclose(histogram_similarity(histograms[connected], by_bin(histograms[connected])).diagonal(), 1.0)
     # a node's own class is each walk's first label: different classes never share a bin
     assert (similarity[classes[:4, None] != classes[None, :]] == 0).all()
 

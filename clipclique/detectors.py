@@ -74,6 +74,15 @@ def _instance_table(instances: np.ndarray, top: int) -> tuple[np.ndarray, np.nda
     return counts, boxes
 
 
+def id_counts(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.unique(ids, return_counts=True)`, counted without its sort where the ids are small enough."""
+    if ids.size == 0 or ids.min() < 0 or ids.max() > max(ids.size, 1024):
+        return np.unique(ids, return_counts=True)
+    counts = np.bincount(ids.ravel())
+    present = np.flatnonzero(counts)
+    return present.astype(ids.dtype), counts[present]
+
+
 def vocabulary_index(class_names: list[str]) -> dict[str, int]:
     return {name.lower(): i for i, name in enumerate(class_names)}
 

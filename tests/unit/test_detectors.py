@@ -11,7 +11,7 @@ import pytest
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
 from clipclique.backends import make_detector
-from clipclique.detectors import InstanceDetector, instance_boxes, mask_boxes
+from clipclique.detectors import InstanceDetector, id_counts, instance_boxes, mask_boxes
 from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, read_lookalikes
 from clipclique.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 
@@ -49,6 +49,9 @@ def test_instance_boxes_are_the_masks_ids_counts_and_boxes(largest):
     np.testing.assert_array_equal(boxes, mask_boxes(instances[None] == ids[:, None, None]))
     assert boxes[:, 0].min() == 20  # the empty columns are outside every box
     assert all(len(part) == 0 for part in instance_boxes(np.zeros((4, 5), np.int32))[:2])
+    for image in (instances, instances[:, 20:], np.abs(instances), np.zeros((0, 3), np.int32)):
+        got, expected = id_counts(image), np.unique(image, return_counts=True)
+        assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(got, expected))
 
 
 def test_ground_truth_detections_map_ids_to_the_vocabulary():

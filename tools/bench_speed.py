@@ -14,6 +14,9 @@ literal reference's whole query beside the project's.
 `--recording FRAMES`: the Rerun recording of the first scene, ms of `log_frame` on the caller's
 thread per frame, the seconds `close` waits for what is still queued, and kB per frame.
 
+`--whole-runs N`: N whole `clipclique-loc run` processes of the first scene per tree, alternating,
+with and without the recording (process start included, after one warm-up run each).
+
 `--clutter COUNTS`: the desk scene of `tools/bench_core.py` (26 observations a query, the desk map
 copied into rooms 20 m apart), SH only, per landmark count: `index_map` seconds, whole-query median
 and 90th percentile ms, cap hits, and the worker's peak resident memory; the literal reference at
@@ -65,6 +68,14 @@ class Worker:
 
 def serve() -> None:
     """Worker mode: requests on stdin, one JSON answer per line on stdout."""
+    try:  # a revision from before clipclique.sim: its synthetic maps where this tree's tools import them
+        import clipclique.sim.synthetic  # noqa: F401
+    except ImportError:
+        import types
+
+        import clipclique.synthetic
+        sys.modules["clipclique.sim"] = types.ModuleType("clipclique.sim")
+        sys.modules["clipclique.sim.synthetic"] = clipclique.synthetic
     import literal_reference
     from clipclique.pipeline import index_map, localize
     from localization.run import RunSettings, observe, prepare, selected_frames
@@ -137,7 +148,7 @@ def clutter_rooms(count: int, queries: int = 100, seed: int = 0) -> tuple:
 
     from clipclique.config import make_config
     from clipclique.pipeline import index_map
-    from clipclique.synthetic import duplicate_rooms
+    from clipclique.sim.synthetic import duplicate_rooms
 
     config = make_config("clipclique", overrides={"similarity.descriptor": "sh"})
     base = desk_map(np.random.default_rng(seed))
@@ -207,6 +218,8 @@ def compare_clutter(counts: list[int], workers: list[Worker], frames: int, repea
     print(f"  {'landmarks':>9} {'tree':>8} {'index s':>8} {'median':>8} {'p90':>8} {'p90/med':>8} {'caps':>5} "
           f"{'peak MB':>8} {'literal':>8}")
     for count in counts:
+        for worker in workers:  # warm up (the index is built, compiled functions loaded)
+            worker.ask(kind="clutter", landmarks=count, query=0, repeat=1, literal=False)
         rows: dict[str, list[dict]] = {worker.label: [] for worker in workers}
         for q in range(frames):
             for worker in workers:
@@ -232,6 +245,27 @@ def compare_recording(scene: str, workers: list[Worker], max_frames: int, direct
               f"close {answer['close s']:.2f} s, {answer['kB per frame']:.0f} kB per frame", flush=True)
 
 
+def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory: Path) -> None:
+    """Wall seconds of whole `clipclique-loc run` processes (start included), each tree in turn, after
+    one warm-up run each (numba's cache); with and without the recording."""
+    print(f"whole `clipclique-loc run {scene}` processes, seconds (median of {runs}, trees alternating, "
+          "numba cache warm):")
+    seconds: dict[tuple[str, bool], list[float]] = {}
+    for attempt in range(runs + 1):
+        for label, tree in trees.items():
+            for record in (True, False):
+                command = [sys.executable, "-c", "from localization.cli import main; main()", "run", scene,
+                           "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
+                start = time.perf_counter()
+                subprocess.run(command, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(tree)), check=True,
+                               capture_output=True)
+                if attempt:  # the first round warms the caches
+                    seconds.setdefault((label, record), []).append(time.perf_counter() - start)
+    for (label, record), values in seconds.items():
+        print(f"  {label:>8} {'with' if record else 'without'} the recording: {np.median(values):.1f} s "
+              f"({', '.join(f'{v:.1f}' for v in values)})", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*", default=["demo_desk", "demo_apartment", "demo"])
@@ -243,6 +277,8 @@ def main() -> None:
     parser.add_argument("--clutter-frames", type=int, default=20)
     parser.add_argument("--recording", type=int, default=0, metavar="FRAMES",
                         help="also time the recording of the first scene's first FRAMES frames")
+    parser.add_argument("--whole-runs", type=int, default=0, metavar="N",
+                        help="also time N whole `clipclique-loc run` processes of the first scene per tree")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
@@ -267,6 +303,9 @@ def main() -> None:
                 compare_scene(scene, workers, args.max_frames, args.repeat)
             if args.recording:
                 compare_recording(args.scenes[0], workers, args.recording, Path(directory))
+            if args.whole_runs:
+                trees = {"now": ROOT} if rev == "none" else {"before": Path(directory), "now": ROOT}
+                compare_whole_runs(args.scenes[0], trees, args.whole_runs, Path(directory))
             if args.clutter:
                 compare_clutter(args.clutter, workers, args.clutter_frames, args.repeat)
         finally:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 
 def clip_similarity(image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
@@ -15,8 +16,27 @@ def histogram_similarity(query: sp.csr_matrix, landmarks_by_bin: sp.csr_matrix) 
     """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1].
 
     `landmarks_by_bin` is the map's (N, C^s) histograms transposed to a (C^s, N) CSR matrix
-    (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query."""
-    return (query @ landmarks_by_bin).toarray()
+    (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query. The
+    product is `(query @ landmarks_by_bin).toarray()` to the bit (each sum from 0, its terms in the
+    query row's stored order, as scipy's sparse product adds them), written straight into the
+    dense result instead of through a sparse one."""
+    out = np.zeros((query.shape[0], landmarks_by_bin.shape[1]))
+    _sparse_product_into(out, query.indptr, query.indices, query.data.astype(np.float64, copy=False),
+                         landmarks_by_bin.indptr, landmarks_by_bin.indices,
+                         landmarks_by_bin.data.astype(np.float64, copy=False))
+    return out
+
+
+@njit(cache=True)
+def _sparse_product_into(out: np.ndarray, pointers: np.ndarray, columns: np.ndarray, values: np.ndarray,
+                         other_pointers: np.ndarray, other_columns: np.ndarray, other_values: np.ndarray) -> None:
+    for i in range(len(pointers) - 1):
+        row = out[i]
+        for e in range(pointers[i], pointers[i + 1]):
+            b, value = columns[e], values[e]
+            for f in range(other_pointers[b], other_pointers[b + 1]):
+                product = value * other_values[f]  # rounded apart from the sum, as scipy's loop does
+                row[other_columns[f]] += product
 
 
 def by_bin(landmarks: sp.csr_matrix) -> sp.csr_matrix:

@@ -18,7 +18,7 @@ from clipclique.types import Detections, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile, Worker
+from clipclique.viz.recording import RecordingFile, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -78,6 +78,11 @@ class LocalizationRecorder:
         )
         self._worker = Worker("clipclique-recording")
 
+    def flush(self) -> None:
+        """Wait until every queued frame is logged."""
+        self._worker.drain()
+
+    @queued
     def log_frame(
         self,
         frame: Frame,
@@ -86,22 +91,8 @@ class LocalizationRecorder:
         result: LocalizationResult,
         evaluation: FrameEvaluation | None,
     ) -> None:
-        """Queue one localized frame for logging; `evaluation` is None without ground truth. The arguments
-        must not change afterwards (the run loop makes new ones every frame)."""
-        self._worker.submit(lambda: self._write_frame(frame, detections, observations, result, evaluation))
-
-    def flush(self) -> None:
-        """Wait until every queued frame is logged."""
-        self._worker.drain()
-
-    def _write_frame(
-        self,
-        frame: Frame,
-        detections: Detections,
-        observations: Observations,
-        result: LocalizationResult,
-        evaluation: FrameEvaluation | None,
-    ) -> None:
+        """Log one localized frame (queued: see the class); `evaluation` is None without ground truth. The
+        arguments must not change afterwards (the run loop makes new ones every frame)."""
         self.stream.set_time("frame", sequence=frame.index)
         if frame.timestamp >= UNIX_TIME_MIN:
             self.stream.set_time("time", timestamp=frame.timestamp)

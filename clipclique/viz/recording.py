@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import queue
 import threading
@@ -104,6 +105,14 @@ class Worker:
     def _raise(self) -> None:
         if self._error is not None and not isinstance(self._error, _Discarded):
             raise self._error
+
+
+def queued(method: Callable[..., None]) -> Callable[..., None]:
+    """A method of an object with a `_worker` (a Worker) that runs there: the caller only queues the call."""
+    @functools.wraps(method)
+    def submit(self, *args, **kwargs) -> None:
+        self._worker.submit(functools.partial(method, self, *args, **kwargs))
+    return submit
 
 
 class _Discarded(Exception):

@@ -31,3 +31,13 @@ def test_clip_and_fused_similarity():
     clip = clip_similarity(image, text)
     np.testing.assert_allclose(clip, [[0.0, 1.0], [0.8, 0.6]])
     np.testing.assert_allclose(fuse(clip, np.ones((2, 2)), 0.7), [[0.3, 1.0], [0.86, 0.72]])
+
+
+def test_histogram_similarity_is_scipys_sparse_product_to_the_bit():
+    rng = np.random.default_rng(1)
+    centers = rng.uniform(0, 4, size=(200, 3))
+    classes = rng.integers(0, 6, 200)
+    kernel = sp.csr_matrix(np.eye(6) + 0.6 * (rng.random((6, 6)) < 0.2))
+    histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 6, kernel=kernel)
+    query = histograms[rng.permutation(200)[:20]]
+    np.testing.assert_array_equal(histogram_similarity(query, by_bin(histograms)), (query @ histograms.T).toarray())

@@ -108,8 +108,8 @@ def serve() -> None:
         else:
             count = request["landmarks"]
             if count not in rooms:
-                rooms[count] = clutter_rooms(count)
-            config, base, map, index, index_seconds, queries = rooms[count]
+                rooms[count] = clutter_rooms(count, request["scene"])
+            config, map, index, index_seconds, queries = rooms[count]
             observations = queries[request["query"]]
             reply = query_times(lambda: localize(observations, index, config), request["repeat"])
             reply |= {"landmarks": len(map), "index s": index_seconds, "observations": len(observations),
@@ -142,22 +142,40 @@ def recording_times(scene: str, max_frames: int, path: Path) -> dict:
     return {"log_frame ms": calls, "close s": closing, "kB per frame": path.stat().st_size / 1e3 / len(calls)}
 
 
-def clutter_rooms(count: int, queries: int = 100, seed: int = 0) -> tuple:
-    """(config, desk map, its copies, their index, index_map seconds, the queries of room 0)."""
+def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
+    """The desk scene of tools/bench_core.py and `queries` queries of it, as JSON both trees' workers read
+    (so a revision from before today's modules gets the very same scene)."""
     from bench_core import ROOM_SPACING, desk_map, desk_query
 
+    base = desk_map(np.random.default_rng(seed))
+    rng = np.random.default_rng(seed + 1)
+    shapes = lambda e: {"centers": e.centers.tolist(), "axes": e.axes.tolist(), "rotations": e.rotations.tolist()}  # noqa: E731
+    return {"gap": ROOM_SPACING - float(np.ptp(base.ellipsoids.centers[:, 0])),
+            "map": shapes(base.ellipsoids) | {"class_ids": base.class_ids.tolist(), "class_names": base.class_names,
+                                              "descriptions": base.descriptions, "instance_ids": base.instance_ids.tolist()},
+            "queries": [shapes(q.ellipsoids) | {"class_ids": q.class_ids.tolist(), "instance_ids": q.instance_ids.tolist()}
+                        for q in (desk_query(base, rng) for _ in range(queries))]}
+
+
+def clutter_rooms(count: int, scene: dict) -> tuple:
+    """(config, the desk map copied into rooms 20 m apart, its index, index_map seconds, the queries)."""
     from clipclique.config import make_config
     from clipclique.pipeline import index_map
     from clipclique.sim.synthetic import duplicate_rooms
+    from clipclique.types import Ellipsoids, Map, Observations
 
+    ellipsoids = lambda d: Ellipsoids(*(np.array(d[key], float) for key in ("centers", "axes", "rotations")))  # noqa: E731
+    desk = scene["map"]
+    base = Map(ellipsoids(desk), np.array(desk["class_ids"]), desk["class_names"], desk["descriptions"],
+               np.array(desk["instance_ids"]), provenance={"simulated": True})
     config = make_config("clipclique", overrides={"similarity.descriptor": "sh"})
-    base = desk_map(np.random.default_rng(seed))
-    map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
+    map = duplicate_rooms(base, max(1, count // len(base)), gap=scene["gap"])
     start = time.perf_counter()
     index = index_map(map, config)
     index_seconds = time.perf_counter() - start
-    rng = np.random.default_rng(seed + 1)
-    return config, base, map, index, index_seconds, [desk_query(base, rng) for _ in range(queries)]
+    queries = [Observations(ellipsoids(q), np.array(q["class_ids"]), None, np.array(q["instance_ids"]),
+                            np.arange(len(q["class_ids"]))) for q in scene["queries"]]
+    return config, map, index, index_seconds, queries
 
 
 def fastest(call, repeat: int) -> float:
@@ -214,17 +232,18 @@ def compare_scene(scene: str, workers: list[Worker], max_frames: int, repeat: in
 
 
 def compare_clutter(counts: list[int], workers: list[Worker], frames: int, repeat: int) -> None:
+    scene = clutter_scene(frames)
     print(f"clutter: the desk scene copied into rooms 20 m apart, SH only, {frames} queries per size, ms")
     print(f"  {'landmarks':>9} {'tree':>8} {'index s':>8} {'median':>8} {'p90':>8} {'p90/med':>8} {'caps':>5} "
           f"{'peak MB':>8} {'literal':>8}")
     for count in counts:
         for worker in workers:  # warm up (the index is built, compiled functions loaded)
-            worker.ask(kind="clutter", landmarks=count, query=0, repeat=1, literal=False)
+            worker.ask(kind="clutter", landmarks=count, scene=scene, query=0, repeat=1, literal=False)
         rows: dict[str, list[dict]] = {worker.label: [] for worker in workers}
         for q in range(frames):
             for worker in workers:
-                rows[worker.label].append(worker.ask(kind="clutter", landmarks=count, query=q, repeat=repeat,
-                                                     literal=worker is workers[-1]))
+                rows[worker.label].append(worker.ask(kind="clutter", landmarks=count, scene=scene, query=q,
+                                                     repeat=repeat, literal=worker is workers[-1]))
         for label, answers in rows.items():
             times = [row["localize ms"] for row in answers]
             literal = [row["literal ms"] for row in answers if "literal ms" in row]

@@ -7,7 +7,7 @@ Two worker processes, one importing the working tree and one a `git archive` of 
 the merge base with main), measure the same frames in lock step (frame i in one, then in the
 other), so both see the same machine load. Each worker runs the sequence's own detector, the
 observation stage, the encoder and `localize` (fastest of `--repeat`, per stage) and, in the
-working tree's worker, the literal reference (`tools/literal_reference.py`, networkx) on the same
+working tree's worker, the literal reference (`benchmark.literal_reference`, networkx) on the same
 observations. Printed per scene: median and 90th percentile ms per stage, before and now, and the
 literal reference's whole query beside the project's.
 
@@ -17,7 +17,7 @@ thread per frame, the seconds `close` waits for what is still queued, and kB per
 `--whole-runs N`: N whole `clipclique-loc run` processes of the first scene per tree, alternating,
 with and without the recording (process start included, after one warm-up run each).
 
-`--clutter COUNTS`: the desk scene of `tools/bench_core.py` (26 observations a query, the desk map
+`--clutter COUNTS`: the desk scene of `benchmark.core` (26 observations a query, the desk map
 copied into rooms 20 m apart), SH only, per landmark count: `index_map` seconds, whole-query median
 and 90th percentile ms, cap hits, and the worker's peak resident memory; the literal reference at
 47 landmarks only (it takes seconds beyond).
@@ -48,7 +48,8 @@ class Worker:
     """This script in `--worker` mode under another PYTHONPATH, answering one JSON line per request."""
 
     def __init__(self, tree: Path, label: str) -> None:
-        environment = dict(os.environ, PYTHONPATH=str(tree))
+        environment = dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys((str(tree), str(ROOT)))))  # the
+        # tree's clipclique and localization first; the benchmark package (literal reference) from this one
         self.label = label
         self.process = subprocess.Popen([sys.executable, __file__, "--worker"], cwd=ROOT, env=environment,
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -76,7 +77,7 @@ def serve() -> None:
         import clipclique.synthetic
         sys.modules["clipclique.sim"] = types.ModuleType("clipclique.sim")
         sys.modules["clipclique.sim.synthetic"] = clipclique.synthetic
-    import literal_reference
+    from benchmark import literal_reference
     from clipclique.pipeline import index_map, localize
     from localization.run import RunSettings, observe, prepare, selected_frames
 
@@ -143,9 +144,9 @@ def recording_times(scene: str, max_frames: int, path: Path) -> dict:
 
 
 def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
-    """The desk scene of tools/bench_core.py and `queries` queries of it, as JSON both trees' workers read
+    """The desk scene of benchmark.core and `queries` queries of it, as JSON both trees' workers read
     (so a revision from before today's modules gets the very same scene)."""
-    from bench_core import ROOM_SPACING, desk_map, desk_query
+    from benchmark.core import ROOM_SPACING, desk_map, desk_query
 
     base = desk_map(np.random.default_rng(seed))
     rng = np.random.default_rng(seed + 1)
@@ -301,7 +302,6 @@ def main() -> None:
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        sys.path.insert(0, str(TOOLS))
         serve()
         return
     rev = args.rev or subprocess.run(["git", "merge-base", "HEAD", "main"], cwd=ROOT, capture_output=True,

@@ -24,7 +24,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
 from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
@@ -139,6 +138,8 @@ def _standardization(features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _logistic(x: np.ndarray, y: np.ndarray, signs: np.ndarray) -> tuple[np.ndarray, float]:
     """L2-regularized logistic regression, coefficients held to `signs` (+1: >= 0, -1: <= 0, 0: free)."""
+    from scipy.optimize import minimize  # fitting only: a localizing process need not import it
+
     def loss(theta: np.ndarray) -> tuple[float, np.ndarray]:
         z = x @ theta[:-1] + theta[-1]
         value = -np.mean(y * log_expit(z) + (1 - y) * log_expit(-z)) + 0.5 * L2 * theta[:-1] @ theta[:-1]

@@ -14,6 +14,7 @@ from functools import cached_property
 from typing import Protocol
 
 import numpy as np
+from numba import njit
 
 from clipclique.types import Detections, Frame
 
@@ -38,6 +39,48 @@ def mask_boxes(masks: np.ndarray) -> np.ndarray:
     y1 = height - rows[:, ::-1].argmax(axis=1)
     x1 = width - cols[:, ::-1].argmax(axis=1)
     return np.column_stack((x0, y0, x1, y1)).astype(float)
+
+
+def instance_boxes(instances: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The positive ids of an instance image (ascending), their pixel counts and `mask_boxes` of their
+    masks: one compiled pass over the image where the ids are small enough to index a table (a sort
+    and one pass per mask otherwise)."""
+    top = int(instances.max(initial=0))
+    if top > max(instances.size, 1 << 16):  # ids too large to index a table by
+        ids, counts = np.unique(instances[instances > 0], return_counts=True)
+        return ids, counts, mask_boxes(instances[None] == ids[:, None, None])
+    counts, boxes = _instance_table(np.ascontiguousarray(instances), top)
+    ids = np.flatnonzero(counts)
+    return ids.astype(instances.dtype), counts[ids], boxes[ids].astype(np.float64)
+
+
+@njit(cache=True)
+def _instance_table(instances: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per id 0..top: its pixel count and its xyxy box (inclusive min, exclusive max); id 0 and
+    negative ids are not counted."""
+    height, width = instances.shape
+    counts = np.zeros(top + 1, np.int64)
+    boxes = np.empty((top + 1, 4), np.int64)
+    boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = width, height, 0, 0
+    for v in range(height):
+        for u in range(width):
+            value = instances[v, u]
+            if value > 0:
+                counts[value] += 1
+                boxes[value, 0] = min(boxes[value, 0], u)
+                boxes[value, 1] = min(boxes[value, 1], v)
+                boxes[value, 2] = max(boxes[value, 2], u + 1)
+                boxes[value, 3] = v + 1  # rows come in order: the last one seen is the lowest
+    return counts, boxes
+
+
+def id_counts(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`np.unique(ids, return_counts=True)`, counted without its sort where the ids are small enough."""
+    if ids.size == 0 or ids.min() < 0 or ids.max() > max(ids.size, 1024):
+        return np.unique(ids, return_counts=True)
+    counts = np.bincount(ids.ravel())
+    present = np.flatnonzero(counts)
+    return present.astype(ids.dtype), counts[present]
 
 
 def vocabulary_index(class_names: list[str]) -> dict[str, int]:
@@ -69,9 +112,9 @@ class InstanceDetector:
         height, width = frame.depth.shape
         if frame.instances is None:
             return empty_detections(height, width)
-        ids, counts = np.unique(frame.instances[frame.instances > 0], return_counts=True)
+        ids, counts, boxes = instance_boxes(frame.instances)
         classes = np.array([self._map_class.get(int(i), -1) for i in ids], int)
         keep = (classes >= 0) & (counts >= self.min_pixels)
         ids, classes = ids[keep], classes[keep]
         masks = frame.instances[None] == ids[:, None, None]
-        return Detections(masks, mask_boxes(masks), classes, np.ones(len(ids)), ids.astype(int))
+        return Detections(masks, boxes[keep], classes, np.ones(len(ids)), ids.astype(int))

@@ -138,8 +138,8 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
     """The compiled pass `depth_points(depth, mask, intrinsics)` for `k` neighbours within `radius` pixels.
 
     `k` and `radius` are compiled in as constants (one cached compilation per pair), so the
-    window loops unroll and the distances to drop stay in registers, without a branch (README,
-    Observation stage).
+    insertion into the list of distances to drop unrolls, without a branch; the pass runs one
+    window offset at a time over a whole row of pixels (README, Observation stage).
     """
     side = 2 * radius + 1
     drop = max(side * side - 1 - k, 0)  # a pixel has at most side^2 - 1 neighbours; the farthest beyond k are dropped
@@ -154,6 +154,7 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
         # coordinates on a grid padded by `radius` invalid pixels: every window lies inside it
         shape = (height + 2 * radius, width + 2 * radius)
         x, y, z, valid = np.zeros(shape), np.zeros(shape), np.zeros(shape), np.zeros(shape, np.bool_)
+        first, last = np.full(height, width), np.full(height, -1)  # each row's valid columns, for the row pass
         count = 0
         for v in range(height):
             for u in range(width):
@@ -163,33 +164,48 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
                     x[a, b], y[a, b], z[a, b] = (u - cx) * depth_vu / fx, (v - cy) * depth_vu / fy, depth_vu
                     valid[a, b] = True
                     count += 1
+                    first[v], last[v] = min(first[v], u), u
         points = np.empty((count, 3))
         spread = np.full(count, np.inf)
-        farthest = np.empty(max(drop, 1))  # the largest distances so far, largest first
+        # one row at a time, each window offset over the row's span: the loop over columns has no branch;
+        # per pixel the sum and the sorted list see the offsets in window order, as a pixel-by-pixel pass does
+        total, near_count = np.empty(width), np.empty(width, np.int64)
+        farthest = np.empty((max(drop, 1), width))  # per pixel, the largest distances so far, largest first
         i = 0
-        for a in range(radius, height + radius):
-            for b in range(radius, width + radius):
-                if not valid[a, b]:
-                    continue
-                points[i, 0], points[i, 1], points[i, 2] = x[a, b], y[a, b], z[a, b]
-                n, total = 0, 0.0
-                farthest[:] = -1.0
-                for aa in range(a - radius, a + radius + 1):
-                    for bb in range(b - radius, b + radius + 1):  # branch-free: an absent neighbour adds 0
-                        near = valid[aa, bb] and (aa != a or bb != b)
-                        distance = math.sqrt((x[aa, bb] - x[a, b]) ** 2 + (y[aa, bb] - y[a, b]) ** 2
-                                             + (z[aa, bb] - z[a, b]) ** 2)
-                        total += distance if near else 0.0
-                        n += near
+        for v in range(height):
+            if last[v] < 0:
+                continue
+            a, lo, hi = v + radius, first[v] + radius, last[v] + radius + 1
+            total[:], near_count[:], farthest[:] = 0.0, 0, -1.0
+            for aa in range(a - radius, a + radius + 1):
+                for offset in range(-radius, radius + 1):
+                    if aa == a and offset == 0:
+                        continue  # not its own neighbour
+                    span = slice(lo + offset, hi + offset)  # the neighbours at this offset, as contiguous rows
+                    xs, ys, zs, vs = x[aa, span], y[aa, span], z[aa, span], valid[aa, span]
+                    xa, ya, za = x[a, lo:hi], y[a, lo:hi], z[a, lo:hi]
+                    tot, cnt = total[lo - radius:hi - radius], near_count[lo - radius:hi - radius]
+                    far = farthest[:, lo - radius:hi - radius]
+                    for t in range(hi - lo):  # branch-free: an absent neighbour adds 0
+                        near = vs[t]
+                        distance = math.sqrt((xs[t] - xa[t]) ** 2 + (ys[t] - ya[t]) ** 2 + (zs[t] - za[t]) ** 2)
+                        tot[t] += distance if near else 0.0
+                        cnt[t] += near
                         carry = distance if near else -1.0
                         for j in range(drop):  # insert into the sorted farthest list
-                            larger = max(farthest[j], carry)
-                            carry = min(farthest[j], carry)
-                            farthest[j] = larger
+                            kept = far[j, t]
+                            far[j, t] = kept if kept > carry else carry
+                            carry = carry if kept > carry else kept
+            for b in range(lo, hi):
+                if not valid[a, b]:
+                    continue
+                u, n = b - radius, near_count[b - radius]
+                points[i, 0], points[i, 1], points[i, 2] = x[a, b], y[a, b], z[a, b]
+                kept = total[u]
                 for j in range(n - k):  # the k nearest: the n - k farthest out, largest first
-                    total -= farthest[j]
+                    kept -= farthest[j, u]
                 if n:
-                    spread[i] = total / min(n, k)
+                    spread[i] = kept / min(n, k)
                 i += 1
         return points, spread
 

@@ -35,12 +35,11 @@ class Extraction:
 def extract_observations(frame: Frame, detections: Detections, params: ObservationParams = ObservationParams()) -> Extraction:
     """Fit one camera-frame ellipsoid per usable detection."""
     height, width = frame.depth.shape
-    inner = np.s_[params.border_px:height - params.border_px, params.border_px:width - params.border_px]
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated, areas = [], [], [], []
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
         pixels = np.count_nonzero(mask)
-        in_band = pixels - np.count_nonzero(mask[inner])
+        in_band = border_pixels(mask, params.border_px)
         if pixels < params.min_mask_pixels:
             dropped["tiny mask"] += 1
             continue
@@ -68,6 +67,15 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
                   None if frame.instances is None else crop(frame.instances, detections.boxes[k]), cut)
              for k, cut in zip(kept, truncated)]
     return Extraction(observations, crops, dict(dropped))
+
+
+def border_pixels(mask: np.ndarray, band: int) -> int:
+    """Pixels of `mask` within `band` pixels of the image border, counted over the band alone."""
+    height, width = mask.shape
+    if 2 * band >= min(height, width):
+        return int(np.count_nonzero(mask))
+    return int(np.count_nonzero(mask[:band]) + np.count_nonzero(mask[height - band:])
+               + np.count_nonzero(mask[band:height - band, :band]) + np.count_nonzero(mask[band:height - band, width - band:]))
 
 
 def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,

@@ -48,6 +48,8 @@ class MapIndex:
     text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
     class_kernel: sp.csr_matrix | None = None  # (C, C) class similarity (lookalikes.class_kernel)
     class_distributions: sp.csr_matrix | None = None  # (N, C) the map's soft classes, when similarity.soft_classes uses them
+    histograms_by_bin: sp.csr_matrix | None = None  # (C^s, N) the histograms transposed (similarity.by_bin)
+    kernel_by_landmark: np.ndarray | None = None  # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
 
 
@@ -74,7 +76,9 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
     capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
-                    text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped)
+                    text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
+                    histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
+                    kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids))
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -93,12 +97,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         timings[stage] = timings.get(stage, 0.0) + now - clock  # a stage may run in turns
         clock = now
 
-    centers = observations.ellipsoids.centers
-    query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
-    soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
-    histograms, walks = _graph_descriptors(
-        query_graph, observations.class_ids, len(index.map.class_names), config, soft
-    )
+    histograms, walks = _query_descriptors(observations, index, config)
     lap(Stage.DESCRIPTORS)
     scores, notes = _similarity(observations, index, histograms, walks, config)
     if index.capped_nodes:
@@ -167,6 +166,23 @@ def _graph_descriptors(
     return histograms, walks
 
 
+def _query_descriptors(
+    observations: Observations, index: MapIndex, config: LocalizationConfig
+) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
+    """The query side's graph descriptors, its labels softened by the class kernel when
+    `similarity.lookalike_weight` > 0; Semantic Histograms by the compiled `graph.query_histograms`."""
+    soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
+    centers, num_classes = observations.ellipsoids.centers, len(index.map.class_names)
+    if config.similarity.descriptor in ("fused", "sh"):
+        histograms = graph.query_histograms(centers, observations.class_ids, num_classes, config.graph.d_adj,
+                                            config.graph.max_degree, config.graph.walk_length, soft)
+        return histograms, None
+    if config.similarity.descriptor != "xview":
+        return None, None  # CLIP alone reads no graph
+    query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
+    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config, soft)
+
+
 def _similarity(
     observations: Observations,
     index: MapIndex,
@@ -195,12 +211,14 @@ def _histogram_similarity(
     observations: Observations, index: MapIndex, histograms: sp.csr_matrix, config: LocalizationConfig
 ) -> np.ndarray:
     """S_sh, with the class term when `similarity.class_weight` > 0."""
-    sh = similarity.histogram_similarity(histograms, index.histograms)
+    sh = similarity.histogram_similarity(histograms, index.histograms_by_bin)
     weight = config.similarity.class_weight
     if weight == 0:
         return sh
-    classes = similarity.class_similarity(observations.class_ids, index.map.class_ids, index.class_kernel,
-                                          index.class_distributions)
+    if index.class_distributions is not None:
+        classes = similarity.soft_class_similarity(observations.class_ids, index.class_kernel, index.class_distributions)
+    else:
+        classes = similarity.class_similarity(observations.class_ids, index.kernel_by_landmark)
     return similarity.with_class_term(sh, classes, weight)
 
 

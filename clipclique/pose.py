@@ -123,7 +123,7 @@ def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     centred = points - np.einsum("...p,...pi->...i", w, points)[..., None, :]
     variances = np.linalg.eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))  # ascending
     spread = variances[..., 2] > 0
-    ratio = np.where(spread, np.sqrt(np.clip(variances[..., 1], 0.0, None) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+    ratio = np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
     return float(ratio) if ratio.ndim == 0 else ratio
 
 
@@ -144,7 +144,7 @@ def correspondence_weights(
     object seen only in part, whose observed centre is biased.
     """
     ones = np.ones(len(scores))
-    similarity = np.clip(scores, 0.0, None) if mode in ("sim", "both") else ones
+    similarity = np.maximum(scores, 0.0) if mode in ("sim", "both") else ones
     completeness = completeness_weights(observed_axes, landmark_axes) if mode in ("com", "both") else ones
     return similarity * completeness
 

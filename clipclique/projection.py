@@ -67,15 +67,15 @@ def project(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndar
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Intersection over union of xyxy boxes, broadcast over leading dimensions (0 where both are empty)."""
-    width = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0.0, None)
-    height = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0.0, None)
+    width = np.maximum(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0.0)
+    height = np.maximum(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0.0)
     inter = width * height
     union = box_area(a) + box_area(b) - inter
     return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
 
 def box_area(boxes: np.ndarray) -> np.ndarray:
-    return np.clip(boxes[..., 2] - boxes[..., 0], 0.0, None) * np.clip(boxes[..., 3] - boxes[..., 1], 0.0, None)
+    return np.maximum(boxes[..., 2] - boxes[..., 0], 0.0) * np.maximum(boxes[..., 3] - boxes[..., 1], 0.0)
 
 
 def ellipse_outlines(dual_conics: np.ndarray, samples: int = 48) -> np.ndarray:
@@ -87,7 +87,7 @@ def ellipse_outlines(dual_conics: np.ndarray, samples: int = 48) -> np.ndarray:
     centers = -normalized[:, :2, 2]
     spread = normalized[:, :2, :2] + centers[:, :, None] * centers[:, None, :]
     values, vectors = np.linalg.eigh(spread)
-    shape = vectors * np.sqrt(np.clip(values, 0.0, None))[:, None, :]
+    shape = vectors * np.sqrt(np.maximum(values, 0.0))[:, None, :]
     angles = np.linspace(0.0, 2 * np.pi, samples + 1)
     circle = np.stack((np.cos(angles), np.sin(angles)))
     return centers[:, None, :] + np.einsum("nij,js->nsi", shape, circle)

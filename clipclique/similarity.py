@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 
 def clip_similarity(image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
@@ -11,9 +12,36 @@ def clip_similarity(image_embeddings: np.ndarray, text_embeddings: np.ndarray) -
     return np.asarray(image_embeddings, np.float64) @ np.asarray(text_embeddings, np.float64).T
 
 
-def histogram_similarity(query: sp.csr_matrix, landmarks: sp.csr_matrix) -> np.ndarray:
-    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1]."""
-    return (query @ landmarks.T).toarray()
+def histogram_similarity(query: sp.csr_matrix, landmarks_by_bin: sp.csr_matrix) -> np.ndarray:
+    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1].
+
+    `landmarks_by_bin` is the map's (N, C^s) histograms transposed to a (C^s, N) CSR matrix
+    (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query. The
+    product is `(query @ landmarks_by_bin).toarray()` to the bit (each sum from 0, its terms in the
+    query row's stored order, as scipy's sparse product adds them), written straight into the
+    dense result instead of through a sparse one."""
+    out = np.zeros((query.shape[0], landmarks_by_bin.shape[1]))
+    _sparse_product_into(out, query.indptr, query.indices, query.data.astype(np.float64, copy=False),
+                         landmarks_by_bin.indptr, landmarks_by_bin.indices,
+                         landmarks_by_bin.data.astype(np.float64, copy=False))
+    return out
+
+
+@njit(cache=True)
+def _sparse_product_into(out: np.ndarray, pointers: np.ndarray, columns: np.ndarray, values: np.ndarray,
+                         other_pointers: np.ndarray, other_columns: np.ndarray, other_values: np.ndarray) -> None:
+    for i in range(len(pointers) - 1):
+        row = out[i]
+        for e in range(pointers[i], pointers[i + 1]):
+            b, value = columns[e], values[e]
+            for f in range(other_pointers[b], other_pointers[b + 1]):
+                product = value * other_values[f]  # rounded apart from the sum, as scipy's loop does
+                row[other_columns[f]] += product
+
+
+def by_bin(landmarks: sp.csr_matrix) -> sp.csr_matrix:
+    """(C^s, N) the histograms transposed, as the CSR matrix scipy converts `landmarks.T` to in a product."""
+    return landmarks.T.tocsr()
 
 
 def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix) -> np.ndarray:
@@ -25,14 +53,22 @@ def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix)
     return (query_counts @ present.T).toarray() / np.maximum(walks, 1.0)[:, None]
 
 
-def class_similarity(query_classes: np.ndarray, landmark_classes: np.ndarray, kernel: sp.csr_matrix,
-                     distributions: sp.csr_matrix | None = None) -> np.ndarray:
+def class_similarity(query_classes: np.ndarray, kernel_by_landmark: np.ndarray) -> np.ndarray:
     """(K, N) the class kernel between each observation's class and each landmark's: 1 for the same
-    class, the look-alike weight for classes a detector confuses, 0 otherwise. With the landmarks'
-    class `distributions` (N, C), its expectation over each landmark's classes instead."""
-    if distributions is not None:
-        return (kernel[query_classes] @ distributions.T).toarray()
-    return kernel[query_classes][:, landmark_classes].toarray()
+    class, the look-alike weight for classes a detector confuses, 0 otherwise. `kernel_by_landmark`
+    is `kernel_columns(kernel, landmark_classes)`, made once per map."""
+    return kernel_by_landmark[query_classes]
+
+
+def kernel_columns(kernel: sp.csr_matrix, landmark_classes: np.ndarray) -> np.ndarray:
+    """(C, N) dense: the kernel between every class and each landmark's class."""
+    return kernel.toarray()[:, landmark_classes]
+
+
+def soft_class_similarity(query_classes: np.ndarray, kernel: sp.csr_matrix, distributions: sp.csr_matrix) -> np.ndarray:
+    """(K, N) the class kernel's expectation over each landmark's class `distributions` (N, C): the
+    class term of a map that says how sure it is of each landmark's class (similarity.soft_classes)."""
+    return (kernel[query_classes] @ distributions.T).toarray()
 
 
 def with_class_term(histogram: np.ndarray, classes: np.ndarray, weight: float) -> np.ndarray:

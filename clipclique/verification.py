@@ -66,15 +66,26 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     iou = np.where(in_view, box_iou(observations.boxes[obs], seen.boxes[owner, at]), 0.0)
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
     depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
-    agreement = np.clip(1.0 - depth_gap / params.depth_tolerance, 0.0, None)
+    agreement = np.maximum(1.0 - depth_gap / params.depth_tolerance, 0.0)
     count = len(hypotheses)
     sizes = np.bincount(owner, minlength=count)
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
-    depth_error = np.array([np.median(depth_gap[owner == b]) if sizes[b] else np.inf for b in range(count)])
+    depth_error = group_medians(depth_gap, owner, sizes)
     missed = _missed(seen, map.class_ids[nearby], observations, params)
     return Verification(score=overlap - params.missed_weight * missed, overlap=overlap, mean_iou=mean_iou,
                         missed=missed, depth_error=depth_error, missed_weight=params.missed_weight)
+
+
+def group_medians(values: np.ndarray, groups: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """np.median of each group's values (inf for an empty group), to the bit, in one sort: `groups`
+    ascending, group b of `sizes[b]` values. A median is (lower + upper) / 2 of the middle pair, as
+    numpy computes it (the middle value twice when the count is odd)."""
+    ordered = values[np.lexsort((values, groups))]
+    starts = np.cumsum(sizes) - sizes
+    middle = (ordered[np.minimum(starts + (sizes - 1) // 2, len(ordered) - 1)]
+              + ordered[np.minimum(starts + sizes // 2, len(ordered) - 1)]) if len(ordered) else np.zeros(len(sizes))
+    return np.where(sizes > 0, middle / 2, np.inf)
 
 
 def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:

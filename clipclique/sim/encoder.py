@@ -31,6 +31,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from clipclique.detectors import id_counts
 from clipclique.encoders import Crop, normalize
 
 SIMULATED_NAME = "simulated-clip"
@@ -90,7 +91,7 @@ class SimulatedClipEncoder:
                              "SimulatedClipEncoder(scene descriptions), or load_encoder('simulated', scene=sequence)")
         if crop.instances is None:
             return ((None, 1.0),)
-        ids, counts = np.unique(crop.instances, return_counts=True)
+        ids, counts = id_counts(crop.instances)
         return tuple(zip([self.descriptions.get(i) for i in ids.tolist()], (counts / counts.sum()).tolist()))
 
     def encode_images(self, crops: Sequence[Crop]) -> np.ndarray:

@@ -18,7 +18,7 @@ from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, P
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile
+from clipclique.viz.recording import RecordingFile, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -58,7 +58,11 @@ LEGEND = (
 
 
 class LocalizationRecorder:
-    """Writes one `.rrd` for a localization run; use as a context manager or call `close`."""
+    """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
+
+    `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
+    recording costs the localization loop next to nothing. Call `flush` to wait for it.
+    """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
         self.map = map
@@ -77,7 +81,13 @@ class LocalizationRecorder:
             rr.TextDocument(f"{description}\n\n{map_summary(map, d_adj)}", media_type=rr.MediaType.MARKDOWN),
             static=True,
         )
+        self._worker = Worker("clipclique-recording")
 
+    def flush(self) -> None:
+        """Wait until every queued frame is logged."""
+        self._worker.drain()
+
+    @queued
     def log_frame(
         self,
         frame: Frame,
@@ -86,7 +96,8 @@ class LocalizationRecorder:
         result: LocalizationResult,
         evaluation: FrameEvaluation | None,
     ) -> None:
-        """Log one localized frame; `evaluation` is None without ground truth."""
+        """Log one localized frame (queued: see the class); `evaluation` is None without ground truth. The
+        arguments must not change afterwards (the run loop makes new ones every frame)."""
         self.stream.set_time("frame", sequence=frame.index)
         if frame.timestamp >= UNIX_TIME_MIN:
             self.stream.set_time("time", timestamp=frame.timestamp)
@@ -100,8 +111,9 @@ class LocalizationRecorder:
         self._log_text(frame, observations, result, evaluation)
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
 
+    @queued
     def log_window(self, query: WindowQuery, placement: Pose | None) -> None:
-        """The fused window of the frame just logged: each source frame's observations moved into the newest
+        """(Queued after the frame it belongs to, so it lands at that frame's time.) The fused window of the frame just logged: each source frame's observations moved into the newest
         camera (newest brightest, older ones fading) and the odometry path of the window's cameras, placed by
         `placement` (the ground truth, else the top-1 estimate)."""
         if placement is None:
@@ -122,6 +134,11 @@ class LocalizationRecorder:
         self.stream.log(WINDOW_PATH, rr.LineStrips3D([cameras], colors=WINDOW_COLOR, radii=rr.Radius.ui_points(2.0)))
 
     def close(self) -> None:
+        try:
+            self._worker.stop()
+        except BaseException:
+            self._recording.abort()
+            raise
         self._recording.close()
 
     def __enter__(self) -> LocalizationRecorder:
@@ -130,7 +147,11 @@ class LocalizationRecorder:
     def __exit__(
         self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
     ) -> None:
-        self._recording.__exit__(kind, error, trace)
+        if kind is None:
+            self.close()
+        else:
+            self._worker.stop(discard=True)
+            self._recording.abort()
 
     def _blueprint(self) -> rrb.Blueprint:
         """The default layout, its 3D view framing the landmarks and the ground-truth trajectory."""

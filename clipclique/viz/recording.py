@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import os
+import queue
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
@@ -53,3 +56,64 @@ class RecordingFile:
             self.close()
         else:
             self.abort()
+
+
+class Worker:
+    """Runs logging jobs on one thread of its own, in order, so encoding images and building Rerun's
+    arrow batches stay off the caller's thread (PIL's encoders and Rerun's batching release the GIL).
+
+    At most `backlog` jobs wait: a caller that outruns the worker blocks instead of holding every
+    frame in memory. A job's exception is raised in the caller's thread by the next `submit`,
+    `drain` or `stop`, and no later job runs.
+    """
+
+    def __init__(self, name: str, backlog: int = 4) -> None:
+        self._jobs: queue.Queue[Callable[[], None] | None] = queue.Queue(maxsize=backlog)
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._serve, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, job: Callable[[], None]) -> None:
+        self._raise()
+        self._jobs.put(job)
+
+    def drain(self) -> None:
+        """Wait until every submitted job has run."""
+        self._jobs.join()
+        self._raise()
+
+    def stop(self, *, discard: bool = False) -> None:
+        """Finish the submitted jobs (or drop them when `discard`) and end the thread."""
+        if discard:
+            self._error = self._error or _Discarded()
+        self._jobs.put(None)
+        self._thread.join()
+        if not discard:
+            self._raise()
+
+    def _serve(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            try:
+                if self._error is None:
+                    job()
+            except BaseException as error:  # handed to the caller's thread
+                self._error = error
+            finally:
+                self._jobs.task_done()
+        self._jobs.task_done()
+
+    def _raise(self) -> None:
+        if self._error is not None and not isinstance(self._error, _Discarded):
+            raise self._error
+
+
+def queued(method: Callable[..., None]) -> Callable[..., None]:
+    """A method of an object with a `_worker` (a Worker) that runs there: the caller only queues the call."""
+    @functools.wraps(method)
+    def submit(self, *args, **kwargs) -> None:
+        self._worker.submit(functools.partial(method, self, *args, **kwargs))
+    return submit
+
+
+class _Discarded(Exception):
+    """Marks a worker whose remaining jobs are dropped (the run failed)."""

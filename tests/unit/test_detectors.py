@@ -11,7 +11,7 @@ import pytest
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
 from clipclique.backends import make_detector
-from clipclique.detectors import InstanceDetector, mask_boxes
+from clipclique.detectors import InstanceDetector, id_counts, instance_boxes, mask_boxes
 from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, read_lookalikes
 from clipclique.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 
@@ -34,6 +34,24 @@ def test_mask_boxes_are_tight_xyxy():
     masks[0, 2:5, 3:7] = True
     masks[1, 9, 11] = True
     np.testing.assert_array_equal(mask_boxes(masks), [[3, 2, 7, 5], [11, 9, 12, 10]])
+
+
+@pytest.mark.parametrize("largest", [40, 2**31 - 1])  # a table indexed by id, and ids too large for one
+def test_instance_boxes_are_the_masks_ids_counts_and_boxes(largest):
+    rng = np.random.default_rng(0)
+    instances = rng.choice(np.array([-3, 0, 0, 5, 9, 17, largest], np.int32), size=(37, 53))
+    instances[:, :20] = 0
+    ids, counts, boxes = instance_boxes(instances)
+    expected_ids, expected_counts = np.unique(instances[instances > 0], return_counts=True)
+    np.testing.assert_array_equal(ids, expected_ids)
+    assert ids.dtype == instances.dtype
+    np.testing.assert_array_equal(counts, expected_counts)
+    np.testing.assert_array_equal(boxes, mask_boxes(instances[None] == ids[:, None, None]))
+    assert boxes[:, 0].min() == 20  # the empty columns are outside every box
+    assert all(len(part) == 0 for part in instance_boxes(np.zeros((4, 5), np.int32))[:2])
+    for image in (instances, instances[:, 20:], np.abs(instances), np.zeros((0, 3), np.int32)):
+        got, expected = id_counts(image), np.unique(image, return_counts=True)
+        assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(got, expected))
 
 
 def test_ground_truth_detections_map_ids_to_the_vocabulary():

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
-from clipclique.graph import capped_nodes, random_walk_descriptors, semantic_graph, semantic_histograms
+from clipclique.graph import capped_nodes, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
 
 A, B, C = 0, 1, 2
 # Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.
@@ -96,3 +97,20 @@ def test_degree_cap_keeps_real_graphs_and_bounds_degenerate_ones():
     for node in range(47):  # what a node keeps are among its 3 nearest
         nearest = set(np.argsort(np.linalg.norm(desk - desk[node], axis=1))[1:4].tolist())
         assert set(near[node].indices.tolist()) <= nearest
+
+
+def test_query_histograms_store_the_sparse_paths_entries_bit_for_bit():
+    """The compiled query path must give the very arrays (order included: a product sums in stored
+    order) of the sparse path, with and without a soft class kernel, for every walk length."""
+    rng = np.random.default_rng(0)
+    for trial in range(120):
+        n, classes, length = int(rng.integers(0, 25)), int(rng.integers(1, 9)), int(rng.integers(1, 5))
+        centers, ids = rng.uniform(0, 2, (n, 3)), rng.integers(0, classes, n)
+        kernel = None if trial % 2 else sp.csr_matrix(np.where(rng.random((classes, classes)) < 0.3,
+                                                               rng.random((classes, classes)), 0) + np.eye(classes))
+        expected = semantic_histograms(semantic_graph(centers, 0.8, 64), ids, classes, length, kernel)
+        got = query_histograms(centers, ids, classes, 0.8, 64, length, kernel)
+        assert got.shape == expected.shape
+        for name in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+    assert query_histograms(np.zeros((0, 3)), np.zeros(0, int), 3, 0.8, 64).shape == (0, 27)

@@ -71,3 +71,16 @@ def test_cap_keeps_the_best_scored_candidates_in_row_order():
     np.testing.assert_array_equal(kept, candidates[[0, 3, 4, 7, 9]])
     same, _, hit = cap(candidates, scores, limit=12)
     assert not hit and same is candidates
+
+
+def test_long_rows_pick_the_same_best_landmarks_as_a_full_stable_sort():
+    """From PARTIAL_SORT_FROM landmarks a row's best are picked by partition: the same pairs, in the same
+    order, as the full stable sort, ties included."""
+    rng = np.random.default_rng(0)
+    for trial in range(40):
+        similarity = np.round(rng.random((int(rng.integers(1, 12)), int(rng.integers(1024, 3000)))), 2)  # ties
+        similarity[:, ::5] = similarity[:, :1]
+        k = int(rng.integers(1, similarity.shape[1] // 2))
+        order = np.argsort(-similarity, axis=1, kind="stable")[:, :k]
+        expected = np.column_stack((np.repeat(np.arange(len(order)), k), order.ravel()))
+        np.testing.assert_array_equal(knn_matches(similarity, k), expected)

@@ -2,7 +2,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from clipclique.graph import semantic_graph, semantic_histograms
-from clipclique.similarity import clip_similarity, fuse, histogram_similarity, walk_similarity
+from clipclique.similarity import by_bin, clip_similarity, fuse, histogram_similarity, walk_similarity
 
 
 def test_histogram_similarity_is_cosine_of_histograms():
@@ -10,11 +10,11 @@ def test_histogram_similarity_is_cosine_of_histograms():
     centers = rng.uniform(0, 3, size=(30, 3))
     classes = rng.integers(0, 5, 30)
     histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 5)
-    similarity = histogram_similarity(histograms[:4], histograms)
+    similarity = histogram_similarity(histograms[:4], by_bin(histograms))
     dense = histograms.toarray()
     np.testing.assert_allclose(similarity, dense[:4] @ dense.T)
     connected = np.flatnonzero(np.linalg.norm(dense, axis=1) > 0)[:4]
-    np.testing.assert_allclose(histogram_similarity(histograms[connected], histograms[connected]).diagonal(), 1.0)
+    np.testing.assert_allclose(histogram_similarity(histograms[connected], by_bin(histograms[connected])).diagonal(), 1.0)
     # a node's own class is each walk's first label: different classes never share a bin
     assert (similarity[classes[:4, None] != classes[None, :]] == 0).all()
 
@@ -31,3 +31,13 @@ def test_clip_and_fused_similarity():
     clip = clip_similarity(image, text)
     np.testing.assert_allclose(clip, [[0.0, 1.0], [0.8, 0.6]])
     np.testing.assert_allclose(fuse(clip, np.ones((2, 2)), 0.7), [[0.3, 1.0], [0.86, 0.72]])
+
+
+def test_histogram_similarity_is_scipys_sparse_product_to_the_bit():
+    rng = np.random.default_rng(1)
+    centers = rng.uniform(0, 4, size=(200, 3))
+    classes = rng.integers(0, 6, 200)
+    kernel = sp.csr_matrix(np.eye(6) + 0.6 * (rng.random((6, 6)) < 0.2))
+    histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 6, kernel=kernel)
+    query = histograms[rng.permutation(200)[:20]]
+    np.testing.assert_array_equal(histogram_similarity(query, by_bin(histograms)), (query @ histograms.T).toarray())

@@ -13,7 +13,7 @@ from clipclique.config import make_config
 from clipclique.errors import MapFileError
 from clipclique.mapfile import load_map, save_map
 from clipclique.pipeline import index_map, localize
-from clipclique.similarity import class_similarity
+from clipclique.similarity import soft_class_similarity
 from clipclique.types import Ellipsoids, Map, Observations
 
 
@@ -83,7 +83,7 @@ def test_one_hot_distributions_change_nothing_and_uncertain_ones_soften_the_clas
     unsure[0] = [0.6, 0.4, 0.0]  # landmark 0: a cup, maybe a bottle
     index = index_map(with_distributions(map, unsure), soft)
     result = localize(observations, index, soft)
-    classes = class_similarity(observations.class_ids, map.class_ids, index.class_kernel, index.class_distributions)
+    classes = soft_class_similarity(observations.class_ids, index.class_kernel, index.class_distributions)
     # the expected kernel: cup 0.6 * 1 + 0.4 * 0.6 (the look-alike weight), bottle 0.6 * 0.6 + 0.4 * 1
     assert classes[0, 0] == pytest.approx(0.84) and classes[1, 0] == pytest.approx(0.76)
     assert result.similarity[1, 0] > baseline[1, 0]  # the bottle observation now also finds landmark 0

@@ -15,7 +15,7 @@ from clipclique.pipeline import index_map, localize
 from clipclique.projection import project
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
-from clipclique.verification import verify
+from clipclique.verification import group_medians, verify
 
 
 def room() -> tuple[Map, Pose, Observations]:
@@ -118,3 +118,15 @@ def test_verification_keys_are_checked(override, message):
 
     with pytest.raises(ConfigError, match=message):
         make_config("sh", overrides=[override])
+
+
+def test_group_medians_are_numpys_to_the_bit():
+    rng = np.random.default_rng(0)
+    for trial in range(500):
+        sizes = rng.integers(0, 9, int(rng.integers(1, 7)))
+        groups = np.repeat(np.arange(len(sizes)), sizes)
+        values = rng.random(len(groups)) * 10.0 ** rng.uniform(-3, 3)
+        if trial % 3 == 0:
+            values = np.round(values, 1)  # ties
+        expected = [np.median(values[groups == b]) if sizes[b] else np.inf for b in range(len(sizes))]
+        np.testing.assert_array_equal(group_medians(values, groups, sizes), expected)

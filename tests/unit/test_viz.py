@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rerun as rr
-from PIL import Image
 
 from clipclique.config import LocalizationConfig
 from clipclique.graph import semantic_graph
@@ -18,7 +16,7 @@ from clipclique.metrics import evaluate_frame
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
-from clipclique.viz.convert import ellipsoids3d, encode_depth_png, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
 from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
@@ -55,16 +53,22 @@ def rgb_of(batch) -> np.ndarray:
 
 
 class LogSpy:
-    """Records what a recorder logs, while still writing it."""
+    """Records what a recorder logs, while still writing it; reading waits for the recorder's thread."""
 
-    def __init__(self, stream: rr.RecordingStream) -> None:
-        self.calls: list[tuple[str, tuple]] = []
-        self._log = stream.log
-        stream.log = self
+    def __init__(self, recorder: LocalizationRecorder) -> None:
+        self._calls: list[tuple[str, tuple]] = []
+        self._recorder = recorder
+        self._log = recorder.stream.log
+        recorder.stream.log = self
 
     def __call__(self, path: str, *archetypes, **kwargs) -> None:
-        self.calls.append((path, archetypes))
+        self._calls.append((path, archetypes))
         self._log(path, *archetypes, **kwargs)
+
+    @property
+    def calls(self) -> list[tuple[str, tuple]]:
+        self._recorder.flush()
+        return self._calls
 
     def last(self, path: str) -> tuple:
         return [archetypes for logged, archetypes in self.calls if logged == path][-1]
@@ -115,11 +119,12 @@ def test_segmentation_higher_score_wins_and_zero_is_background():
     assert not segmentation(empty, (4, 5)).any()
 
 
-def test_depth_png_is_subsampled_centimetres_and_jpeg_is_small():
-    depth = np.full((4, 6), 9.0, dtype=np.float32)
-    depth[0, 0], depth[0, 2], depth[2, 0], depth[2, 2] = 0.0, 1.234, np.nan, 4.0
-    decoded = np.asarray(Image.open(io.BytesIO(encode_depth_png(depth))))
-    np.testing.assert_array_equal(decoded, [[0, 123, 900], [0, 400, 900]])  # every 2nd pixel; invalid -> 0
+def test_depth_is_subsampled_centimetres_and_jpeg_is_small():
+    depth = np.full((8, 12), 9.0, dtype=np.float32)
+    depth[0, 0], depth[0, 4], depth[4, 0], depth[4, 4], depth[1, 1] = 0.0, 1.234, np.nan, 4.0, 2.0
+    units = depth_units(depth)
+    assert units.dtype == np.uint16
+    np.testing.assert_array_equal(units, [[0, 123, 900], [0, 400, 900]])  # every 4th pixel; invalid -> 0
     rgb = np.random.default_rng(0).integers(0, 255, (240, 320, 3), dtype=np.uint8)
     rgb[:, :160] = 90  # half flat, as real images are
     assert len(encode_jpeg(rgb)) < rgb.nbytes / 3
@@ -211,7 +216,7 @@ def test_localization_recording_verifies_and_holds_every_stage(loc_rrd, run, rer
     per_frame = {
         "/world/camera/gt": "Pinhole:image_from_camera",
         "/world/camera/gt/rgb": "EncodedImage:blob",
-        "/depth": "EncodedDepthImage:blob",
+        "/depth": "DepthImage:buffer",
         "/world/camera/gt/detections/masks": "SegmentationImage:buffer",
         "/world/camera/gt/detections/boxes": "Boxes2D:class_ids",
         "/world/camera/estimate/1": "Transform3D:translation",
@@ -259,7 +264,7 @@ def test_localization_recording_size_per_frame(tmp_path, loc_rrd, run):
 def test_matches_are_coloured_by_ground_truth(tmp_path, run):
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     good, bad = frames[0], frames[2]  # frame 2's top-1 is a wrong clique (see the synthetic_run fixture)
     for f in (good, bad):
         recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
@@ -276,7 +281,7 @@ def test_matches_are_coloured_by_ground_truth(tmp_path, run):
 def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     first, second = frames[0], frames[1]
     recorder.log_frame(first.frame, first.detections, first.observations, first.result, first.evaluation)
     failed = dataclasses.replace(second.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2))
@@ -296,7 +301,7 @@ def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
     """A Clear is a hole in rerun's time series: no line bridges the failed frame to the next success."""
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     for i, f in enumerate(frames[:3]):
         result = dataclasses.replace(f.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2)) if i == 1 else f.result
         evaluation = evaluate_frame(result, f.observations, map, f.frame.pose, LocalizationConfig(), i)
@@ -335,7 +340,7 @@ def test_rotation_error_is_logged_in_degrees(tmp_path, run):
     map, frames = run
     f = frames[2]
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     evaluation = dataclasses.replace(f.evaluation, rotation_error=math.pi / 2)
     recorder.log_frame(f.frame, f.detections, f.observations, f.result, evaluation)
     (scalar,) = spy.last("metrics/error/rotation_deg")
@@ -347,7 +352,7 @@ def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):
     map, frames = run
     f = frames[0]
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     recorder.log_frame(dataclasses.replace(f.frame, pose=None), f.detections, f.observations, f.result, None)
     transform = spy.last("world/camera/gt")[0]
     assert len(transform.translation.as_arrow_array()) == 0  # cleared, not left at the last pose
@@ -369,7 +374,7 @@ def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):
 
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
-    spy = LogSpy(recorder.stream)
+    spy = LogSpy(recorder)
     medians = []
     for f in (frames[0], frames[2]):
         recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
@@ -433,3 +438,28 @@ def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path
     np.testing.assert_allclose(centers, expected, atol=1e-4)
     path = spy.last(WINDOW_PATH)[0].strips.as_arrow_array().to_pylist()[0]
     np.testing.assert_allclose(path, [f.frame.pose.translation for f in frames[:2]], atol=1e-4)
+
+
+def test_a_frame_that_fails_to_log_fails_the_run_and_leaves_no_recording(tmp_path, run):
+    """Frames are logged on the recorder's own thread; an error there reaches the caller, and the
+    half-written recording is dropped."""
+    map, frames = run
+    path = tmp_path / "r.rrd"
+    recorder = LocalizationRecorder(path, map, "x")
+    f = frames[0]
+    recorder.log_frame(f.frame, f.detections, None, f.result, f.evaluation)  # no observations: the thread fails
+    with pytest.raises(AttributeError):
+        recorder.flush()
+    with pytest.raises(AttributeError):
+        recorder.close()
+    assert not path.exists() and not list(tmp_path.iterdir())
+
+
+def test_a_run_that_fails_drops_the_frames_still_queued(tmp_path, run):
+    map, frames = run
+    path = tmp_path / "r.rrd"
+    with pytest.raises(RuntimeError), LocalizationRecorder(path, map, "x") as recorder:
+        for f in frames:
+            recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+        raise RuntimeError("the run failed")
+    assert not list(tmp_path.iterdir())

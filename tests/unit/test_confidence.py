@@ -12,7 +12,6 @@ from benchmark import calibration
 from clipclique import confidence
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind

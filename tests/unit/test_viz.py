@@ -426,7 +426,7 @@ def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path
     query = windower.query(1, frames[1].observations, lambda i: frames[i].observations)
     newest = frames[1]
     with LocalizationRecorder(tmp_path / "window.rrd", map, "# window") as recorder:
-        spy = LogSpy(recorder.stream)
+        spy = LogSpy(recorder)
         recorder.log_frame(newest.frame, newest.detections, query.observations, newest.result, newest.evaluation)
         recorder.log_window(query, newest.frame.pose)
     sources = spy.last(WINDOW_SOURCES)[0]

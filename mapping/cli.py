@@ -136,21 +136,27 @@ def export(
 def annotate(
     sequence: Annotated[str, typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the data root, or its folder",
                                             show_default=False)],
-    masks: Annotated[Path, typer.Option("--masks", help="folder of instance-id PNGs, each named after its colour "
-                                        "image (file stem or timestamp); 0 = no object", show_default=False)],
-    objects: Annotated[Path, typer.Option("--objects", help="CSV table 'id,class,description' of the mask ids",
-                                          show_default=False)],
+    masks: Annotated[Path | None, typer.Option("--masks", help="folder of instance-id PNGs, each named after its colour "
+                                               "image (file stem or timestamp); 0 = no object", show_default=False)] = None,
+    coco: Annotated[Path | None, typer.Option("--coco", help="a COCO annotation file of instance masks (RLE or polygons, "
+                                              "each with its object's track_id / instance_id / object_id), instead of "
+                                              "--masks", show_default=False)] = None,
+    objects: Annotated[Path | None, typer.Option("--objects", help="CSV table 'id,class,description' of the object ids "
+                                                 "(with --coco: optional, else the categories give the classes)",
+                                                 show_default=False)] = None,
     data_root: Annotated[
         Path | None,
         typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
     ] = None,
 ) -> None:
-    """Write SEQUENCE's annotations/ (to build its map) from instance masks made with another tool."""
+    """Write SEQUENCE's annotations/ (to build its map) from instance masks made with another tool: a folder of
+    instance PNGs (--masks, with --objects) or a COCO annotation file (--coco)."""
     from clipclique.datasets import open_sequence
     from clipclique.datasets.tum import TumSequence
     from clipclique.errors import ClipcliqueError
     from clipclique.exits import user_errors
-    from mapping.annotate import annotate as write_annotations
+    from mapping.annotate import annotate as annotate_masks
+    from mapping.annotate import annotate_coco
     from mapping.tables import make_console, print_annotated
 
     with user_errors(TOOL):
@@ -158,7 +164,11 @@ def annotate(
         if not isinstance(opened, TumSequence):
             raise ClipcliqueError(f"{sequence}: a {opened.kind} scene; annotate writes the annotations of a TUM-format "
                                   "sequence (ScanNet scenes carry their own)")
-        done = write_annotations(opened, masks, objects)
+        if (masks is None) == (coco is None):
+            raise ClipcliqueError("annotate reads either --masks DIR (with --objects CSV) or --coco FILE")
+        if masks is not None and objects is None:
+            raise ClipcliqueError("--masks needs --objects CSV: the class and description of each id in the masks")
+        done = annotate_masks(opened, masks, objects) if masks is not None else annotate_coco(opened, coco, objects)
     print_annotated(make_console(), done, sequence)
 
 

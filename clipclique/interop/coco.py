@@ -175,3 +175,84 @@ def reported_classes(vocabulary: np.ndarray, class_names: list[str]) -> dict[str
         if mapped >= 0:
             out.setdefault(class_names[mapped], COCO_NAMES[coco])
     return out
+
+
+OBJECT_ID_KEYS = ("track_id", "instance_id", "object_id")  # an object's id across images, by tool
+
+
+@dataclass
+class CocoObjectMask:
+    """One object's mask in one image of a COCO annotation file."""
+
+    image: str  # the image's file name
+    object_id: int  # the object's id across images (a map landmark's id)
+    class_name: str  # the category's name, as the file spells it
+    mask: np.ndarray  # (H, W) bool
+
+
+def read_coco_annotations(path: Path) -> list[CocoObjectMask]:
+    """The instance masks of a COCO annotation file (`images`, `categories`, `annotations`), as annotation
+    tools export them: segmentation as RLE or polygons, classes by category name, and each annotation's
+    object id across images in `track_id`, `instance_id` or `object_id` (top level or under `attributes`,
+    as CVAT writes it). COCO's own per-annotation `id` names a mask, not an object, so it is not used."""
+    data = read_json(path, "COCO annotation file", InteropError)
+    if not (isinstance(data, dict) and all(isinstance(data.get(k), list) for k in ("images", "categories", "annotations"))):
+        raise InteropError(f"{path}: a COCO annotation file is an object with 'images', 'categories' and 'annotations' lists")
+    images = {}
+    for index, image in enumerate(data["images"]):
+        if not (isinstance(image, dict) and isinstance(image.get("id"), int) and isinstance(image.get("file_name"), str)
+                and all(isinstance(image.get(k), int) and 0 < image[k] <= 1 << 15 for k in ("width", "height"))):
+            raise InteropError(f"{path}: images[{index}] needs an integer 'id', a 'file_name', 'width' and 'height'")
+        images[image["id"]] = image
+    categories = {}
+    for index, category in enumerate(data["categories"]):
+        if not (isinstance(category, dict) and isinstance(category.get("id"), int)
+                and isinstance(category.get("name"), str) and category["name"].strip()):
+            raise InteropError(f"{path}: categories[{index}] needs an integer 'id' and a 'name'")
+        categories[category["id"]] = category["name"].strip()
+    out = []
+    for index, entry in enumerate(data["annotations"]):
+        where = f"{path}, annotation {index}"
+        if not isinstance(entry, dict):
+            raise InteropError(f"{where}: not an object")
+        image = images.get(entry.get("image_id"))
+        if image is None:
+            raise InteropError(f"{where}: image_id {entry.get('image_id')!r} is not in 'images'")
+        if entry.get("category_id") not in categories:
+            raise InteropError(f"{where}: category_id {entry.get('category_id')!r} is not in 'categories'")
+        object_id = _object_id(entry, where)
+        segmentation = entry.get("segmentation")
+        if isinstance(segmentation, list):
+            mask = _polygons(segmentation, image["height"], image["width"], where)
+        else:
+            mask = decode_rle(segmentation, where)
+            if mask.shape != (image["height"], image["width"]):
+                raise InteropError(f"{where}: RLE of {mask.shape[1]} x {mask.shape[0]} for an image of "
+                                   f"{image['width']} x {image['height']}")
+        out.append(CocoObjectMask(image["file_name"], object_id, categories[entry["category_id"]], mask))
+    return out
+
+
+def _object_id(entry: dict, where: str) -> int:
+    attributes = entry.get("attributes") if isinstance(entry.get("attributes"), dict) else {}
+    for key in OBJECT_ID_KEYS:
+        for source in (entry, attributes):
+            value = source.get(key)
+            if value is not None:
+                if not (isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= 65535):
+                    raise InteropError(f"{where}: {key} {value!r} is not an object id in 1..65535")
+                return value
+    raise InteropError(f"{where}: no object id ({', '.join(OBJECT_ID_KEYS)}): a map needs to know which masks of "
+                       "different images show one object")
+
+
+def _polygons(polygons: list, height: int, width: int, where: str) -> np.ndarray:
+    """(H, W) bool: the union of COCO polygons `[[x0, y0, x1, y1, ...], ...]`."""
+    from pycocotools import mask as coco_mask
+
+    if not polygons or not all(isinstance(p, list) and len(p) >= 6 and len(p) % 2 == 0 for p in polygons):
+        raise InteropError(f"{where}: a polygon segmentation is a list of [x0, y0, x1, y1, ...] with 3 points or more")
+    for polygon in polygons:
+        _numbers(polygon, len(polygon), f"{where}: polygon")
+    merged = coco_mask.merge(coco_mask.frPyObjects([[float(v) for v in p] for p in polygons], height, width))
+    return decode_rle({"size": [int(v) for v in merged["size"]], "counts": merged["counts"].decode("ascii")}, where)

@@ -26,6 +26,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
+from clipclique.interop.coco import encode_rle
 from localization.cli import app as loc_app
 from mapping.cli import app as map_app
 
@@ -370,6 +371,45 @@ def annotate_cases() -> list[Case]:
         Case("annotate", "objects-latin1", mutated(lambda m, t: _insert(t, b"# " + LATIN1 + b"\n"), "classes.csv")),
         Case("annotate", "objects-missing-id", mutated(lambda m, t: t.write_text("id,class,description\n"), "classes.csv")),
     ]
+
+    def coco(change: Callable[[dict], None]) -> Callable:
+        """The demo_tum's first mask as a COCO annotation file (RLE), one thing in it broken."""
+        def make(space, case_dir):
+            folder = space.copy("demo_tum", case_dir)
+            instances = sorted((folder / "annotations" / "instances").glob("*.png"))[0]
+            ids = np.asarray(Image.open(instances))
+            shutil.rmtree(folder / "annotations")
+            object_id = int(ids.max())
+            document = {"images": [{"id": 1, "file_name": f"rgb/{instances.stem}.png", "width": ids.shape[1],
+                                    "height": ids.shape[0]}],
+                        "categories": [{"id": 3, "name": "cup"}],
+                        "annotations": [{"id": 1, "image_id": 1, "category_id": 3, "track_id": object_id,
+                                         "segmentation": encode_rle(ids == object_id)}]}
+            change(document)
+            path = case_dir / "instances.json"
+            path.write_text(json.dumps(document))
+            return map_app, ["annotate", str(folder), "--coco", str(path)], "instances.json"
+
+        return make
+
+    def annotation(**change) -> Callable[[dict], None]:
+        return lambda document: document["annotations"][0].update(change)
+
+    cases += [Case("annotate", f"coco-{name}", coco(change)) for name, change in {
+        "no-object-id": lambda d: d["annotations"][0].pop("track_id"),
+        "object-id-text": annotation(track_id="seven"),
+        "object-id-zero": annotation(track_id=0),
+        "category-unknown": annotation(category_id=9),
+        "image-unknown": annotation(image_id=2),
+        "rle-other-size": annotation(segmentation={"size": [10, 10], "counts": [100]}),
+        "polygon-two-points": annotation(segmentation=[[1, 1, 5, 5]]),
+        "polygon-nan": annotation(segmentation=[[1, 1, 5, 5, float("nan"), 3]]),
+        "no-images": lambda d: d.pop("images"),
+        "image-no-size": lambda d: d["images"][0].pop("width"),
+        "image-names-no-frame": lambda d: d["images"][0].update(file_name="rgb/photo.png"),
+        "one-object-two-classes": lambda d: (d["categories"].append({"id": 4, "name": "bottle"}),
+                                             d["annotations"].append(d["annotations"][0] | {"id": 2, "category_id": 4})),
+    }.items()]
     return cases
 
 

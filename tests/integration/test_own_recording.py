@@ -172,3 +172,52 @@ def test_ground_truth_that_ends_before_the_images_says_so(tmp_path, tum_sequence
     gap = open_sequence(NAME, tmp_path).missing_poses()
     assert gap.startswith("1 of 3 frames have no ground-truth pose") and "its poses cover" in gap
     assert np.isclose(float(gap.split("the images ")[1].split(" to ")[0]), T0 + 0.0013, atol=1e-3)
+
+
+def test_a_coco_annotation_file_becomes_the_sequences_annotations(tmp_path, tum_sequence):
+    """`annotate --coco`: RLE and polygon masks, the object id under CVAT's attributes or at the top, images named by
+    folder and file stem or by timestamp; classes from the categories, or descriptions from --objects."""
+    from clipclique.interop.coco import encode_rle
+
+    tum_sequence(tmp_path, annotations=False, rounded=True)
+    monitor = np.zeros((480, 640), bool)
+    monitor[200:280, 300:340] = True
+    document = {
+        "images": [{"id": 1, "file_name": f"rgb/{RGB_STAMPS[0]}.png", "width": 640, "height": 480},
+                   {"id": 2, "file_name": f"{float(RGB_STAMPS[1]):.3f}.png", "width": 640, "height": 480}],
+        "categories": [{"id": 1, "name": "monitor"}, {"id": 2, "name": "cup"}],
+        "annotations": [
+            {"id": 1, "image_id": 1, "category_id": 1, "attributes": {"track_id": 7}, "segmentation": encode_rle(monitor)},
+            {"id": 2, "image_id": 1, "category_id": 2, "track_id": 8,
+             "segmentation": [[340, 200, 380, 200, 380, 280, 340, 280]]},  # a 40 x 80 rectangle
+            {"id": 3, "image_id": 2, "category_id": 2, "track_id": 8, "segmentation": encode_rle(monitor)},
+        ],
+    }
+    coco = tmp_path / "instances.json"
+    coco.write_text(json.dumps(document))
+    done = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--data-root", str(tmp_path)])
+    assert done.exit_code == 0, done.output
+    assert "(2 frames, 2 objects)" in done.output.replace("\n", "")
+    sequence = open_sequence(NAME, tmp_path)
+    assert sequence.object_classes() == {7: "monitor", 8: "cup"}
+    assert np.count_nonzero(sequence[0].instances == 7) == 80 * 40
+    assert 80 * 40 <= np.count_nonzero(sequence[0].instances == 8) <= 81 * 41  # the polygon, its border pixels included
+    assert np.count_nonzero(sequence[1].instances == 8) == 80 * 40 and sequence[2].instances is None
+    # a second time: the annotations exist and are never replaced; with --objects the table names them
+    shutil.rmtree(tmp_path / "tum" / NAME / "annotations")
+    table = tmp_path / "classes.csv"
+    table.write_text('id,class,description\n7,monitor,"a black monitor, wide"\n8,cup,a red cup\n')
+    again = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--objects", str(table), "--data-root", str(tmp_path)])
+    assert again.exit_code == 0, again.output
+    assert "a red cup" in (tmp_path / "tum" / NAME / "annotations" / "objects.csv").read_text()
+    refused = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--data-root", str(tmp_path)])
+    assert refused.exit_code == 2 and "exists already" in refused.output
+
+
+def test_annotate_reads_masks_or_a_coco_file_not_both(tmp_path, tum_sequence):
+    tum_sequence(tmp_path, annotations=False)
+    masks, table = own_masks(tmp_path, [RGB_STAMPS[0]])
+    both = RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--coco", str(table), "--data-root", str(tmp_path)])
+    assert both.exit_code == 2 and "either --masks DIR (with --objects CSV) or --coco FILE" in both.output
+    alone = RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--data-root", str(tmp_path)])
+    assert alone.exit_code == 2 and "--masks needs --objects CSV" in alone.output

@@ -15,6 +15,8 @@ PY     := $(VENV)/bin/python
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 CORE   := $(VENV)/.installed-core
 STAMP  := $(VENV)/.installed
+# the cluster extra (dask): make test installs it on top of make install; make demo does without
+CLUSTER_STAMP := $(VENV)/.cluster
 APT_PACKAGES := libusb-1.0-0 libgomp1 mesa-vulkan-drivers
 
 export YOLO_OFFLINE ?= 1
@@ -51,7 +53,11 @@ $(STAMP): $(CORE)
 demo: $(CORE)
 	$(PY) tools/demo.py
 
-test: $(STAMP)
+$(CLUSTER_STAMP): $(STAMP)
+	$(PY) -m pip install -q -e '.[cluster]'
+	touch $(CLUSTER_STAMP)
+
+test: $(CLUSTER_STAMP)
 	$(PY) -m pytest -q
 
 test-fast: $(STAMP)

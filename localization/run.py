@@ -253,11 +253,17 @@ def observe(run: Run, frame: Frame) -> Seen:
 def localize_frame(run: Run, frame: Frame, index: MapIndex) -> tuple[FrameOutcome, Seen]:
     """Observe, localize and score one frame."""
     seen = observe(run, frame)
-    result = localize(seen.observations, index, run.config)
-    evaluation = evaluate_frame(result, seen.observations, run.map, frame.pose, run.config, frame.index)
+    result, evaluation = localize_observed(run, index, seen.observations, frame.pose, frame.index)
     outcome = FrameOutcome(frame.index, frame.timestamp, frame.name, frame.pose, len(seen.detections), seen.dropped,
                            result, evaluation, seen.timings | result.timings)
     return outcome, seen
+
+
+def localize_observed(run: Run, index: MapIndex, observations: Observations, gt_pose: Pose | None,
+                      frame_index: int) -> tuple[LocalizationResult, FrameEvaluation]:
+    """Localize one frame's observations and score the result against its ground truth."""
+    result = localize(observations, index, run.config)
+    return result, evaluate_frame(result, observations, run.map, gt_pose, run.config, frame_index)
 
 
 def selected_frames(run: Run) -> range:
@@ -321,14 +327,21 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
 
 def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Prepare, localize every selected frame, write results (and the .rrd) into
-    `settings.out_dir(sequence name)`; the results document.
+    `settings.out_dir(sequence name)`; the results document."""
+    return save_run(prepare(settings), lambda run, recorder: execute(run, recorder, progress))
+
+
+def save_run(run: Run, fill: Callable[[Run, LocalizationRecorder | None], object]) -> dict[str, Any]:
+    """`fill(run, recorder)` puts the frames into `run` (logging each to the recorder when the run records);
+    then the results are written into `run.settings.out_dir(sequence name)`; the results document.
+    (`run_and_save` localizes here; the benchmark fills in frames localized elsewhere.)
 
     The outputs appear together once the run succeeded; a failed or interrupted run leaves the
     previous ones as they were and no folder it made empty behind. Without a recording (--no-rrd), an
     earlier run's recording.rrd is left as it is: a user's file is never removed as a side effect; when it
     shows other results, results.json and a note say so.
     """
-    run = prepare(settings)
+    settings = run.settings
     out_dir = settings.out_dir(run.sequence.name)
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]  # deepest first
     recording = out_dir / RECORDING
@@ -342,9 +355,9 @@ def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | N
 
                 with LocalizationRecorder(staging.path(recording), run.map, recording_description(run),
                                           d_adj=run.config.graph.d_adj) as recorder:
-                    execute(run, recorder, progress)
+                    fill(run, recorder)
             else:
-                execute(run, None, progress)
+                fill(run, None)
             document = write_results(run, partials, earlier)
             if run.detections_file is not None:
                 run.detections_file.write(staging.path(out_dir / DETECTIONS_FILE), staging.path(out_dir / IMAGES_FILE))

@@ -9,19 +9,20 @@ A plan file (`clipclique-bench --plan FILE.toml`; not a `--config`, which sets p
     detector = "gt"                                                  # optional, as clipclique-loc run
     encoder = "open_clip:ViT-L-14/openai"                            # optional
     [grid]                                                           # every combination is one run
-    "inliers.d_comp" = [0.2, 0.3, 0.4]
+    inliers.d_comp = [0.2, 0.3, 0.4]
 """
 
 from __future__ import annotations
 
 import glob
 import itertools
+import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from clipclique.config import METHOD_PRESETS, MAX_CONFIG_BYTES, make_config
+from clipclique.config import METHOD_PRESETS, MAX_CONFIG_BYTES, ConfigError, make_config
 from clipclique.datasets import scene_name
 from clipclique.errors import ClipcliqueError
 from clipclique.safeio import read_text
@@ -44,6 +45,7 @@ class Plan:
     max_frames: int | None = None
     detector: str | None = None
     encoder: str | None = None
+    source: str = "command line"  # the plan file, for the errors found when its runs are made
 
 
 FIELDS = {"scenes": list, "methods": list, "grid": dict, "stride": int, "max_frames": int, "detector": str,
@@ -81,14 +83,29 @@ def read_plan(path: Path) -> Plan:
             raise PlanError(f"{path}: {key} must be a list of non-empty strings")
     if "scenes" not in tree or not tree["scenes"]:
         raise PlanError(f"{path}: no scenes (scenes = [\"demo\", ...])")
+    try:
+        entries = _dotted(tree.get("grid", {}))
+    except RecursionError:
+        raise PlanError(f"{path}: grid nests too deep") from None
     grid = {}
-    for key, values in tree.get("grid", {}).items():
+    for key, values in entries.items():
         values = values if isinstance(values, list) else [values]
         if not values or not all(isinstance(v, (str, int, float, bool)) for v in values):
             raise PlanError(f"{path}: grid.{key} must be a value or a non-empty list of numbers, strings or booleans")
         grid[key] = [_toml_value(v) for v in values]
     return Plan(tree["scenes"], tree.get("methods", ["clipclique"]), grid, tree.get("stride", 1),
-                tree.get("max_frames"), tree.get("detector"), tree.get("encoder"))
+                tree.get("max_frames"), tree.get("detector"), tree.get("encoder"), str(path))
+
+
+def _dotted(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """`{"inliers": {"d_comp": [..]}}` (TOML's unquoted dotted keys) -> `{"inliers.d_comp": [..]}`."""
+    flat: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat |= _dotted(value, f"{prefix}{key}.")
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def _toml_value(value: str | int | float | bool) -> str:
@@ -96,14 +113,14 @@ def _toml_value(value: str | int | float | bool) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
-def expand_scenes(patterns: list[str]) -> list[str]:
+def expand_scenes(patterns: list[str], source: str = "command line") -> list[str]:
     """Names and folders as given; a glob becomes the folders it matches (sorted), none is an error."""
     scenes: list[str] = []
     for pattern in patterns:
         if any(c in pattern for c in GLOB_CHARACTERS):
             matches = sorted(p for p in glob.glob(pattern) if Path(p).is_dir())
             if not matches:
-                raise PlanError(f"scene pattern {pattern!r} matches no folder")
+                raise PlanError(f"{source}: scene pattern {pattern!r} matches no folder")
             scenes += matches
         else:
             scenes.append(pattern)
@@ -113,17 +130,21 @@ def expand_scenes(patterns: list[str]) -> list[str]:
 def runs(plan: Plan, out_root: Path, data_root: Path | None, record: bool) -> list[RunSettings]:
     """One RunSettings per scene x method x grid point, each writing to out_root/<scene>/<run name>/."""
     if plan.stride < 1 or (plan.max_frames is not None and plan.max_frames < 1):
-        raise PlanError("stride and max_frames must be at least 1")
+        raise PlanError(f"{plan.source}: stride and max_frames must be at least 1")
     unknown = [m for m in plan.methods if m not in METHOD_PRESETS]
     if unknown or not plan.methods:
-        raise PlanError(f"unknown method {unknown[0] if unknown else '(none)'!r}; choose from {', '.join(METHOD_PRESETS)}")
-    scenes = expand_scenes(plan.scenes)
+        raise PlanError(f"{plan.source}: unknown method {unknown[0] if unknown else '(none)'!r}; "
+                        f"choose from {', '.join(METHOD_PRESETS)}")
+    scenes = expand_scenes(plan.scenes, plan.source)
+    if len(scenes) * len(plan.methods) * math.prod(len(values) for values in plan.grid.values()) > MAX_RUNS:
+        raise PlanError(f"{plan.source}: the plan makes more than {MAX_RUNS} runs")
     points = list(itertools.product(*([f"{key}={value}" for value in values] for key, values in plan.grid.items())))
-    if len(scenes) * len(plan.methods) * len(points) > MAX_RUNS:
-        raise PlanError(f"the plan makes more than {MAX_RUNS} runs")
     settings: dict[Path, RunSettings] = {}
     for scene, method, point in itertools.product(scenes, plan.methods, points):
-        make_config(method, overrides=list(point))  # a wrong key or value: an error now, before any work
+        try:  # a wrong key or value: an error now, before any work
+            make_config(method, overrides=list(point))
+        except ConfigError as error:
+            raise PlanError(f"{plan.source}: grid {' '.join(point)}: {error}") from None
         run = RunSettings(scene, method, overrides=list(point), data_root=data_root, detector=plan.detector,
                           encoder=plan.encoder, stride=plan.stride, max_frames=plan.max_frames, record=record)
         run.out = out_root / scene_name(scene) / run.run_name()

@@ -15,6 +15,8 @@ from typing import Annotated, Any, Iterator, Optional
 
 import typer
 
+from clipclique.outputs import BENCH_DIR, CACHE_DIR
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
 
@@ -54,9 +56,9 @@ def main_command(
     scheduler: Annotated[Optional[str], typer.Option(help="join a running Dask cluster, e.g. tcp://head:8786",
                                                      rich_help_panel=ENGINE)] = None,
     out: Annotated[Path, typer.Option(help="OUT/SCENE/RUN/ per run (as clipclique-loc run writes), and "
-                                           "OUT/report.md, summary.json, success.png", rich_help_panel=OUTPUT)] = Path("outputs/bench"),
+                                           "OUT/report.md, summary.json, success.png", rich_help_panel=OUTPUT)] = BENCH_DIR,
     cache: Annotated[Path, typer.Option(help="perception cache (observations and embeddings per frame)",
-                                        rich_help_panel=OUTPUT)] = Path("outputs/cache"),
+                                        rich_help_panel=OUTPUT)] = CACHE_DIR,
     record: Annotated[bool, typer.Option("--record", help="also write each run's Rerun recording", rich_help_panel=OUTPUT)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the results are", rich_help_panel=OUTPUT)] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print the tables of every run",

@@ -4,7 +4,7 @@
     .venv/bin/python tools/bench.py --sequences demo --quick --out /tmp/bench
 
 Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
-are cached and every configuration (Table I's four methods, the ablations, the alpha sweep)
+are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four methods, the ablations, the alpha sweep)
 localizes the cached observations. The algorithm costs milliseconds per frame, the detector and
 the encoder far more, so this is what lets the suite finish in minutes.
 
@@ -46,12 +46,12 @@ import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
 
-from benchmark import calibration, literal_reference, report  # noqa: E402
+from benchmark import calibration, literal_reference, perception, report  # noqa: E402
+from benchmark.engine import ensure_map, perceive_chunk  # noqa: E402
 from benchmark.core import growth_exponent, scalability  # noqa: E402
 from benchmark.report import PAPER_LANDMARKS_AT_1S  # noqa: E402
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
 from clipclique.datasets import resolve_data_root  # noqa: E402
-from clipclique.errors import MapFileError  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
 from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
 from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage  # noqa: E402
@@ -59,9 +59,8 @@ from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_m
 from clipclique.sim import DEMO_SCENES  # noqa: E402
 from clipclique.sim.synthetic import duplicate_rooms  # noqa: E402
 from clipclique.types import Map, Observations, Pose  # noqa: E402
-from clipclique.outputs import BENCH_DIR, map_file  # noqa: E402
-from localization.run import Run, RunSettings, observe, prepare, selected_frames  # noqa: E402
-from mapping.run import run_build  # noqa: E402
+from clipclique.outputs import BENCH_DIR, CACHE_DIR, map_file  # noqa: E402
+from localization.run import Run, RunSettings, prepare, selected_frames  # noqa: E402
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"
@@ -172,28 +171,19 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     return names, skipped
 
 
-def ensure_map(name: str, data_root: Path | None) -> None:
-    """Build a missing demo map as clipclique-map does (the demo data is generated on first use);
-    a missing map of any other sequence is the user's to build."""
-    path = map_file(Path(name).name)
-    if path.is_file():
-        return
-    if name not in DEMO_SCENES:
-        raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
-    run_build(name, data_root, path, rrd=False)
-
-
 def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> CachedSequence:
-    """Detect, fit and embed the selected frames once; `frames` spreads that many over the sequence."""
+    """The selected frames detected, fitted and embedded once, through clipclique-bench's perception
+    cache (outputs/cache: a rerun reads them back); `frames` spreads that many over the sequence."""
     run = prepare(RunSettings(name, data_root=data_root, record=False))
     if frames is not None:
         run.settings = dataclasses.replace(run.settings, stride=max(1, len(run.sequence) // frames), max_frames=frames)
     selected = selected_frames(run)
+    folder = perception.folder_of(CACHE_DIR, perception.key_of(run))
     cached, timings = [], []
     for i in selected:
-        frame = run.sequence[i]
-        seen = observe(run, frame)
-        cached.append(CachedFrame(frame.index, seen.observations, frame.pose))
+        perceive_chunk(run.settings, (i,), folder)
+        seen = perception.load(perception.frame_file(folder, i))
+        cached.append(CachedFrame(seen.index, seen.observations, seen.gt_pose))
         timings.append(seen.timings)
         tick(len(selected))
     description = {

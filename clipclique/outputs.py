@@ -21,6 +21,7 @@ PARTIAL_SUFFIX = ".partial"
 MAP_DIR = Path("outputs/maps")  # clipclique-map writes, clipclique-loc and the benchmark look up
 LOC_DIR = Path("outputs/loc")  # clipclique-loc's run folders
 BENCH_DIR = Path("outputs/bench")  # the benchmark's reports
+CACHE_DIR = Path("outputs/cache")  # the benchmark's perception cache (benchmark.perception)
 
 
 def map_file(scene: str) -> Path:

@@ -26,7 +26,8 @@ for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("OPEN
 
 
 from benchmark import calibration  # noqa: E402
-from benchmark.suite import cache_sequence, ensure_map  # noqa: E402
+from benchmark.engine import ensure_map  # noqa: E402
+from benchmark.suite import cache_sequence  # noqa: E402
 from clipclique import confidence  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402

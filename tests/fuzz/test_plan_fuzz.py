@@ -75,3 +75,18 @@ def test_hostile_options_are_one_line_exit_2(args: list[str], named: str, tmp_pa
     assert result.exit_code == 2, f"exit {result.exit_code}: {result.output[-2000:]} {result.exception!r}"
     assert len(lines) == 1 and lines[0].startswith("clipclique-bench: error: ") and named in lines[0], result.output
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
+
+
+def test_the_readme_plan_example_reads_as_its_runs(repository: Path, tmp_path: Path):
+    from benchmark.plan import read_plan, runs
+
+    readme = (repository / "README.md").read_text()
+    example = readme.split("  ```toml\n", 1)[1].split("  ```", 1)[0]
+    path = tmp_path / "plan.toml"
+    path.write_text("\n".join(line.removeprefix("  ") for line in example.splitlines()))
+    settings = runs(read_plan(path), tmp_path / "out", None, record=False)
+    assert [(s.sequence, s.method, s.overrides, s.max_frames) for s in settings][:3] == [
+        ("demo", "clipclique", ["inliers.d_comp=0.2"], 30), ("demo", "clipclique", ["inliers.d_comp=0.3"], 30),
+        ("demo", "clipclique", ["inliers.d_comp=0.4"], 30)]
+    assert len(settings) == 12
+    assert settings[0].out == tmp_path / "out" / "demo" / "clipclique+inliers.d_comp=0.2+max_frames=30"

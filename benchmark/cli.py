@@ -120,8 +120,9 @@ def _client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
         with Client(scheduler) as client:
             yield client
         return
+    # GPU=1: a perception task on CUDA asks for it (on a CPU-only machine no task does)
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, resources={"GPU": 1}) as cluster, Client(cluster) as client:
         yield client
 
 

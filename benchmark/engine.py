@@ -189,9 +189,13 @@ def chunks(frames: list[int]) -> Iterator[tuple[int, ...]]:
 
 
 def needs_gpu(run: Run) -> bool:
-    """The detector or encoder is a real model on a CUDA device."""
-    return any(str(getattr(model, "device", "cpu")).startswith("cuda") for model in (run.detector, run.encoder)
-               if model is not None)
+    """The detector or encoder is a model that runs on CUDA here (a device of None: CUDA when there is one)."""
+    models = [model for model in (run.detector, run.encoder) if hasattr(model, "device")]
+    if not models:
+        return False
+    import torch  # loaded already: a model with a device is a torch model
+
+    return torch.cuda.is_available() and any(str(model.device or "cuda").startswith("cuda") for model in models)
 
 
 @dataclass

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections import defaultdict
+from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from enum import Enum
@@ -96,15 +96,23 @@ class BenchResult:
 
 # ---- worker side: module-level functions, each process keeps what it prepared ----
 
-_RUNS: dict[str, Run] = {}
-_INDEXES: dict[str, MapIndex] = {}
+KEPT = 8  # runs (sequence, map, models) and map indexes a worker keeps: a dataset of many scenes must not fill it
+_RUNS: OrderedDict[str, Run] = OrderedDict()
+_INDEXES: OrderedDict[str, MapIndex] = OrderedDict()
+
+
+def _kept(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
+    """`store[key]`, made when missing; the least recently used beyond KEPT are dropped."""
+    if key not in store:
+        store[key] = make()
+    store.move_to_end(key)
+    while len(store) > KEPT:
+        store.popitem(last=False)
+    return store[key]
 
 
 def _prepared(settings: RunSettings) -> Run:
-    key = json.dumps(dataclasses.asdict(settings), default=str, sort_keys=True)
-    if key not in _RUNS:
-        _RUNS[key] = prepare(settings)
-    return _RUNS[key]
+    return _kept(_RUNS, json.dumps(dataclasses.asdict(settings), default=str, sort_keys=True), lambda: prepare(settings))
 
 
 def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path) -> int:
@@ -128,13 +136,12 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
     """Localize and score the cached frames (`after`: the perception tasks they wait for)."""
     run = _prepared(settings)
     key = json.dumps([dataclasses.asdict(settings), run.config.to_dict()], default=str, sort_keys=True)
-    if key not in _INDEXES:
-        _INDEXES[key] = index_map(run.map, run.config)
+    index = _kept(_INDEXES, key, lambda: index_map(run.map, run.config))
     outcomes = []
     for i in frames:
         try:
             seen = perception.load(perception.frame_file(folder, i))
-            result, evaluation = localize_observed(run, _INDEXES[key], seen.observations, seen.gt_pose, seen.index)
+            result, evaluation = localize_observed(run, index, seen.observations, seen.gt_pose, seen.index)
         except Exception as error:  # noqa: BLE001
             raise FrameError(f"{run.sequence.name} frame {i}: {type(error).__name__}: {one_line(error)}") from None
         outcomes.append(FrameOutcome(seen.index, seen.timestamp, seen.name, seen.gt_pose, seen.num_detections,

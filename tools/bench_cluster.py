@@ -71,15 +71,19 @@ def main() -> None:
     timings["in-process"] = time.perf_counter() - start
     print(f"in-process: {timings['in-process']:.1f} s, {result.tasks} tasks, {len(result.documents)} runs")
 
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster, get_task_stream
 
     start = time.perf_counter()
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
-        result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(), client)
+        with get_task_stream(client) as stream:
+            result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(), client)
     timings["cluster"] = time.perf_counter() - start
+    busy = sum(part["stop"] - part["start"] for task in stream.data for part in task["startstops"]
+               if part["action"] == "compute")
     print(f"--workers {args.workers}: {timings['cluster']:.1f} s (cluster start included), {result.tasks} tasks; "
-          f"speed-up {timings['in-process'] / timings['cluster']:.2f}x")
+          f"speed-up {timings['in-process'] / timings['cluster']:.2f}x; the workers computed for {busy:.1f} s in all "
+          f"({busy / timings['cluster']:.2f} workers busy on average)")
     same = decisions(args.out / "in-process") == decisions(args.out / "cluster")
     print(f"identical results: {same} ({len(decisions(args.out / 'cluster'))} runs)")
 

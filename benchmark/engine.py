@@ -28,7 +28,8 @@ from clipclique.outputs import map_file
 from clipclique.pipeline import MapIndex, index_map
 from clipclique.sim import DEMO_SCENES
 from localization.results import read_results
-from localization.run import FrameOutcome, Run, RunSettings, localize_observed, observe, prepare, save_run, selected_frames
+from localization.run import (FrameOutcome, Run, RunSettings, localize_observed, note_unannotated, observe, prepare,
+                              save_run, selected_frames)
 from mapping.run import run_build
 
 CHUNK_FRAMES = 16  # frames per task: enough work to outweigh a task's overhead, small enough to spread
@@ -80,7 +81,7 @@ class Job:
     frames: list[int]
     cache: Path
     worker_settings: RunSettings  # the settings with absolute paths, for a worker in another folder
-    outcomes: dict[int, FrameOutcome] = field(default_factory=dict)
+    outcomes: dict[int, FrameOutcome | str] = field(default_factory=dict)  # a name: not annotated, left out
     failures: list[TaskFailure] = field(default_factory=list)
     pending: int = 0
 
@@ -125,15 +126,19 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
             continue
         try:
             frame = run.sequence[i]
-            perception.save(path, frame.index, frame.timestamp, frame.name, frame.pose, observe(run, frame))
+            if run.reads_instances and frame.instances is None:  # as clipclique-loc run: left out, not a failure
+                perception.save_unannotated(path, frame.index, frame.timestamp, frame.name)
+            else:
+                perception.save(path, frame.index, frame.timestamp, frame.name, frame.pose, observe(run, frame))
         except Exception as error:  # noqa: BLE001  the frame and a one-line reason travel back instead of a traceback
             raise FrameError(f"{run.sequence.name} frame {i}: {type(error).__name__}: {one_line(error)}") from None
         count += 1
     return count
 
 
-def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path, *after: Any) -> list[FrameOutcome]:
-    """Localize and score the cached frames (`after`: the perception tasks they wait for)."""
+def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path, *after: Any) -> list[FrameOutcome | str]:
+    """Localize and score the cached frames (`after`: the perception tasks they wait for); a frame without
+    annotations for the detector is its name."""
     run = _prepared(settings)
     key = json.dumps([dataclasses.asdict(settings), run.config.to_dict()], default=str, sort_keys=True)
     index = _kept(_INDEXES, key, lambda: index_map(run.map, run.config))
@@ -141,6 +146,9 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
     for i in frames:
         try:
             seen = perception.load(perception.frame_file(folder, i))
+            if seen.observations is None:
+                outcomes.append(seen.name)
+                continue
             result, evaluation = localize_observed(run, index, seen.observations, seen.gt_pose, seen.index)
         except Exception as error:  # noqa: BLE001
             raise FrameError(f"{run.sequence.name} frame {i}: {type(error).__name__}: {one_line(error)}") from None
@@ -255,7 +263,7 @@ def run_jobs(runs: list[RunSettings], cache_root: Path, tracker: Tracker, client
         if failure is not None:
             job.failures.append(failure)
         else:
-            job.outcomes |= {outcome.frame_index: outcome for outcome in value}
+            job.outcomes |= dict(zip(submission.task.frames, value))
         if job.pending == 0 and not job.failures:
             document = save_run(job.run, lambda run, recorder, job=job: _fill(job, recorder))
             documents[job.run.settings.out_dir(job.run.sequence.name)] = document
@@ -268,7 +276,9 @@ def run_jobs(runs: list[RunSettings], cache_root: Path, tracker: Tracker, client
 def _fill(job: Job, recorder: Any) -> None:
     """The run's frames in order; a recording replays each frame with its detections (the detector is
     deterministic) and its cached observations."""
-    job.run.frames = [job.outcomes[i] for i in job.frames]
+    job.run.frames = [job.outcomes[i] for i in job.frames if not isinstance(job.outcomes[i], str)]
+    job.run.unannotated = [job.outcomes[i] for i in job.frames if isinstance(job.outcomes[i], str)]
+    note_unannotated(job.run, len(job.frames))
     if recorder is None:
         return
     for outcome in job.run.frames:

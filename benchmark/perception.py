@@ -35,7 +35,7 @@ class Perceived:
     timestamp: float
     name: str
     gt_pose: Pose | None
-    observations: Observations
+    observations: Observations | None  # None: the frame has no annotations for the detector to read (left out)
     num_detections: int
     dropped: dict[str, int]
     timings: dict[str, float]  # seconds of the detector, fit and encoder when it was computed
@@ -72,6 +72,12 @@ def frame_file(folder: Path, index: int) -> Path:
     return folder / f"{index:06d}.npz"
 
 
+def save_unannotated(path: Path, frame_index: int, timestamp: float, name: str) -> None:
+    """A frame the detector cannot read (no instance image): remembered, so it is left out without reading it again."""
+    meta = {"index": frame_index, "timestamp": timestamp, "name": name, "unannotated": True}
+    _replace(path, lambda partial: np.savez(partial, meta=np.array(json.dumps(meta))))
+
+
 def save(path: Path, frame_index: int, timestamp: float, name: str, gt_pose: Pose | None, seen: Seen) -> None:
     observations = seen.observations
     arrays = {"centers": observations.ellipsoids.centers, "axes": observations.ellipsoids.axes,
@@ -96,6 +102,8 @@ def load(path: Path) -> Perceived:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
         meta = json.loads(str(arrays.pop("meta")))
+        if meta.get("unannotated"):
+            return Perceived(int(meta["index"]), float(meta["timestamp"]), str(meta["name"]), None, None, 0, {}, {})
         camera = None if meta["camera"] is None else Camera(arrays["intrinsics"], int(meta["camera"]["width"]),
                                                             int(meta["camera"]["height"]),
                                                             float(meta["camera"]["max_depth"]))

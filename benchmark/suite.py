@@ -183,9 +183,11 @@ def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: 
     for i in selected:
         perceive_chunk(run.settings, (i,), folder)
         seen = perception.load(perception.frame_file(folder, i))
+        tick(len(selected))
+        if seen.observations is None:  # no annotations for the detector: left out, as clipclique-loc run does
+            continue
         cached.append(CachedFrame(seen.index, seen.observations, seen.gt_pose))
         timings.append(seen.timings)
-        tick(len(selected))
     description = {
         "sequence": run.sequence.name,
         "kind": run.sequence.kind,

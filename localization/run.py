@@ -315,14 +315,19 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
                 recorder.log_window(outcome.window, frame.pose or top1)
         if progress is not None:
             progress(count, len(selected))
+    note_unannotated(run, len(selected))
+    return run
+
+
+def note_unannotated(run: Run, selected: int) -> None:
+    """The frames left out for want of annotations, as a note; none annotated at all is an error."""
     if run.unannotated:
         shown = ", ".join(run.unannotated[:3]) + (", ..." if len(run.unannotated) > 3 else "")
         if not run.frames:
-            raise ClipcliqueError(f"{run.sequence.root}: none of the {len(selected)} frames selected has annotations "
+            raise ClipcliqueError(f"{run.sequence.root}: none of the {selected} frames selected has annotations "
                                   f"for --detector {run.detector.name} to read (e.g. {shown})")
-        run.notes.append(f"{len(run.unannotated)} of {len(selected)} frames have no annotations for the "
+        run.notes.append(f"{len(run.unannotated)} of {selected} frames have no annotations for the "
                          f"{run.detector.name} detector: left out, not counted as failures ({shown})")
-    return run
 
 
 def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:

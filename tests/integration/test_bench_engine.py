@@ -180,3 +180,18 @@ def test_a_transient_failure_is_retried_and_leaves_no_trace(workspace, in_proces
     assert failed and not tracker.failures and not result.failed and len(result.documents) == 4
     for left, right in zip(folders(workspace, "in-process"), folders(workspace, "flaky")):
         assert canonical(left) == canonical(right)
+
+
+def test_frames_without_annotations_are_left_out_as_clipclique_loc_leaves_them(tmp_path, monkeypatch, tum_sequence):
+    """The tiny TUM sequence annotates one of its three frames: the benchmark's run is clipclique-loc's, note included."""
+    from mapping.run import run_build
+
+    folder = tum_sequence(tmp_path, rounded=True)
+    monkeypatch.chdir(tmp_path)
+    run_build(folder.name, tmp_path, Path("outputs/maps") / f"{folder.name}.map.npz", encoder_spec="none", rrd=False)
+    result = run_jobs(runs(Plan([folder.name]), tmp_path / "bench", tmp_path, record=False), tmp_path / "cache", Recorder())
+    reference = run_and_save(RunSettings(folder.name, data_root=tmp_path, out=tmp_path / "loc", record=False))
+    (document,) = result.documents
+    assert document["summary"]["frames"] == 1 and document["summary"]["not_annotated"] == 2
+    assert document["run"]["notes"] == reference["run"]["notes"] and any("no annotations" in n for n in reference["run"]["notes"])
+    assert canonical(tmp_path / "bench" / folder.name / "clipclique" / "results.json") == canonical(tmp_path / "loc" / "results.json")

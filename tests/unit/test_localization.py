@@ -86,7 +86,7 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     import localization.run as runner
     from localization.run import RunSettings
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")
@@ -102,7 +102,7 @@ def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
     def interrupted(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo")))
+    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", interrupted)
     (tmp_path / "kept").mkdir()
     for out in (tmp_path / "new" / "run", tmp_path / "kept"):

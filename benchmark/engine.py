@@ -276,6 +276,7 @@ def run_jobs(runs: list[RunSettings], cache_root: Path, tracker: Tracker, client
 def _fill(job: Job, recorder: Any) -> None:
     """The run's frames in order; a recording replays each frame with its detections (the detector is
     deterministic) and its cached observations."""
+    job.run.detections_file = None  # a model's COCO detections are not cached: no file rather than an empty one
     job.run.frames = [job.outcomes[i] for i in job.frames if not isinstance(job.outcomes[i], str)]
     job.run.unannotated = [job.outcomes[i] for i in job.frames if isinstance(job.outcomes[i], str)]
     note_unannotated(job.run, len(job.frames))

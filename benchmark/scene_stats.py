@@ -2,7 +2,7 @@
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
-    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk --readme README.md   (what `make docs` runs)
+    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md   (what `make docs` runs)
 
 Everything goes through the project's own code: the map from `mapping.build.build_map`, the frames
 from the dataset reader, the detections from `clipclique.backends`, the observed ellipsoids from

@@ -22,11 +22,10 @@ import numpy as np
 
 from benchmark import suite
 from clipclique.config import make_config
-from clipclique.metrics import evaluate_frame
+from clipclique.metrics import evaluate_frame, success_within
 from clipclique.pipeline import index_map, localize
 
 SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum")
-THRESHOLDS_M = (0.25, 0.5, 1.0, 2.0)
 DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 
 # Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
@@ -45,8 +44,8 @@ LEVERS: dict[str, dict[str, Any]] = {
 
 
 def top1_errors(sequence: suite.CachedSequence, method: str, overrides: dict[str, Any],
-                reference: bool = False) -> tuple[np.ndarray, float]:
-    """Top-1 translation error per frame (inf when no pose), and top-5 success within 1 m."""
+                reference: bool = False) -> tuple[list[float | None], float]:
+    """Top-1 translation error per frame (None when no pose), and top-5 success within 1 m."""
     config = make_config(method, overrides=overrides)
     localizer = (partial(suite.literal_localize, map=sequence.map, alpha=config.similarity.alpha) if reference
                  else partial(localize, index=index_map(sequence.map, config), config=config))
@@ -54,14 +53,13 @@ def top1_errors(sequence: suite.CachedSequence, method: str, overrides: dict[str
     for frame in sequence.frames:
         evaluation = evaluate_frame(localizer(frame.observations), frame.observations, sequence.map, frame.gt_pose,
                                     config, frame.index)
-        te = evaluation.translation_error
-        errors.append(np.inf if te is None else te)
+        errors.append(evaluation.translation_error)
         top5.append(evaluation.success[5])
-    return np.array(errors), float(np.mean(top5))
+    return errors, float(np.mean(top5))
 
 
-def row(scene: str, descriptor: str, lever: str, errors: np.ndarray, top5: float) -> str:
-    within = " | ".join(f"{np.mean(errors < t):.1%}" for t in THRESHOLDS_M)
+def row(scene: str, descriptor: str, lever: str, errors: list[float | None], top5: float) -> str:
+    within = " | ".join(f"{share:.1%}" for share in success_within(errors).values())
     return f"| {scene} | {descriptor} | {lever} | {within} | {top5:.1%} |"
 
 

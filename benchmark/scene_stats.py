@@ -2,7 +2,7 @@
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
-    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk --readme README.md   (what `make docs` runs)
+    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md   (what `make docs` runs)
 
 Everything goes through the project's own code: the map from `mapping.build.build_map`, the frames
 from the dataset reader, the detections from `clipclique.backends`, the observed ellipsoids from
@@ -45,14 +45,14 @@ REAL = {
         "isolated_objects": "47%", "degree_median_max": None, "observations_per_frame": "3 to 17, median 9",
         "observations_near": None, "isolated_observations": "47%", "offset_percentiles": "0.18 / 0.38 / 0.80 / 1.09",
         "offsets_far": "32%", "detections_per_frame": None, "miss_rate": None, "false_positive_share": None,
-        "confusion_share": None,
+        "confusion_share": None, "duplicates_per_frame": None, "frames_three_hit": None,
     },
     "tum": {
         "objects": "47", "classes": "19", "extent_m": "5.5 x 3.4 x 1.0", "degree_histogram": None,
         "isolated_objects": None, "degree_median_max": "17 / 30", "observations_per_frame": None,
         "observations_near": "about 26", "isolated_observations": None, "offset_percentiles": None, "offsets_far": None,
         "detections_per_frame": "about 10", "miss_rate": "about 70%", "false_positive_share": "21%",
-        "confusion_share": "34%",
+        "confusion_share": "34%", "duplicates_per_frame": "some", "frames_three_hit": "96%",
     },
 }
 
@@ -75,6 +75,8 @@ class SceneStats:
     detections: int = 0
     false_positives: int = 0
     confusions: Counter = field(default_factory=Counter)  # (true class, detected class) -> count
+    duplicates: int = 0  # detections of an object another detection of the frame already hits
+    frames_three_hit: int = 0  # frames whose detections hit three or more distinct mapped objects
 
     @property
     def hits(self) -> int:
@@ -148,6 +150,9 @@ def measure(sequence: Sequence, detector_kind: str | None = None, frames: int | 
         stats.hit_objects += len(in_view & set(hits.tolist()))
         stats.detections += len(detections)
         stats.false_positives += int((hits == 0).sum())
+        distinct = set(hits[hits > 0].tolist())
+        stats.duplicates += int((hits > 0).sum()) - len(distinct)
+        stats.frames_three_hit += len(distinct) >= 3
         for obj, detected in zip(hits, detections.class_ids):
             if obj and class_of[int(obj)] != detected:
                 stats.confusions[(map.class_names[class_of[int(obj)]], map.class_names[detected])] += 1
@@ -180,6 +185,8 @@ def rows(stats: SceneStats, frames: int) -> list[tuple[str, str, str]]:
         ("detections_per_frame", f"detections per frame ({stats.detector})", f"{stats.detections / frames:.1f}"),
         ("miss_rate", "mapped objects in view missed", f"{stats.miss_rate:.0%}"),
         ("false_positive_share", "detections hitting no mapped object", f"{stats.false_positive_share:.0%}"),
+        ("duplicates_per_frame", "second detections of a hit object", f"{stats.duplicates / frames:.1f} per frame"),
+        ("frames_three_hit", "frames hitting 3+ distinct mapped objects", f"{stats.frames_three_hit / frames:.0%}"),
         ("confusion_share", "hits with another class", f"{stats.confusion_share:.0%}" + (f" ({pairs})" if pairs else "")),
     ]
 

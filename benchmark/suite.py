@@ -108,7 +108,10 @@ def variants() -> list[Variant]:
 
     fixes = (("similarity.class_weight", 0.0, "without the class term"),
              ("similarity.lookalike_weight", 0.0, "without look-alike classes"),
-             ("inliers.partial_slack", 0.0, "without partial-view slack"))
+             ("inliers.partial_slack", 0.0, "without partial-view slack"),
+             ("inliers.rerank", "none", "without re-ranking"),
+             ("pose.refine_radius", 0.0, "without pose refinement"),
+             ("inliers.duplicate_iou", 0.0, "without the duplicate rule"))
     return [
         *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique-paper", "clipclique")),
         Variant("methods", LITERAL_REFERENCE, "clipclique-paper", reference=True),

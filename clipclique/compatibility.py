@@ -27,11 +27,13 @@ def compatibility_graph(
     candidates: np.ndarray,
     d_comp: float,
     slack: np.ndarray | None = None,
+    objects: np.ndarray | None = None,
 ) -> np.ndarray:
     """(E, 2) edges `i < j` between compatible candidates (rows of `candidates`).
 
     `slack` (C,) widens the test per candidate: pair (a, b) passes within
-    `d_comp + slack[a] + slack[b]` metres (None: `d_comp` for every pair).
+    `d_comp + slack[a] + slack[b]` metres (None: `d_comp` for every pair). `objects` (K,) names the
+    object each observation shows (None: each its own): candidates of one object are never compatible.
 
     Two landmarks farther apart than the widest observation pair plus the widest tolerance
     cannot pass the test, so only landmark pairs within that reach (a KD-tree query) are tested:
@@ -41,20 +43,21 @@ def compatibility_graph(
         return np.zeros((0, 2), dtype=np.int64)
     slack = np.zeros(len(candidates)) if slack is None else np.asarray(slack, dtype=np.float64)
     obs, lm = candidates[:, 0], candidates[:, 1]
+    shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
     pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64)
-    return _compatible(pairs, points, obs, lm, observed, d_comp, slack)
+    return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 
 @njit(cache=True)
-def _compatible(pairs, points, obs, lm, observed, d_comp, slack):
+def _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack):
     """The pairs that pass the rigid distance test, in one compiled pass (vectorized numpy made
     six temporaries of the pair count: 10x slower at 300,000 pairs)."""
     keep = np.zeros(len(pairs), np.bool_)
     for p in range(len(pairs)):
         a, b = pairs[p, 0], pairs[p, 1]
-        if obs[a] == obs[b] or lm[a] == lm[b]:
+        if shown[a] == shown[b] or lm[a] == lm[b]:
             continue
         mapped = math.sqrt((points[a, 0] - points[b, 0]) ** 2 + (points[a, 1] - points[b, 1]) ** 2
                            + (points[a, 2] - points[b, 2]) ** 2)

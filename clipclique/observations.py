@@ -62,7 +62,8 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     index = np.array(kept, int)
     observations = Observations(stack_ellipsoids(fits), detections.class_ids[index], None,
                                 detections.instance_ids[index], index, detections.boxes[index].astype(float),
-                                np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth))
+                                np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth),
+                                scores=detections.scores[index].astype(float))
     crops = [Crop(crop(frame.rgb, detections.boxes[k]),
                   None if frame.instances is None else crop(frame.instances, detections.boxes[k]), cut)
              for k, cut in zip(kept, truncated)]

@@ -15,7 +15,10 @@ collinear or poorly conditioned)" (every set was degenerate, or nearly a row of 
 
 Every method's hypotheses are then verified in the image (`clipclique.verification`) and given a
 calibrated confidence (`clipclique.confidence`) when the observations carry their boxes and camera;
-`inliers.rerank` reorders them by either. Missing CLIP embeddings make "fused" fall back to SH only (a note
+`inliers.rerank` reorders them by either (verification by default). Beyond the paper, by default:
+each pose is refitted with every observation it brings near a similar landmark (`pose.refine_radius`,
+clipclique.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
+detected twice with two classes) never enter one clique together. Missing CLIP embeddings make "fused" fall back to SH only (a note
 says so) and make "clip" a ClipcliqueError.
 """
 
@@ -29,11 +32,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
-                        similarity, verification)
+                        refine, similarity, verification)
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
 from clipclique.pose import conditioning, correspondence_weights, fit_rigid_batch
+from clipclique.projection import box_iou
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 @dataclass(kw_only=True)
@@ -122,6 +126,9 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         _solve_consensus(result, observations, index.map, config, lap)
     if result.failure is None and not result.hypotheses:
         result.failure = Failure(kind=FailureKind.DEGENERATE)
+    if config.pose.refine_radius > 0:
+        refine.refine(result.hypotheses, observations, index.map, scores, config.pose.refine_radius,
+                      config.pose.weights)
     _verify(result, observations, index.map, config)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
@@ -262,11 +269,14 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
                                                max_pairs=settings.max_pairs)
     if len(kept) < len(candidates):
         result.cap_hit = result.cap_hit or CapHit.MAX_PAIRS
-    edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept])]
+    objects = _objects(observations, settings.duplicate_iou)
+    edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
+                                                   objects)]
     wanted, tried = config.top_n, 0
     while True:
         found = cliquesearch.top_cliques(
-            edges, len(candidates), scores, wanted, candidates[:, 0], settings.min_clique_size, settings.max_cliques, settings.time_limit_s
+            edges, len(candidates), scores, wanted, objects[candidates[:, 0]], settings.min_clique_size,
+            settings.max_cliques, settings.time_limit_s
         )
         lap(Stage.INLIERS)
         fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
@@ -280,6 +290,20 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     result.cap_hit = result.cap_hit or found.cap
     if not found.cliques:
         result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
+
+
+def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
+    """(K,) the object each observation shows: its own index, or with `duplicate_iou` > 0 the first
+    of the observations whose boxes overlap it at least that much (one object detected twice)."""
+    objects = np.arange(len(observations))
+    if duplicate_iou == 0 or observations.boxes is None or len(observations) < 2:
+        return objects
+    overlap = box_iou(observations.boxes[:, None], observations.boxes[None])
+    for k in range(len(objects)):
+        same = np.flatnonzero(overlap[k, :k] >= duplicate_iou)
+        if len(same):
+            objects[k] = objects[same[0]]
+    return objects
 
 
 def _solve_consensus(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
@@ -344,13 +368,14 @@ def _hypotheses(
 def _verify(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig) -> None:
     """Verification score and confidence of every hypothesis, then `inliers.rerank` and `min_confidence`.
 
-    Observations without boxes and camera (a library caller's own) are left unverified, unless
-    re-ranking or a confidence floor asks for it.
+    Observations without boxes and camera (a library caller's own) are left unverified and in the
+    clique score's order (a note says so), unless a confidence floor asks for verification.
     """
-    wanted = config.inliers.rerank != "none" or config.min_confidence > 0
     if observations.boxes is None or observations.camera is None:
-        if wanted:
-            verification.require_image(observations, "inliers.rerank and min_confidence")
+        if config.min_confidence > 0:
+            verification.require_image(observations, "min_confidence")
+        if config.inliers.rerank != "none" and result.hypotheses:
+            result.notes.append(f"no boxes or camera: inliers.rerank = {config.inliers.rerank} not applied")
         return
     if not result.hypotheses:
         return

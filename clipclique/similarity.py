@@ -81,3 +81,4 @@ def with_class_term(histogram: np.ndarray, classes: np.ndarray, weight: float) -
 def fuse(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> np.ndarray:
     """S = alpha * S_clip + (1 - alpha) * S_sh."""
     return alpha * clip + (1.0 - alpha) * histogram
+

@@ -164,6 +164,7 @@ class Observations:
     # (K,) bool: the observation has a box in the query image (a fused window's objects the newest frame does
     # not see have none; verification and confidence leave those out). None: every observation has one.
     has_box: np.ndarray | None = None
+    scores: np.ndarray | None = None  # (K,) float, the detector's score of each detection; None: unknown
 
     def __len__(self) -> int:
         return len(self.class_ids)
@@ -173,7 +174,7 @@ class Observations:
         pick = lambda array: None if array is None else array[index]  # noqa: E731
         return Observations(self.ellipsoids.subset(index), self.class_ids[index], pick(self.image_embeddings),
                             self.instance_ids[index], self.detection_index[index], pick(self.boxes),
-                            pick(self.mask_areas), self.camera, pick(self.has_box))
+                            pick(self.mask_areas), self.camera, pick(self.has_box), pick(self.scores))
 
 
 @dataclass

@@ -56,9 +56,9 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
-        help="gt | annotations | yolo | simulated | simulated-yolo | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
+        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
              "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
-             "demo_desk, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+             "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     min_score: Annotated[Optional[float], typer.Option(
         min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",

@@ -65,7 +65,7 @@ class DemoSpec:
 class SceneSpec(DemoSpec):
     """A scene shaped like real data (clipclique.sim.scenes); the marker records it and its detector."""
 
-    scene: str = "apartment"  # "apartment" | "desk"
+    scene: str = "apartment"  # "apartment" | "desk" | "clutter"
     detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
 
     def room(self) -> Room:
@@ -80,6 +80,7 @@ DEMO_SCENES: dict[str, DemoSpec] = {
     "demo_tum": DemoSpec("tum", seed=11),
     "demo_apartment": SceneSpec("scannet", seed=5, num_frames=60, scene="apartment", detector="gt"),
     "demo_desk": SceneSpec("tum", seed=3, num_frames=120, scene="desk", detector="simulated-yolo"),
+    "demo_clutter": SceneSpec("tum", seed=17, num_frames=120, scene="clutter", detector="simulated-yolo-clutter"),
 }
 
 

@@ -105,7 +105,11 @@ class SimulatedYoloDetector:
     - Look-alike classes from `lookalikes` (clipclique/sim/detector_lookalikes.csv), not uniform flips.
     - False positives: Poisson(`false_positive_ratio` * detections) blobs the size of a small
       object at their depth, on surfaces that hold no mapped object, with a class of the map.
-    Seeded per frame. Named "simulated-yolo" everywhere.
+    - Cross-class duplicates: with probability `duplicate_rate` a detected object that has a
+      look-alike gets a second box of the same mask with another class (the true one or a
+      look-alike) and a low score, as YOLO's class-wise suppression lets through (0: none, and
+      no random draw, so the default detector's output is unchanged).
+    Seeded per frame. Named "simulated-yolo" everywhere ("simulated-yolo-clutter" with duplicates).
     """
 
     truth: InstanceDetector
@@ -118,11 +122,12 @@ class SimulatedYoloDetector:
     far_m: float = 3.5
     false_positive_ratio: float = 0.3  # false positives per true detection: about 21-23% of all detections
     border_px: int = 8
+    duplicate_rate: float = 0.0
     simulated: bool = True
 
     @property
     def name(self) -> str:
-        return "simulated-yolo"
+        return "simulated-yolo-clutter" if self.duplicate_rate > 0 else "simulated-yolo"
 
     @cached_property
     def _confusions(self) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +160,25 @@ class SimulatedYoloDetector:
         class_ids = self._confused(rng, true.class_ids[kept])
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
-        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections
+
+    def _with_duplicates(self, rng: np.random.Generator, detections: Detections, true_classes: np.ndarray) -> Detections:
+        """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the hits)."""
+        targets, _ = self._confusions
+        hits = len(true_classes)
+        assigned = detections.class_ids[:hits]
+        other = np.where(assigned == true_classes, targets[true_classes, 0], true_classes)
+        chosen = np.flatnonzero((rng.random(hits) < self.duplicate_rate) & (other >= 0))
+        if len(chosen) == 0:
+            return detections
+        return Detections(
+            np.concatenate((detections.masks, detections.masks[chosen])),
+            np.concatenate((detections.boxes, detections.boxes[chosen])),
+            np.concatenate((detections.class_ids, other[chosen])).astype(int),
+            np.concatenate((detections.scores, rng.uniform(0.25, 0.5, len(chosen)))),
+            np.concatenate((detections.instance_ids, detections.instance_ids[chosen])).astype(int),
+        )
 
     def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced by one of its look-alikes with the table's probability."""

@@ -8,7 +8,8 @@
   COCO classes (8 cups, 7 books, 4 chairs, ...), so dense that most objects have more than
   a dozen neighbours within 0.8 m.
 
-Each comes with a hand-held walk (`apartment_walk`, `desk_walk`): waypoints through the scene
+Each comes with a hand-held walk (`apartment_walk`, `desk_walk`; `clutter_walk` keeps to the desk
+tops for demo_clutter, the desk seen closer and with a noisier detector): waypoints through the scene
 with seeded jitter. Layouts are fixed by hand where the statistics depend on them; the seed moves
 objects by a few centimetres and picks colours.
 """
@@ -263,5 +264,28 @@ def desk_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.08)
 
 
+def clutter_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
+    """Along the desks at 0.9-1.6 m, always looking at their tops (no look at the sparse corners): as
+    in TUM fr2/desk, almost every frame sees three or more mapped objects, most of them small."""
+    del room
+    route = np.array([
+        # eye (x, y, z)          target
+        [1.3, 1.75, 1.35, 1.9, 0.75, 0.74],
+        [2.1, 1.85, 1.4, 2.4, 0.75, 0.74],
+        [2.9, 1.7, 1.35, 3.0, 0.75, 0.74],
+        [3.9, 1.8, 1.4, 3.5, 0.75, 0.74],
+        [4.5, 1.5, 1.35, 3.4, 0.8, 0.74],
+        [3.6, 2.1, 1.5, 2.8, 0.8, 0.72],
+        [2.4, 2.0, 1.45, 1.8, 0.8, 0.72],
+        [1.0, 1.55, 1.35, 1.9, 0.8, 0.74],
+        [1.5, 2.0, 1.5, 2.6, 0.75, 0.72],
+        [3.0, 1.9, 1.4, 3.6, 0.75, 0.74],
+        [4.2, 1.7, 1.4, 3.0, 0.8, 0.74],
+        [2.6, 1.6, 1.3, 2.2, 0.75, 0.74],
+    ])
+    return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.06)
+
+
 # Scene name -> (room maker, walk maker), as `clipclique.sim.demo.SceneSpec.scene` names them.
-SCENES = {"apartment": (make_apartment, apartment_walk), "desk": (make_desk, desk_walk)}
+SCENES = {"apartment": (make_apartment, apartment_walk), "desk": (make_desk, desk_walk),
+          "clutter": (make_desk, clutter_walk)}

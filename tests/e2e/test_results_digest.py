@@ -26,16 +26,16 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 # (scene, method) -> sha256 of the canonical outcome of every frame
 EXPECTED = {
-    ('demo', 'clipclique'): '1fa82e94a2c80708702d0dca81c9cc7b38f69cdb9b3e2041db876038e512045a',
+    ('demo', 'clipclique'): '8ae5fd6cf19bd4bb7cae68860ea35066dca6bdd56294f1376bc6cf9212755239',
     ('demo', 'sh'): '3a3a6145faad15f89194526f6cd51a318b99bc8e476b96b3fd7e8824d116c34e',
     ('demo', 'cliploc'): 'e0904adb6761c06cc7cbdcf5f6d4cbb2ddb3dd45a72b0dbb97e1efd5ec2b3cf7',
-    ('demo_tum', 'clipclique'): '9e4413f1273c9e5127e99cdbfbc2592e52bda45e22da4208e5b1e4bc2d1bccf0',
+    ('demo_tum', 'clipclique'): 'eefb62add2cd6e23f9653a4d773ef5cb99f865adfa48b41578ff0cac8b2e0406',
     ('demo_tum', 'sh'): 'd8e43242a638cfe0e5cc776cd830cc98c94b07751ef0dec2d7ef46f4715bea6a',
     ('demo_tum', 'cliploc'): '8645fc860f43b97cc9b9a36adeb1c8e8ca2142d24a0c7a9fc95df9fbf888beb6',
-    ('demo_apartment', 'clipclique'): 'bad7cd6639d4019ca4d3f80ac8a559c144f4a676a5c38dfe5ce7046543fbf0a9',
+    ('demo_apartment', 'clipclique'): 'f4274803511c3a480e8047bd4d5017a50ea26ede25db1ead2b6b669a64e348eb',
     ('demo_apartment', 'sh'): 'f06c21246245ee66d35d5b1d204a87888385a305e539dacdd952582a7d6d2b24',
     ('demo_apartment', 'cliploc'): '25e660fb552fea7c9b5d682aeba68205e57953abe302c16786de13844084989c',
-    ('demo_desk', 'clipclique'): '820ccdef32f3b25c9d35c53d4ea99e290156ec652e7d6633d83af7d88e5ac247',
+    ('demo_desk', 'clipclique'): 'd86efd9e71318c23a3e3897429a4966dabcc4aaba8ee2f289be89f5b1d86c0cb',
     ('demo_desk', 'sh'): 'adcbc702f36cd4b0ffe4f88e900365082601d86174065a6cc0c63afba5771b84',
     ('demo_desk', 'cliploc'): '08ad75dfe77c2849b703b5510fa802c3539bda20acc37253bfb32817030fa529',
 }

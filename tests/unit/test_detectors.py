@@ -132,6 +132,28 @@ def test_simulated_yolo_misses_small_objects_confuses_lookalikes_and_adds_blobs_
     np.testing.assert_array_equal(again.class_ids, runs[17].class_ids)
 
 
+def test_clutter_detector_adds_cross_class_duplicates_of_a_tenth_of_its_hits():
+    plain = make_detector("simulated-yolo", DESK_OBJECTS, DESK, seed=3)
+    clutter = make_detector("simulated-yolo-clutter", DESK_OBJECTS, DESK, seed=3)
+    assert clutter.name == "simulated-yolo-clutter" and clutter.duplicate_rate > 0 and plain.duplicate_rate == 0
+    duplicates = hits = 0
+    for i in range(400):
+        detections = clutter.detect(desk_frame(i))
+        ids = detections.instance_ids
+        for object_id in set(ids[ids > 0].tolist()):
+            rows = np.flatnonzero(ids == object_id)
+            hits += object_id != 3  # the table has no look-alike in this map: never duplicated
+            if len(rows) == 2:  # the duplicate: same mask and box, another class (true or look-alike), a low score
+                duplicates += 1
+                a, b = rows
+                np.testing.assert_array_equal(detections.masks[a], detections.masks[b])
+                assert detections.class_ids[a] != detections.class_ids[b]
+                assert {int(detections.class_ids[a]), int(detections.class_ids[b])} in ({0, 1}, {2, 3})
+                assert detections.scores[b] <= 0.5
+            assert len(rows) <= 2
+    assert duplicates / hits == pytest.approx(clutter.duplicate_rate, abs=0.04)
+
+
 def test_make_detector_rejects_unknown_and_missing_yolo_weights(monkeypatch, tmp_path):
     with pytest.raises(ClipcliqueError, match="--detector"):
         make_detector("sam", OBJECTS, CLASSES)

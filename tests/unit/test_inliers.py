@@ -168,3 +168,14 @@ def test_identical_landmarks_are_capped_to_the_pair_budget_best_scored_first():
     assert len(compatibility_graph(observed, landmarks, candidates[kept], 0.3)) <= 10_000
     few = affordable_candidates(observed, landmarks, candidates[:50], scores[:50], 0.3, max_pairs=10_000)
     np.testing.assert_array_equal(few, np.arange(50))
+
+
+def test_two_observations_of_one_object_are_never_compatible():
+    # observations 0 and 1 are one cup detected twice (a cross-class duplicate); 2 and 3 are other objects
+    observed = np.array([[0, 0, 0], [0.01, 0, 0], [1, 0, 0], [0, 1, 0.0]])
+    landmarks = np.array([[0, 0, 0], [0.02, 0, 0], [1, 0, 0], [0, 1, 0.0]])  # two cups side by side
+    candidates = np.array([[0, 0], [1, 1], [2, 2], [3, 3]])
+    apart = set(map(tuple, compatibility_graph(observed, landmarks, candidates, d_comp=0.3).tolist()))
+    assert (0, 1) in apart  # as two objects, each matches one of the cups, in one clique
+    merged = compatibility_graph(observed, landmarks, candidates, d_comp=0.3, objects=np.array([0, 0, 2, 3]))
+    assert set(map(tuple, merged.tolist())) == apart - {(0, 1)}

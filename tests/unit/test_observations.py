@@ -73,6 +73,10 @@ def test_bad_detections_are_dropped_by_reason_never_nan():
     assert extraction.dropped == {"tiny mask": 1, "border sliver": 1, "invalid depth": 2, "degenerate fit": 1}
     assert extraction.observations.detection_index.tolist() == [0]
     assert np.isfinite(extraction.observations.ellipsoids.centers).all()
+    detections = detections_of([tiny, sphere], [2, 1])
+    detections.scores = np.array([0.9, 0.42])
+    kept = extract_observations(frame, detections).observations
+    assert kept.scores.tolist() == [0.42] and kept.subset(np.array([0])).scores.tolist() == [0.42]  # the kept one's
 
 
 def test_truncated_masks_are_kept_and_flagged():

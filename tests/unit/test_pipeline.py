@@ -39,8 +39,9 @@ def test_each_method_localizes_synthetic_frames(method, success, precision):
     for result in results:
         assert set(result.timings) >= set(PIPELINE_STAGES)
         assert len(result.hypotheses) <= 5
-        scores = [h.score for h in result.hypotheses]
-        assert scores == sorted(scores, reverse=True)
+        # CLIP-Clique re-ranks by image verification by default; the baselines keep their score's order
+        keys = [h.verification if method == "clipclique" else h.score for h in result.hypotheses]
+        assert keys == sorted(keys, reverse=True)
 
 
 def test_clipclique_beats_sh_on_small_noisy_views():
@@ -168,3 +169,30 @@ def test_counts_and_thresholds_out_of_range_are_config_errors(override):
     # xview_walks=-1 crashed numpy; max_cliques <= 0 reported a cap hit with no clique looked at
     with pytest.raises(ConfigError, match=override.split("=")[0]):
         make_config("xview", overrides=[override])
+
+
+def test_an_object_detected_twice_with_two_classes_never_enters_one_clique_twice():
+    from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose as TruePose
+
+    # a cup and a bottle 3 cm apart on a desk, three other objects; the camera sees the cup twice
+    # (once as "cup", once as "bottle": one box, two classes) and the three others
+    centers = np.array([[0.0, 0, 0], [0.03, 0, 0], [0.6, 0.1, 0], [0.1, 0.7, 0], [-0.5, 0.3, 0.2]])
+    axes = np.full((5, 3), 0.05)
+    rotations = np.tile(np.eye(3), (5, 1, 1))
+    map = Map(Ellipsoids(centers, axes, rotations), np.array([0, 1, 2, 3, 4]), ["cup", "bottle", "book", "mouse", "tv"],
+              [""] * 5, np.arange(5))
+    truth = TruePose(np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 1.5]))  # looking down from 1.5 m
+    seen = truth.inverse().apply(centers[[0, 0, 2, 3, 4]])
+    camera = Camera(np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]), 640, 480)
+    boxes = np.array([[300, 220, 340, 260], [301, 221, 340, 260], [100, 100, 150, 150], [400, 300, 450, 350],
+                      [500, 50, 560, 110]], float)
+    observations = Observations(Ellipsoids(seen, axes.copy(), rotations.copy()), np.array([0, 1, 2, 3, 4]), None,
+                                np.array([0, 0, 2, 3, 4]), np.arange(5), boxes, None, camera)
+
+    def uses_both(overrides):
+        config = make_config("clipclique", overrides=["similarity.alpha=0"] + overrides)
+        best = localize(observations, index_map(map, config), config).hypotheses[0]
+        return {0, 1} <= set(best.correspondences[:, 0].tolist())
+
+    assert uses_both(["inliers.duplicate_iou=0.0", "pose.refine_radius=0.0"])  # five "objects" outweigh four
+    assert not uses_both(["inliers.duplicate_iou=0.7", "pose.refine_radius=0.0"])

@@ -1,0 +1,53 @@
+import numpy as np
+
+from clipclique.geometry import pose_errors
+from clipclique.refine import nearby_pairs, refine
+from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
+from scipy.spatial.transform import Rotation
+
+
+def desk(rng):
+    """Eight objects on a 2 m desk seen from 1.5 m; the camera's true pose; the observations (2 cm noise)."""
+    centers = np.column_stack((rng.uniform(0, 2, 8), rng.uniform(0, 0.8, 8), np.full(8, 0.75)))
+    axes = np.full((8, 3), 0.05)
+    map = Map(Ellipsoids(centers, axes, np.tile(np.eye(3), (8, 1, 1))), np.arange(8), [f"c{i}" for i in range(8)],
+              [""] * 8, np.arange(8))
+    truth = Pose(Rotation.from_euler("xyz", [-2.2, 0.1, 0.3]).as_matrix(), np.array([1.0, 2.0, 1.5]))
+    seen = truth.inverse().apply(centers) + rng.normal(scale=0.02, size=(8, 3))
+    observations = Observations(Ellipsoids(seen, axes.copy(), np.tile(np.eye(3), (8, 1, 1))), np.arange(8), None,
+                                np.arange(8), np.arange(8))
+    return map, observations, truth
+
+
+def test_refit_on_every_nearby_similar_landmark_corrects_a_poorly_fixed_pose():
+    rng = np.random.default_rng(0)
+    map, observations, truth = desk(rng)
+    # a clique of three objects whose pose is 8 degrees and 15 cm off: a metre-scale error over the desk
+    off = Pose(Rotation.from_euler("z", 0.14).as_matrix(), np.array([0.15, 0.0, 0.0])).compose(truth)
+    similarity = np.eye(8)
+    hypothesis = Hypothesis(off, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
+    assert pose_errors(off, truth)[0] > 0.15
+    refine([hypothesis], observations, map, similarity, radius=0.3, weights="none")
+    assert pose_errors(hypothesis.pose, truth)[0] < 0.05
+    assert len(hypothesis.correspondences) > 3 and (hypothesis.correspondences[:, 0] == hypothesis.correspondences[:, 1]).all()
+
+
+def test_only_similar_landmarks_within_the_radius_are_taken_one_to_one():
+    rng = np.random.default_rng(1)
+    map, observations, truth = desk(rng)
+    similarity = np.eye(8)
+    similarity[3] = 0.0  # observation 3 resembles nothing: never paired
+    pairs = nearby_pairs(truth, observations, map, similarity, radius=0.3)
+    assert sorted(pairs[:, 0].tolist()) == [0, 1, 2, 4, 5, 6, 7]
+    assert (pairs[:, 0] == pairs[:, 1]).all()
+    assert len(nearby_pairs(truth, observations, map, np.ones((8, 8)), radius=0.3)[:, 1]) == 8  # one-to-one
+    assert len(nearby_pairs(truth, observations, map, similarity, radius=0.001)) == 0
+
+
+def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
+    rng = np.random.default_rng(2)
+    map, observations, truth = desk(rng)
+    far = Pose(truth.rotation, truth.translation + [3.0, 0, 0])
+    hypothesis = Hypothesis(far, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
+    refine([hypothesis], observations, map, np.eye(8), radius=0.3, weights="none")
+    assert hypothesis.pose is far

@@ -15,6 +15,7 @@ from typing import Annotated, Any, Iterator, Optional
 
 import typer
 
+from clipclique.exits import version_option
 from clipclique.outputs import BENCH_DIR, CACHE_DIR
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
@@ -22,14 +23,6 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
 
 TOOL = "clipclique-bench"
 WHAT, INPUTS, ENGINE, OUTPUT = "What to run", "Inputs", "Where to run", "Output"
-
-
-def _print_version(value: bool) -> None:
-    if value:
-        from importlib.metadata import version
-
-        print(f"{TOOL} {version('clipclique')}")
-        raise typer.Exit()
 
 
 @app.command()
@@ -63,7 +56,7 @@ def main_command(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the results are", rich_help_panel=OUTPUT)] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print the tables of every run",
                                           rich_help_panel=OUTPUT)] = False,
-    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+    version: Annotated[bool, typer.Option("--version", callback=version_option(TOOL), is_eager=True,
                                           help="print the version and exit")] = False,
 ) -> None:
     """Run scenes x methods x settings; resume where an earlier run of the same command stopped."""

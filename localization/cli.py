@@ -14,6 +14,8 @@ from typing import Annotated, Optional
 
 import typer
 
+from clipclique.exits import version_option
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
 
@@ -21,20 +23,10 @@ TOOL = "clipclique-loc"
 ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "Output"
 
 
-def _print_version(value: bool) -> None:
-    if value:
-        from importlib.metadata import version
-
-        print(f"clipclique-loc {version('clipclique')}")
-        raise typer.Exit()
-
-
 @app.callback()
-def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+def _tool(version: Annotated[bool, typer.Option("--version", callback=version_option(TOOL), is_eager=True,
                                                 help="print the version and exit")] = False) -> None:
     """clipclique-loc: localize RGB-D frames against a landmark map (CLIP-Clique and its baselines)."""
-
-
 
 
 @app.command()

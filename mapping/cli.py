@@ -11,6 +11,8 @@ from typing import Annotated
 
 import typer
 
+from clipclique.exits import version_option
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
                   context_settings={"help_option_names": ["-h", "--help"]})
 TOOL = "clipclique-map"
@@ -20,16 +22,8 @@ OUTPUT_PANEL = "Output"
 ALIGN_PANEL = "Alignment to ground truth"
 
 
-def _print_version(value: bool) -> None:
-    if value:
-        from importlib.metadata import version
-
-        print(f"clipclique-map {version('clipclique')}")
-        raise typer.Exit()
-
-
 @app.callback()
-def _tool(version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
+def _tool(version: Annotated[bool, typer.Option("--version", callback=version_option(TOOL), is_eager=True,
                                                 help="print the version and exit")] = False) -> None:
     """clipclique-map: build object landmark maps of ScanNet scenes, TUM RGB-D sequences and the demo."""
 

@@ -213,14 +213,18 @@ def test_a_map_of_another_recording_is_refused_unless_said_to_be_of_the_same_pla
 def test_version_short_help_and_no_developer_notes():
     from importlib.metadata import version
 
+    from benchmark.cli import app as bench_app
     from mapping.cli import app as map_app
 
     for tool, name in ((app, "clipclique-loc"), (map_app, "clipclique-map")):
-        assert RUNNER.invoke(tool, ["--version"]).output == f"{name} {version('clipclique')}\n"
+        printed = RUNNER.invoke(tool, ["--version"])
+        assert printed.exit_code == 0 and printed.output == f"{name} {version('clipclique')}\n"
         short, long = RUNNER.invoke(tool, ["-h"]), RUNNER.invoke(tool, ["--help"])
         assert short.exit_code == 0 and short.output == long.output
         assert "Heavy modules" not in long.output and "imported" not in long.output
     assert "--quiet" in RUNNER.invoke(app, ["run", "-h"]).output
+    printed = RUNNER.invoke(bench_app, ["--version"])
+    assert printed.exit_code == 0 and printed.output == f"clipclique-bench {version('clipclique')}\n"
 
 
 def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):

@@ -126,7 +126,7 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
             continue
         try:
             frame = run.sequence[i]
-            if run.reads_instances and frame.instances is None:  # as clipclique-loc run: left out, not a failure
+            if run.detector.reads_instances and frame.instances is None:  # as clipclique-loc run: left out, not a failure
                 perception.save_unannotated(path, frame.index, frame.timestamp, frame.name)
             else:
                 perception.save(path, frame.index, frame.timestamp, frame.name, frame.pose, observe(run, frame))

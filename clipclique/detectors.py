@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 from numba import njit
@@ -22,6 +22,7 @@ from clipclique.types import Detections, Frame
 class Detector(Protocol):
     name: str
     simulated: bool
+    reads_instances: bool  # its input is the frame's instance image: a frame without one has nothing to detect
 
     def detect(self, frame: Frame) -> Detections: ...
 
@@ -96,6 +97,7 @@ class InstanceDetector:
     name: str = "ground-truth"
     min_pixels: int = 1
     simulated: bool = False
+    reads_instances: ClassVar[bool] = True
 
     @cached_property
     def _map_class(self) -> dict[int, int]:

@@ -58,6 +58,7 @@ class YoloDetector:
     """YOLO-seg (ultralytics); detections whose COCO class the map lacks are dropped."""
 
     simulated = False
+    reads_instances = False
 
     def __init__(self, model, class_names: list[str], confidence: float = 0.25, device: str | None = None) -> None:
         self.model = model

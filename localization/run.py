@@ -125,7 +125,6 @@ class Run:
     encoder: Encoder | None
     notes: list[str]  # run-wide facts the user must see (alpha forced to 0, the map's encoder missing, ...)
     frames: list[FrameOutcome] = field(default_factory=list)
-    reads_instances: bool = True  # the detector reads the frame's instance image (not YOLO, not a detection file)
     unannotated: list[str] = field(default_factory=list)  # frames left out: no instance image to detect from
     detections_file: CocoRecorder | None = None  # a model's detections, kept to be written as COCO results
     odometry: Odometry | None = None  # with a window
@@ -171,8 +170,7 @@ def prepare(settings: RunSettings) -> Run:
     recorder = None
     if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
-    reads_instances = not (detector_kind == "yolo" or detector_kind.startswith("file:"))
-    return Run(settings, config, sequence, map, detector, encoder, notes, reads_instances=reads_instances,
+    return Run(settings, config, sequence, map, detector, encoder, notes,
                detections_file=recorder, odometry=window_odometry(settings, sequence))
 
 
@@ -287,7 +285,7 @@ def localize_window(run: Run, frame: Frame, index: MapIndex, windower: Windower)
 
 def earlier_observations(run: Run, frame: Frame) -> Observations:
     """A window's earlier frame observed; nothing seen where the detector reads an instance image the frame lacks."""
-    if run.reads_instances and frame.instances is None:
+    if run.detector.reads_instances and frame.instances is None:
         empty = np.zeros(0, np.int64)
         return Observations(Ellipsoids.empty(), empty, None, empty, empty)
     return observe(run, frame).observations
@@ -302,7 +300,7 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
         WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
     for count, i in enumerate(selected, start=1):
         frame = run.sequence[i]
-        if run.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
+        if run.detector.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
             run.unannotated.append(frame.name)
             continue
         outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)

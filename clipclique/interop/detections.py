@@ -14,6 +14,7 @@ the frame `1311868164.36`), or by frame index when the file names frames by numb
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 from functools import cached_property
 from pathlib import Path, PurePosixPath
 
@@ -150,6 +151,7 @@ class FileDetector:
     min_score: float = 0.0
     segmentation: BoxSegmentation = field(default_factory=BoxSegmentation)
     simulated: bool = False
+    reads_instances: ClassVar[bool] = False
 
     @property
     def name(self) -> str:

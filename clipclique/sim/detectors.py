@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
+from typing import ClassVar
 from functools import cached_property
 from pathlib import Path
 
@@ -51,6 +52,7 @@ class SimulatedDetector:
     confusion_rate: float = 0.05  # probability a detection gets a wrong class
     seed: int = 0
     simulated: bool = True
+    reads_instances: ClassVar[bool] = True
 
     @property
     def name(self) -> str:
@@ -124,6 +126,7 @@ class SimulatedYoloDetector:
     border_px: int = 8
     duplicate_rate: float = 0.0
     simulated: bool = True
+    reads_instances: ClassVar[bool] = True
 
     @property
     def name(self) -> str:

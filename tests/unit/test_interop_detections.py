@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from clipclique.interop.boxfit import box_mask, ellipse_region
+from clipclique.interop.boxfit import BoxSegmentation, box_mask, ellipse_region
 from clipclique.interop.coco import decode_rle, encode_rle
 from clipclique.interop.detections import (
     CocoRecorder,
@@ -81,6 +81,22 @@ def test_box_mask_keeps_the_nearest_dominant_mode():
     depth[60:, :] = np.where(depth[60:, :] == 1.0, 1.0, 1.5)  # a table in front of the wall, behind the cup
     mask = box_mask(depth, INTRINSICS, np.array([58.0, 38, 102, 82]))
     assert set(np.unique(depth[mask])) == {1.0}
+
+
+def test_box_mask_keeps_the_near_part_of_a_slanted_surface():
+    """A table top seen at a slant (1.2 m at its near edge, row 89, to 1.38 m at row 30) before a wall at
+    3 m: its depth mode lies mid-table, and the band reaches half its likely depth extent in front."""
+    depth = np.full((120, 160), 3.0, np.float32)
+    v, u = np.mgrid[:120, :160]
+    top = (v >= 30) & (v < 90) & (u >= 30) & (u < 130)
+    depth[top] = (1.2 + 0.003 * (89 - v))[top]
+    box = np.array([30.0, 30, 130, 90])
+    inside = ellipse_region(box, depth.shape) & top
+    for front_share, last_row, share in ((0.5, 84, 0.96), (0.0, 72, 0.77)):  # now; 4 cm in front as before
+        mask = box_mask(depth, INTRINSICS, box, params=BoxSegmentation(front_share=front_share))
+        assert np.nonzero(mask.any(axis=1))[0].max() == last_row
+        assert (mask & top).sum() / inside.sum() == pytest.approx(share, abs=0.005)
+        assert not (mask & ~top).any()  # the wall stays out
 
 
 @pytest.mark.parametrize("content, problem", [

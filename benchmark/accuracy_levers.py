@@ -30,15 +30,22 @@ DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 
 # Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
 # defaults before tools/accuracy_levers.py measured them); each "no ..." turns one kept lever off.
-BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0}
+# "previous" is the second round's starting point (re-ranking the five heaviest cliques, every missed
+# landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers.
+PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0}
+BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
 LEVERS: dict[str, dict[str, Any]] = {
     "before": BEFORE,
     "rerank only": BEFORE | {"inliers.rerank": "verification"},
     "refine only": BEFORE | {"pose.refine_radius": 0.3},
     "duplicates only": BEFORE | {"inliers.duplicate_iou": 0.7},
+    "previous": PREVIOUS,
+    "pool only": PREVIOUS | {"inliers.rerank_pool": 50},
+    "sized misses only": PREVIOUS | {"verification.missed_full_area": 0.0625},
     "defaults (after)": {},
     "no refine": {"pose.refine_radius": 0.0},
     "no duplicates": {"inliers.duplicate_iou": 0.0},
+    "no missed penalty": {"verification.missed_weight": 0.0},
     "rerank confidence": {"inliers.rerank": "confidence"},
 }
 

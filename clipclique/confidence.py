@@ -63,8 +63,9 @@ def _missed_in_frame(evidence: Evidence) -> np.ndarray:
 
 
 FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
-    # The verification score with its missed penalty counted beyond the frame's fewest: the score
-    # plus a constant per frame, so monotone in it and with the same margins.
+    # The verification score with its missed penalty counted beyond the frame's fewest (by count, as the
+    # model was fitted; with every missed landmark counted in full, verification.missed_full_area = 0, the
+    # score plus a constant per frame, so monotone in it and with the same margins).
     "verification_in_frame": (lambda e: e.verification.overlap - e.verification.missed_weight * _missed_in_frame(e), +1),
     "margin": (lambda e: _margin(e.verification.score), +1),
     "mean_iou": (lambda e: e.verification.mean_iou, 0),

@@ -101,6 +101,10 @@ class InlierConfig:
     # Beyond the paper ("none" = the clique score's order): reorder every method's hypotheses by image
     # verification or confidence. Verification wins on every generated scene (tools/accuracy_levers.py).
     rerank: Rerank = "verification"
+    # Beyond the paper: with re-ranking, the inlier stage fits this many hypotheses (the heaviest cliques),
+    # verification keeps the top_n best. On a cluttered desk the right clique is often not among the
+    # heaviest five: look-alike objects form heavier wrong ones (benchmark/accuracy_levers.py).
+    rerank_pool: int = ranged(50, 1, 1000)
     # Beyond the paper (0 = off): observations whose boxes overlap at least this much (IoU) are one
     # object seen twice (a detector's cross-class duplicate): never both in one clique.
     duplicate_iou: float = ranged(0.7, 0.0, 1.0)
@@ -125,6 +129,11 @@ class VerificationConfig:
     missed_weight: float = ranged(0.25, 0.0, 100.0)  # a missed landmark costs a quarter of a perfect overlap
     min_visible_pixels: int = ranged(1500, 0, 100_000_000)  # projected boxes smaller than this may well go undetected
     explained_iou: float = ranged(0.1, 0.0, 1.0)  # a detection of the landmark's class overlapping this much explains it
+    # Beyond the first verification (0 = each missed landmark costs missed_weight): a missed landmark costs in
+    # full when its projected box covers this fraction of the image (a sixteenth: 160 x 120 of 640 x 480), in
+    # proportion when smaller. Detectors miss small objects most (a cluttered desk's right pose misses a score
+    # of them); a large object that nobody detected still rules a pose out (clipclique.verification).
+    missed_full_area: float = ranged(0.0625, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

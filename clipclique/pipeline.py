@@ -15,7 +15,8 @@ collinear or poorly conditioned)" (every set was degenerate, or nearly a row of 
 
 Every method's hypotheses are then verified in the image (`clipclique.verification`) and given a
 calibrated confidence (`clipclique.confidence`) when the observations carry their boxes and camera;
-`inliers.rerank` reorders them by either (verification by default). Beyond the paper, by default:
+`inliers.rerank` reorders them by either (verification by default), keeping the top_n best of the
+`inliers.rerank_pool` hypotheses the inlier stage then fits (the heaviest cliques). Beyond the paper, by default:
 each pose is refitted with every observation it brings near a similar landmark (`pose.refine_radius`,
 clipclique.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
 detected twice with two classes) never enter one clique together. Missing CLIP embeddings make "fused" fall back to SH only (a note
@@ -272,7 +273,8 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     objects = _objects(observations, settings.duplicate_iou)
     edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
                                                    objects)]
-    wanted, tried = config.top_n, 0
+    pool = _pool_size(observations, config)
+    wanted, tried = pool, 0
     while True:
         found = cliquesearch.top_cliques(
             edges, len(candidates), scores, wanted, objects[candidates[:, 0]], settings.min_clique_size,
@@ -280,16 +282,23 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         )
         lap(Stage.INLIERS)
         fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
-        result.hypotheses.extend(fitted[: config.top_n - len(result.hypotheses)])
+        result.hypotheses.extend(fitted[: pool - len(result.hypotheses)])
         lap(Stage.POSE)
         tried = len(found.cliques)
-        if len(result.hypotheses) == config.top_n or tried < wanted or found.cap is not None:
+        if len(result.hypotheses) == pool or tried < wanted or found.cap is not None:
             break
         wanted *= 2
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if not found.cliques:
         result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
+
+
+def _pool_size(observations: Observations, config: LocalizationConfig) -> int:
+    """Hypotheses the inlier stage fits: `inliers.rerank_pool` (at least top_n) when they will be re-ranked in
+    the image (verification keeps the top_n), else top_n."""
+    reranked = config.inliers.rerank != "none" and observations.boxes is not None and observations.camera is not None
+    return max(config.top_n, config.inliers.rerank_pool) if reranked else config.top_n
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
@@ -325,7 +334,7 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
         rng=np.random.default_rng(settings.seed),
         progressive=settings.method == "prosac",
         same_class=observations.class_ids[obs] == map.class_ids[lm],
-        keep=config.top_n,
+        keep=_pool_size(observations, config),
         image=image,
     )
     result.num_cliques = found.num_hypotheses
@@ -391,7 +400,7 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
         if config.inliers.rerank == "confidence" and probability is None:
             raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
-        result.hypotheses = [result.hypotheses[i] for i in np.argsort(-key, kind="stable")]
+        result.hypotheses = [result.hypotheses[i] for i in np.argsort(-key, kind="stable")[: config.top_n]]
     if config.min_confidence > 0:
         if probability is None:
             raise ClipcliqueError("min_confidence needs a confidence model (none is shipped in this build)")

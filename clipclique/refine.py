@@ -19,34 +19,56 @@ from clipclique.types import Hypothesis, Map, Observations, Pose
 def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: np.ndarray, radius: float) -> np.ndarray:
     """(M, 2) (observation, landmark) pairs, one-to-one, nearest first: each observation moved into the
     map by `pose` lies within `radius` of a landmark its similarity to is positive."""
-    moved = pose.apply(observations.ellipsoids.centers)
-    distance = np.linalg.norm(moved[:, None] - map.ellipsoids.centers[None], axis=-1)
+    return nearby_pairs_of([pose], observations, map, similarity, radius)[0]
+
+
+def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
+                    radius: float) -> list[np.ndarray]:
+    """`nearby_pairs` of each pose, the distances of all of them computed at once."""
+    rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
+    translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
+    moved = np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]
+    distance = np.linalg.norm(moved[:, :, None] - map.ellipsoids.centers[None, None], axis=-1)  # (B, K, N)
     allowed = (distance < radius) & (similarity > 0)
-    order = np.argsort(np.where(allowed, distance, np.inf), axis=None, kind="stable")[: int(allowed.sum())]
-    used_obs, used_lm, pairs = set(), set(), []
-    for k, n in zip(*np.unravel_index(order, distance.shape)):
-        if k not in used_obs and n not in used_lm:
-            used_obs.add(k)
-            used_lm.add(n)
-            pairs.append((k, n))
-    return np.array(pairs, np.int64).reshape(-1, 2)
+    order = np.argsort(np.where(allowed, distance, np.inf).reshape(len(poses), -1), axis=1, kind="stable")
+    out = []
+    for b, count in enumerate(allowed.reshape(len(poses), -1).sum(axis=1)):
+        used_obs, used_lm, pairs = set(), set(), []
+        for k, n in zip(*np.unravel_index(order[b, :count], distance.shape[1:])):
+            if k not in used_obs and n not in used_lm:
+                used_obs.add(k)
+                used_lm.add(n)
+                pairs.append((k, n))
+        out.append(np.array(pairs, np.int64).reshape(-1, 2))
+    return out
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
            weights: PoseWeights, rounds: int = 2) -> None:
     """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place,
-    as long as they are at least as many as it had (a refit never rests on fewer objects)."""
-    for hypothesis in hypotheses:
-        for _ in range(rounds):
-            pairs = nearby_pairs(hypothesis.pose, observations, map, similarity, radius)
-            if len(pairs) < max(3, len(hypothesis.correspondences)):
-                break
-            obs, lm = pairs[:, 0], pairs[:, 1]
-            w = correspondence_weights(similarity[obs, lm], observations.ellipsoids.axes[obs], map.ellipsoids.axes[lm],
-                                       weights)
-            rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs][None],
-                                                        map.ellipsoids.centers[lm][None], w[None])
-            if not ok[0] or np.count_nonzero(w) < 3:
-                break
-            hypothesis.pose = Pose(rotation[0], translation[0])
+    as long as they are at least as many as it had (a refit never rests on fewer objects). The
+    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty)."""
+    active = list(hypotheses)
+    for _ in range(rounds):
+        if not active:
+            return
+        nearby = nearby_pairs_of([h.pose for h in active], observations, map, similarity, radius)
+        refits = [(hypothesis, pairs) for hypothesis, pairs in zip(active, nearby)
+                  if len(pairs) >= max(3, len(hypothesis.correspondences))]
+        if not refits:
+            return
+        sizes = np.array([len(pairs) for _, pairs in refits])
+        valid = np.arange(sizes.max()) < sizes[:, None]
+        padded = np.zeros((*valid.shape, 2), np.int64)
+        padded[valid] = np.concatenate([pairs for _, pairs in refits])
+        obs, lm = padded[..., 0], padded[..., 1]
+        w = valid * correspondence_weights(similarity[obs, lm].ravel(), observations.ellipsoids.axes[obs].reshape(-1, 3),
+                                           map.ellipsoids.axes[lm].reshape(-1, 3), weights).reshape(valid.shape)
+        rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs], map.ellipsoids.centers[lm], w)
+        ok &= np.count_nonzero(w, axis=1) >= 3
+        active = []
+        for b in np.flatnonzero(ok):
+            hypothesis, pairs = refits[b]
+            hypothesis.pose = Pose(rotation[b], translation[b])
             hypothesis.correspondences = pairs
+            active.append(hypothesis)

@@ -8,7 +8,11 @@ Per hypothesis (all of a frame's at once), with the map's landmarks projected by
 - missed: landmarks projected well inside the image (at least min_visible_pixels, half of their
   box on the image) that no detection of their class overlaps (IoU >= explained_iou): what the
   pose says should be seen but was not;
-- score = overlap - missed_weight * missed: the verification score (`Hypothesis.verification`).
+- missed evidence: each missed landmark counted by its size, fully when its projected box covers
+  `missed_full_area` of the image, in proportion below: a detector misses small objects far more
+  often than large ones, so on a cluttered desk the right pose misses a score of small things
+  while a wrong one looking past the desk misses few (0 = every missed landmark counts fully);
+- score = overlap - missed_weight * missed evidence: the verification score (`Hypothesis.verification`).
 
 The constants are settings (`config.VerificationConfig`, `verification.*` keys).
 
@@ -31,10 +35,11 @@ from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 class Verification:
     """Verification of B hypotheses, one entry each."""
 
-    score: np.ndarray  # (B,) overlap - missed_weight * missed
+    score: np.ndarray  # (B,) overlap - missed_weight * missed_evidence
     overlap: np.ndarray  # (B,) depth-weighted summed IoU over the correspondences
     mean_iou: np.ndarray  # (B,) plain IoU averaged over the correspondences
     missed: np.ndarray  # (B,) int, landmarks that should be visible but no detection explains
+    missed_evidence: np.ndarray  # (B,) float, those landmarks counted by their projected size (missed_full_area)
     depth_error: np.ndarray  # (B,) metres, median |dz| over the correspondences
     missed_weight: float  # what one missed landmark cost in `score`
 
@@ -72,9 +77,10 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
     depth_error = group_medians(depth_gap, owner, sizes)
-    missed = _missed(seen, map.class_ids[nearby], observations, params)
-    return Verification(score=overlap - params.missed_weight * missed, overlap=overlap, mean_iou=mean_iou,
-                        missed=missed, depth_error=depth_error, missed_weight=params.missed_weight)
+    missed, evidence = _missed(seen, map.class_ids[nearby], observations, params)
+    return Verification(score=overlap - params.missed_weight * evidence, overlap=overlap, mean_iou=mean_iou,
+                        missed=missed, missed_evidence=evidence, depth_error=depth_error,
+                        missed_weight=params.missed_weight)
 
 
 def group_medians(values: np.ndarray, groups: np.ndarray, sizes: np.ndarray) -> np.ndarray:
@@ -104,12 +110,17 @@ def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks
 
 
 def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
-            params: VerificationConfig) -> np.ndarray:
-    """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps."""
+            params: VerificationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps,
+    and (B,) the same counted by size: min(1, projected box area / (missed_full_area * image area))."""
     area = box_area(seen.boxes)
     expected = seen.visible & (area >= params.min_visible_pixels) & (area >= 0.5 * seen.full_areas)
     hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
     overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
     same_class = class_ids[landmark][:, None] == observations.class_ids[None]
     explained = ((overlaps >= params.explained_iou) & same_class).any(axis=1)
-    return np.bincount(hypothesis[~explained], minlength=len(expected))
+    camera = observations.camera
+    full = params.missed_full_area * camera.width * camera.height
+    weight = np.minimum(1.0, area[hypothesis, landmark] / full) if full > 0 else np.ones(len(hypothesis))
+    return (np.bincount(hypothesis[~explained], minlength=len(expected)),
+            np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)))

@@ -26,18 +26,18 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 # (scene, method) -> sha256 of the canonical outcome of every frame
 EXPECTED = {
-    ('demo', 'clipclique'): '8ae5fd6cf19bd4bb7cae68860ea35066dca6bdd56294f1376bc6cf9212755239',
-    ('demo', 'sh'): '3a3a6145faad15f89194526f6cd51a318b99bc8e476b96b3fd7e8824d116c34e',
-    ('demo', 'cliploc'): 'e0904adb6761c06cc7cbdcf5f6d4cbb2ddb3dd45a72b0dbb97e1efd5ec2b3cf7',
-    ('demo_tum', 'clipclique'): 'eefb62add2cd6e23f9653a4d773ef5cb99f865adfa48b41578ff0cac8b2e0406',
-    ('demo_tum', 'sh'): 'd8e43242a638cfe0e5cc776cd830cc98c94b07751ef0dec2d7ef46f4715bea6a',
-    ('demo_tum', 'cliploc'): '8645fc860f43b97cc9b9a36adeb1c8e8ca2142d24a0c7a9fc95df9fbf888beb6',
-    ('demo_apartment', 'clipclique'): 'f4274803511c3a480e8047bd4d5017a50ea26ede25db1ead2b6b669a64e348eb',
-    ('demo_apartment', 'sh'): 'f06c21246245ee66d35d5b1d204a87888385a305e539dacdd952582a7d6d2b24',
-    ('demo_apartment', 'cliploc'): '25e660fb552fea7c9b5d682aeba68205e57953abe302c16786de13844084989c',
-    ('demo_desk', 'clipclique'): 'd86efd9e71318c23a3e3897429a4966dabcc4aaba8ee2f289be89f5b1d86c0cb',
-    ('demo_desk', 'sh'): 'adcbc702f36cd4b0ffe4f88e900365082601d86174065a6cc0c63afba5771b84',
-    ('demo_desk', 'cliploc'): '08ad75dfe77c2849b703b5510fa802c3539bda20acc37253bfb32817030fa529',
+    ('demo', 'clipclique'): '1ee50e2c336e8e27b19a045f79003de0d8b73ff68987899fbd39ae5c1907a257',
+    ('demo', 'sh'): '8c8efc539f617ff72db0365183c875c255c892b62e3712a84c5d0f9acf37b6de',
+    ('demo', 'cliploc'): '3ea921293186fb0081366456683b0a4af63fcd5d47e75d0100bb7c0e80641bee',
+    ('demo_tum', 'clipclique'): 'a0b4aea3aa67b90adec62523876dfc6d31c63261414cf63cbead136dea2c96f5',
+    ('demo_tum', 'sh'): 'd00095ded048d884b4b45901d91fa44fc1291c596611d511469b25fcae1ab3f3',
+    ('demo_tum', 'cliploc'): '7c52ac866549fb1dc3b1e42b27b387b0fe114678f4c09912f03ccea1fdf89a93',
+    ('demo_apartment', 'clipclique'): 'a91c085e0b5fd67384a4b697186ea4619922df76a862870d9f42d6c7e7702cb1',
+    ('demo_apartment', 'sh'): '03c56e0134714fa6fad3d5ece0227496bef33399be9ddd23ab27ed6a9748add8',
+    ('demo_apartment', 'cliploc'): 'c9882ce04158329075aa2796693cbd49779428e4adf6ae04da8035e25432f1dc',
+    ('demo_desk', 'clipclique'): 'b364b941f314978461860c2c7771e2dad03e62e70415b51fd5e2bf4922209ee5',
+    ('demo_desk', 'sh'): '6d78133ee9e45a90a64e45eb3982d85c0d0029e74dcf5accba819e774992ca63',
+    ('demo_desk', 'cliploc'): 'd9c74cbb3b78ece3fee5c66f4c096c75383d66a53eff351a773e187c0c2156cf',
 }
 
 

@@ -55,9 +55,28 @@ def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():
     keep = np.arange(5)  # the sixth object goes undetected
     partial = Observations(observations.ellipsoids.subset(keep), observations.class_ids[keep], None,
                            observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
-    checked = verify([hypothesis(truth, 5)], partial, map)
+    checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=0.0))
     assert checked.missed[0] == 1
     assert checked.score[0] == pytest.approx(5.0 - VerificationConfig().missed_weight)
+
+
+def test_a_missed_landmark_costs_by_its_projected_size():
+    """Detectors miss small objects most: an undetected landmark costs in full only when its box covers
+    missed_full_area of the image. The sixth box covers 2% of this image: a third of the cost at a
+    sixteenth, all of it at 1.5%, a fiftieth at 100%."""
+    map, truth, observations = room()
+    keep = np.arange(5)
+    partial = Observations(observations.ellipsoids.subset(keep), observations.class_ids[keep], None,
+                           observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
+    x0, y0, x1, y1 = observations.boxes[5]
+    share = (x1 - x0) * (y1 - y0) / (SIMULATED_CAMERA.width * SIMULATED_CAMERA.height)
+    assert 0.02 < share < 0.021
+    weight = VerificationConfig().missed_weight
+    for full, cost in ((0.0625, share / 0.0625), (0.015, 1.0), (1.0, share)):
+        checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=full))
+        assert checked.missed[0] == 1
+        assert checked.missed_evidence[0] == pytest.approx(cost)
+        assert checked.score[0] == pytest.approx(5.0 - weight * cost)
 
 
 def test_depth_disagreement_along_the_ray_lowers_the_score():
@@ -94,17 +113,28 @@ def test_overlap_verification_needs_boxes_and_centres_do_not():
 
 
 def test_rerank_orders_every_methods_hypotheses_by_verification():
+    """With a pool of top_n the re-ranking reorders the same hypotheses; with a larger pool (the default 50)
+    it keeps the top_n best verified of more, so the best it keeps is at least as good."""
     rng = np.random.default_rng(6)
     map = synthetic_map(rng)
     for method in ("clipclique", "cliploc"):
-        plain, reranked = make_config(method), make_config(method, overrides=["inliers.rerank=verification"])
+        plain = make_config(method, overrides=["inliers.rerank=none"])
+        reordered = make_config(method, overrides=["inliers.rerank=verification", "inliers.rerank_pool=5"])
+        pooled = make_config(method, overrides=["inliers.rerank=verification"])
+        wide = make_config(method, overrides=["inliers.rerank=none", "top_n=50"])
+        assert pooled.inliers.rerank_pool == 50
+        larger_pools = 0
         for _ in range(4):
             observations, _ = synthetic_query(map, rng)
-            before = localize(observations, index_map(map, plain), plain).hypotheses
-            after = localize(observations, index_map(map, reranked), reranked).hypotheses
+            before, after, more, all_fitted = (localize(observations, index_map(map, config), config).hypotheses
+                                               for config in (plain, reordered, pooled, wide))
             scores = [h.verification for h in after]
             assert scores == sorted(scores, reverse=True)
             assert sorted(h.verification for h in before) == sorted(scores)
+            assert len(more) == len(after) and more[0].verification >= after[0].verification
+            assert [h.verification for h in more] == sorted((h.verification for h in all_fitted), reverse=True)[:5]
+            larger_pools += len(all_fitted) > 5
+        assert larger_pools > 0  # some frame's pool held more than the five it kept
 
 
 @pytest.mark.parametrize(("override", "message"), [

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
                         refine, similarity, verification)
@@ -55,6 +56,7 @@ class MapIndex:
     histograms_by_bin: sp.csr_matrix | None = None  # (C^s, N) the histograms transposed (similarity.by_bin)
     kernel_by_landmark: np.ndarray | None = None  # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
+    landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
 
 
 @dataclass(kw_only=True)
@@ -82,7 +84,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
                     text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
-                    kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids))
+                    kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
+                    landmark_tree=cKDTree(map.ellipsoids.centers))
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -128,7 +131,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         result.failure = Failure(kind=FailureKind.DEGENERATE)
     if config.pose.refine_radius > 0:
         refine.refine(result.hypotheses, observations, index.map, scores, config.pose.refine_radius,
-                      config.pose.weights)
+                      config.pose.weights, landmarks=index.landmark_tree)
     _verify(result, observations, index.map, config)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:

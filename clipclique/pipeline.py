@@ -158,15 +158,14 @@ def _graph_descriptors(
     class_ids: np.ndarray,
     num_classes: int,
     config: LocalizationConfig,
-    kernel: sp.csr_matrix | None = None,
     distributions: sp.csr_matrix | None = None,
 ) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
-    """The graph descriptors of one side; `kernel` softens the query's labels (a detector confuses
-    look-alikes), `distributions` the map's where it holds its own class distributions."""
+    """The graph descriptors of one side (X-View walks: the query's too), `distributions` the map's
+    labels where it holds its own class distributions."""
     descriptor = config.similarity.descriptor
     histograms = walks = None
     if descriptor in ("fused", "sh"):
-        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length, kernel,
+        histograms = graph.landmark_histograms(adjacency, class_ids, num_classes, config.graph.walk_length,
                                                distributions)
     if descriptor == "xview":
         rng = np.random.default_rng(config.graph.xview_seed)
@@ -190,7 +189,7 @@ def _query_descriptors(
     if config.similarity.descriptor != "xview":
         return None, None  # CLIP alone reads no graph
     query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
-    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config, soft)
+    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config)
 
 
 def _similarity(

@@ -308,8 +308,12 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                 for b in tails:
                     next_bins[at], next_values[at] = label_bins[e] * width + b, label_values[e] * total[b]
                     at += 1
-            order = np.argsort(next_bins[start:at])  # bins are distinct: any sort gives scipy's canonical order
-            next_bins[start:at], next_values[start:at] = next_bins[start:at][order], next_values[start:at][order]
+            ascending = True  # it is when v's label bins are (label-major, tails ascending): no sort needed
+            for e in range(start + 1, at):
+                ascending &= next_bins[e - 1] < next_bins[e]
+            if not ascending:  # bins are distinct: any sort gives scipy's canonical order
+                order = np.argsort(next_bins[start:at])
+                next_bins[start:at], next_values[start:at] = next_bins[start:at][order], next_values[start:at][order]
             next_pointers[v + 1] = at
             for b in tails:
                 seen[b] = False

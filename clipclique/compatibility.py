@@ -47,7 +47,7 @@ def compatibility_graph(
     shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
-    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64)
+    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64, copy=False)
     return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 

@@ -308,11 +308,8 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                 for b in tails:
                     next_bins[at], next_values[at] = label_bins[e] * width + b, label_values[e] * total[b]
                     at += 1
-            ascending = True  # it is when v's label bins are (label-major, tails ascending): no sort needed
-            for e in range(start + 1, at):
-                ascending &= next_bins[e - 1] < next_bins[e]
-            if not ascending:  # bins are distinct: any sort gives scipy's canonical order
-                order = np.argsort(next_bins[start:at])
+            if not _ascending(next_bins[start:at]):  # it is when the label row is (a canonical kernel's rows are)
+                order = np.argsort(next_bins[start:at])  # bins are distinct: any sort gives scipy's canonical order
                 next_bins[start:at], next_values[start:at] = next_bins[start:at][order], next_values[start:at][order]
             next_pointers[v + 1] = at
             for b in tails:
@@ -338,3 +335,11 @@ def _scaled_reversed(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
                 at += 1
         out_pointers[v + 1] = at
     return out_pointers, out_bins[:at], out_values[:at]
+
+
+@njit(cache=True)
+def _ascending(values: np.ndarray) -> bool:
+    for i in range(1, len(values)):
+        if values[i] < values[i - 1]:
+            return False
+    return True

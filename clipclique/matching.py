@@ -55,11 +55,11 @@ def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
     all m are kept. With m < 2 (a map of one landmark) there is no gap: the best one is kept.
     """
     num_obs, num_landmarks = similarity.shape
+    if num_obs and m >= 2 and _partial(num_landmarks, m) and not np.isnan(similarity).any():
+        return _adaptive_long_rows(similarity, m)  # m <= num_landmarks / 2 here
     m = min(m, num_landmarks)
     if num_obs == 0 or m == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    if m >= 2 and _partial(num_landmarks, m) and not np.isnan(similarity).any():
-        return _adaptive_long_rows(similarity, m)
     order = _best_first(similarity, m)
     if m < 2:
         count = np.ones(num_obs, dtype=np.int64)

@@ -44,15 +44,6 @@ def test_only_similar_landmarks_within_the_radius_are_taken_one_to_one():
     assert len(nearby_pairs(truth, observations, map, similarity, radius=0.001)) == 0
 
 
-def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
-    rng = np.random.default_rng(2)
-    map, observations, truth = desk(rng)
-    far = Pose(truth.rotation, truth.translation + [3.0, 0, 0])
-    hypothesis = Hypothesis(far, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
-    refine([hypothesis], observations, map, np.eye(8), radius=0.3, weights="none")
-    assert hypothesis.pose is far
-
-
 def dense_nearby_pairs(pose, observations, map, similarity, radius):
     """The (K, N) distance matrix version: every pair tested, nearest first, ties in row-major order."""
     moved = pose.apply(observations.ellipsoids.centers)
@@ -88,3 +79,12 @@ def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix():
         radius = float(rng.choice([0.05, 0.3, 0.8, 0.25]))
         expected = dense_nearby_pairs(pose, observations, map, similarity, radius)
         assert np.array_equal(nearby_pairs(pose, observations, map, similarity, radius), expected)
+
+
+def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
+    rng = np.random.default_rng(2)
+    map, observations, truth = desk(rng)
+    far = Pose(truth.rotation, truth.translation + [3.0, 0, 0])
+    hypothesis = Hypothesis(far, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
+    refine([hypothesis], observations, map, np.eye(8), radius=0.3, weights="none")
+    assert hypothesis.pose is far

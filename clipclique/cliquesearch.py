@@ -65,6 +65,7 @@ class Graph(NamedTuple):
     indices: np.ndarray  # (2E,)
     order: np.ndarray  # (V,) vertices, most promising first
     position: np.ndarray  # (V,) rank of each vertex in `order`
+    potential: np.ndarray  # (V,) the most a clique through each vertex can weigh (descending along `order`)
 
 
 class Scratch(NamedTuple):
@@ -201,7 +202,7 @@ def _prepare(edges, num_nodes, weights, groups, count):
                       np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
                       np.zeros(groups.max() + 1, np.int64))
     best = Ranked(np.zeros(count), np.zeros(count, np.int64), np.zeros((count, longest), np.int64))
-    return SearchArrays(Graph(indptr, indices, order, position), state, scratch, best)
+    return SearchArrays(Graph(indptr, indices, order, position, potential), state, scratch, best)
 
 
 @njit(cache=True)
@@ -287,7 +288,7 @@ def _threshold(state: np.ndarray, best_total: np.ndarray) -> float:
 def _search(problem, arrays, budget):
     """Advance the search by up to `budget` branch steps; all state is in `arrays` (see top_cliques)."""
     weights, groups, min_size, max_cliques = problem
-    indptr, indices, order, position = arrays.graph
+    indptr, indices, order, position, potential = arrays.graph
     state = arrays.state
     (local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo, members, weight_so_far,
      group_stamp) = arrays.scratch
@@ -301,6 +302,12 @@ def _search(problem, arrays, budget):
                 state[STATUS] = DONE
                 return
             v = order[state[OUTER]]
+            threshold = _threshold(state, best_total)
+            if potential[v] + TOLERANCE * max(1.0, abs(potential[v])) < threshold:
+                # v's outer bound (its later neighbours) is at most its potential, and every vertex after it
+                # in `order` has a potential no larger: all of them would be cut one by one below.
+                state[STATUS] = DONE
+                return
             state[OUTER] += 1
             budget -= 1
             later = 0
@@ -309,7 +316,6 @@ def _search(problem, arrays, budget):
             if 1 + later < min_size:
                 continue
             # The outer bound, from v's later neighbours: heaviest positive weight per group.
-            threshold = _threshold(state, best_total)
             if threshold > -np.inf:
                 state[STAMP] += 1
                 bound = weights[v]

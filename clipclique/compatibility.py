@@ -14,6 +14,7 @@ otherwise ask for gigabytes of pairs), and the pipeline reports the cap it used.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -46,7 +47,7 @@ def compatibility_graph(
     shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
-    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64)
+    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64, copy=False)
     return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 
@@ -84,7 +85,7 @@ def affordable_candidates(
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     reach = _reach(observed, d_comp, slack)
     points = landmark_centers[candidates[:, 1]]
-    if _pairs_within(points, reach) <= max_pairs:
+    if _pairs_bound(points, reach) <= max_pairs or _pairs_within(points, reach) <= max_pairs:
         return np.arange(len(candidates))
     best = np.argsort(-scores, kind="stable")
     fits, too_many = 0, len(candidates)  # bisection bounds on the run's length
@@ -101,6 +102,25 @@ def _pairs_within(points: np.ndarray, reach: float) -> int:
     """Pairs of distinct points at most `reach` apart, counted without listing them."""
     tree = cKDTree(points)
     return (int(tree.count_neighbors(tree, reach)) - len(points)) // 2
+
+
+def _pairs_bound(points: np.ndarray, reach: float) -> int:
+    """At least the pairs of distinct points at most `reach` apart, from a grid of cells a hair wider than
+    `reach` (such a pair lies in one cell or two touching ones): the pairs of each cell and of each two
+    touching cells. Linear and cheap; on a map of far-apart rooms it is near the true count."""
+    cells = np.floor(points / (reach * (1 + 1e-9) + 1e-9)).astype(np.int64)
+    cells -= cells.min(axis=0) - 1  # every cell and its neighbours at coordinates >= 0
+    span = cells.max(axis=0) + 2
+    if float(np.prod(span.astype(np.float64))) > 2.0**62:  # keys would overflow: a tiny reach over a huge map
+        return len(points) * (len(points) - 1) // 2
+    keys, counts = np.unique((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2], return_counts=True)
+    total = int(np.sum(counts * (counts - 1) // 2))
+    for offset in itertools.product((-1, 0, 1), repeat=3):
+        if offset > (0, 0, 0):  # each unordered pair of touching cells once
+            neighbour = keys + (offset[0] * span[1] + offset[1]) * span[2] + offset[2]
+            at = np.minimum(np.searchsorted(keys, neighbour), len(keys) - 1)
+            total += int(np.sum(np.where(keys[at] == neighbour, counts * counts[at], 0)))
+    return total
 
 
 def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:

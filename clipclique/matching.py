@@ -55,6 +55,8 @@ def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
     all m are kept. With m < 2 (a map of one landmark) there is no gap: the best one is kept.
     """
     num_obs, num_landmarks = similarity.shape
+    if num_obs and m >= 2 and _partial(num_landmarks, m) and not np.isnan(similarity).any():
+        return _adaptive_long_rows(similarity, m)  # m <= num_landmarks / 2 here
     m = min(m, num_landmarks)
     if num_obs == 0 or m == 0:
         return np.zeros((0, 2), dtype=np.int64)
@@ -92,7 +94,7 @@ def _best_first(similarity: np.ndarray, count: int) -> np.ndarray:
     `count` of a stable descending sort. Of a long row only those are sorted (adaptive matching keeps
     a quarter of the map, and sorting all of 47,000 landmarks per observation dominated the stage)."""
     negated = -similarity
-    if 2 * count > similarity.shape[1] or similarity.shape[1] < PARTIAL_SORT_FROM:
+    if not _partial(similarity.shape[1], count):
         return np.argsort(negated, axis=1, kind="stable")[:, :count]
     kth = np.partition(negated, count - 1, axis=1)[:, count - 1]  # each row's count-th best value
     if np.isnan(kth).any():  # NaN sorts last in argsort; keep its semantics
@@ -103,6 +105,29 @@ def _best_first(similarity: np.ndarray, count: int) -> np.ndarray:
         chosen = np.sort(np.concatenate((better, np.flatnonzero(row == value)[:count - len(better)])))
         best[i] = chosen[np.argsort(row[chosen], kind="stable")]  # by value, ties by index
     return best
+
+
+def _partial(num_landmarks: int, count: int) -> bool:
+    """Whether a row's `count` best are picked by partition rather than by sorting the whole row."""
+    return 2 * count <= num_landmarks and num_landmarks >= PARTIAL_SORT_FROM
+
+
+def _adaptive_long_rows(similarity: np.ndarray, m: int) -> np.ndarray:
+    """`adaptive_matches` of long rows without NaN, the same pairs in the same order: the top m values come
+    sorted from a partition (values only), and only the landmarks above the gap are ordered. Above a gap
+    larger than FLAT the kept value is strictly above the next, so the kept landmarks are exactly those at
+    or above it; a flat row keeps all m, ordered as `_best_first` does."""
+    values = -np.sort(np.partition(-similarity, m - 1, axis=1)[:, :m], axis=1)  # (K, m) each row's best, descending
+    gaps = values[:, :-1] - values[:, 1:]
+    count = np.where(gaps.max(axis=1) > FLAT, gaps.argmax(axis=1) + 1, m)
+    kept = []
+    for row, last, number in zip(similarity, values[np.arange(len(values)), count - 1], count):
+        if number == m:
+            kept.append(_best_first(row[None], m)[0])
+        else:
+            chosen = np.flatnonzero(row >= last)  # ascending: ties by landmark index after the stable sort
+            kept.append(chosen[np.argsort(-row[chosen], kind="stable")])
+    return np.column_stack((np.repeat(np.arange(len(similarity)), count), np.concatenate(kept))).astype(np.int64)
 
 
 def _pairs(order: np.ndarray, keep: np.ndarray) -> np.ndarray:

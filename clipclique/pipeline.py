@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
                         refine, similarity, verification)
@@ -56,6 +57,7 @@ class MapIndex:
     histograms_by_bin: sp.csr_matrix | None = None  # (C^s, N) the histograms transposed (similarity.by_bin)
     kernel_by_landmark: np.ndarray | None = None  # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
+    landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
 
 
 @dataclass(kw_only=True)
@@ -83,7 +85,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
                     text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
-                    kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids))
+                    kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
+                    landmark_tree=cKDTree(map.ellipsoids.centers))
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -129,7 +132,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         result.failure = Failure(kind=FailureKind.DEGENERATE)
     if config.pose.refine_radius > 0:
         refine.refine(result.hypotheses, observations, index.map, scores, config.pose.refine_radius,
-                      config.pose.weights)
+                      config.pose.weights, landmarks=index.landmark_tree)
     _verify(result, observations, index.map, config)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
@@ -156,15 +159,14 @@ def _graph_descriptors(
     class_ids: np.ndarray,
     num_classes: int,
     config: LocalizationConfig,
-    kernel: sp.csr_matrix | None = None,
     distributions: sp.csr_matrix | None = None,
 ) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
-    """The graph descriptors of one side; `kernel` softens the query's labels (a detector confuses
-    look-alikes), `distributions` the map's where it holds its own class distributions."""
+    """The graph descriptors of one side (X-View walks: the query's too), `distributions` the map's
+    labels where it holds its own class distributions."""
     descriptor = config.similarity.descriptor
     histograms = walks = None
     if descriptor in ("fused", "sh"):
-        histograms = graph.semantic_histograms(adjacency, class_ids, num_classes, config.graph.walk_length, kernel,
+        histograms = graph.landmark_histograms(adjacency, class_ids, num_classes, config.graph.walk_length,
                                                distributions)
     if descriptor == "xview":
         rng = np.random.default_rng(config.graph.xview_seed)
@@ -188,7 +190,7 @@ def _query_descriptors(
     if config.similarity.descriptor != "xview":
         return None, None  # CLIP alone reads no graph
     query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
-    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config, soft)
+    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config)
 
 
 def _similarity(

@@ -9,32 +9,45 @@ nearest first) and refitting with all of them pins the pose down. Done `rounds` 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
+from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
 from clipclique.pose import correspondence_weights, fit_rigid_batch
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
-def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: np.ndarray, radius: float) -> np.ndarray:
-    """(M, 2) (observation, landmark) pairs, one-to-one, nearest first: each observation moved into the
-    map by `pose` lies within `radius` of a landmark its similarity to is positive."""
-    return nearby_pairs_of([pose], observations, map, similarity, radius)[0]
+def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                 landmarks: cKDTree | None = None) -> np.ndarray:
+    """(M, 2) (observation, landmark) pairs, one-to-one, nearest first (ties by observation, then
+    landmark): each observation moved into the map by `pose` lies within `radius` of a landmark its
+    similarity to is positive."""
+    return nearby_pairs_of([pose], observations, map, similarity, radius, landmarks)[0]
 
 
 def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
-                    radius: float) -> list[np.ndarray]:
-    """`nearby_pairs` of each pose, the distances of all of them computed at once."""
+                    radius: float, landmarks: cKDTree | None = None) -> list[np.ndarray]:
+    """`nearby_pairs` of each pose, the observations moved by all of them at once. `landmarks` is a
+    KD-tree of the map's centres (None: built here), so a map of 47,000 landmarks costs a ball query
+    per observation, not a (K, N) distance matrix."""
     rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
     translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
-    moved = np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]
-    distance = np.linalg.norm(moved[:, :, None] - map.ellipsoids.centers[None, None], axis=-1)  # (B, K, N)
-    allowed = (distance < radius) & (similarity > 0)
-    order = np.argsort(np.where(allowed, distance, np.inf).reshape(len(poses), -1), axis=1, kind="stable")
+    moved_by_pose = np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]
+    tree = cKDTree(map.ellipsoids.centers) if landmarks is None else landmarks
     out = []
-    for b, count in enumerate(allowed.reshape(len(poses), -1).sum(axis=1)):
+    for moved in moved_by_pose:
+        near = tree.query_ball_point(moved, radius * (1 + 1e-9) + 1e-12)  # a hair wider than the strict test below
+        counts = np.fromiter((len(row) for row in near), np.int64, len(near))
+        obs = np.repeat(np.arange(len(moved)), counts)
+        lm = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
+        distance = np.linalg.norm(moved[obs] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
+        allowed = (distance < radius) & (similarity[obs, lm] > 0)
+        obs, lm, distance = obs[allowed], lm[allowed], distance[allowed]
         used_obs, used_lm, pairs = set(), set(), []
-        for k, n in zip(*np.unravel_index(order[b, :count], distance.shape[1:])):
+        for i in np.lexsort((lm, obs, distance)):
+            k, n = obs[i], lm[i]
             if k not in used_obs and n not in used_lm:
                 used_obs.add(k)
                 used_lm.add(n)
@@ -44,15 +57,18 @@ def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, sim
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
-           weights: PoseWeights, rounds: int = 2) -> None:
+           weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> None:
     """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place,
     as long as they are at least as many as it had (a refit never rests on fewer objects). The
-    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty)."""
+    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty).
+    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built once here)."""
+    if hypotheses and landmarks is None:
+        landmarks = cKDTree(map.ellipsoids.centers)
     active = list(hypotheses)
     for _ in range(rounds):
         if not active:
             return
-        nearby = nearby_pairs_of([h.pose for h in active], observations, map, similarity, radius)
+        nearby = nearby_pairs_of([h.pose for h in active], observations, map, similarity, radius, landmarks)
         refits = [(hypothesis, pairs) for hypothesis, pairs in zip(active, nearby)
                   if len(pairs) >= max(3, len(hypothesis.correspondences))]
         if not refits:

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from clipclique.graph import capped_nodes, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
+from clipclique.graph import capped_nodes, landmark_histograms, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
 
 A, B, C = 0, 1, 2
 # Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.
@@ -114,3 +114,20 @@ def test_query_histograms_store_the_sparse_paths_entries_bit_for_bit():
         for name in ("indptr", "indices", "data"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
     assert query_histograms(np.zeros((0, 3)), np.zeros(0, int), 3, 0.8, 64).shape == (0, 27)
+
+
+def test_landmark_histograms_store_the_sparse_paths_entries_bit_for_bit():
+    """The compiled map path must give the very arrays of the sparse path, with exact labels and with the
+    map's own class distributions, on graphs with and without the degree cap biting, every walk length."""
+    rng = np.random.default_rng(1)
+    for trial in range(120):
+        n, classes, length = int(rng.integers(0, 80)), int(rng.integers(1, 9)), int(rng.integers(1, 5))
+        centers, ids = rng.uniform(0, 2, (n, 3)), rng.integers(0, classes, n)
+        adjacency = semantic_graph(centers, 0.8, int(rng.choice([3, 64])))
+        distributions = None if trial % 2 else sp.csr_matrix(
+            np.where(rng.random((n, classes)) < 0.4, rng.random((n, classes)), 0.0))
+        expected = semantic_histograms(adjacency, ids, classes, length, None, distributions)
+        got = landmark_histograms(adjacency, ids, classes, length, distributions)
+        assert got.shape == expected.shape
+        for name in ("indptr", "indices", "data"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))

@@ -179,3 +179,21 @@ def test_two_observations_of_one_object_are_never_compatible():
     assert (0, 1) in apart  # as two objects, each matches one of the cups, in one clique
     merged = compatibility_graph(observed, landmarks, candidates, d_comp=0.3, objects=np.array([0, 0, 2, 3]))
     assert set(map(tuple, merged.tolist())) == apart - {(0, 1)}
+
+
+def test_the_grid_bound_never_counts_fewer_pairs_than_lie_within_reach():
+    """The cheap bound may only skip the exact count when the exact count fits too: it must never be below it."""
+    from clipclique.compatibility import _pairs_bound, _pairs_within
+
+    rng = np.random.default_rng(5)
+    for trial in range(300):
+        count, reach = int(rng.integers(2, 400)), float(rng.choice([0.05, 0.5, 1.0, 3.0]))
+        points = rng.uniform(-5, 5, (count, 3)) * rng.uniform(0.1, 3, 3)
+        if trial % 3 == 0:  # a grid of spacing `reach`: pairs exactly at the reach, on cell borders
+            points = np.round(points / reach) * reach
+        if trial % 5 == 0:  # far-apart rooms: the bound is close to the count
+            points += 20.0 * rng.integers(0, 10, (count, 1))
+        exact, bound = _pairs_within(points, reach), _pairs_bound(points, reach)
+        assert exact <= bound <= count * (count - 1) // 2
+    rooms = rng.uniform(0, 3, (50, 3))[None] + 20.0 * np.arange(100)[:, None, None]  # 100 rooms of 50 within reach
+    assert _pairs_bound(rooms.reshape(-1, 3), 4.0) <= 8 * _pairs_within(rooms.reshape(-1, 3), 4.0)

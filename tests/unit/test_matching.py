@@ -32,6 +32,28 @@ def test_adaptive_rows_are_independent():
     np.testing.assert_array_equal(adaptive_matches(rows, 4), [[0, 0], [0, 2], [1, 1]])
 
 
+def test_adaptive_on_long_rows_keeps_what_a_full_stable_sort_keeps():
+    """Long rows take a shortcut (sorted values first, then only the kept landmarks): the same pairs in the
+    same order as the gap rule on a full stable sort, with plateaus of copies (a map of identical rooms),
+    ties at the gap, flat rows and negative values."""
+    rng = np.random.default_rng(1)
+    for trial in range(60):
+        width = int(rng.integers(1024, 4000))
+        rooms = int(rng.choice([1, 10, 100]))
+        one = np.round(rng.random((int(rng.integers(1, 10)), max(1, width // rooms))), int(rng.choice([1, 2, 6])))
+        similarity = np.tile(one, (1, rooms))[:, :width] - (0.5 if trial % 4 == 0 else 0.0)
+        if trial % 7 == 0:
+            similarity[0] = 0.25  # flat: every one of the top m kept
+        m = int(rng.integers(2, width // 2 + 1))
+        order = np.argsort(-similarity, axis=1, kind="stable")[:, :m]
+        values = np.take_along_axis(similarity, order, axis=1)
+        gaps = values[:, :-1] - values[:, 1:]
+        count = np.where(gaps.max(axis=1) > 1e-12, gaps.argmax(axis=1) + 1, m)
+        keep = np.arange(m)[None] < count[:, None]
+        expected = np.column_stack((np.repeat(np.arange(len(order)), m).reshape(order.shape)[keep], order[keep]))
+        np.testing.assert_array_equal(adaptive_matches(similarity, m), expected)
+
+
 @pytest.mark.parametrize(("landmarks", "expected"), [(40, 10), (41, 11), (3, 2), (1, 1), (0, 0)])
 def test_top_m_is_a_quarter_at_least_two(landmarks, expected):
     assert top_m(landmarks, 0.25) == expected

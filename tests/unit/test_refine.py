@@ -44,6 +44,44 @@ def test_only_similar_landmarks_within_the_radius_are_taken_one_to_one():
     assert len(nearby_pairs(truth, observations, map, similarity, radius=0.001)) == 0
 
 
+def dense_nearby_pairs(pose, observations, map, similarity, radius):
+    """The (K, N) distance matrix version: every pair tested, nearest first, ties in row-major order
+    (the observations moved as `nearby_pairs_of` moves a batch of poses)."""
+    moved = np.einsum("ij,kj->ki", pose.rotation, observations.ellipsoids.centers) + pose.translation
+    distance = np.linalg.norm(moved[:, None] - map.ellipsoids.centers[None], axis=-1)
+    allowed = (distance < radius) & (similarity > 0)
+    order = np.argsort(np.where(allowed, distance, np.inf), axis=None, kind="stable")[: int(allowed.sum())]
+    used_obs, used_lm, pairs = set(), set(), []
+    for k, n in zip(*np.unravel_index(order, distance.shape)):
+        if k not in used_obs and n not in used_lm:
+            used_obs.add(k)
+            used_lm.add(n)
+            pairs.append((k, n))
+    return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix():
+    rng = np.random.default_rng(3)
+    for trial in range(200):
+        count, seen = int(rng.integers(1, 60)), int(rng.integers(1, 15))
+        centers = rng.uniform(0, 1.5, (count, 3))
+        if trial % 3 == 0:  # copies of landmarks on one spot and on a grid: distance ties to break alike
+            centers[count // 2:] = centers[: count - count // 2]
+            centers = np.round(centers * 4) / 4
+        axes = np.full((count, 3), 0.05)
+        map = Map(Ellipsoids(centers, axes, np.tile(np.eye(3), (count, 1, 1))), np.zeros(count, np.int64), ["c"], [""] * count,
+                  np.arange(count))
+        pose = Pose(Rotation.random(random_state=trial).as_matrix(), rng.normal(size=3))
+        picked = rng.integers(0, count, seen)
+        local = pose.inverse().apply(centers[picked]) + rng.normal(scale=0.1 if trial % 2 else 0.0, size=(seen, 3))
+        observations = Observations(Ellipsoids(local, np.full((seen, 3), 0.05), np.tile(np.eye(3), (seen, 1, 1))),
+                                    np.zeros(seen, np.int64), None, np.arange(seen), np.arange(seen))
+        similarity = np.where(rng.random((seen, count)) < 0.7, rng.random((seen, count)), 0.0)
+        radius = float(rng.choice([0.05, 0.3, 0.8, 0.25]))
+        expected = dense_nearby_pairs(pose, observations, map, similarity, radius)
+        assert np.array_equal(nearby_pairs(pose, observations, map, similarity, radius), expected)
+
+
 def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
     rng = np.random.default_rng(2)
     map, observations, truth = desk(rng)

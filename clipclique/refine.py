@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
@@ -29,31 +30,43 @@ def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: n
 
 def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
                     radius: float, landmarks: cKDTree | None = None) -> list[np.ndarray]:
-    """`nearby_pairs` of each pose, the observations moved by all of them at once. `landmarks` is a
-    KD-tree of the map's centres (None: built here), so a map of 47,000 landmarks costs a ball query
-    per observation, not a (K, N) distance matrix."""
+    """`nearby_pairs` of each pose: one ball query of the observations moved by all of them (`landmarks`, a
+    KD-tree of the map's centres, None: built here; a map of 47,000 landmarks costs a ball query per moved
+    observation, not a (K, N) distance matrix) and one compiled one-to-one pass (a re-ranked frame has fifty)."""
     rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
     translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
-    moved_by_pose = np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]
+    moved = (np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]).reshape(-1, 3)
     tree = cKDTree(map.ellipsoids.centers) if landmarks is None else landmarks
-    out = []
-    for moved in moved_by_pose:
-        near = tree.query_ball_point(moved, radius * (1 + 1e-9) + 1e-12)  # a hair wider than the strict test below
-        counts = np.fromiter((len(row) for row in near), np.int64, len(near))
-        obs = np.repeat(np.arange(len(moved)), counts)
-        lm = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
-        distance = np.linalg.norm(moved[obs] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
-        allowed = (distance < radius) & (similarity[obs, lm] > 0)
-        obs, lm, distance = obs[allowed], lm[allowed], distance[allowed]
-        used_obs, used_lm, pairs = set(), set(), []
-        for i in np.lexsort((lm, obs, distance)):
-            k, n = obs[i], lm[i]
-            if k not in used_obs and n not in used_lm:
-                used_obs.add(k)
-                used_lm.add(n)
-                pairs.append((k, n))
-        out.append(np.array(pairs, np.int64).reshape(-1, 2))
-    return out
+    near = tree.query_ball_point(moved, radius * (1 + 1e-9) + 1e-12)  # a hair wider than the strict test below
+    counts = np.fromiter((len(row) for row in near), np.int64, len(near))
+    point = np.repeat(np.arange(len(moved)), counts)
+    lm = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
+    distance = np.linalg.norm(moved[point] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
+    pose, obs = np.divmod(point, len(observations))
+    allowed = (distance < radius) & (similarity[obs, lm] > 0)
+    pose, obs, lm = pose[allowed], obs[allowed], lm[allowed]
+    order = np.lexsort((lm, obs, distance[allowed], pose))  # per pose nearest first, ties by observation, landmark
+    pose, obs, lm = pose[order], obs[order], lm[order]
+    taken, per_pose = _one_to_one(pose, obs, lm, len(poses), len(observations), len(map))
+    return np.split(np.column_stack((obs[taken], lm[taken])), np.cumsum(per_pose)[:-1])
+
+
+@njit(cache=True)
+def _one_to_one(pose, obs, lm, num_poses, num_obs, num_landmarks):
+    """Greedy one-to-one pairing of (pose, observation, landmark) candidates in their order: which are taken
+    (neither side used yet by that pose) and how many each pose takes."""
+    obs_used_by = np.full(num_obs, -1)
+    landmark_used_by = np.full(num_landmarks, -1)
+    taken = np.zeros(len(pose), np.bool_)
+    per_pose = np.zeros(num_poses, np.int64)
+    for i in range(len(pose)):
+        b, k, n = pose[i], obs[i], lm[i]
+        if obs_used_by[k] != b and landmark_used_by[n] != b:
+            obs_used_by[k] = b
+            landmark_used_by[n] = b
+            taken[i] = True
+            per_pose[b] += 1
+    return taken, per_pose
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,

@@ -86,15 +86,21 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
                   if len(pairs) >= max(3, len(hypothesis.correspondences))]
         if not refits:
             return
-        sizes = np.array([len(pairs) for _, pairs in refits])
+        # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
+        # each distinct set is fitted once.
+        distinct: dict[bytes, int] = {}
+        fitted = np.array([distinct.setdefault(pairs.tobytes(), len(distinct)) for _, pairs in refits])
+        sets = list({pairs.tobytes(): pairs for _, pairs in refits}.values())
+        sizes = np.array([len(pairs) for pairs in sets])
         valid = np.arange(sizes.max()) < sizes[:, None]
         padded = np.zeros((*valid.shape, 2), np.int64)
-        padded[valid] = np.concatenate([pairs for _, pairs in refits])
+        padded[valid] = np.concatenate(sets)
         obs, lm = padded[..., 0], padded[..., 1]
         w = valid * correspondence_weights(similarity[obs, lm].ravel(), observations.ellipsoids.axes[obs].reshape(-1, 3),
                                            map.ellipsoids.axes[lm].reshape(-1, 3), weights).reshape(valid.shape)
         rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs], map.ellipsoids.centers[lm], w)
         ok &= np.count_nonzero(w, axis=1) >= 3
+        rotation, translation, ok = rotation[fitted], translation[fitted], ok[fitted]
         active = []
         for b in np.flatnonzero(ok):
             hypothesis, pairs = refits[b]

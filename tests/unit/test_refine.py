@@ -1,7 +1,7 @@
 import numpy as np
 
 from clipclique.geometry import pose_errors
-from clipclique.refine import nearby_pairs, refine
+from clipclique.refine import nearby_pairs, nearby_pairs_of, refine
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 from scipy.spatial.transform import Rotation
 
@@ -89,3 +89,46 @@ def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
     hypothesis = Hypothesis(far, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
     refine([hypothesis], observations, map, np.eye(8), radius=0.3, weights="none")
     assert hypothesis.pose is far
+
+
+def literal_nearby_pairs(pose, observations, map, similarity, radius):
+    """The pairing as first written: a stable sort of every (observation, landmark) distance, taken nearest first."""
+    moved = pose.apply(observations.ellipsoids.centers)
+    distance = np.linalg.norm(moved[:, None] - map.ellipsoids.centers[None], axis=-1)
+    allowed = (distance < radius) & (similarity > 0)
+    order = np.argsort(np.where(allowed, distance, np.inf), axis=None, kind="stable")[: allowed.sum()]
+    used_obs, used_lm, pairs = set(), set(), []
+    for k, n in zip(*np.unravel_index(order, distance.shape)):
+        if k not in used_obs and n not in used_lm:
+            used_obs.add(k)
+            used_lm.add(n)
+            pairs.append((k, n))
+    return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def test_compiled_pairing_matches_the_literal_greedy_on_crowded_ties():
+    rng = np.random.default_rng(3)
+    map, observations, truth = desk(rng)
+    doubled = Map(Ellipsoids(np.repeat(map.ellipsoids.centers, 2, axis=0), np.repeat(map.ellipsoids.axes, 2, axis=0),
+                             np.tile(np.eye(3), (16, 1, 1))), np.repeat(map.class_ids, 2), map.class_names, [""] * 16,
+                  np.arange(16))  # every landmark twice: exact distance ties, broken by landmark order
+    similarity = rng.random((8, 16)) * (rng.random((8, 16)) < 0.7)
+    poses = [truth] + [Pose(Rotation.from_euler("z", a).as_matrix(), rng.normal(scale=0.1, size=3))
+                       .compose(truth) for a in rng.normal(scale=0.05, size=30)]
+    got = nearby_pairs_of(poses, observations, doubled, similarity, radius=0.5)
+    assert sum(len(p) for p in got) > 60
+    for pose, pairs in zip(poses, got):
+        np.testing.assert_array_equal(pairs, literal_nearby_pairs(pose, observations, doubled, similarity, 0.5))
+
+
+def test_hypotheses_with_the_same_nearby_pairs_are_refitted_alike():
+    rng = np.random.default_rng(4)
+    map, observations, truth = desk(rng)
+    first = Hypothesis(Pose(truth.rotation, truth.translation + [0.02, 0, 0]), np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
+    second = Hypothesis(Pose(truth.rotation, truth.translation + [0, 0.02, 0]), np.array([[3, 3], [4, 4], [5, 5]]), 3.0)
+    alone = Hypothesis(first.pose, first.correspondences, 3.0)
+    refine([first, second], observations, map, np.eye(8), radius=0.3, weights="none")
+    refine([alone], observations, map, np.eye(8), radius=0.3, weights="none")
+    np.testing.assert_array_equal(first.correspondences, second.correspondences)
+    assert np.array_equal(first.pose.rotation, second.pose.rotation) and np.array_equal(first.pose.rotation, alone.pose.rotation)
+    assert np.array_equal(first.pose.translation, alone.pose.translation) and len(first.correspondences) == 8

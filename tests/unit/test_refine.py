@@ -91,22 +91,7 @@ def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
     assert hypothesis.pose is far
 
 
-def literal_nearby_pairs(pose, observations, map, similarity, radius):
-    """The pairing as first written: a stable sort of every (observation, landmark) distance, taken nearest first."""
-    moved = pose.apply(observations.ellipsoids.centers)
-    distance = np.linalg.norm(moved[:, None] - map.ellipsoids.centers[None], axis=-1)
-    allowed = (distance < radius) & (similarity > 0)
-    order = np.argsort(np.where(allowed, distance, np.inf), axis=None, kind="stable")[: allowed.sum()]
-    used_obs, used_lm, pairs = set(), set(), []
-    for k, n in zip(*np.unravel_index(order, distance.shape)):
-        if k not in used_obs and n not in used_lm:
-            used_obs.add(k)
-            used_lm.add(n)
-            pairs.append((k, n))
-    return np.array(pairs, np.int64).reshape(-1, 2)
-
-
-def test_compiled_pairing_matches_the_literal_greedy_on_crowded_ties():
+def test_a_batch_of_poses_pairs_each_as_the_dense_distance_matrix_alone():
     rng = np.random.default_rng(3)
     map, observations, truth = desk(rng)
     doubled = Map(Ellipsoids(np.repeat(map.ellipsoids.centers, 2, axis=0), np.repeat(map.ellipsoids.axes, 2, axis=0),
@@ -118,7 +103,7 @@ def test_compiled_pairing_matches_the_literal_greedy_on_crowded_ties():
     got = nearby_pairs_of(poses, observations, doubled, similarity, radius=0.5)
     assert sum(len(p) for p in got) > 60
     for pose, pairs in zip(poses, got):
-        np.testing.assert_array_equal(pairs, literal_nearby_pairs(pose, observations, doubled, similarity, 0.5))
+        np.testing.assert_array_equal(pairs, dense_nearby_pairs(pose, observations, doubled, similarity, 0.5))
 
 
 def test_hypotheses_with_the_same_nearby_pairs_are_refitted_alike():

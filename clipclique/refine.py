@@ -9,8 +9,6 @@ nearest first) and refitting with all of them pins the pose down. Done `rounds` 
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
@@ -30,17 +28,14 @@ def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: n
 
 def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
                     radius: float, landmarks: cKDTree | None = None) -> list[np.ndarray]:
-    """`nearby_pairs` of each pose: one ball query of the observations moved by all of them (`landmarks`, a
-    KD-tree of the map's centres, None: built here; a map of 47,000 landmarks costs a ball query per moved
-    observation, not a (K, N) distance matrix) and one compiled one-to-one pass (a re-ranked frame has fifty)."""
+    """`nearby_pairs` of each pose (a re-ranked frame has fifty): the observations moved by all of them, the
+    landmarks within reach of each (`_within_reach`; `landmarks`: a KD-tree of the map's centres, None: built
+    when needed), then one compiled one-to-one pass."""
     rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
     translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
     moved = (np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]).reshape(-1, 3)
-    tree = cKDTree(map.ellipsoids.centers) if landmarks is None else landmarks
-    near = tree.query_ball_point(moved, radius * (1 + 1e-9) + 1e-12)  # a hair wider than the strict test below
-    counts = np.fromiter((len(row) for row in near), np.int64, len(near))
-    point = np.repeat(np.arange(len(moved)), counts)
-    lm = np.fromiter(itertools.chain.from_iterable(near), np.int64, int(counts.sum()))
+    reach = radius * (1 + 1e-9) + 1e-12  # a hair wider than the strict test below
+    point, lm = _within_reach(moved, map.ellipsoids.centers, reach, landmarks)
     distance = np.linalg.norm(moved[point] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
     pose, obs = np.divmod(point, len(observations))
     allowed = (distance < radius) & (similarity[obs, lm] > 0)
@@ -48,7 +43,39 @@ def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, sim
     order = np.lexsort((lm, obs, distance[allowed], pose))  # per pose nearest first, ties by observation, landmark
     pose, obs, lm = pose[order], obs[order], lm[order]
     taken, per_pose = _one_to_one(pose, obs, lm, len(poses), len(observations), len(map))
-    return np.split(np.column_stack((obs[taken], lm[taken])), np.cumsum(per_pose)[:-1])
+    pairs, ends = np.column_stack((obs[taken], lm[taken])), np.cumsum(per_pose).tolist()
+    return [pairs[start:end] for start, end in zip([0, *ends], ends)]
+
+
+DENSE_PAIRS = 1 << 18  # up to this many (moved observation, landmark) pairs, every one is tested
+
+
+def _within_reach(points: np.ndarray, centers: np.ndarray, reach: float,
+                  landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
+    """(point, landmark) index pairs at most `reach` apart, in no particular order: every pair tested by a
+    compiled loop for a room-sized map (fifty poses of a frame against 47 landmarks: 61,000 pairs, tens of
+    microseconds), a KD-tree join beyond (a map of 47,000 landmarks costs a join, not a distance matrix)."""
+    if len(points) * len(centers) <= DENSE_PAIRS:
+        return _pairs_within(points, centers, reach)
+    tree = cKDTree(centers) if landmarks is None else landmarks
+    near = cKDTree(points).sparse_distance_matrix(tree, reach, output_type="ndarray")
+    return near["i"].astype(np.int64), near["j"].astype(np.int64)
+
+
+@njit(cache=True)
+def _pairs_within(points, centers, reach):
+    """Every (point, centre) index pair at most `reach` apart, tested one by one."""
+    point, centre = [], []
+    limit = reach * reach
+    for p in range(len(points)):
+        for c in range(len(centers)):
+            dx = points[p, 0] - centers[c, 0]
+            dy = points[p, 1] - centers[c, 1]
+            dz = points[p, 2] - centers[c, 2]
+            if dx * dx + dy * dy + dz * dz <= limit:
+                point.append(p)
+                centre.append(c)
+    return np.array(point, np.int64), np.array(centre, np.int64)
 
 
 @njit(cache=True)

@@ -1,5 +1,7 @@
 import numpy as np
+import pytest
 
+from clipclique import refine as refine_module
 from clipclique.geometry import pose_errors
 from clipclique.refine import nearby_pairs, nearby_pairs_of, refine
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
@@ -60,7 +62,9 @@ def dense_nearby_pairs(pose, observations, map, similarity, radius):
     return np.array(pairs, np.int64).reshape(-1, 2)
 
 
-def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix():
+@pytest.mark.parametrize("dense_pairs", [0, refine_module.DENSE_PAIRS], ids=["kd-tree join", "every pair tested"])
+def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix(dense_pairs, monkeypatch):
+    monkeypatch.setattr(refine_module, "DENSE_PAIRS", dense_pairs)
     rng = np.random.default_rng(3)
     for trial in range(200):
         count, seen = int(rng.integers(1, 60)), int(rng.integers(1, 15))

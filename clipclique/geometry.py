@@ -191,51 +191,66 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
         distances = np.zeros((ahead, rows * pitch))  # per ahead offset, the last `rows` rows' distances, by column
         total, near_count = np.empty(width), np.empty(width, np.int64)
         farthest = np.empty((max(drop, 1), width))  # per pixel, the largest distances so far, largest first
+        plan = np.empty((side * side - 1, 3), np.int64)  # per neighbour: its row of distances, where, its pixel
         i = 0
         for v in range(height):
             if last[v] < 0:
                 continue
             span = last[v] + 1 - first[v]
             start = np.uint64((v + radius) * pitch + radius + first[v])  # the row's first pixel in the grid
-            own = np.uint64((v % rows) * pitch + radius + first[v])  # ... and in the rows of distances
+            own = (v % rows) * pitch + radius + first[v]  # ... and in the rows of distances
             for offset in range(ahead):  # this row's distances to the pixels ahead
                 to_row = 0 if offset < radius else 1 + (offset - radius) // side
                 to_column = offset + 1 if offset < radius else (offset - radius) % side - radius
                 neighbour = np.uint64((v + radius + to_row) * pitch + radius + first[v] + to_column)
-                out = distances[offset]
+                out, at = distances[offset], np.uint64(own)
                 for s in range(span):
                     t = np.uint64(s)
                     p, q = start + t, neighbour + t
-                    out[own + t] = math.sqrt((x[q] - x[p]) ** 2 + (y[q] - y[p]) ** 2 + (z[q] - z[p]) ** 2)
+                    out[at + t] = math.sqrt((x[q] - x[p]) ** 2 + (y[q] - y[p]) ** 2 + (z[q] - z[p]) ** 2)
             for s in range(span):
                 t = np.uint64(s)
                 total[t], near_count[t] = 0.0, 0
                 for j in range(drop):
                     farthest[j, t] = -1.0
+            listed = 0
             for to_row in range(-radius, radius + 1):  # every neighbour in window order
                 for to_column in range(-radius, radius + 1):
                     if to_row == 0 and to_column == 0:
                         continue  # not its own neighbour
-                    behind = to_row < 0 or (to_row == 0 and to_column < 0)  # its distance was computed there
-                    if behind:
-                        offset = -to_column - 1 if to_row == 0 else radius + (-to_row - 1) * side - to_column + radius
-                        source = np.uint64(((v + to_row + rows) % rows) * pitch + radius + first[v] + to_column)
+                    if to_row < 0 or (to_row == 0 and to_column < 0):  # behind: its distance was computed there
+                        plan[listed, 0] = -to_column - 1 if to_row == 0 else radius + (-to_row - 1) * side - to_column + radius
+                        plan[listed, 1] = ((v + to_row + rows) % rows) * pitch + radius + first[v] + to_column
                     else:
-                        offset = to_column - 1 if to_row == 0 else radius + (to_row - 1) * side + to_column + radius
-                        source = own
-                    neighbour = np.uint64((v + radius + to_row) * pitch + radius + first[v] + to_column)
-                    row_distances = distances[offset]
-                    for s in range(span):  # branch-free: an absent neighbour adds 0
-                        t = np.uint64(s)
-                        near = valid[neighbour + t]
-                        distance = row_distances[source + t]
-                        total[t] += distance if near else 0.0
-                        near_count[t] += near
-                        carry = distance if near else -1.0
-                        for j in range(drop):  # insert into the sorted farthest list
-                            kept = farthest[j, t]
-                            farthest[j, t] = kept if kept > carry else carry
-                            carry = carry if kept > carry else kept
+                        plan[listed, 0] = to_column - 1 if to_row == 0 else radius + (to_row - 1) * side + to_column + radius
+                        plan[listed, 1] = own
+                    plan[listed, 2] = (v + radius + to_row) * pitch + radius + first[v] + to_column
+                    listed += 1
+            for group in range(0, listed, 4):  # four neighbours a pass over the row: side^2 - 1 is a multiple of 8
+                row1, at1, near1 = distances[plan[group, 0]], np.uint64(plan[group, 1]), np.uint64(plan[group, 2])
+                row2, at2, near2 = distances[plan[group + 1, 0]], np.uint64(plan[group + 1, 1]), np.uint64(plan[group + 1, 2])
+                row3, at3, near3 = distances[plan[group + 2, 0]], np.uint64(plan[group + 2, 1]), np.uint64(plan[group + 2, 2])
+                row4, at4, near4 = distances[plan[group + 3, 0]], np.uint64(plan[group + 3, 1]), np.uint64(plan[group + 3, 2])
+                for s in range(span):  # branch-free: an absent neighbour adds 0 and inserts -1
+                    t = np.uint64(s)
+                    in1, in2, in3, in4 = valid[near1 + t], valid[near2 + t], valid[near3 + t], valid[near4 + t]
+                    carry1 = row1[at1 + t] if in1 else -1.0
+                    carry2 = row2[at2 + t] if in2 else -1.0
+                    carry3 = row3[at3 + t] if in3 else -1.0
+                    carry4 = row4[at4 + t] if in4 else -1.0
+                    total[t] = ((((total[t] + (carry1 if in1 else 0.0)) + (carry2 if in2 else 0.0))
+                                 + (carry3 if in3 else 0.0)) + (carry4 if in4 else 0.0))  # in window order
+                    near_count[t] += in1 + in2 + in3 + in4
+                    for j in range(drop):  # insert the four into the sorted farthest list
+                        kept = farthest[j, t]
+                        larger = kept if kept > carry1 else carry1
+                        carry1 = carry1 if kept > carry1 else kept
+                        kept = larger if larger > carry2 else carry2
+                        carry2 = carry2 if larger > carry2 else larger
+                        larger = kept if kept > carry3 else carry3
+                        carry3 = carry3 if kept > carry3 else kept
+                        farthest[j, t] = larger if larger > carry4 else carry4
+                        carry4 = carry4 if larger > carry4 else larger
             for s in range(span):
                 p = start + np.uint64(s)
                 if not valid[p]:

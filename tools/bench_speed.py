@@ -5,11 +5,11 @@
 
 Two worker processes, one importing the working tree and one a `git archive` of `--rev` (default:
 the merge base with main), measure the same frames in lock step (frame i in one, then in the
-other), so both see the same machine load. Each worker runs the sequence's own detector, the
+other), so both see the same machine load. Each worker runs the sequence's own detector (once), the
 observation stage, the encoder and `localize` (fastest of `--repeat`, per stage) and, in the
 working tree's worker, the literal reference (`benchmark.literal_reference`, networkx) on the same
-observations. Printed per scene: median and 90th percentile ms per stage, before and now, and the
-literal reference's whole query beside the project's.
+observations. Printed per scene: median and 90th percentile ms per stage, before and now, the
+observation stage per detection, and the literal reference's whole query beside the project's.
 
 `--recording FRAMES`: the Rerun recording of the first scene, ms of `log_frame` on the caller's
 thread per frame, the seconds `close` waits for what is still queued, and kB per frame.
@@ -96,8 +96,11 @@ def serve() -> None:
             if request.get("frame") is None:
                 reply = {"frames": len(frames)}
             else:
-                seen = observe(run, run.sequence[frames[request["frame"]]])
+                frame = run.sequence[frames[request["frame"]]]
+                seen = observe(run, frame)
                 reply = {f"{stage} ms": 1e3 * seconds for stage, seconds in seen.timings.items()}
+                reply |= observation_times(run, frame, seen.detections, request["repeat"])
+                reply["detections"] = len(seen.detections)
                 reply |= query_times(lambda: localize(seen.observations, index, run.config), request["repeat"])
                 reply["observations"] = len(seen.observations)
                 if request["literal"]:
@@ -188,6 +191,23 @@ def fastest(call, repeat: int) -> float:
     return 1e3 * best
 
 
+def observation_times(run, frame, detections, repeat: int) -> dict:
+    """ms of the observation stage and of the encoder on the frame's detections, each the fastest of
+    `repeat` (the detector, the slowest stage and no concern of this measure, runs once)."""
+    from clipclique.observations import embed, extract_observations
+
+    best = {"observations ms": np.inf, "encoder ms": np.inf}
+    for _ in range(repeat):
+        start = time.perf_counter()
+        extraction = extract_observations(frame, detections, run.config.observations)
+        middle = time.perf_counter()
+        embed(extraction, run.encoder)
+        end = time.perf_counter()
+        best["observations ms"] = min(best["observations ms"], 1e3 * (middle - start))
+        best["encoder ms"] = min(best["encoder ms"], 1e3 * (end - middle))
+    return best
+
+
 def query_times(call, repeat: int) -> dict:
     """Per stage ms of the fastest of `repeat` whole queries, the whole query's wall time, and its cap."""
     best, timings, cap = np.inf, {}, None
@@ -227,6 +247,12 @@ def compare_scene(scene: str, workers: list[Worker], max_frames: int, repeat: in
           f"{max(observed)}; ms, fastest of {repeat} per frame")
     stages = [key for key in now[0] if key.endswith(" ms") and key not in ("localize ms", "literal ms")]
     table(rows, stages + ["localize ms"])
+    for label, answers in rows.items():
+        detections = sum(row["detections"] for row in answers)
+        per_detection = [row["observations ms"] / row["detections"] for row in answers if row["detections"]]
+        print(f"  observations per detection, {label}: median {np.median(per_detection):.3f} ms over frames, "
+              f"{sum(row['observations ms'] for row in answers) / max(detections, 1):.3f} ms over all "
+              f"{detections} detections")
     project, literal = np.median([row["localize ms"] for row in now]), np.median([row["literal ms"] for row in now])
     print(f"  whole localize (descriptors to confidence) {project:.2f} ms, literal reference {literal:.2f} ms: "
           f"{literal / project:.1f}x", flush=True)

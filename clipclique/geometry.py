@@ -132,19 +132,19 @@ def _inlier_moments(points: np.ndarray, spread: np.ndarray, limit: float) -> tup
 @njit(cache=True)
 def _extents(points: np.ndarray, spread: np.ndarray, limit: float, mean: np.ndarray,
              rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Lowest and highest coordinate of the inliers (spread within `limit`) along each principal axis (about `mean`)."""
-    low, high = np.empty(3), np.empty(3)
-    for axis in range(3):
-        along_x, along_y, along_z = rotation[0, axis], rotation[1, axis], rotation[2, axis]
-        lowest, highest = np.inf, -np.inf
-        for i in range(len(points)):
-            if spread[i] <= limit:
-                value = ((points[i, 0] - mean[0]) * along_x + (points[i, 1] - mean[1]) * along_y
-                         + (points[i, 2] - mean[2]) * along_z)
-                lowest = min(lowest, value)
-                highest = max(highest, value)
-        low[axis], high[axis] = lowest, highest
-    return low, high
+    """Lowest and highest coordinate of the inliers (spread within `limit`) along each principal axis
+    (about `mean`), the three axes in one pass with the running bounds in scalars."""
+    low_0, low_1, low_2, high_0, high_1, high_2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
+    for i in range(len(points)):
+        if spread[i] <= limit:
+            dx, dy, dz = points[i, 0] - mean[0], points[i, 1] - mean[1], points[i, 2] - mean[2]
+            along_0 = dx * rotation[0, 0] + dy * rotation[1, 0] + dz * rotation[2, 0]
+            along_1 = dx * rotation[0, 1] + dy * rotation[1, 1] + dz * rotation[2, 1]
+            along_2 = dx * rotation[0, 2] + dy * rotation[1, 2] + dz * rotation[2, 2]
+            low_0, high_0 = min(low_0, along_0), max(high_0, along_0)
+            low_1, high_1 = min(low_1, along_1), max(high_1, along_1)
+            low_2, high_2 = min(low_2, along_2), max(high_2, along_2)
+    return np.array([low_0, low_1, low_2]), np.array([high_0, high_1, high_2])
 
 
 @functools.cache

@@ -218,19 +218,19 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
                 for to_column in range(-radius, radius + 1):
                     if to_row == 0 and to_column == 0:
                         continue  # not its own neighbour
-                    if to_row < 0 or (to_row == 0 and to_column < 0):  # behind: its distance was computed there
-                        plan[listed, 0] = -to_column - 1 if to_row == 0 else radius + (-to_row - 1) * side - to_column + radius
-                        plan[listed, 1] = ((v + to_row + rows) % rows) * pitch + radius + first[v] + to_column
-                    else:
-                        plan[listed, 0] = to_column - 1 if to_row == 0 else radius + (to_row - 1) * side + to_column + radius
-                        plan[listed, 1] = own
+                    behind = to_row < 0 or (to_row == 0 and to_column < 0)  # its distance was computed there
+                    down, right = (-to_row, -to_column) if behind else (to_row, to_column)  # the offset ahead
+                    plan[listed, 0] = right - 1 if down == 0 else radius + (down - 1) * side + right + radius
+                    behind_at = ((v + to_row + rows) % rows) * pitch + radius + first[v] + to_column
+                    plan[listed, 1] = behind_at if behind else own
                     plan[listed, 2] = (v + radius + to_row) * pitch + radius + first[v] + to_column
                     listed += 1
             for group in range(0, listed, 4):  # four neighbours a pass over the row: side^2 - 1 is a multiple of 8
-                row1, at1, near1 = distances[plan[group, 0]], np.uint64(plan[group, 1]), np.uint64(plan[group, 2])
-                row2, at2, near2 = distances[plan[group + 1, 0]], np.uint64(plan[group + 1, 1]), np.uint64(plan[group + 1, 2])
-                row3, at3, near3 = distances[plan[group + 2, 0]], np.uint64(plan[group + 2, 1]), np.uint64(plan[group + 2, 2])
-                row4, at4, near4 = distances[plan[group + 3, 0]], np.uint64(plan[group + 3, 1]), np.uint64(plan[group + 3, 2])
+                four = plan[group:group + 4]
+                row1, at1, near1 = distances[four[0, 0]], np.uint64(four[0, 1]), np.uint64(four[0, 2])
+                row2, at2, near2 = distances[four[1, 0]], np.uint64(four[1, 1]), np.uint64(four[1, 2])
+                row3, at3, near3 = distances[four[2, 0]], np.uint64(four[2, 1]), np.uint64(four[2, 2])
+                row4, at4, near4 = distances[four[3, 0]], np.uint64(four[3, 1]), np.uint64(four[3, 2])
                 for s in range(span):  # branch-free: an absent neighbour adds 0 and inserts -1
                     t = np.uint64(s)
                     in1, in2, in3, in4 = valid[near1 + t], valid[near2 + t], valid[near3 + t], valid[near4 + t]

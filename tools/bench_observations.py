@@ -8,8 +8,9 @@ modules of their own, so both versions run in one process on the same detections
 sequence's own detector, run once per frame and not timed). Each frame is fitted `--repeat`
 times by each version, alternating, and the fastest kept, which damps the noise of a shared
 machine; `--clock cpu` times the thread's CPU time instead of the wall's, which a loaded
-machine disturbs less (it still slows the caches). Printed per scene: median ms per frame (also over the frames with 15 detections or
-more), ms per detection (total time over all detections), and the largest difference between
+machine disturbs less (it still slows the caches). Printed per scene: median ms per frame (also
+over the frames with 15 detections or more), ms per detection (total time over all detections),
+and the largest difference between
 the two versions' ellipsoids over every frame (kept detections, drop counts, crops and crop
 contents must be equal).
 """

@@ -15,7 +15,8 @@ observation stage per detection, and the literal reference's whole query beside 
 thread per frame, the seconds `close` waits for what is still queued, and kB per frame.
 
 `--whole-runs N`: N whole `clipclique-loc run` processes of the first scene per tree, alternating,
-with and without the recording (process start included, after one warm-up run each).
+with and without the recording (process start included, after one warm-up run each): wall seconds, and
+the CPU seconds (user + system, all threads) that a loaded machine's wall time hides.
 
 `--clutter COUNTS`: the desk scene of `benchmark.core` (26 observations a query, the desk map
 copied into rooms 20 m apart), SH only, per landmark count: `index_map` seconds, whole-query median
@@ -297,19 +298,25 @@ def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory:
     print(f"whole `clipclique-loc run {scene}` processes, seconds (median of {runs}, trees alternating, "
           "numba cache warm):")
     seconds: dict[tuple[str, bool], list[float]] = {}
+    processor: dict[tuple[str, bool], list[float]] = {}  # CPU seconds, user + system: what a loaded machine leaves alone
     for attempt in range(runs + 1):
         for label, tree in trees.items():
             for record in (True, False):
                 command = [sys.executable, "-c", "from localization.cli import main; main()", "run", scene,
                            "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 start = time.perf_counter()
                 subprocess.run(command, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(tree)), check=True,
                                capture_output=True)
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
                 if attempt:  # the first round warms the caches
                     seconds.setdefault((label, record), []).append(time.perf_counter() - start)
+                    processor.setdefault((label, record), []).append(
+                        after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
     for (label, record), values in seconds.items():
         print(f"  {label:>8} {'with' if record else 'without'} the recording: {np.median(values):.1f} s "
-              f"({', '.join(f'{v:.1f}' for v in values)})", flush=True)
+              f"({', '.join(f'{v:.1f}' for v in values)}), CPU {np.median(processor[label, record]):.1f} s",
+              flush=True)
 
 
 def main() -> None:

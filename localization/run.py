@@ -296,7 +296,8 @@ def earlier_observations(run: Run, frame: Frame) -> Observations:
 
 def execute(run: Run, recorder: LocalizationRecorder | None = None,
             progress: Callable[[int, int], None] | None = None) -> Run:
-    """Localize the selected frames (each with its window when asked); log each to `recorder` when given."""
+    """Localize the selected frames (each with its window when asked); log each to `recorder` when given.
+    Frames are read ahead on a thread (`read_ahead`), except with a window, whose earlier frames the loop reads too."""
     index = index_map(run.map, run.config)
     selected = selected_frames(run)
     windower = None if run.odometry is None else Windower(

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from clipclique.config import PoseWeights
 from clipclique.types import Pose
@@ -88,6 +89,15 @@ def fit_rigid_batch(
     `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
     hold the identity so that callers can mask them without meeting NaN.
     """
+    rotation, translation, ok, _ = fit_rigid_conditioned(source, target, weights)
+    return rotation, translation, ok
+
+
+def fit_rigid_conditioned(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
+    same weighted covariances (a query's poses need both: measuring them apart doubled the work)."""
     if weights is None:
         weights = np.ones(source.shape[:2])
     total = weights.sum(axis=1)
@@ -98,15 +108,17 @@ def fit_rigid_batch(
     centred_source = source - mean_source[:, None]
     centred_target = target - mean_target[:, None]
     cross = np.einsum("bp,bpi,bpj->bij", w, centred_target, centred_source)
-    u, _, vt = np.linalg.svd(cross)
-    sign = np.sign(np.linalg.det(u @ vt))
+    u, _, vt = _svd(cross)
+    sign = np.sign(_det(u @ vt))
     u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
     rotation = u @ vt
-    ok = (total > 0) & _spread_ok(centred_source, w) & _spread_ok(centred_target, w)
-    rotation[~ok] = np.eye(3)
+    source_variances, target_variances = _variances(centred_source, w), _variances(centred_target, w)
+    ok = (total > 0) & _spread_ok(source_variances) & _spread_ok(target_variances)
     translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
-    translation[~ok] = 0.0
-    return rotation, translation, ok
+    if not ok.all():
+        rotation[~ok] = np.eye(3)
+        translation[~ok] = 0.0
+    return rotation, translation, ok, np.minimum(_ratio(source_variances), _ratio(target_variances))
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
@@ -121,17 +133,40 @@ def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     total = weights.sum(axis=-1, keepdims=True)
     w = weights / np.where(total > 0, total, 1.0)
     centred = points - np.einsum("...p,...pi->...i", w, points)[..., None, :]
-    variances = np.linalg.eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))  # ascending
-    spread = variances[..., 2] > 0
-    ratio = np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+    ratio = _ratio(_variances(centred, w))
     return float(ratio) if ratio.ndim == 0 else ratio
 
 
-def _spread_ok(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _variances(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(..., 3) ascending principal variances of weighted, centred points (..., P, 3)."""
+    return _eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))
+
+
+def _ratio(variances: np.ndarray) -> np.ndarray:
+    """sqrt(second / largest principal variance); 0 where the points do not spread at all."""
+    spread = variances[..., 2] > 0
+    return np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+
+
+def _spread_ok(variances: np.ndarray) -> np.ndarray:
     """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
-    covariance = np.einsum("bp,bpi,bpj->bij", w, centred, centred)
-    variances = np.linalg.eigvalsh(covariance)  # ascending
-    return variances[:, 1] > np.maximum(RELATIVE_SPREAD**2 * variances[:, 2], MIN_SPREAD_M**2)
+    return variances[..., 1] > np.maximum(RELATIVE_SPREAD**2 * variances[..., 2], MIN_SPREAD_M**2)
+
+
+# The LAPACK gufuncs np.linalg.svd / eigvalsh / det call, the same results without the wrappers' checks
+# and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
+# poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
+# NaN variances fail `_spread_ok`: the set is flagged degenerate.
+def _svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return _umath_linalg.svd_f(matrices, signature="d->ddd")
+
+
+def _eigvalsh(matrices: np.ndarray) -> np.ndarray:
+    return _umath_linalg.eigvalsh_lo(matrices, signature="d->d")
+
+
+def _det(matrices: np.ndarray) -> np.ndarray:
+    return _umath_linalg.det(matrices, signature="d->d")
 
 
 def correspondence_weights(

@@ -89,15 +89,22 @@ def fit_rigid_batch(
     `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
     hold the identity so that callers can mask them without meeting NaN.
     """
-    rotation, translation, ok, _ = fit_rigid_conditioned(source, target, weights)
+    rotation, translation, ok, _, _ = _fit(source, target, weights)
     return rotation, translation, ok
 
 
 def fit_rigid_conditioned(
-    source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
     same weighted covariances (a query's poses need both: measuring them apart doubled the work)."""
+    rotation, translation, ok, source_variances, target_variances = _fit(source, target, weights)
+    return rotation, translation, ok, np.minimum(_ratio(source_variances), _ratio(target_variances))
+
+
+def _fit(source: np.ndarray, target: np.ndarray,
+         weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` and the (B, 3) principal variances of either side."""
     if weights is None:
         weights = np.ones(source.shape[:2])
     total = weights.sum(axis=1)
@@ -118,7 +125,7 @@ def fit_rigid_conditioned(
     if not ok.all():
         rotation[~ok] = np.eye(3)
         translation[~ok] = 0.0
-    return rotation, translation, ok, np.minimum(_ratio(source_variances), _ratio(target_variances))
+    return rotation, translation, ok, source_variances, target_variances
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
@@ -45,15 +46,26 @@ def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, sim
         distance = np.linalg.norm(moved[obs] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
         allowed = (distance < radius) & (similarity[obs, lm] > 0)
         obs, lm, distance = obs[allowed], lm[allowed], distance[allowed]
-        used_obs, used_lm, pairs = set(), set(), []
-        for i in np.lexsort((lm, obs, distance)):
-            k, n = obs[i], lm[i]
-            if k not in used_obs and n not in used_lm:
-                used_obs.add(k)
-                used_lm.add(n)
-                pairs.append((k, n))
-        out.append(np.array(pairs, np.int64).reshape(-1, 2))
+        order = np.lexsort((lm, obs, distance))
+        out.append(_one_to_one(obs[order], lm[order], len(moved), len(map)))
     return out
+
+
+@njit(cache=True)
+def _one_to_one(observations: np.ndarray, landmarks: np.ndarray, num_observations: int,
+                num_landmarks: int) -> np.ndarray:
+    """(M, 2) the pairs (observations[i], landmarks[i]) taken greedily in the order given, each one's
+    observation and landmark not taken yet (a query's few dozen pairs per pose: a Python loop cost more
+    than the rest of the refinement)."""
+    used_observation, used_landmark = np.zeros(num_observations, np.bool_), np.zeros(num_landmarks, np.bool_)
+    pairs = np.empty((len(observations), 2), np.int64)
+    taken = 0
+    for k, n in zip(observations, landmarks):
+        if not used_observation[k] and not used_landmark[n]:
+            used_observation[k], used_landmark[n] = True, True
+            pairs[taken, 0], pairs[taken, 1] = k, n
+            taken += 1
+    return pairs[:taken]
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.linalg import _umath_linalg
 
 from clipclique.config import PoseWeights
@@ -19,6 +20,7 @@ from clipclique.types import Pose
 
 MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
 RELATIVE_SPREAD = 1e-6  # ... or thinner than this fraction of its length
+_MIN_VARIANCE, _RELATIVE_VARIANCE = MIN_SPREAD_M**2, RELATIVE_SPREAD**2
 
 
 class DegeneratePoseError(ValueError):
@@ -107,25 +109,65 @@ def _fit(source: np.ndarray, target: np.ndarray,
     """`fit_rigid_batch` and the (B, 3) principal variances of either side."""
     if weights is None:
         weights = np.ones(source.shape[:2])
-    total = weights.sum(axis=1)
-    safe = np.where(total > 0, total, 1.0)
-    w = weights / safe[:, None]
-    mean_source = np.einsum("bp,bpi->bi", w, source)
-    mean_target = np.einsum("bp,bpi->bi", w, target)
-    centred_source = source - mean_source[:, None]
-    centred_target = target - mean_target[:, None]
-    cross = np.einsum("bp,bpi,bpj->bij", w, centred_target, centred_source)
+    total = weights.sum(axis=1)  # numpy's pairwise sum: the kernels add in order, as einsum does
+    source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
+    mean_source, mean_target, cross, source_spread, target_spread = _moments(
+        np.ascontiguousarray(weights, np.float64), total, source, target)
     u, _, vt = _svd(cross)
     sign = np.sign(_det(u @ vt))
     u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
     rotation = u @ vt
-    source_variances, target_variances = _variances(centred_source, w), _variances(centred_target, w)
-    ok = (total > 0) & _spread_ok(source_variances) & _spread_ok(target_variances)
+    source_variances, target_variances = _eigvalsh(source_spread), _eigvalsh(target_spread)
     translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
-    if not ok.all():
-        rotation[~ok] = np.eye(3)
-        translation[~ok] = 0.0
+    ok = _settled(rotation, translation, total, source_variances, target_variances)
     return rotation, translation, ok, source_variances, target_variances
+
+
+@njit(cache=True)
+def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
+             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per set b, with w = weights / total (1 where the total is not positive): the weighted means of
+    source and target, the cross-covariance sum_p w_p t_p s_p^T and either side's covariance, of the
+    centred points. Each sum adds its terms in order from 0, each term (w_p * x_i) * y_j, as
+    `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one call instead of a dozen."""
+    count, points = weights.shape
+    mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
+    cross, source_spread, target_spread = np.zeros((count, 3, 3)), np.zeros((count, 3, 3)), np.zeros((count, 3, 3))
+    w = np.empty(points)
+    centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
+    for b in range(count):
+        safe = total[b] if total[b] > 0 else 1.0
+        for p in range(points):
+            w[p] = weights[b, p] / safe
+        for p in range(points):
+            for i in range(3):
+                mean_source[b, i] += w[p] * source[b, p, i]
+                mean_target[b, i] += w[p] * target[b, p, i]
+        for p in range(points):
+            for i in range(3):
+                centred_source[p, i] = source[b, p, i] - mean_source[b, i]
+                centred_target[p, i] = target[b, p, i] - mean_target[b, i]
+        for p in range(points):
+            for i in range(3):
+                for j in range(3):
+                    cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
+                    source_spread[b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
+                    target_spread[b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
+    return mean_source, mean_target, cross, source_spread, target_spread
+
+
+@njit(cache=True)
+def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, source_variances: np.ndarray,
+             target_variances: np.ndarray) -> np.ndarray:
+    """(B,) whether each set fixes a pose (positive weights, neither side collinear); a set that fixes
+    none gets the identity, in place."""
+    ok = np.empty(len(total), np.bool_)
+    for b in range(len(total)):
+        ok[b] = total[b] > 0 and _spread_ok(source_variances[b]) and _spread_ok(target_variances[b])
+        if not ok[b]:
+            rotation[b] = np.eye(3)
+            translation[b] = 0.0
+    return ok
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
@@ -155,9 +197,11 @@ def _ratio(variances: np.ndarray) -> np.ndarray:
     return np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
 
 
-def _spread_ok(variances: np.ndarray) -> np.ndarray:
-    """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
-    return variances[..., 1] > np.maximum(RELATIVE_SPREAD**2 * variances[..., 2], MIN_SPREAD_M**2)
+@njit(cache=True)
+def _spread_ok(variances: np.ndarray) -> bool:
+    """Whether a weighted point set is not collinear: its second principal variance (of 3, ascending) is not ~0."""
+    relative = _RELATIVE_VARIANCE * variances[2]
+    return variances[1] > (relative if relative > _MIN_VARIANCE or np.isnan(relative) else _MIN_VARIANCE)
 
 
 # The LAPACK gufuncs np.linalg.svd / eigvalsh / det call, the same results without the wrappers' checks

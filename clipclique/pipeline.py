@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
@@ -39,7 +40,7 @@ from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
 from clipclique.pose import correspondence_weights, fit_rigid_conditioned
-from clipclique.projection import box_iou
+from clipclique.projection import pair_iou
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 @dataclass(kw_only=True)
@@ -309,9 +310,18 @@ def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
     objects = np.arange(len(observations))
     if duplicate_iou == 0 or observations.boxes is None or len(observations) < 2:
         return objects
-    earlier = np.tril(box_iou(observations.boxes[:, None], observations.boxes[None]) >= duplicate_iou, -1)
-    for k in np.flatnonzero(earlier.any(axis=1)):  # in order: the earlier one's object is settled
-        objects[k] = objects[np.argmax(earlier[k])]
+    return _first_overlapping(np.ascontiguousarray(observations.boxes, np.float64), duplicate_iou)
+
+
+@njit(cache=True)
+def _first_overlapping(boxes: np.ndarray, duplicate_iou: float) -> np.ndarray:
+    """`_objects` of boxes (K, 4): in order, so that the earlier observation's object is settled."""
+    objects = np.arange(len(boxes))
+    for k in range(len(boxes)):
+        for j in range(k):
+            if pair_iou(boxes[k], boxes[j]) >= duplicate_iou:
+                objects[k] = objects[j]
+                break
     return objects
 
 

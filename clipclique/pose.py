@@ -229,10 +229,12 @@ def correspondence_weights(
     completeness `w_com = min(1, sqrt(|axes_obs|^2 / |axes_map|^2))` shrinks the weight of an
     object seen only in part, whose observed centre is biased.
     """
-    ones = np.ones(len(scores))
-    similarity = np.maximum(scores, 0.0) if mode in ("sim", "both") else ones
-    completeness = completeness_weights(observed_axes, landmark_axes) if mode in ("com", "both") else ones
-    return similarity * completeness
+    if mode == "none":
+        return np.ones(len(scores))
+    if mode == "com":
+        return completeness_weights(observed_axes, landmark_axes)
+    similarity = np.maximum(scores, 0.0)
+    return similarity * completeness_weights(observed_axes, landmark_axes) if mode == "both" else similarity
 
 
 def completeness_weights(observed_axes: np.ndarray, landmark_axes: np.ndarray) -> np.ndarray:

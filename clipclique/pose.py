@@ -208,8 +208,11 @@ def _spread_ok(variances: np.ndarray) -> bool:
 # and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
 # poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
 # NaN variances fail `_spread_ok`: the set is flagged degenerate.
+_SQUARE_SVD = getattr(_umath_linalg, "svd_f", None) or _umath_linalg.svd_n_f  # numpy 2 / numpy 1's name (m >= n)
+
+
 def _svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return _umath_linalg.svd_f(matrices, signature="d->ddd")
+    return _SQUARE_SVD(matrices, signature="d->ddd")
 
 
 def _eigvalsh(matrices: np.ndarray) -> np.ndarray:

@@ -84,6 +84,15 @@ def id_counts(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return present.astype(ids.dtype), counts[present]
 
 
+def box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(K, H, W) masks of `ids` in an instance image, each compared inside its box (`instance_boxes`) only:
+    the same masks as comparing the whole image per id, at the cost of the boxes' area."""
+    masks = np.zeros((len(ids), *instances.shape), bool)
+    for mask, object_id, (x0, y0, x1, y1) in zip(masks, ids, boxes.astype(np.int64)):
+        mask[y0:y1, x0:x1] = instances[y0:y1, x0:x1] == object_id
+    return masks
+
+
 def vocabulary_index(class_names: list[str]) -> dict[str, int]:
     return {name.lower(): i for i, name in enumerate(class_names)}
 
@@ -117,6 +126,5 @@ class InstanceDetector:
         ids, counts, boxes = instance_boxes(frame.instances)
         classes = np.array([self._map_class.get(int(i), -1) for i in ids], int)
         keep = (classes >= 0) & (counts >= self.min_pixels)
-        ids, classes = ids[keep], classes[keep]
-        masks = frame.instances[None] == ids[:, None, None]
-        return Detections(masks, boxes[keep], classes, np.ones(len(ids)), ids.astype(int))
+        ids, classes, boxes = ids[keep], classes[keep], boxes[keep]
+        return Detections(box_masks(frame.instances, ids, boxes), boxes, classes, np.ones(len(ids)), ids.astype(int))

@@ -64,11 +64,12 @@ def fit_ellipsoid_depth(
 
 def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The PCA box of the points whose neighbour distance `spread` is not an outlier."""
-    kept, mean, scatter = _inlier_moments(points, spread, params.outlier_std_ratio)
+    limit = _outlier_limit(spread, params.outlier_std_ratio)
+    kept, mean, scatter = _inlier_moments(points, spread, limit)
     if kept < params.min_points:
         return None
     _, rotation = np.linalg.eigh(scatter)
-    low, high = _extents(points, spread, mean, rotation, params.outlier_std_ratio)
+    low, high = _extents(points, spread, limit, mean, rotation)
     center = mean + rotation @ ((low + high) / 2)
     axes = (high - low) / 2
     if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < params.min_axis:
@@ -98,51 +99,70 @@ def _outlier_limit(spread: np.ndarray, ratio: float) -> float:
 
 
 @njit(cache=True)
-def _inlier_moments(points: np.ndarray, spread: np.ndarray, ratio: float) -> tuple[int, np.ndarray, np.ndarray]:
-    """(count, mean, 3 x 3 scatter matrix) of the points within the outlier limit, in one pass each."""
-    limit = _outlier_limit(spread, ratio)
-    count, mean, scatter = 0, np.zeros(3), np.zeros((3, 3))
-    for i in range(len(points)):  # element by element: row slices would allocate in the loop
-        if spread[i] <= limit:
-            count += 1
-            for r in range(3):
-                mean[r] += points[i, r]
-    if count == 0:
-        return 0, mean, scatter
-    mean /= count
+def _inlier_moments(points: np.ndarray, spread: np.ndarray, limit: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """(count, mean, 3 x 3 scatter matrix) of the points whose spread is within `limit`, in one pass each,
+    the sums in scalars (registers) and the scatter's lower triangle mirrored from the upper (equal bits)."""
+    count, sum_x, sum_y, sum_z = 0, 0.0, 0.0, 0.0
     for i in range(len(points)):
         if spread[i] <= limit:
-            for r in range(3):
-                for c in range(3):
-                    scatter[r, c] += (points[i, r] - mean[r]) * (points[i, c] - mean[c])
+            count += 1
+            sum_x += points[i, 0]
+            sum_y += points[i, 1]
+            sum_z += points[i, 2]
+    mean, scatter = np.zeros(3), np.zeros((3, 3))
+    if count == 0:
+        return 0, mean, scatter
+    mean[0], mean[1], mean[2] = sum_x / count, sum_y / count, sum_z / count
+    xx, xy, xz, yy, yz, zz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(len(points)):
+        if spread[i] <= limit:
+            dx, dy, dz = points[i, 0] - mean[0], points[i, 1] - mean[1], points[i, 2] - mean[2]
+            xx += dx * dx
+            xy += dx * dy
+            xz += dx * dz
+            yy += dy * dy
+            yz += dy * dz
+            zz += dz * dz
+    scatter[0, 0], scatter[0, 1], scatter[0, 2] = xx, xy, xz
+    scatter[1, 0], scatter[1, 1], scatter[1, 2] = xy, yy, yz
+    scatter[2, 0], scatter[2, 1], scatter[2, 2] = xz, yz, zz
     return count, mean, scatter
 
 
 @njit(cache=True)
-def _extents(points: np.ndarray, spread: np.ndarray, mean: np.ndarray, rotation: np.ndarray, ratio: float) -> tuple[np.ndarray, np.ndarray]:
-    """Lowest and highest coordinate of the inliers along each principal axis (about `mean`)."""
-    limit = _outlier_limit(spread, ratio)
-    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+def _extents(points: np.ndarray, spread: np.ndarray, limit: float, mean: np.ndarray,
+             rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest coordinate of the inliers (spread within `limit`) along each principal axis
+    (about `mean`), the three axes in one pass with the running bounds in scalars."""
+    low_0, low_1, low_2, high_0, high_1, high_2 = np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf
     for i in range(len(points)):
         if spread[i] <= limit:
-            for axis in range(3):
-                value = ((points[i, 0] - mean[0]) * rotation[0, axis] + (points[i, 1] - mean[1]) * rotation[1, axis]
-                         + (points[i, 2] - mean[2]) * rotation[2, axis])
-                low[axis] = min(low[axis], value)
-                high[axis] = max(high[axis], value)
-    return low, high
+            dx, dy, dz = points[i, 0] - mean[0], points[i, 1] - mean[1], points[i, 2] - mean[2]
+            along_0 = dx * rotation[0, 0] + dy * rotation[1, 0] + dz * rotation[2, 0]
+            along_1 = dx * rotation[0, 1] + dy * rotation[1, 1] + dz * rotation[2, 1]
+            along_2 = dx * rotation[0, 2] + dy * rotation[1, 2] + dz * rotation[2, 2]
+            low_0, high_0 = min(low_0, along_0), max(high_0, along_0)
+            low_1, high_1 = min(low_1, along_1), max(high_1, along_1)
+            low_2, high_2 = min(low_2, along_2), max(high_2, along_2)
+    return np.array([low_0, low_1, low_2]), np.array([high_0, high_1, high_2])
 
 
 @functools.cache
 def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """The compiled pass `depth_points(depth, mask, intrinsics)` for `k` neighbours within `radius` pixels.
 
-    `k` and `radius` are compiled in as constants (one cached compilation per pair), so the
-    insertion into the list of distances to drop unrolls, without a branch; the pass runs one
-    window offset at a time over a whole row of pixels (README, Observation stage).
+    `k` and `radius` are compiled in as constants (one cached compilation per pair). The pass runs
+    one window offset at a time over a whole row of pixels, on flat arrays indexed by unsigned
+    integers, so that the compiler vectorizes the loop over the row (README, Observation stage).
+    The distance between two pixels is computed once, by the earlier of the two in row-major order
+    for its `ahead` offsets (its own row's right, the rows below), and read back by the later one:
+    (a - b)^2 and (b - a)^2 are the same bits, and each pixel still sums its neighbours' distances
+    in window order.
     """
     side = 2 * radius + 1
     drop = max(side * side - 1 - k, 0)  # a pixel has at most side^2 - 1 neighbours; the farthest beyond k are dropped
+    ahead = radius + radius * side  # the offsets after a pixel in window order
+    rows = radius + 1  # the rows of distances kept: a pixel's own and the `radius` rows above it
 
     @njit(cache=True)
     def depth_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,59 +171,95 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
         (fewer where fewer exist; inf for a pixel with none)."""
         height, width = mask.shape
         fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-        # coordinates on a grid padded by `radius` invalid pixels: every window lies inside it
-        shape = (height + 2 * radius, width + 2 * radius)
-        x, y, z, valid = np.zeros(shape), np.zeros(shape), np.zeros(shape), np.zeros(shape, np.bool_)
+        # coordinates on a flat grid padded by `radius` invalid pixels: every window lies inside it
+        pitch = width + 2 * radius
+        size = (height + 2 * radius) * pitch
+        x, y, z, valid = np.zeros(size), np.zeros(size), np.zeros(size), np.zeros(size, np.bool_)
         first, last = np.full(height, width), np.full(height, -1)  # each row's valid columns, for the row pass
         count = 0
         for v in range(height):
             for u in range(width):
                 depth_vu = depth[v, u]
                 if mask[v, u] and math.isfinite(depth_vu) and depth_vu > 0:
-                    a, b = v + radius, u + radius
-                    x[a, b], y[a, b], z[a, b] = (u - cx) * depth_vu / fx, (v - cy) * depth_vu / fy, depth_vu
-                    valid[a, b] = True
+                    p = (v + radius) * pitch + u + radius
+                    x[p], y[p], z[p] = (u - cx) * depth_vu / fx, (v - cy) * depth_vu / fy, depth_vu
+                    valid[p] = True
                     count += 1
                     first[v], last[v] = min(first[v], u), u
         points = np.empty((count, 3))
         spread = np.full(count, np.inf)
-        # one row at a time, each window offset over the row's span: the loop over columns has no branch;
-        # per pixel the sum and the sorted list see the offsets in window order, as a pixel-by-pixel pass does
+        distances = np.zeros((ahead, rows * pitch))  # per ahead offset, the last `rows` rows' distances, by column
         total, near_count = np.empty(width), np.empty(width, np.int64)
         farthest = np.empty((max(drop, 1), width))  # per pixel, the largest distances so far, largest first
+        plan = np.empty((side * side - 1, 3), np.int64)  # per neighbour: its row of distances, where, its pixel
         i = 0
         for v in range(height):
             if last[v] < 0:
                 continue
-            a, lo, hi = v + radius, first[v] + radius, last[v] + radius + 1
-            total[:], near_count[:], farthest[:] = 0.0, 0, -1.0
-            for aa in range(a - radius, a + radius + 1):
-                for offset in range(-radius, radius + 1):
-                    if aa == a and offset == 0:
+            span = last[v] + 1 - first[v]
+            start = np.uint64((v + radius) * pitch + radius + first[v])  # the row's first pixel in the grid
+            own = (v % rows) * pitch + radius + first[v]  # ... and in the rows of distances
+            for offset in range(ahead):  # this row's distances to the pixels ahead
+                to_row = 0 if offset < radius else 1 + (offset - radius) // side
+                to_column = offset + 1 if offset < radius else (offset - radius) % side - radius
+                neighbour = np.uint64((v + radius + to_row) * pitch + radius + first[v] + to_column)
+                out, at = distances[offset], np.uint64(own)
+                for s in range(span):
+                    t = np.uint64(s)
+                    p, q = start + t, neighbour + t
+                    out[at + t] = math.sqrt((x[q] - x[p]) ** 2 + (y[q] - y[p]) ** 2 + (z[q] - z[p]) ** 2)
+            for s in range(span):
+                t = np.uint64(s)
+                total[t], near_count[t] = 0.0, 0
+                for j in range(drop):
+                    farthest[j, t] = -1.0
+            listed = 0
+            for to_row in range(-radius, radius + 1):  # every neighbour in window order
+                for to_column in range(-radius, radius + 1):
+                    if to_row == 0 and to_column == 0:
                         continue  # not its own neighbour
-                    span = slice(lo + offset, hi + offset)  # the neighbours at this offset, as contiguous rows
-                    xs, ys, zs, vs = x[aa, span], y[aa, span], z[aa, span], valid[aa, span]
-                    xa, ya, za = x[a, lo:hi], y[a, lo:hi], z[a, lo:hi]
-                    tot, cnt = total[lo - radius:hi - radius], near_count[lo - radius:hi - radius]
-                    far = farthest[:, lo - radius:hi - radius]
-                    for t in range(hi - lo):  # branch-free: an absent neighbour adds 0
-                        near = vs[t]
-                        distance = math.sqrt((xs[t] - xa[t]) ** 2 + (ys[t] - ya[t]) ** 2 + (zs[t] - za[t]) ** 2)
-                        tot[t] += distance if near else 0.0
-                        cnt[t] += near
-                        carry = distance if near else -1.0
-                        for j in range(drop):  # insert into the sorted farthest list
-                            kept = far[j, t]
-                            far[j, t] = kept if kept > carry else carry
-                            carry = carry if kept > carry else kept
-            for b in range(lo, hi):
-                if not valid[a, b]:
+                    behind = to_row < 0 or (to_row == 0 and to_column < 0)  # its distance was computed there
+                    down, right = (-to_row, -to_column) if behind else (to_row, to_column)  # the offset ahead
+                    plan[listed, 0] = right - 1 if down == 0 else radius + (down - 1) * side + right + radius
+                    behind_at = ((v + to_row + rows) % rows) * pitch + radius + first[v] + to_column
+                    plan[listed, 1] = behind_at if behind else own
+                    plan[listed, 2] = (v + radius + to_row) * pitch + radius + first[v] + to_column
+                    listed += 1
+            for group in range(0, listed, 4):  # four neighbours a pass over the row: side^2 - 1 is a multiple of 8
+                four = plan[group:group + 4]
+                row1, at1, near1 = distances[four[0, 0]], np.uint64(four[0, 1]), np.uint64(four[0, 2])
+                row2, at2, near2 = distances[four[1, 0]], np.uint64(four[1, 1]), np.uint64(four[1, 2])
+                row3, at3, near3 = distances[four[2, 0]], np.uint64(four[2, 1]), np.uint64(four[2, 2])
+                row4, at4, near4 = distances[four[3, 0]], np.uint64(four[3, 1]), np.uint64(four[3, 2])
+                for s in range(span):  # branch-free: an absent neighbour adds 0 and inserts -1
+                    t = np.uint64(s)
+                    in1, in2, in3, in4 = valid[near1 + t], valid[near2 + t], valid[near3 + t], valid[near4 + t]
+                    carry1 = row1[at1 + t] if in1 else -1.0
+                    carry2 = row2[at2 + t] if in2 else -1.0
+                    carry3 = row3[at3 + t] if in3 else -1.0
+                    carry4 = row4[at4 + t] if in4 else -1.0
+                    total[t] = ((((total[t] + (carry1 if in1 else 0.0)) + (carry2 if in2 else 0.0))
+                                 + (carry3 if in3 else 0.0)) + (carry4 if in4 else 0.0))  # in window order
+                    near_count[t] += in1 + in2 + in3 + in4
+                    for j in range(drop):  # insert the four into the sorted farthest list
+                        kept = farthest[j, t]
+                        larger = kept if kept > carry1 else carry1
+                        carry1 = carry1 if kept > carry1 else kept
+                        kept = larger if larger > carry2 else carry2
+                        carry2 = carry2 if larger > carry2 else larger
+                        larger = kept if kept > carry3 else carry3
+                        carry3 = carry3 if kept > carry3 else kept
+                        farthest[j, t] = larger if larger > carry4 else carry4
+                        carry4 = carry4 if larger > carry4 else larger
+            for s in range(span):
+                p = start + np.uint64(s)
+                if not valid[p]:
                     continue
-                u, n = b - radius, near_count[b - radius]
-                points[i, 0], points[i, 1], points[i, 2] = x[a, b], y[a, b], z[a, b]
-                kept = total[u]
+                n = near_count[s]
+                points[i, 0], points[i, 1], points[i, 2] = x[p], y[p], z[p]
+                kept = total[s]
                 for j in range(n - k):  # the k nearest: the n - k farthest out, largest first
-                    kept -= farthest[j, u]
+                    kept -= farthest[j, s]
                 if n:
                     spread[i] = kept / min(n, k)
                 i += 1

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
@@ -38,8 +39,8 @@ from clipclique import (cliquesearch, compatibility, confidence, consensus, grap
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
-from clipclique.pose import conditioning, correspondence_weights, fit_rigid_batch
-from clipclique.projection import box_iou
+from clipclique.pose import correspondence_weights, fit_rigid_conditioned
+from clipclique.projection import pair_iou
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 @dataclass(kw_only=True)
@@ -119,7 +120,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=candidate_scores,
                                 similarity=scores, num_cliques=0, cap_hit=CapHit.MAX_CANDIDATES if capped else None,
                                 failure=None, notes=notes, timings=timings)
-    matched = len(np.unique(candidates[:, 0]))
+    matched = np.count_nonzero(np.bincount(candidates[:, 0]))
     if len(observations) < 3:
         result.failure = Failure(kind=FailureKind.FEW_OBSERVATIONS, count=len(observations))
     elif matched < 3:
@@ -309,11 +310,18 @@ def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
     objects = np.arange(len(observations))
     if duplicate_iou == 0 or observations.boxes is None or len(observations) < 2:
         return objects
-    overlap = box_iou(observations.boxes[:, None], observations.boxes[None])
-    for k in range(len(objects)):
-        same = np.flatnonzero(overlap[k, :k] >= duplicate_iou)
-        if len(same):
-            objects[k] = objects[same[0]]
+    return _first_overlapping(np.ascontiguousarray(observations.boxes, np.float64), duplicate_iou)
+
+
+@njit(cache=True)
+def _first_overlapping(boxes: np.ndarray, duplicate_iou: float) -> np.ndarray:
+    """`_objects` of boxes (K, 4): in order, so that the earlier observation's object is settled."""
+    objects = np.arange(len(boxes))
+    for k in range(len(boxes)):
+        for j in range(k):
+            if pair_iou(boxes[k], boxes[j]) >= duplicate_iou:
+                objects[k] = objects[j]
+                break
     return objects
 
 
@@ -367,8 +375,7 @@ def _hypotheses(
         config.pose.weights,
     ).reshape(valid.shape)
     source, target = observations.ellipsoids.centers[pairs[..., 0]], map.ellipsoids.centers[pairs[..., 1]]
-    rotation, translation, ok = fit_rigid_batch(source, target, weights)
-    measure = np.minimum(conditioning(source, weights), conditioning(target, weights))
+    rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     ok &= (np.count_nonzero(weights, axis=1) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
     return [
         Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b]), float(measure[b]))

@@ -12,12 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
+from numpy.linalg import _umath_linalg
 
 from clipclique.config import PoseWeights
 from clipclique.types import Pose
 
 MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
 RELATIVE_SPREAD = 1e-6  # ... or thinner than this fraction of its length
+_MIN_VARIANCE, _RELATIVE_VARIANCE = MIN_SPREAD_M**2, RELATIVE_SPREAD**2
 
 
 class DegeneratePoseError(ValueError):
@@ -88,25 +91,83 @@ def fit_rigid_batch(
     `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
     hold the identity so that callers can mask them without meeting NaN.
     """
+    rotation, translation, ok, _, _ = _fit(source, target, weights)
+    return rotation, translation, ok
+
+
+def fit_rigid_conditioned(
+    source: np.ndarray, target: np.ndarray, weights: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
+    same weighted covariances (a query's poses need both: measuring them apart doubled the work)."""
+    rotation, translation, ok, source_variances, target_variances = _fit(source, target, weights)
+    return rotation, translation, ok, np.minimum(_ratio(source_variances), _ratio(target_variances))
+
+
+def _fit(source: np.ndarray, target: np.ndarray,
+         weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` and the (B, 3) principal variances of either side."""
     if weights is None:
         weights = np.ones(source.shape[:2])
-    total = weights.sum(axis=1)
-    safe = np.where(total > 0, total, 1.0)
-    w = weights / safe[:, None]
-    mean_source = np.einsum("bp,bpi->bi", w, source)
-    mean_target = np.einsum("bp,bpi->bi", w, target)
-    centred_source = source - mean_source[:, None]
-    centred_target = target - mean_target[:, None]
-    cross = np.einsum("bp,bpi,bpj->bij", w, centred_target, centred_source)
-    u, _, vt = np.linalg.svd(cross)
-    sign = np.sign(np.linalg.det(u @ vt))
+    total = weights.sum(axis=1)  # numpy's pairwise sum: the kernels add in order, as einsum does
+    source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
+    mean_source, mean_target, cross, source_spread, target_spread = _moments(
+        np.ascontiguousarray(weights, np.float64), total, source, target)
+    u, _, vt = _svd(cross)
+    sign = np.sign(_det(u @ vt))
     u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
     rotation = u @ vt
-    ok = (total > 0) & _spread_ok(centred_source, w) & _spread_ok(centred_target, w)
-    rotation[~ok] = np.eye(3)
+    source_variances, target_variances = _eigvalsh(source_spread), _eigvalsh(target_spread)
     translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
-    translation[~ok] = 0.0
-    return rotation, translation, ok
+    ok = _settled(rotation, translation, total, source_variances, target_variances)
+    return rotation, translation, ok, source_variances, target_variances
+
+
+@njit(cache=True)
+def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
+             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per set b, with w = weights / total (1 where the total is not positive): the weighted means of
+    source and target, the cross-covariance sum_p w_p t_p s_p^T and either side's covariance, of the
+    centred points. Each sum adds its terms in order from 0, each term (w_p * x_i) * y_j, as
+    `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one call instead of a dozen."""
+    count, points = weights.shape
+    mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
+    cross, source_spread, target_spread = np.zeros((count, 3, 3)), np.zeros((count, 3, 3)), np.zeros((count, 3, 3))
+    w = np.empty(points)
+    centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
+    for b in range(count):
+        safe = total[b] if total[b] > 0 else 1.0
+        for p in range(points):
+            w[p] = weights[b, p] / safe
+        for p in range(points):
+            for i in range(3):
+                mean_source[b, i] += w[p] * source[b, p, i]
+                mean_target[b, i] += w[p] * target[b, p, i]
+        for p in range(points):
+            for i in range(3):
+                centred_source[p, i] = source[b, p, i] - mean_source[b, i]
+                centred_target[p, i] = target[b, p, i] - mean_target[b, i]
+        for p in range(points):
+            for i in range(3):
+                for j in range(3):
+                    cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
+                    source_spread[b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
+                    target_spread[b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
+    return mean_source, mean_target, cross, source_spread, target_spread
+
+
+@njit(cache=True)
+def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, source_variances: np.ndarray,
+             target_variances: np.ndarray) -> np.ndarray:
+    """(B,) whether each set fixes a pose (positive weights, neither side collinear); a set that fixes
+    none gets the identity, in place."""
+    ok = np.empty(len(total), np.bool_)
+    for b in range(len(total)):
+        ok[b] = total[b] > 0 and _spread_ok(source_variances[b]) and _spread_ok(target_variances[b])
+        if not ok[b]:
+            rotation[b] = np.eye(3)
+            translation[b] = 0.0
+    return ok
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
@@ -121,17 +182,45 @@ def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     total = weights.sum(axis=-1, keepdims=True)
     w = weights / np.where(total > 0, total, 1.0)
     centred = points - np.einsum("...p,...pi->...i", w, points)[..., None, :]
-    variances = np.linalg.eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))  # ascending
-    spread = variances[..., 2] > 0
-    ratio = np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+    ratio = _ratio(_variances(centred, w))
     return float(ratio) if ratio.ndim == 0 else ratio
 
 
-def _spread_ok(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """True where the weighted point set is not collinear (its second principal variance is not ~0)."""
-    covariance = np.einsum("bp,bpi,bpj->bij", w, centred, centred)
-    variances = np.linalg.eigvalsh(covariance)  # ascending
-    return variances[:, 1] > np.maximum(RELATIVE_SPREAD**2 * variances[:, 2], MIN_SPREAD_M**2)
+def _variances(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(..., 3) ascending principal variances of weighted, centred points (..., P, 3)."""
+    return _eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))
+
+
+def _ratio(variances: np.ndarray) -> np.ndarray:
+    """sqrt(second / largest principal variance); 0 where the points do not spread at all."""
+    spread = variances[..., 2] > 0
+    return np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+
+
+@njit(cache=True)
+def _spread_ok(variances: np.ndarray) -> bool:
+    """Whether a weighted point set is not collinear: its second principal variance (of 3, ascending) is not ~0."""
+    relative = _RELATIVE_VARIANCE * variances[2]
+    return variances[1] > (relative if relative > _MIN_VARIANCE or np.isnan(relative) else _MIN_VARIANCE)
+
+
+# The LAPACK gufuncs np.linalg.svd / eigvalsh / det call, the same results without the wrappers' checks
+# and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
+# poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
+# NaN variances fail `_spread_ok`: the set is flagged degenerate.
+_SQUARE_SVD = getattr(_umath_linalg, "svd_f", None) or _umath_linalg.svd_n_f  # numpy 2 / numpy 1's name (m >= n)
+
+
+def _svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return _SQUARE_SVD(matrices, signature="d->ddd")
+
+
+def _eigvalsh(matrices: np.ndarray) -> np.ndarray:
+    return _umath_linalg.eigvalsh_lo(matrices, signature="d->d")
+
+
+def _det(matrices: np.ndarray) -> np.ndarray:
+    return _umath_linalg.det(matrices, signature="d->d")
 
 
 def correspondence_weights(
@@ -143,10 +232,12 @@ def correspondence_weights(
     completeness `w_com = min(1, sqrt(|axes_obs|^2 / |axes_map|^2))` shrinks the weight of an
     object seen only in part, whose observed centre is biased.
     """
-    ones = np.ones(len(scores))
-    similarity = np.maximum(scores, 0.0) if mode in ("sim", "both") else ones
-    completeness = completeness_weights(observed_axes, landmark_axes) if mode in ("com", "both") else ones
-    return similarity * completeness
+    if mode == "none":
+        return np.ones(len(scores))
+    if mode == "com":
+        return completeness_weights(observed_axes, landmark_axes)
+    similarity = np.maximum(scores, 0.0)
+    return similarity * completeness_weights(observed_axes, landmark_axes) if mode == "both" else similarity
 
 
 def completeness_weights(observed_axes: np.ndarray, landmark_axes: np.ndarray) -> np.ndarray:

@@ -24,10 +24,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.projection import Projection, box_area, box_iou, project
+from clipclique.projection import Projection, box_area, box_iou, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
 
@@ -92,7 +93,7 @@ def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: M
     obs, lm = pairs[:, 0], pairs[:, 1]
     at = np.maximum(slot[lm], 0)
     in_view = (slot[lm] >= 0) & seen.visible[owner, at]
-    iou = np.where(in_view, box_iou(observations.boxes[obs], seen.boxes[owner, at]), 0.0)
+    iou = _ious(observations.boxes[obs], seen.boxes[owner, at], in_view)
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
     depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
     agreement = np.maximum(1.0 - depth_gap / params.depth_tolerance, 0.0)
@@ -140,11 +141,35 @@ def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
     area = box_area(seen.boxes)
     expected = seen.visible & (area >= params.min_visible_pixels) & (area >= 0.5 * seen.full_areas)
     hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
-    overlaps = box_iou(seen.boxes[hypothesis, landmark][:, None], observations.boxes[None])  # (E, K)
-    same_class = class_ids[landmark][:, None] == observations.class_ids[None]
-    explained = ((overlaps >= params.explained_iou) & same_class).any(axis=1)
+    explained = _explained(hypothesis, landmark, seen.boxes, class_ids, observations.boxes, observations.class_ids,
+                           params.explained_iou)
     camera = observations.camera
     full = params.missed_full_area * camera.width * camera.height
     weight = np.minimum(1.0, area[hypothesis, landmark] / full) if full > 0 else np.ones(len(hypothesis))
     return (np.bincount(hypothesis[~explained], minlength=len(expected)),
             np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)))
+
+
+@njit(cache=True)
+def _ious(boxes: np.ndarray, other: np.ndarray, counted: np.ndarray) -> np.ndarray:
+    """(M,) IoU of boxes[m] and other[m] where counted[m], else 0."""
+    out = np.zeros(len(boxes))
+    for m in range(len(boxes)):
+        if counted[m]:
+            out[m] = pair_iou(boxes[m], other[m])
+    return out
+
+
+@njit(cache=True)
+def _explained(hypothesis: np.ndarray, landmark: np.ndarray, boxes: np.ndarray, class_ids: np.ndarray,
+               detected: np.ndarray, detected_classes: np.ndarray, explained_iou: float) -> np.ndarray:
+    """(E,) whether a detection of landmark[e]'s class overlaps its projected box under hypothesis[e]
+    with IoU >= explained_iou."""
+    explained = np.zeros(len(hypothesis), np.bool_)
+    for e in range(len(hypothesis)):
+        box, wanted = boxes[hypothesis[e], landmark[e]], class_ids[landmark[e]]
+        for k in range(len(detected)):
+            if detected_classes[k] == wanted and pair_iou(box, detected[k]) >= explained_iou:
+                explained[e] = True
+                break
+    return explained

@@ -12,7 +12,10 @@ import hashlib
 import os
 import re
 import time
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -293,28 +296,53 @@ def earlier_observations(run: Run, frame: Frame) -> Observations:
 
 def execute(run: Run, recorder: LocalizationRecorder | None = None,
             progress: Callable[[int, int], None] | None = None) -> Run:
-    """Localize the selected frames (each with its window when asked); log each to `recorder` when given."""
+    """Localize the selected frames (each with its window when asked); log each to `recorder` when given.
+    Frames are read ahead on a thread (`read_ahead`), except with a window, whose earlier frames the loop reads too."""
     index = index_map(run.map, run.config)
     selected = selected_frames(run)
     windower = None if run.odometry is None else Windower(
         WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
-    for count, i in enumerate(selected, start=1):
-        frame = run.sequence[i]
-        if run.detector.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
-            run.unannotated.append(frame.name)
-            continue
-        outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)
-        run.frames.append(outcome)
-        if recorder is not None:
-            observations = seen.observations if outcome.window is None else outcome.window.observations
-            recorder.log_frame(frame, seen.detections, observations, outcome.result, outcome.evaluation)
-            if outcome.window is not None:
-                top1 = outcome.result.hypotheses[0].pose if outcome.result.hypotheses else None
-                recorder.log_window(outcome.window, frame.pose or top1)
-        if progress is not None:
-            progress(count, len(selected))
+    frames = (run.sequence[i] for i in selected) if windower is not None else read_ahead(run.sequence, selected)
+    with closing(frames):
+        for count, frame in enumerate(frames, start=1):
+            localize_one(run, frame, index, windower, recorder)
+            if progress is not None:
+                progress(count, len(selected))
     note_unannotated(run, len(selected))
     return run
+
+
+def read_ahead(sequence: Sequence, selected: range, ahead: int = 2) -> Iterator[Frame]:
+    """The selected frames in order, each read on a thread while the caller works on the frames before it:
+    decoding the PNG and JPEG files (Pillow releases the GIL) overlaps detection and localization. A read's
+    error is raised where its frame is reached; closing the iterator cancels the reads not started."""
+    pool = ThreadPoolExecutor(1, thread_name_prefix="clipclique-read")
+    try:
+        pending = deque(pool.submit(sequence.__getitem__, i) for i in selected[:ahead])
+        for i in selected[ahead:]:
+            frame = pending.popleft().result()
+            pending.append(pool.submit(sequence.__getitem__, i))
+            yield frame
+        while pending:
+            yield pending.popleft().result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def localize_one(run: Run, frame: Frame, index: MapIndex, windower: Windower | None,
+                 recorder: LocalizationRecorder | None) -> None:
+    """Localize one frame (with its window when there is one) into `run.frames`, logged to `recorder`."""
+    if run.detector.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
+        run.unannotated.append(frame.name)
+        return
+    outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)
+    run.frames.append(outcome)
+    if recorder is not None:
+        observations = seen.observations if outcome.window is None else outcome.window.observations
+        recorder.log_frame(frame, seen.detections, observations, outcome.result, outcome.evaluation)
+        if outcome.window is not None:
+            top1 = outcome.result.hypotheses[0].pose if outcome.result.hypotheses else None
+            recorder.log_window(outcome.window, frame.pose or top1)
 
 
 def note_unannotated(run: Run, selected: int) -> None:

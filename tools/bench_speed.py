@@ -5,17 +5,18 @@
 
 Two worker processes, one importing the working tree and one a `git archive` of `--rev` (default:
 the merge base with main), measure the same frames in lock step (frame i in one, then in the
-other), so both see the same machine load. Each worker runs the sequence's own detector, the
+other), so both see the same machine load. Each worker runs the sequence's own detector (once), the
 observation stage, the encoder and `localize` (fastest of `--repeat`, per stage) and, in the
 working tree's worker, the literal reference (`benchmark.literal_reference`, networkx) on the same
-observations. Printed per scene: median and 90th percentile ms per stage, before and now, and the
-literal reference's whole query beside the project's.
+observations. Printed per scene: median and 90th percentile ms per stage, before and now, the
+observation stage per detection, and the literal reference's whole query beside the project's.
 
 `--recording FRAMES`: the Rerun recording of the first scene, ms of `log_frame` on the caller's
 thread per frame, the seconds `close` waits for what is still queued, and kB per frame.
 
 `--whole-runs N`: N whole `clipclique-loc run` processes of the first scene per tree, alternating,
-with and without the recording (process start included, after one warm-up run each).
+with and without the recording (process start included, after one warm-up run each): wall seconds, and
+the CPU seconds (user + system, all threads) that a loaded machine's wall time hides.
 
 `--clutter COUNTS`: the desk scene of `benchmark.core` (26 observations a query, the desk map
 copied into rooms 20 m apart), SH only, per landmark count: `index_map` seconds, whole-query median
@@ -96,8 +97,11 @@ def serve() -> None:
             if request.get("frame") is None:
                 reply = {"frames": len(frames)}
             else:
-                seen = observe(run, run.sequence[frames[request["frame"]]])
+                frame = run.sequence[frames[request["frame"]]]
+                seen = observe(run, frame)
                 reply = {f"{stage} ms": 1e3 * seconds for stage, seconds in seen.timings.items()}
+                reply |= observation_times(run, frame, seen.detections, request["repeat"])
+                reply["detections"] = len(seen.detections)
                 reply |= query_times(lambda: localize(seen.observations, index, run.config), request["repeat"])
                 reply["observations"] = len(seen.observations)
                 if request["literal"]:
@@ -188,6 +192,23 @@ def fastest(call, repeat: int) -> float:
     return 1e3 * best
 
 
+def observation_times(run, frame, detections, repeat: int) -> dict:
+    """ms of the observation stage and of the encoder on the frame's detections, each the fastest of
+    `repeat` (the detector, the slowest stage and no concern of this measure, runs once)."""
+    from clipclique.observations import embed, extract_observations
+
+    best = {"observations ms": np.inf, "encoder ms": np.inf}
+    for _ in range(repeat):
+        start = time.perf_counter()
+        extraction = extract_observations(frame, detections, run.config.observations)
+        middle = time.perf_counter()
+        embed(extraction, run.encoder)
+        end = time.perf_counter()
+        best["observations ms"] = min(best["observations ms"], 1e3 * (middle - start))
+        best["encoder ms"] = min(best["encoder ms"], 1e3 * (end - middle))
+    return best
+
+
 def query_times(call, repeat: int) -> dict:
     """Per stage ms of the fastest of `repeat` whole queries, the whole query's wall time, and its cap."""
     best, timings, cap = np.inf, {}, None
@@ -227,6 +248,12 @@ def compare_scene(scene: str, workers: list[Worker], max_frames: int, repeat: in
           f"{max(observed)}; ms, fastest of {repeat} per frame")
     stages = [key for key in now[0] if key.endswith(" ms") and key not in ("localize ms", "literal ms")]
     table(rows, stages + ["localize ms"])
+    for label, answers in rows.items():
+        detections = sum(row["detections"] for row in answers)
+        per_detection = [row["observations ms"] / row["detections"] for row in answers if row["detections"]]
+        print(f"  observations per detection, {label}: median {np.median(per_detection):.3f} ms over frames, "
+              f"{sum(row['observations ms'] for row in answers) / max(detections, 1):.3f} ms over all "
+              f"{detections} detections")
     project, literal = np.median([row["localize ms"] for row in now]), np.median([row["literal ms"] for row in now])
     print(f"  whole localize (descriptors to confidence) {project:.2f} ms, literal reference {literal:.2f} ms: "
           f"{literal / project:.1f}x", flush=True)
@@ -271,19 +298,25 @@ def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory:
     print(f"whole `clipclique-loc run {scene}` processes, seconds (median of {runs}, trees alternating, "
           "numba cache warm):")
     seconds: dict[tuple[str, bool], list[float]] = {}
+    processor: dict[tuple[str, bool], list[float]] = {}  # CPU seconds, user + system: what a loaded machine leaves alone
     for attempt in range(runs + 1):
         for label, tree in trees.items():
             for record in (True, False):
                 command = [sys.executable, "-c", "from localization.cli import main; main()", "run", scene,
                            "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 start = time.perf_counter()
                 subprocess.run(command, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(tree)), check=True,
                                capture_output=True)
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
                 if attempt:  # the first round warms the caches
                     seconds.setdefault((label, record), []).append(time.perf_counter() - start)
+                    processor.setdefault((label, record), []).append(
+                        after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
     for (label, record), values in seconds.items():
         print(f"  {label:>8} {'with' if record else 'without'} the recording: {np.median(values):.1f} s "
-              f"({', '.join(f'{v:.1f}' for v in values)})", flush=True)
+              f"({', '.join(f'{v:.1f}' for v in values)}), CPU {np.median(processor[label, record]):.1f} s",
+              flush=True)
 
 
 def main() -> None:

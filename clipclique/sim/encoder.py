@@ -38,7 +38,8 @@ SIMULATED_NAME = "simulated-clip"
 _STOP_WORDS = frozenset({"a", "an", "the", "of", "on", "in", "with", "and", "photo", "this", "is"})
 
 
-def _seed(*parts: bytes | str) -> int:
+def _seed(*parts: bytes | str | np.ndarray) -> int:
+    """A 64-bit seed hashed from `parts` (an array: its C-order bytes, hashed without copying them)."""
     digest = hashlib.blake2b(digest_size=8)
     for part in parts:
         digest.update(part.encode() if isinstance(part, str) else part)
@@ -102,7 +103,7 @@ class SimulatedClipEncoder:
             contents = self.contents(crop)
             pixels = np.ascontiguousarray(crop.pixels)
             target = normalize(sum(share * (self._shared if d is None else self._text(d)) for d, share in contents))
-            rng = np.random.default_rng(_seed(str(self.seed), pixels.tobytes(), str(pixels.shape), repr(contents)))
+            rng = np.random.default_rng(_seed(str(self.seed), pixels, str(pixels.shape), repr(contents)))
             noise = normalize(rng.standard_normal(self.dim))
             out.append(self.signal(pixels.shape, crop.truncated) * target + noise)
         return normalize(np.stack(out))

@@ -6,7 +6,6 @@ import hashlib
 
 import numpy as np
 import rerun as rr
-from matplotlib.colors import hsv_to_rgb
 
 MIN_LUMINANCE = 0.5  # class colours are at least this light: labels are drawn in them on the viewer's dark background
 PALETTE_HUES = 16  # class colours: 16 hues, each in 3 shades; two classes share a colour or differ visibly
@@ -39,6 +38,21 @@ def palette() -> np.ndarray:
     luminance = rgb @ np.array([0.2126, 0.7152, 0.0722])
     whiten = np.clip((MIN_LUMINANCE - luminance) / (1.0 - luminance), 0.0, 1.0)[:, None]
     return np.round((rgb + whiten * (1.0 - rgb)) * 255).astype(np.uint8)
+
+
+HSV_SECTORS = np.array([[0, 3, 2], [1, 0, 2], [2, 0, 3], [2, 1, 0], [3, 2, 0], [0, 2, 1]])  # per sixth of the
+# hue circle, which of (v, q, p, t) of `hsv_to_rgb` are red, green and blue
+
+
+def hsv_to_rgb(hsv: np.ndarray) -> np.ndarray:
+    """(N, 3) hue, saturation, value in [0, 1] as (N, 3) RGB in [0, 1]: the textbook six sectors, matplotlib's
+    arithmetic (a recording need not import matplotlib for 48 colours)."""
+    hue, saturation, value = np.asarray(hsv, dtype=np.float64).T
+    sector = (hue * 6.0).astype(np.int64)
+    fraction = hue * 6.0 - sector
+    options = np.stack((value, value * (1.0 - saturation * fraction), value * (1.0 - saturation),
+                        value * (1.0 - saturation * (1.0 - fraction))))
+    return options[HSV_SECTORS[sector % 6], np.arange(len(hue))[:, None]]
 
 
 def annotation_ids(class_ids: np.ndarray) -> np.ndarray:

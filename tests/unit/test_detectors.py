@@ -12,7 +12,7 @@ from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
 from clipclique.backends import make_detector
 from clipclique.detectors import InstanceDetector, id_counts, instance_boxes, mask_boxes
-from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, read_lookalikes
+from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, ellipse_masks, read_lookalikes
 from clipclique.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
@@ -52,6 +52,32 @@ def test_instance_boxes_are_the_masks_ids_counts_and_boxes(largest):
     for image in (instances, instances[:, 20:], np.abs(instances), np.zeros((0, 3), np.int32)):
         got, expected = id_counts(image), np.unique(image, return_counts=True)
         assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(got, expected))
+
+
+def test_ellipse_masks_match_the_whole_frame_formula_to_the_pixel():
+    """Evaluated in each blob's box only, yet the same masks as the formula over every pixel (the simulated
+    detectors' output, and so every result on the generated scenes, depends on it): blobs inside, cut by
+    the border, centred outside, thinner than a pixel and larger than the frame."""
+    rng = np.random.default_rng(5)
+    height, width = 45, 70
+    centers = np.vstack([rng.uniform((0, 0), (height, width), (40, 2)), [[-3.0, 10.0], [50.0, 80.0], [22.5, 35.0],
+                                                                          [10.0, 10.0], [0.0, 69.9]]])
+    radii = np.vstack([rng.uniform(0.3, 30.0, (40, 2)), [[5.0, 4.0], [8.0, 12.0], [1e4, 2e4], [0.2, 9.0], [0.5, 0.5]]])
+    v, u = np.mgrid[:height, :width]
+    expected = (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
+                + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
+    np.testing.assert_array_equal(ellipse_masks(centers, radii, height, width), expected)
+    assert expected.any(axis=(1, 2)).sum() >= 42 and expected[-3].all()  # most blobs drawn, the huge one everywhere
+    assert ellipse_masks(np.zeros((0, 2)), np.zeros((0, 2)), height, width).shape == (0, height, width)
+
+
+def test_simulated_detections_box_every_mask():
+    """True boxes come from the instance image, blob boxes from their masks: both are the masks' tight boxes."""
+    detector = SimulatedDetector(InstanceDetector(OBJECTS, CLASSES), false_positives=3.0)
+    for index in range(20):
+        detections = detector.detect(make_frame(index))
+        np.testing.assert_array_equal(detections.boxes, mask_boxes(detections.masks))
+        assert detections.boxes.dtype == np.float64
 
 
 def test_ground_truth_detections_map_ids_to_the_vocabulary():

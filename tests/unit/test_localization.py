@@ -16,7 +16,7 @@ from clipclique.geometry import random_rotation
 from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
 from localization.cli import app
-from localization.run import choose_encoder
+from localization.run import choose_encoder, read_ahead
 from localization.results import ALL_STAGES, json_safe, read_results, tum_line
 from localization.tables import results_table, run_banner
 
@@ -237,3 +237,30 @@ def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):
     result = RUNNER.invoke(app, ["run", "demo", "--no-rrd"])
     assert result.exit_code == 130
     assert result.stderr.strip() == "clipclique-loc: interrupted"  # one line, no traceback
+
+
+class Frames:
+    """A sequence whose frame 5 is unreadable, recording which frames were read."""
+
+    def __init__(self) -> None:
+        self.read: list[int] = []
+
+    def __getitem__(self, i: int) -> str:
+        self.read.append(i)
+        if i == 5:
+            raise ClipcliqueError("frame 5: unreadable image")
+        return f"frame {i}"
+
+
+def test_frames_read_ahead_come_in_order_errors_where_reached_and_closing_stops_reading():
+    frames = Frames()
+    ahead = read_ahead(frames, range(0, 12, 2))
+    assert [next(ahead), next(ahead)] == ["frame 0", "frame 2"]
+    ahead.close()
+    assert {0, 2} <= set(frames.read) <= {0, 2, 4, 6}  # two frames ahead of the caller at most, none after closing
+    seen = []
+    with pytest.raises(ClipcliqueError, match="frame 5"):
+        for frame in read_ahead(Frames(), range(3, 9)):
+            seen.append(frame)
+    assert seen == ["frame 3", "frame 4"]  # the frames before the unreadable one, then its error
+    assert list(read_ahead(frames, range(0))) == [] and list(read_ahead(frames, range(7, 8))) == ["frame 7"]

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from clipclique.config import MatchingConfig
-from clipclique.matching import adaptive_matches, cap, knn_matches, match, mutual_best_matches, top_m
+from clipclique.matching import FLAT, adaptive_matches, cap, knn_matches, match, mutual_best_matches, top_m
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -106,3 +106,20 @@ def test_long_rows_pick_the_same_best_landmarks_as_a_full_stable_sort():
         order = np.argsort(-similarity, axis=1, kind="stable")[:, :k]
         expected = np.column_stack((np.repeat(np.arange(len(order)), k), order.ravel()))
         np.testing.assert_array_equal(knn_matches(similarity, k), expected)
+
+
+def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
+    """The compiled pass against the rule written with numpy: ties, flat rows and NaN included."""
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        similarity = np.round(rng.random((int(rng.integers(1, 16)), int(rng.integers(1, 120)))), 1 + trial % 3)
+        if trial % 7 == 0:
+            similarity[rng.random(similarity.shape) < 0.05] = np.nan
+        if trial % 11 == 0:
+            similarity[:] = 0.5
+        m = top_m(similarity.shape[1], (0.05, 0.25, 1.0)[trial % 3])
+        order = np.argsort(-similarity, axis=1, kind="stable")[:, :m]
+        gaps = -np.diff(np.take_along_axis(similarity, order, axis=1), axis=1)
+        count = np.where(gaps.max(axis=1, initial=-np.inf) > FLAT, gaps.argmax(axis=1) + 1, m) if m > 1 else np.ones(len(order), int)
+        expected = [(i, order[i, j]) for i in range(len(order)) for j in range(count[i])]
+        np.testing.assert_array_equal(adaptive_matches(similarity, m), np.array(expected).reshape(-1, 2))

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from clipclique.detectors import mask_boxes
 from clipclique.types import Detections, Frame, Pose
 from clipclique.geometry import FitParams, _depth_points
-from clipclique.observations import ObservationParams, crop, embed, extract_observations
+from clipclique.observations import ObservationParams, _window_pixels, crop, embed, extract_observations, mask_pixels
 from clipclique.sim.encoder import SimulatedClipEncoder
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
@@ -235,3 +237,110 @@ def test_compiled_fit_equals_the_reference_on_a_hand_made_frame():
         np.testing.assert_allclose(ellipsoids.centers[i], center, atol=1e-9)
         np.testing.assert_allclose(ellipsoids.axes[i], axes, atol=1e-9)
         np.testing.assert_allclose(ellipsoids.rotations[i], rotation, atol=1e-9)
+
+
+def sequential_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int,
+                      radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """The neighbour pass pixel by pixel in plain Python, in the compiled pass's order of arithmetic:
+    each pixel's distances summed in window order, then its n - k farthest taken off, largest first."""
+    height, width = mask.shape
+    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
+    valid = mask & np.isfinite(depth) & (depth > 0)
+    point = {(v, u): ((u - cx) * float(depth[v, u]) / fx, (v - cy) * float(depth[v, u]) / fy, float(depth[v, u]))
+             for v, u in zip(*np.nonzero(valid))}
+    points, spread = [], []
+    for (v, u), p in point.items():
+        near = [math.sqrt(square(q[0] - p[0]) + square(q[1] - p[1]) + square(q[2] - p[2]))
+                for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1)
+                if (dv or du) and (q := point.get((v + dv, u + du))) is not None]
+        total = 0.0
+        for distance in near:
+            total += distance
+        for distance in sorted(near, reverse=True)[:max(len(near) - k, 0)]:
+            total -= distance
+        points.append(p)
+        spread.append(total / min(len(near), k) if near else math.inf)
+    return np.array(points).reshape(-1, 3), np.array(spread)
+
+
+def square(value: float) -> float:
+    """value * value, as compiled code squares (Python's ** 2 goes through C's pow)."""
+    return value * value
+
+
+@pytest.mark.parametrize(("k", "radius"), [(20, 2), (3, 1), (8, 1), (30, 3), (48, 3), (5, 2)])
+def test_neighbour_pass_gives_the_sequential_bits(k, radius):
+    """Holes, NaN, a ragged mask, rows of a single pixel and pixels without neighbours: every point and
+    spread equals the plain pixel-by-pixel pass to the bit (the compiled pass computes each distance
+    once for both of its pixels and runs the rows vectorized; neither may change a sum)."""
+    rng = np.random.default_rng(k + radius)
+    depth = (2.0 + rng.normal(0, 0.05, (23, 31))).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = np.nan
+    depth[rng.random(depth.shape) < 0.1] = 0.0
+    mask = rng.random(depth.shape) < 0.7
+    mask[5] = False
+    mask[5, 17] = True  # a row with one pixel
+    mask[8:15] = False
+    mask[11, 15] = True  # a pixel without neighbours
+    depth[11, 15] = 2.0
+    mask[0, 0] = True  # a corner
+    mask[20:, :] = rng.random((3, 31)) < 0.1  # sparse rows: pixels with few or no neighbours
+    intrinsics = np.array([[50.0, 0, 14.3], [0, 52.0, 11.1], [0, 0, 1]])
+    ours = _depth_points(k, radius)(depth, mask, intrinsics)
+    theirs = sequential_points(depth, mask, intrinsics, k, radius)
+    assert len(theirs[0]) > 200 and np.isinf(theirs[1]).any()
+    assert np.array_equal(ours[0], theirs[0]) and np.array_equal(ours[1], theirs[1])
+
+
+def test_mask_pixels_counts_the_mask_and_its_border_band():
+    """The one compiled pass counts what numpy counts, for bands of 0, 3 and wider than half the image."""
+    rng = np.random.default_rng(5)
+    mask = rng.random((40, 57)) < 0.3
+    for band in (0, 3, 19, 20, 40):
+        inner = np.zeros_like(mask)
+        inner[band:40 - band, band:57 - band] = True
+        assert mask_pixels(mask, band) == (np.count_nonzero(mask), np.count_nonzero(mask & ~inner))
+
+
+def test_window_pixels_erode_and_cut_as_scipy_and_numpy():
+    """The window pass: scipy's erosion (the mask itself when too little survives), depth beyond
+    max_depth and NaN cut to 0 in the depth's own type, and the count of mask pixels with depth."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(6)
+    depth = rng.uniform(0.0, 5.0, (30, 44)).astype(np.float32)
+    depth[rng.random(depth.shape) < 0.1] = np.nan
+    mask = np.zeros(depth.shape, bool)
+    mask[3:27, 5:40] = rng.random((24, 35)) < 0.95
+    for erode_px, min_pixels in ((0, 1), (1, 1), (2, 1), (2, 10_000)):
+        eroded, cut, with_depth = _window_pixels(mask[1:, 2:], depth[1:, 2:], erode_px, min_pixels, 4.0)
+        want = ndimage.binary_erosion(mask[1:, 2:], iterations=erode_px) if erode_px else mask[1:, 2:]
+        want = want if want.sum() >= min_pixels else mask[1:, 2:]
+        want_cut = np.where(depth[1:, 2:] <= 4.0, depth[1:, 2:], 0).astype(np.float32)
+        assert np.array_equal(eroded, want) and cut.dtype == np.float32 and np.array_equal(cut, want_cut)
+        assert with_depth == np.count_nonzero(want & (want_cut > 0))
+
+
+def test_inlier_moments_sum_in_point_order():
+    """Mean and scatter of the inliers, summed point by point in order (the bits the fit has always had),
+    the scatter symmetric."""
+    from clipclique.geometry import _extents, _inlier_moments
+
+    rng = np.random.default_rng(7)
+    points = rng.normal(0, 1, (200, 3)) * [0.3, 0.1, 0.05] + [1.0, -2.0, 3.0]
+    spread = rng.uniform(0, 1, 200)
+    count, mean, scatter = _inlier_moments(points, spread, 0.8)
+    inliers = points[spread <= 0.8]
+    want_mean = np.zeros(3)
+    for point in inliers:
+        want_mean += point
+    want_mean /= len(inliers)
+    want_scatter = np.zeros((3, 3))
+    for point in inliers:
+        want_scatter += np.outer(point - want_mean, point - want_mean)
+    assert count == len(inliers) and np.array_equal(mean, want_mean) and np.array_equal(scatter, want_scatter)
+    rotation = np.linalg.eigh(scatter)[1]
+    low, high = _extents(points, spread, 0.8, mean, rotation)
+    along = (inliers - mean) @ rotation
+    np.testing.assert_allclose(low, along.min(axis=0), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(high, along.max(axis=0), rtol=0, atol=1e-12)

@@ -8,8 +8,9 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
-from clipclique.pipeline import index_map, localize
+from clipclique.pipeline import _objects, index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
+from clipclique.types import Ellipsoids, Observations
 
 
 def run(method: str, frames: int = 12, overrides: list[str] | None = None, seed: int = 1, **query):
@@ -196,3 +197,13 @@ def test_an_object_detected_twice_with_two_classes_never_enters_one_clique_twice
 
     assert uses_both(["inliers.duplicate_iou=0.0", "pose.refine_radius=0.0"])  # five "objects" outweigh four
     assert not uses_both(["inliers.duplicate_iou=0.7", "pose.refine_radius=0.0"])
+
+
+def test_an_observation_overlapping_an_earlier_one_shows_that_ones_object():
+    """A chain of overlaps joins one object; a box overlapping nothing earlier keeps its own."""
+    boxes = np.array([[0, 0, 10, 10], [1, 0, 11, 10], [2, 0, 12, 10], [50, 50, 60, 60], [51, 50, 61, 60]], float)
+    observations = Observations(Ellipsoids(np.zeros((5, 3)), np.ones((5, 3)), np.tile(np.eye(3), (5, 1, 1))),
+                                np.zeros(5, int), None, np.arange(5), np.arange(5), boxes=boxes)
+    assert _objects(observations, 0.8).tolist() == [0, 0, 0, 3, 3]  # box 2 overlaps box 0 at 0.67, box 1 at 0.82
+    assert _objects(observations, 0.85).tolist() == [0, 1, 2, 3, 4]
+    assert _objects(observations, 0.0).tolist() == [0, 1, 2, 3, 4]  # 0: off

@@ -3,7 +3,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
-from clipclique.pose import DegeneratePoseError, correspondence_weights, fit_rigid, fit_rigid_batch, fit_similarity
+from clipclique.pose import (MIN_SPREAD_M, RELATIVE_SPREAD, DegeneratePoseError, correspondence_weights, fit_rigid,
+                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -107,3 +108,40 @@ def test_umeyama_refuses_collinear_points():
     line = np.outer(np.arange(5.0), [1.0, 2.0, 0.5])
     with pytest.raises(DegeneratePoseError, match="collinear"):
         fit_similarity(line, 2 * line)
+
+
+def _numpy_fit(source, target, weights):
+    """The weighted fit written with numpy (einsum, np.linalg), the compiled moments' reference."""
+    total = weights.sum(axis=1)
+    w = weights / np.where(total > 0, total, 1.0)[:, None]
+    mean_source, mean_target = np.einsum("bp,bpi->bi", w, source), np.einsum("bp,bpi->bi", w, target)
+    centred_source, centred_target = source - mean_source[:, None], target - mean_target[:, None]
+    u, _, vt = np.linalg.svd(np.einsum("bp,bpi,bpj->bij", w, centred_target, centred_source))
+    sign = np.sign(np.linalg.det(u @ vt))
+    u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
+    rotation = u @ vt
+    variances = [np.linalg.eigvalsh(np.einsum("bp,bpi,bpj->bij", w, c, c)) for c in (centred_source, centred_target)]
+    ok = (total > 0) & np.logical_and(*[v[:, 1] > np.maximum(RELATIVE_SPREAD**2 * v[:, 2], MIN_SPREAD_M**2) for v in variances])
+    rotation[~ok] = np.eye(3)
+    translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
+    translation[~ok] = 0.0
+    ratio = [np.where(v[:, 2] > 0, np.sqrt(np.maximum(v[:, 1], 0) / np.where(v[:, 2] > 0, v[:, 2], 1)), 0) for v in variances]
+    return rotation, translation, ok, np.minimum(*ratio)
+
+
+def test_batch_fits_are_the_numpy_formulation_to_the_bit():
+    """Degenerate sets included: collinear, zero weights, fewer than 3 points."""
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        count, points = int(rng.integers(1, 7)), int(rng.integers(1, 25))
+        source = rng.normal(size=(count, points, 3)) * (0.01, 1.0, 30.0)[trial % 3]
+        target = source @ np.linalg.qr(rng.normal(size=(3, 3)))[0] + rng.normal(size=(count, 1, 3))
+        target += rng.normal(scale=0.05, size=target.shape)
+        weights = rng.random((count, points)) * (rng.random((count, points)) > 0.2)
+        if trial % 5 == 0:
+            source[..., 1], source[..., 2] = 2 * source[..., 0], 0.0  # a row
+        if trial % 13 == 0:
+            weights[0] = 0.0
+        expected = _numpy_fit(source, target, weights)
+        for got, want in zip(fit_rigid_conditioned(source, target, weights), expected):
+            np.testing.assert_array_equal(got, want)

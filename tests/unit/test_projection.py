@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from clipclique.geometry import look_at, random_rotation
-from clipclique.projection import box_iou, ellipse_outlines, project
+from clipclique.projection import box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
 
 CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
@@ -78,3 +78,14 @@ def test_box_iou():
     assert box_iou(a, np.array([5.0, 0.0, 15.0, 10.0])) == pytest.approx(50 / 150)
     assert box_iou(a, np.array([20.0, 20.0, 30.0, 30.0])) == 0.0
     assert box_iou(np.zeros(4), np.zeros(4)) == 0.0
+
+
+def test_pair_iou_is_box_iou_to_the_bit():
+    """Overlapping, nested, disjoint, touching and empty boxes."""
+    rng = np.random.default_rng(0)
+    corners = np.round(rng.uniform(0, 60, (400, 2, 2)), 0)  # whole pixels: shared edges and empty boxes happen
+    boxes = np.concatenate((corners.min(axis=1), corners.max(axis=1)), axis=1)
+    boxes[::17, 2] = boxes[::17, 0]  # zero width
+    a, b = boxes[:200], boxes[200:]
+    np.testing.assert_array_equal([pair_iou(x, y) for x, y in zip(a, b)], box_iou(a, b))
+    assert box_iou(a, b).min() == 0.0 and 0.0 < box_iou(a, b).max() < 1.0

@@ -121,3 +121,21 @@ def test_hypotheses_with_the_same_nearby_pairs_are_refitted_alike():
     np.testing.assert_array_equal(first.correspondences, second.correspondences)
     assert np.array_equal(first.pose.rotation, second.pose.rotation) and np.array_equal(first.pose.rotation, alone.pose.rotation)
     assert np.array_equal(first.pose.translation, alone.pose.translation) and len(first.correspondences) == 8
+
+
+def test_pairs_are_taken_nearest_first_one_to_one():
+    """Crowded landmarks, every pair within the radius: the greedy one-to-one choice, written out in Python."""
+    rng = np.random.default_rng(3)
+    landmarks, seen = rng.uniform(0, 0.5, (12, 3)), rng.uniform(0, 0.5, (9, 3))
+    map = Map(Ellipsoids(landmarks, np.full((12, 3), 0.05), np.tile(np.eye(3), (12, 1, 1))), np.zeros(12, int), ["c"],
+              [""] * 12, np.arange(12))
+    observations = Observations(Ellipsoids(seen, np.full((9, 3), 0.05), np.tile(np.eye(3), (9, 1, 1))),
+                                np.zeros(9, int), None, np.arange(9), np.arange(9))
+    similarity = (rng.random((9, 12)) > 0.2).astype(float)
+    distance = np.linalg.norm(seen[:, None] - landmarks[None], axis=-1)
+    expected, used_obs, used_lm = [], set(), set()
+    for flat in np.argsort(np.where(similarity > 0, distance, np.inf), axis=None, kind="stable"):
+        k, n = divmod(int(flat), 12)
+        if similarity[k, n] > 0 and k not in used_obs and n not in used_lm:
+            used_obs.add(k), used_lm.add(n), expected.append((k, n))
+    np.testing.assert_array_equal(nearby_pairs(Pose.identity(), observations, map, similarity, radius=1.0), expected)

@@ -20,7 +20,7 @@ from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segme
 from clipclique.viz.localization_recording import thinned
 from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
-from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, match_correctness, palette
+from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
 
 
 @pytest.fixture(scope="module")
@@ -89,6 +89,15 @@ def test_class_colors_follow_the_class_name_not_the_vocabulary():
     assert distances.min() > 20  # two classes share a colour or are told apart
     luminance = shades / 255 @ np.array([0.2126, 0.7152, 0.0722])
     assert luminance.min() >= 0.49  # readable as label text on the viewer's dark background (no dark purple)
+
+
+def test_hsv_conversion_is_matplotlibs_to_the_bit():
+    """The class colours were matplotlib's `hsv_to_rgb`; the recording no longer imports matplotlib for them."""
+    from matplotlib.colors import hsv_to_rgb as matplotlib_hsv_to_rgb
+
+    rng = np.random.default_rng(2)
+    hsv = np.vstack([rng.uniform(0, 1, (500, 3)), [[0, 0, 0.3], [0.5, 0, 1], [1 / 6, 1, 1], [5 / 6, 0.5, 0.5]]])
+    np.testing.assert_array_equal(hsv_to_rgb(hsv), matplotlib_hsv_to_rgb(hsv))
 
 
 def test_labels_are_spread_over_crowded_landmarks():

@@ -18,7 +18,7 @@ from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, P
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile, Worker, queued
+from clipclique.viz.recording import RecordingFile, ScalarColumns, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -70,6 +70,7 @@ class LocalizationRecorder:
         self._gt_positions: list[np.ndarray] = []
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
+        self._metrics = ScalarColumns()  # sent at close
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
         log_map(self.stream, map, d_adj)
@@ -107,7 +108,7 @@ class LocalizationRecorder:
         self._log_observations(observations, frame.pose, top1)
         self._log_matches(observations, result, frame.pose or top1)
         self._log_projection(observations, result)
-        self._log_metrics(observations, result, evaluation)
+        self._log_metrics(frame, observations, result, evaluation)
         self._log_text(frame, observations, result, evaluation)
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
 
@@ -136,6 +137,7 @@ class LocalizationRecorder:
     def close(self) -> None:
         try:
             self._worker.stop()
+            self._metrics.send(self.stream)
         except BaseException:
             self._recording.abort()
             raise
@@ -281,8 +283,9 @@ class LocalizationRecorder:
         )
 
     def _log_metrics(
-        self, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
+        self, frame: Frame, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
     ) -> None:
+        """Kept until `close`, which sends each series as one column (see ScalarColumns)."""
         scalars: dict[str, float] = {
             "count/observations": len(observations),
             "count/candidates": len(result.candidates),
@@ -300,13 +303,14 @@ class LocalizationRecorder:
             if evaluation.precision is not None:
                 scalars["match/precision"] = evaluation.precision
             scalars["match/recall"] = evaluation.recall
+        stamp = frame.timestamp if frame.timestamp >= UNIX_TIME_MIN else None
         for name, value in scalars.items():
-            self.stream.log(f"metrics/{name}", rr.Scalars([float(value)]))
+            self._metrics.add(f"metrics/{name}", frame.index, stamp, value)
         if "error/translation_m" not in scalars:  # no line drawn across a frame without a pose
             for path in ERRORS:
-                self.stream.log(path, rr.Clear(recursive=False))
+                self._metrics.clear(path, frame.index, stamp)
             if not result.hypotheses:
-                self.stream.log(NO_POSE, rr.Scalars([0.0]))
+                self._metrics.add(NO_POSE, frame.index, stamp, 0.0)
 
     def _log_text(
         self,

@@ -61,7 +61,8 @@ class LocalizationRecorder:
     """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
-    recording costs the localization loop next to nothing. Call `flush` to wait for it.
+    recording costs the localization loop next to nothing. Call `flush` to wait for it. The per-frame
+    scalars (`metrics/...`) reach the stream only at `close`, as columns.
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:

@@ -12,7 +12,8 @@ observations. Printed per scene: median and 90th percentile ms per stage, before
 observation stage per detection, and the literal reference's whole query beside the project's.
 
 `--recording FRAMES`: the Rerun recording of the first scene, ms of `log_frame` on the caller's
-thread per frame, the seconds `close` waits for what is still queued, and kB per frame.
+thread per frame, the seconds `close` waits for what is still queued, the CPU seconds of the recorder's
+own thread (Python building Rerun's objects, under the GIL the run needs), and kB per frame.
 
 `--whole-runs N`: N whole `clipclique-loc run` processes of the first scene per tree, alternating,
 with and without the recording (process start included, after one warm-up run each): wall seconds, and
@@ -126,8 +127,9 @@ def serve() -> None:
 
 
 def recording_times(scene: str, max_frames: int, path: Path) -> dict:
-    """ms of each `log_frame` on the caller's thread, and seconds of the closing `close` (what was
-    still queued), for a recording of the scene's frames."""
+    """ms of each `log_frame` on the caller's thread, seconds of the closing `close` (what was still
+    queued), and the CPU seconds of the recorder's own thread (what it takes from the run's GIL), for a
+    recording of the scene's frames."""
     from clipclique.pipeline import index_map
     from clipclique.viz import LocalizationRecorder
     from localization.run import RunSettings, localize_frame, prepare, selected_frames
@@ -143,8 +145,11 @@ def recording_times(scene: str, max_frames: int, path: Path) -> dict:
             recorder.log_frame(frame, seen.detections, seen.observations, outcome.result, outcome.evaluation)
             calls.append(1e3 * (time.perf_counter() - start))
         start = time.perf_counter()
+        recorder.flush()
+        thread_seconds = time.clock_gettime(time.pthread_getcpuclockid(recorder._worker._thread.ident))
     closing = time.perf_counter() - start
-    return {"log_frame ms": calls, "close s": closing, "kB per frame": path.stat().st_size / 1e3 / len(calls)}
+    return {"log_frame ms": calls, "close s": closing, "thread CPU s": thread_seconds,
+            "kB per frame": path.stat().st_size / 1e3 / len(calls)}
 
 
 def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
@@ -289,7 +294,8 @@ def compare_recording(scene: str, workers: list[Worker], max_frames: int, direct
                             out=str(directory / f"{worker.label}.rrd"))
         calls = answer["log_frame ms"]
         print(f"  {worker.label:>8}: log_frame median {np.median(calls):.2f} ms, p90 {np.percentile(calls, 90):.2f}, "
-              f"close {answer['close s']:.2f} s, {answer['kB per frame']:.0f} kB per frame", flush=True)
+              f"close {answer['close s']:.2f} s, recorder thread CPU {answer['thread CPU s']:.2f} s, "
+              f"{answer['kB per frame']:.0f} kB per frame", flush=True)
 
 
 def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import io
 
 import numpy as np
@@ -48,16 +49,21 @@ def camera(
         transform = rr.Transform3D.cleared()
     else:
         transform = rr.Transform3D(translation=pose.translation, mat3x3=pose.rotation)
-    return [
-        transform,
-        rr.Pinhole(
-            image_from_camera=intrinsics,
-            resolution=[width, height],
-            camera_xyz=rr.ViewCoordinates.RDF,
-            image_plane_distance=plane,
-            color=color,
-        ),
-    ]
+    look = np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tobytes(), width, height, tuple(np.ravel(color).tolist())
+    return [transform, pinhole(*look, plane)]
+
+
+@functools.lru_cache(maxsize=64)
+def pinhole(intrinsics: bytes, width: int, height: int, color: tuple[int, ...], plane: float) -> rr.Pinhole:
+    """Built once per look (`intrinsics`: 3 x 3 float64 bytes): a run's cameras share a few, and building one
+    costs more than logging it."""
+    return rr.Pinhole(
+        image_from_camera=np.frombuffer(intrinsics, dtype=np.float64).reshape(3, 3),
+        resolution=[width, height],
+        camera_xyz=rr.ViewCoordinates.RDF,
+        image_plane_distance=plane,
+        color=color,
+    )
 
 
 def encode_jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:

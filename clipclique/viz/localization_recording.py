@@ -18,7 +18,7 @@ from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, P
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile, Worker, queued
+from clipclique.viz.recording import RecordingFile, ScalarColumns, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -61,7 +61,8 @@ class LocalizationRecorder:
     """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
-    recording costs the localization loop next to nothing. Call `flush` to wait for it.
+    recording costs the localization loop next to nothing. Call `flush` to wait for it. The per-frame
+    scalars (`metrics/...`) reach the stream only at `close`, as columns.
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
@@ -70,6 +71,7 @@ class LocalizationRecorder:
         self._gt_positions: list[np.ndarray] = []
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
+        self._metrics = ScalarColumns()  # sent at close
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
         log_map(self.stream, map, d_adj)
@@ -107,7 +109,7 @@ class LocalizationRecorder:
         self._log_observations(observations, frame.pose, top1)
         self._log_matches(observations, result, frame.pose or top1)
         self._log_projection(observations, result)
-        self._log_metrics(observations, result, evaluation)
+        self._log_metrics(frame, observations, result, evaluation)
         self._log_text(frame, observations, result, evaluation)
         self._ranks_shown = max(self._ranks_shown, len(result.hypotheses))
 
@@ -136,6 +138,7 @@ class LocalizationRecorder:
     def close(self) -> None:
         try:
             self._worker.stop()
+            self._metrics.send(self.stream)
         except BaseException:
             self._recording.abort()
             raise
@@ -281,8 +284,9 @@ class LocalizationRecorder:
         )
 
     def _log_metrics(
-        self, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
+        self, frame: Frame, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
     ) -> None:
+        """Kept until `close`, which sends each series as one column (see ScalarColumns)."""
         scalars: dict[str, float] = {
             "count/observations": len(observations),
             "count/candidates": len(result.candidates),
@@ -300,13 +304,14 @@ class LocalizationRecorder:
             if evaluation.precision is not None:
                 scalars["match/precision"] = evaluation.precision
             scalars["match/recall"] = evaluation.recall
+        stamp = frame.timestamp if frame.timestamp >= UNIX_TIME_MIN else None
         for name, value in scalars.items():
-            self.stream.log(f"metrics/{name}", rr.Scalars([float(value)]))
+            self._metrics.add(f"metrics/{name}", frame.index, stamp, value)
         if "error/translation_m" not in scalars:  # no line drawn across a frame without a pose
             for path in ERRORS:
-                self.stream.log(path, rr.Clear(recursive=False))
+                self._metrics.clear(path, frame.index, stamp)
             if not result.hypotheses:
-                self.stream.log(NO_POSE, rr.Scalars([0.0]))
+                self._metrics.add(NO_POSE, frame.index, stamp, 0.0)
 
     def _log_text(
         self,

@@ -117,3 +117,38 @@ def queued(method: Callable[..., None]) -> Callable[..., None]:
 
 class _Discarded(Exception):
     """Marks a worker whose remaining jobs are dropped (the run failed)."""
+
+
+class ScalarColumns:
+    """Per-frame scalars (and the frames where a series has a gap) kept until the run ends and then sent as one
+    column per series: one call per series per run, where logging them frame by frame took about fifteen
+    Rerun calls a frame on the recorder's thread, each building archetypes under the GIL the run needs."""
+
+    def __init__(self) -> None:
+        self._rows: dict[str, list[tuple[int, float | None, float | None]]] = {}  # path -> (frame, stamp, value)
+
+    def add(self, path: str, frame: int, timestamp: float | None, value: float) -> None:
+        """`value` at `frame` (and at `timestamp` on the timeline `time`, unless None)."""
+        self._rows.setdefault(path, []).append((frame, timestamp, float(value)))
+
+    def clear(self, path: str, frame: int, timestamp: float | None) -> None:
+        """A gap at `frame`: a Clear, so the plot draws no line across it."""
+        self._rows.setdefault(path, []).append((frame, timestamp, None))
+
+    def send(self, stream: rr.RecordingStream) -> None:
+        """Everything added, as columns: values and gaps of each series, rows with a timestamp and without apart
+        (a column's timelines cover all its rows)."""
+        for path, rows in self._rows.items():
+            for cleared in (False, True):
+                for stamped in (True, False):
+                    part = [row for row in rows if (row[2] is None) == cleared and (row[1] is not None) == stamped]
+                    if not part:
+                        continue
+                    frames, stamps, values = zip(*part)
+                    indexes = [rr.TimeColumn("frame", sequence=frames)]
+                    if stamped:
+                        indexes.append(rr.TimeColumn("time", timestamp=stamps))
+                    columns = (rr.Clear.columns(is_recursive=[False] * len(part)) if cleared
+                               else rr.Scalars.columns(scalars=values))
+                    stream.send_columns(path, indexes=indexes, columns=columns)
+        self._rows.clear()

@@ -53,17 +53,38 @@ def rgb_of(batch) -> np.ndarray:
 
 
 class LogSpy:
-    """Records what a recorder logs, while still writing it; reading waits for the recorder's thread."""
+    """Records what a recorder logs (and sends as columns at close), while still writing it; reading waits for
+    the recorder's thread."""
 
     def __init__(self, recorder: LocalizationRecorder) -> None:
         self._calls: list[tuple[str, tuple]] = []
+        self.sent: list[tuple[str, dict[str, list], dict[str, list]]] = []  # path, timelines, components
         self._recorder = recorder
         self._log = recorder.stream.log
+        self._send_columns = recorder.stream.send_columns
         recorder.stream.log = self
+        recorder.stream.send_columns = self.send_columns
 
     def __call__(self, path: str, *archetypes, **kwargs) -> None:
         self._calls.append((path, archetypes))
         self._log(path, *archetypes, **kwargs)
+
+    def send_columns(self, path: str, indexes, columns, **kwargs) -> None:
+        indexes, columns = list(indexes), list(columns)
+        self.sent.append((path, {index.timeline_name(): index.as_arrow_array().to_numpy().astype(np.int64).tolist()
+                                for index in indexes},
+                          {str(c.component_descriptor()): c.as_arrow_array().to_pylist() for c in columns}))
+        self._send_columns(path, indexes=indexes, columns=columns, **kwargs)
+
+    def series(self, path: str, component: str = "Scalars:scalars") -> dict[int, object]:
+        """Frame -> the one value sent at that frame in `path`'s columns of `component`."""
+        rows = {}
+        for sent_path, timelines, components in self.sent:
+            if sent_path == path and component in components:
+                for frame, value in zip(timelines["frame"], components[component], strict=True):
+                    assert frame not in rows, (path, frame)
+                    (rows[frame],) = value  # one value a row
+        return rows
 
     @property
     def calls(self) -> list[tuple[str, tuple]]:
@@ -316,12 +337,37 @@ def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
         evaluation = evaluate_frame(result, f.observations, map, f.frame.pose, LocalizationConfig(), i)
         recorder.log_frame(f.frame, f.detections, f.observations, result, evaluation)
     recorder.close()
-    logged = [(path, type(a[0]).__name__) for path, a in spy.calls if path.startswith("metrics/error")]
-    assert logged == [("metrics/error/translation_m", "Scalars"), ("metrics/error/rotation_deg", "Scalars"),
-                      ("metrics/error/translation_m", "Clear"), ("metrics/error/rotation_deg", "Clear"),
-                      ("metrics/error/no_pose", "Scalars"),
-                      ("metrics/error/translation_m", "Scalars"), ("metrics/error/rotation_deg", "Scalars")]
+    indices = [f.frame.index for f in frames[:3]]
+    for path in ("metrics/error/translation_m", "metrics/error/rotation_deg"):
+        assert sorted(spy.series(path)) == [indices[0], indices[2]]
+        assert spy.series(path, "Clear:is_recursive") == {indices[1]: False}
+    assert spy.series("metrics/error/no_pose") == {indices[1]: 0.0}
+    assert not any(path.startswith("metrics") for path, _ in spy.calls)  # sent as columns only
     assert (tmp_path / "r.rrd").stat().st_size > 0
+
+
+def test_metrics_are_sent_at_close_one_value_per_frame(tmp_path, run):
+    """The per-frame scalars reach the recording as one column per series when it closes, each frame's own
+    values at its own frame (and on the TUM timeline `time` at its stamp)."""
+    map, frames = run
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder)
+    for f in frames:
+        recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+    recorder.flush()
+    assert spy.sent == []  # nothing before close
+    recorder.close()
+    indices = [f.frame.index for f in frames]
+    assert len(set(indices)) == len(frames) > 3
+    assert spy.series("metrics/count/observations") == {i: len(f.observations) for i, f in zip(indices, frames)}
+    assert spy.series("metrics/count/candidates") == {i: len(f.result.candidates) for i, f in zip(indices, frames)}
+    assert spy.series("metrics/error/translation_m") == pytest.approx(
+        {i: f.evaluation.translation_error for i, f in zip(indices, frames)})
+    assert spy.series("metrics/time/matching") == pytest.approx(
+        {i: f.result.timings["matching"] for i, f in zip(indices, frames)})
+    (timelines,) = [t for path, t, _ in spy.sent if path == "metrics/count/cliques"]
+    assert timelines["frame"] == indices
+    np.testing.assert_allclose(np.array(timelines["time"]) / 1e9, [f.frame.timestamp for f in frames], atol=1e-6)
 
 
 def test_a_run_that_fails_leaves_no_recording(tmp_path, run):
@@ -352,9 +398,8 @@ def test_rotation_error_is_logged_in_degrees(tmp_path, run):
     spy = LogSpy(recorder)
     evaluation = dataclasses.replace(f.evaluation, rotation_error=math.pi / 2)
     recorder.log_frame(f.frame, f.detections, f.observations, f.result, evaluation)
-    (scalar,) = spy.last("metrics/error/rotation_deg")
-    assert scalar.scalars.as_arrow_array().to_numpy(zero_copy_only=False)[0] == pytest.approx(90.0)
     recorder.close()
+    assert spy.series("metrics/error/rotation_deg") == {f.frame.index: pytest.approx(90.0)}
 
 
 def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):

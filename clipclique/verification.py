@@ -21,7 +21,7 @@ RANSAC / PROSAC verify minimal-set poses by overlap alone (`candidate_overlap`),
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -54,8 +54,32 @@ def require_image(observations: Observations, why: str) -> None:
 
 def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
            params: VerificationConfig = VerificationConfig()) -> Verification:
-    """Verification of each hypothesis against the observations' boxes and centres."""
+    """Verification of each hypothesis against the observations' boxes and centres. Hypotheses alike (one
+    pose, one set of pairs: refinement often brings several cliques of a re-ranked pool to one) are
+    verified once; a hypothesis's figures do not depend on the others'."""
     require_image(observations, "image verification")
+    distinct: dict[bytes, int] = {}
+    alike = np.array([distinct.setdefault(_identity(h), len(distinct)) for h in hypotheses], np.int64)
+    if len(distinct) == len(hypotheses):
+        return _verify_all(hypotheses, observations, map, params)
+    firsts = np.unique(alike, return_index=True)[1]
+    checked = _verify_all([hypotheses[i] for i in firsts], observations, map, params)
+    return replace(checked, **{name: getattr(checked, name)[alike] for name in _PER_HYPOTHESIS})
+
+
+_PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "depth_error")
+
+
+def _identity(hypothesis: Hypothesis) -> bytes:
+    """The bits a hypothesis's verification depends on."""
+    pose = hypothesis.pose
+    return (np.asarray(pose.rotation, np.float64).tobytes() + np.asarray(pose.translation, np.float64).tobytes()
+            + np.asarray(hypothesis.correspondences, np.int64).tobytes())
+
+
+def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: Map,
+                params: VerificationConfig) -> Verification:
+    """`verify` of every hypothesis, alike or not."""
     camera = observations.camera
     rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
     translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)

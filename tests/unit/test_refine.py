@@ -1,7 +1,9 @@
 import numpy as np
+import pytest
 
+from clipclique import refine as refine_module
 from clipclique.geometry import pose_errors
-from clipclique.refine import nearby_pairs, refine
+from clipclique.refine import nearby_pairs, nearby_pairs_of, refine
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 from scipy.spatial.transform import Rotation
 
@@ -60,7 +62,9 @@ def dense_nearby_pairs(pose, observations, map, similarity, radius):
     return np.array(pairs, np.int64).reshape(-1, 2)
 
 
-def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix():
+@pytest.mark.parametrize("dense_pairs", [0, refine_module.DENSE_PAIRS], ids=["kd-tree join", "every pair tested"])
+def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix(dense_pairs, monkeypatch):
+    monkeypatch.setattr(refine_module, "DENSE_PAIRS", dense_pairs)
     rng = np.random.default_rng(3)
     for trial in range(200):
         count, seen = int(rng.integers(1, 60)), int(rng.integers(1, 15))
@@ -89,6 +93,34 @@ def test_a_refit_on_fewer_objects_than_the_clique_leaves_it_alone():
     hypothesis = Hypothesis(far, np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
     refine([hypothesis], observations, map, np.eye(8), radius=0.3, weights="none")
     assert hypothesis.pose is far
+
+
+def test_a_batch_of_poses_pairs_each_as_the_dense_distance_matrix_alone():
+    rng = np.random.default_rng(3)
+    map, observations, truth = desk(rng)
+    doubled = Map(Ellipsoids(np.repeat(map.ellipsoids.centers, 2, axis=0), np.repeat(map.ellipsoids.axes, 2, axis=0),
+                             np.tile(np.eye(3), (16, 1, 1))), np.repeat(map.class_ids, 2), map.class_names, [""] * 16,
+                  np.arange(16))  # every landmark twice: exact distance ties, broken by landmark order
+    similarity = rng.random((8, 16)) * (rng.random((8, 16)) < 0.7)
+    poses = [truth] + [Pose(Rotation.from_euler("z", a).as_matrix(), rng.normal(scale=0.1, size=3))
+                       .compose(truth) for a in rng.normal(scale=0.05, size=30)]
+    got = nearby_pairs_of(poses, observations, doubled, similarity, radius=0.5)
+    assert sum(len(p) for p in got) > 60
+    for pose, pairs in zip(poses, got):
+        np.testing.assert_array_equal(pairs, dense_nearby_pairs(pose, observations, doubled, similarity, 0.5))
+
+
+def test_hypotheses_with_the_same_nearby_pairs_are_refitted_alike():
+    rng = np.random.default_rng(4)
+    map, observations, truth = desk(rng)
+    first = Hypothesis(Pose(truth.rotation, truth.translation + [0.02, 0, 0]), np.array([[0, 0], [1, 1], [2, 2]]), 3.0)
+    second = Hypothesis(Pose(truth.rotation, truth.translation + [0, 0.02, 0]), np.array([[3, 3], [4, 4], [5, 5]]), 3.0)
+    alone = Hypothesis(first.pose, first.correspondences, 3.0)
+    refine([first, second], observations, map, np.eye(8), radius=0.3, weights="none")
+    refine([alone], observations, map, np.eye(8), radius=0.3, weights="none")
+    np.testing.assert_array_equal(first.correspondences, second.correspondences)
+    assert np.array_equal(first.pose.rotation, second.pose.rotation) and np.array_equal(first.pose.rotation, alone.pose.rotation)
+    assert np.array_equal(first.pose.translation, alone.pose.translation) and len(first.correspondences) == 8
 
 
 def test_pairs_are_taken_nearest_first_one_to_one():

@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clipclique import consensus
+from clipclique import consensus, verification
 from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
@@ -48,6 +48,17 @@ def test_a_correct_pose_scores_higher_than_one_a_metre_off():
     assert checked.missed[0] == 0 and checked.depth_error[0] == pytest.approx(0.0, abs=1e-9)
     assert (checked.score[1:] < 1.0).all(), checked.score  # at 3.5 m, a metre moves the boxes off their detections
     assert (checked.mean_iou[1:] < 0.35).all()
+
+
+def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit():
+    map, truth, observations = room()
+    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
+    pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
+    checked, every = verify(pool, observations, map), verification._verify_all(pool, observations, map, VerificationConfig())
+    for name in ("score", "overlap", "mean_iou", "missed", "missed_evidence", "depth_error"):
+        np.testing.assert_array_equal(getattr(checked, name), getattr(every, name))
+    assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike
+    assert len(np.unique(checked.score)) == 4
 
 
 def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():

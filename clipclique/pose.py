@@ -9,11 +9,11 @@ with the reason; the solver never returns NaN.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from numpy.linalg import _umath_linalg
 
 from clipclique.config import PoseWeights
 from clipclique.types import Pose
@@ -207,20 +207,42 @@ def _spread_ok(variances: np.ndarray) -> bool:
 # The LAPACK gufuncs np.linalg.svd / eigvalsh / det call, the same results without the wrappers' checks
 # and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
 # poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
-# NaN variances fail `_spread_ok`: the set is flagged degenerate.
-_SQUARE_SVD = getattr(_umath_linalg, "svd_f", None) or _umath_linalg.svd_n_f  # numpy 2 / numpy 1's name (m >= n)
+# NaN variances fail `_spread_ok`: the set is flagged degenerate. The gufuncs are numpy's private API;
+# where a numpy version has moved them, the public wrappers stand in (`_public_linalg`).
+LinearAlgebra = tuple[Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
+                      Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]
 
 
-def _svd(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return _SQUARE_SVD(matrices, signature="d->ddd")
+def _private_linalg() -> LinearAlgebra | None:
+    """svd, eigvalsh (lower triangle) and det of stacked square matrices by numpy's own gufuncs; None
+    where this numpy has none under these names (numpy 2's and numpy 1's)."""
+    try:
+        from numpy.linalg import _umath_linalg as gufuncs
+
+        square_svd = getattr(gufuncs, "svd_f", None) or gufuncs.svd_n_f
+        eigvalsh, det = gufuncs.eigvalsh_lo, gufuncs.det
+    except (ImportError, AttributeError):
+        return None
+    return (lambda m: square_svd(m, signature="d->ddd"), lambda m: eigvalsh(m, signature="d->d"),
+            lambda m: det(m, signature="d->d"))
 
 
-def _eigvalsh(matrices: np.ndarray) -> np.ndarray:
-    return _umath_linalg.eigvalsh_lo(matrices, signature="d->d")
+def _public_linalg() -> LinearAlgebra:
+    """The same three by np.linalg's public functions, NaN for a matrix holding NaN or inf (where the
+    wrappers would raise for the whole stack)."""
+
+    def decomposed(function: Callable, matrices: np.ndarray):
+        finite = np.isfinite(matrices).all(axis=(-2, -1))
+        out = function(np.where(finite[..., None, None], matrices, 0.0))
+        for part in out if isinstance(out, tuple) else (out,):
+            part[~finite] = np.nan
+        return out
+
+    return (lambda m: tuple(decomposed(np.linalg.svd, m)), lambda m: decomposed(np.linalg.eigvalsh, m),
+            lambda m: decomposed(np.linalg.det, m))
 
 
-def _det(matrices: np.ndarray) -> np.ndarray:
-    return _umath_linalg.det(matrices, signature="d->d")
+_svd, _eigvalsh, _det = _private_linalg() or _public_linalg()
 
 
 def correspondence_weights(

@@ -145,3 +145,25 @@ def test_batch_fits_are_the_numpy_formulation_to_the_bit():
         expected = _numpy_fit(source, target, weights)
         for got, want in zip(fit_rigid_conditioned(source, target, weights), expected):
             np.testing.assert_array_equal(got, want)
+
+
+def test_public_linear_algebra_stands_in_for_numpys_gufuncs_to_the_bit():
+    """Where a numpy version has moved its private LAPACK gufuncs, the public wrappers give the same
+    bits, and NaN (not LinAlgError for the whole stack) for a matrix holding NaN."""
+    from clipclique.pose import _private_linalg, _public_linalg
+
+    private, public = _private_linalg(), _public_linalg()
+    assert private is not None  # this numpy has them: the fast path is the one tested everywhere else
+    rng = np.random.default_rng(4)
+    matrices = rng.normal(size=(40, 3, 3))
+    symmetric = matrices @ np.swapaxes(matrices, 1, 2)
+    for fast, stand_in, given in zip(private, public, (matrices, symmetric, matrices)):
+        expected, got = fast(given), stand_in(given)
+        for a, b in zip(expected if isinstance(expected, tuple) else (expected,), got if isinstance(got, tuple) else (got,)):
+            assert np.array_equal(a, b)
+    broken = matrices.copy()
+    broken[7, 1, 2] = np.nan
+    u, s, vt = public[0](broken)
+    assert np.isnan(s[7]).all() and np.array_equal(s[:7], private[0](matrices[:7])[1])
+    assert np.isnan(public[1](np.where(np.isnan(broken), np.nan, symmetric))[7]).all()
+    assert np.isnan(public[2](broken)[7]) and np.isfinite(public[2](broken)[8])

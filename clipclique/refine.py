@@ -101,9 +101,7 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
     """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place,
     as long as they are at least as many as it had (a refit never rests on fewer objects). The
     hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty).
-    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built once here)."""
-    if hypotheses and landmarks is None:
-        landmarks = cKDTree(map.ellipsoids.centers)
+    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
     active = list(hypotheses)
     for _ in range(rounds):
         if not active:
@@ -117,7 +115,7 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
         # each distinct set is fitted once.
         distinct: dict[bytes, int] = {}
         fitted = np.array([distinct.setdefault(pairs.tobytes(), len(distinct)) for _, pairs in refits])
-        sets = list({pairs.tobytes(): pairs for _, pairs in refits}.values())
+        sets = [refits[first][1] for first in np.unique(fitted, return_index=True)[1]]
         sizes = np.array([len(pairs) for pairs in sets])
         valid = np.arange(sizes.max()) < sizes[:, None]
         padded = np.zeros((*valid.shape, 2), np.int64)

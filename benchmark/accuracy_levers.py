@@ -31,8 +31,9 @@ DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 # Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
 # defaults before tools/accuracy_levers.py measured them); each "no ..." turns one kept lever off.
 # "previous" is the second round's starting point (re-ranking the five heaviest cliques, every missed
-# landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers.
-PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0}
+# landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers. The third
+# round's starting point is "no missed share" (each missed landmark costing alike however many the pose expects).
+PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0}
 BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
 LEVERS: dict[str, dict[str, Any]] = {
     "before": BEFORE,
@@ -47,6 +48,7 @@ LEVERS: dict[str, dict[str, Any]] = {
     "no duplicates": {"inliers.duplicate_iou": 0.0},
     "no missed penalty": {"verification.missed_weight": 0.0},
     "rerank confidence": {"inliers.rerank": "confidence"},
+    "no missed share": {"verification.missed_share_from": 0.0},
 }
 
 

@@ -134,6 +134,11 @@ class VerificationConfig:
     # proportion when smaller. Detectors miss small objects most (a cluttered desk's right pose misses a score
     # of them); a large object that nobody detected still rules a pose out (clipclique.verification).
     missed_full_area: float = ranged(0.0625, 0.0, 1.0)
+    # Beyond the paper (0 = off: each missed landmark costs alike however many the pose expects): where a pose
+    # expects more than this much evidence (its landmarks in view counted by size, as missed ones are), its
+    # missed evidence is scaled by this / expected: it pays for the share it missed. A cluttered desk's right
+    # pose misses a dozen small objects, a wrong one looking past the desk a few (benchmark/accuracy_levers.py).
+    missed_share_from: float = ranged(3.0, 0.0, 1000.0)
 
 
 @dataclass(frozen=True)
@@ -184,7 +189,8 @@ class LocalizationConfig:
 # The paper's Table I: each method is the one pipeline with parts swapped.
 # The baselines keep the paper's literal descriptors (no class term, exact labels).
 LITERAL = {"similarity.class_weight": 0.0, "similarity.lookalike_weight": 0.0, "inliers.partial_slack": 0.0,
-           "inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0}
+           "inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0,
+           "verification.missed_share_from": 0.0}
 
 METHOD_PRESETS: dict[str, dict[str, Any]] = {
     "clipclique": {},

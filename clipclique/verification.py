@@ -12,7 +12,12 @@ Per hypothesis (all of a frame's at once), with the map's landmarks projected by
   `missed_full_area` of the image, in proportion below: a detector misses small objects far more
   often than large ones, so on a cluttered desk the right pose misses a score of small things
   while a wrong one looking past the desk misses few (0 = every missed landmark counts fully);
-- score = overlap - missed_weight * missed evidence: the verification score (`Hypothesis.verification`).
+- expected evidence: every landmark the pose expects to be seen (missed or not), counted by size alike;
+- missed cost: missed_weight * missed evidence, scaled by `missed_share_from` / expected evidence where the
+  pose expects more than `missed_share_from`: a pose looking into a crowd of objects is charged for the
+  share of them nobody detected, not for their number (a real desk's detector misses 70% of the objects
+  in view, so the right pose misses the most; 0 = every pose charged by number);
+- score = overlap - missed cost: the verification score (`Hypothesis.verification`).
 
 The constants are settings (`config.VerificationConfig`, `verification.*` keys).
 
@@ -36,11 +41,12 @@ from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 class Verification:
     """Verification of B hypotheses, one entry each."""
 
-    score: np.ndarray  # (B,) overlap - missed_weight * missed_evidence
+    score: np.ndarray  # (B,) overlap - missed_cost(missed_evidence, expected_evidence)
     overlap: np.ndarray  # (B,) depth-weighted summed IoU over the correspondences
     mean_iou: np.ndarray  # (B,) plain IoU averaged over the correspondences
     missed: np.ndarray  # (B,) int, landmarks that should be visible but no detection explains
     missed_evidence: np.ndarray  # (B,) float, those landmarks counted by their projected size (missed_full_area)
+    expected_evidence: np.ndarray  # (B,) float, every landmark expected in view (missed or not) counted alike
     depth_error: np.ndarray  # (B,) metres, median |dz| over the correspondences
     missed_weight: float  # what one missed landmark cost in `score`
 
@@ -67,7 +73,7 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     return replace(checked, **{name: getattr(checked, name)[alike] for name in _PER_HYPOTHESIS})
 
 
-_PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "depth_error")
+_PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
 
 
 def _identity(hypothesis: Hypothesis) -> bytes:
@@ -102,10 +108,23 @@ def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: M
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
     depth_error = group_medians(depth_gap, owner, sizes)
-    missed, evidence = _missed(seen, map.class_ids[nearby], observations, params)
-    return Verification(score=overlap - params.missed_weight * evidence, overlap=overlap, mean_iou=mean_iou,
-                        missed=missed, missed_evidence=evidence, depth_error=depth_error,
+    missed, evidence, expected = _missed(seen, map.class_ids[nearby], observations, params)
+    return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
+                        missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
                         missed_weight=params.missed_weight)
+
+
+def missed_cost(missed_evidence: np.ndarray, expected_evidence: np.ndarray, params: VerificationConfig) -> np.ndarray:
+    """(B,) what the missed landmarks cost in the score: missed_weight per unit of missed evidence, times
+    missed_share_from / expected evidence where the pose expects more than missed_share_from (0: never).
+    A pose expecting few landmarks pays for each one missed; one expecting a crowd pays for the share missed,
+    as if it expected missed_share_from: on a cluttered desk the right pose misses a dozen small objects
+    and a wrong one looking past the desk a few, yet the share each misses tells them apart."""
+    cost = params.missed_weight * missed_evidence
+    share_from = params.missed_share_from
+    if share_from == 0:
+        return cost
+    return cost * (share_from / np.maximum(expected_evidence, share_from))
 
 
 def group_medians(values: np.ndarray, groups: np.ndarray, sizes: np.ndarray) -> np.ndarray:
@@ -135,9 +154,10 @@ def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks
 
 
 def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
-            params: VerificationConfig) -> tuple[np.ndarray, np.ndarray]:
+            params: VerificationConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps,
-    and (B,) the same counted by size: min(1, projected box area / (missed_full_area * image area))."""
+    (B,) the same counted by size: min(1, projected box area / (missed_full_area * image area)), and (B,) every
+    landmark projected well into the image, detected or not, counted by size alike."""
     area = box_area(seen.boxes)
     expected = seen.visible & (area >= params.min_visible_pixels) & (area >= 0.5 * seen.full_areas)
     hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
@@ -147,7 +167,8 @@ def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
     full = params.missed_full_area * camera.width * camera.height
     weight = np.minimum(1.0, area[hypothesis, landmark] / full) if full > 0 else np.ones(len(hypothesis))
     return (np.bincount(hypothesis[~explained], minlength=len(expected)),
-            np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)))
+            np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)),
+            np.bincount(hypothesis, weight, minlength=len(expected)))
 
 
 @njit(cache=True)

@@ -26,16 +26,16 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 # (scene, method) -> sha256 of the canonical outcome of every frame
 EXPECTED = {
-    ('demo', 'clipclique'): '1ee50e2c336e8e27b19a045f79003de0d8b73ff68987899fbd39ae5c1907a257',
+    ('demo', 'clipclique'): '0c95056cd8e482061a17e863fb2447c096595b26c4a8ba649a437501cc39841c',
     ('demo', 'sh'): '8c8efc539f617ff72db0365183c875c255c892b62e3712a84c5d0f9acf37b6de',
     ('demo', 'cliploc'): '3ea921293186fb0081366456683b0a4af63fcd5d47e75d0100bb7c0e80641bee',
-    ('demo_tum', 'clipclique'): 'a0b4aea3aa67b90adec62523876dfc6d31c63261414cf63cbead136dea2c96f5',
+    ('demo_tum', 'clipclique'): 'b32005fb43eb42dcba2e29b012dec3379807d90bffeca41507b26f76d0b0700f',
     ('demo_tum', 'sh'): 'd00095ded048d884b4b45901d91fa44fc1291c596611d511469b25fcae1ab3f3',
     ('demo_tum', 'cliploc'): '7c52ac866549fb1dc3b1e42b27b387b0fe114678f4c09912f03ccea1fdf89a93',
-    ('demo_apartment', 'clipclique'): 'a91c085e0b5fd67384a4b697186ea4619922df76a862870d9f42d6c7e7702cb1',
+    ('demo_apartment', 'clipclique'): '163a332782849784635e9b6f3d6b7306e09d6ed63358c39829c4eb71ead0e4f2',
     ('demo_apartment', 'sh'): '03c56e0134714fa6fad3d5ece0227496bef33399be9ddd23ab27ed6a9748add8',
     ('demo_apartment', 'cliploc'): 'c9882ce04158329075aa2796693cbd49779428e4adf6ae04da8035e25432f1dc',
-    ('demo_desk', 'clipclique'): 'b364b941f314978461860c2c7771e2dad03e62e70415b51fd5e2bf4922209ee5',
+    ('demo_desk', 'clipclique'): 'cbb3c2d26845a0cc62baf6fcc7e248da388efe6cd6f9d89f46a26c6c17d5667e',
     ('demo_desk', 'sh'): '6d78133ee9e45a90a64e45eb3982d85c0d0029e74dcf5accba819e774992ca63',
     ('demo_desk', 'cliploc'): 'd9c74cbb3b78ece3fee5c66f4c096c75383d66a53eff351a773e187c0c2156cf',
 }

@@ -46,7 +46,8 @@ def verification_of(overlap: list[float], missed: list[int]) -> Verification:
     overlap, missed = np.array(overlap), np.array(missed)
     size = len(overlap)
     return Verification(score=overlap - MISSED_WEIGHT * missed, overlap=overlap, mean_iou=np.full(size, 0.5), missed=missed,
-                        missed_evidence=missed.astype(float), depth_error=np.full(size, 0.1), missed_weight=MISSED_WEIGHT)
+                        missed_evidence=missed.astype(float),
+                        expected_evidence=missed.astype(float), depth_error=np.full(size, 0.1), missed_weight=MISSED_WEIGHT)
 
 
 def test_missed_landmarks_count_beyond_the_frame_s_fewest():

@@ -55,7 +55,7 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit(
     poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
     checked, every = verify(pool, observations, map), verification._verify_all(pool, observations, map, VerificationConfig())
-    for name in ("score", "overlap", "mean_iou", "missed", "missed_evidence", "depth_error"):
+    for name in verification._PER_HYPOTHESIS:
         np.testing.assert_array_equal(getattr(checked, name), getattr(every, name))
     assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike
     assert len(np.unique(checked.score)) == 4
@@ -66,9 +66,45 @@ def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():
     keep = np.arange(5)  # the sixth object goes undetected
     partial = Observations(observations.ellipsoids.subset(keep), observations.class_ids[keep], None,
                            observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
-    checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=0.0))
+    by_number = VerificationConfig(missed_full_area=0.0, missed_share_from=0.0)
+    checked = verify([hypothesis(truth, 5)], partial, map, by_number)
     assert checked.missed[0] == 1
     assert checked.score[0] == pytest.approx(5.0 - VerificationConfig().missed_weight)
+
+
+def test_a_pose_expecting_more_than_missed_share_from_pays_for_the_share_it_missed():
+    """Five of the room's landmarks are large enough to expect (the fourth projects to 1,133 px), the sixth
+    goes undetected: one of five missed costs 3/5 of a landmark from 3 on, in full from 5 or with 0 (off)."""
+    map, truth, observations = room()
+    keep = np.arange(5)
+    partial = Observations(observations.ellipsoids.subset(keep), observations.class_ids[keep], None,
+                           observations.instance_ids[keep], keep, observations.boxes[keep], None, observations.camera)
+    weight = VerificationConfig().missed_weight
+    for share_from, cost in ((3.0, 0.6), (4.0, 0.8), (5.0, 1.0), (8.0, 1.0), (0.0, 1.0)):
+        checked = verify([hypothesis(truth, 5)], partial, map,
+                         VerificationConfig(missed_full_area=0.0, missed_share_from=share_from))
+        assert checked.missed[0] == 1 and checked.expected_evidence[0] == pytest.approx(5.0)
+        assert checked.score[0] == pytest.approx(5.0 - weight * cost)
+    assert verify([hypothesis(truth, 5)], partial, map).expected_evidence[0] < 3  # sized: 1.2, no share by default
+
+
+def test_the_missed_share_ranks_a_pose_into_a_crowd_above_one_past_it():
+    """A pose looking at a cluttered desk overlaps more but misses 8 of the 12 objects it expects (a detector
+    misses most small things); a wrong one looking past the desk misses 1 of 2. By number the wrong one wins,
+    by share the right one; a pose expecting at most missed_share_from pays the same either way."""
+    overlap, missed, expected = np.array([3.0, 2.5]), np.array([8.0, 1.0]), np.array([12.0, 2.0])
+    by_number = overlap - verification.missed_cost(missed, expected, VerificationConfig(missed_share_from=0.0))
+    by_share = overlap - verification.missed_cost(missed, expected, VerificationConfig())
+    np.testing.assert_allclose(by_number, [1.0, 2.25])
+    np.testing.assert_allclose(by_share, [3.0 - 0.25 * 8 * 3 / 12, 2.25])
+    assert by_share.argmax() == 0 and by_number.argmax() == 1
+    assert VerificationConfig().missed_share_from == 3.0
+
+
+def test_the_missed_share_is_on_in_clipclique_and_off_in_the_paper_preset_and_baselines():
+    assert make_config("clipclique").verification.missed_share_from == 3.0
+    for method in ("clipclique-paper", "sh", "xview", "cliploc"):
+        assert make_config(method).verification.missed_share_from == 0.0
 
 
 def test_a_missed_landmark_costs_by_its_projected_size():
@@ -84,7 +120,7 @@ def test_a_missed_landmark_costs_by_its_projected_size():
     assert 0.02 < share < 0.021
     weight = VerificationConfig().missed_weight
     for full, cost in ((0.0625, share / 0.0625), (0.015, 1.0), (1.0, share)):
-        checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=full))
+        checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=full, missed_share_from=0.0))
         assert checked.missed[0] == 1
         assert checked.missed_evidence[0] == pytest.approx(cost)
         assert checked.score[0] == pytest.approx(5.0 - weight * cost)

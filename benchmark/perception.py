@@ -25,6 +25,7 @@ from clipclique.types import Camera, Ellipsoids, Observations, Pose
 from localization.run import Run, Seen
 
 PACKAGE = Path(__file__).resolve().parents[1] / "clipclique"
+CACHE_FORMAT = 2  # what a frame file holds; 2: the detector's scores too (a folder of format 1 is not read)
 
 
 @dataclass
@@ -55,7 +56,7 @@ def key_of(run: Run) -> dict[str, Any]:
     return {"sequence": run.sequence.name, "kind": run.sequence.kind, "sequence_frames": len(run.sequence),
             "detector": run.detector.name, "encoder": None if run.encoder is None else run.encoder.name,
             "yolo_weights": run.settings.yolo_weights, "seed": run.settings.seed,
-            "observations": run.config.to_dict()["observations"], "code": code_version()}
+            "observations": run.config.to_dict()["observations"], "code": code_version(), "format": CACHE_FORMAT}
 
 
 def folder_of(cache_root: Path, key: dict[str, Any]) -> Path:
@@ -84,7 +85,7 @@ def save(path: Path, frame_index: int, timestamp: float, name: str, gt_pose: Pos
               "rotations": observations.ellipsoids.rotations, "class_ids": observations.class_ids,
               "instance_ids": observations.instance_ids, "detection_index": observations.detection_index}
     optional = {"image_embeddings": observations.image_embeddings, "boxes": observations.boxes,
-                "mask_areas": observations.mask_areas,
+                "mask_areas": observations.mask_areas, "scores": observations.scores,
                 "intrinsics": None if observations.camera is None else observations.camera.intrinsics,
                 "gt_pose": None if gt_pose is None else gt_pose.matrix()}
     arrays |= {key: value for key, value in optional.items() if value is not None}
@@ -109,7 +110,8 @@ def load(path: Path) -> Perceived:
                                                             float(meta["camera"]["max_depth"]))
         observations = Observations(Ellipsoids(arrays["centers"], arrays["axes"], arrays["rotations"]),
                                     arrays["class_ids"], arrays.get("image_embeddings"), arrays["instance_ids"],
-                                    arrays["detection_index"], arrays.get("boxes"), arrays.get("mask_areas"), camera)
+                                    arrays["detection_index"], arrays.get("boxes"), arrays.get("mask_areas"), camera,
+                                    scores=arrays.get("scores"))
         gt_pose = Pose.from_matrix(arrays["gt_pose"]) if "gt_pose" in arrays else None
         return Perceived(int(meta["index"]), float(meta["timestamp"]), str(meta["name"]), gt_pose, observations,
                          int(meta["num_detections"]), dict(meta["dropped"]), dict(meta["timings"]))

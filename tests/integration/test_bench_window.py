@@ -35,7 +35,8 @@ def test_a_window_of_one_is_the_single_frame_result_and_a_longer_one_helps(desk)
     one = window_success(desk, config, WindowConfig(size=1), 0.0, 0)
     assert one["within_1m"] == pytest.approx(np.mean(single))
     five = window_success(desk, config, WindowConfig(size=5), 1.0, 0)
-    assert five["within_1m"] > one["within_1m"] + 0.1
+    # Four frames of the 40 or more (five before verification.missed_share_from; the whole sequence ties, 83.3%)
+    assert round(len(desk.frames) * (five["within_1m"] - one["within_1m"])) >= 4
     assert five["observations_mean"] > 2 * one["observations_mean"] and five["dropped_frames"] == 0
     rows = [{"scene": "demo_desk", "config": "SH", "K": k, "S": 1, "drift_percent": d, **figures}
             for k, d, figures in ((1, 0.0, one), (5, 1.0, five))]

@@ -47,7 +47,7 @@ def compatibility_graph(
     shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     points = landmark_centers[lm]
-    pairs = cKDTree(points).query_pairs(_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64, copy=False)
+    pairs = cKDTree(points).query_pairs(pair_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64, copy=False)
     return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 
@@ -83,7 +83,7 @@ def affordable_candidates(
     if len(candidates) * (len(candidates) - 1) // 2 <= max_pairs:
         return np.arange(len(candidates))
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
-    reach = _reach(observed, d_comp, slack)
+    reach = pair_reach(observed, d_comp, slack)
     points = landmark_centers[candidates[:, 1]]
     if _pairs_bound(points, reach) <= max_pairs or _pairs_within(points, reach) <= max_pairs:
         return np.arange(len(candidates))
@@ -123,7 +123,7 @@ def _pairs_bound(points: np.ndarray, reach: float) -> int:
     return total
 
 
-def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:
+def pair_reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:
     """Farthest landmark pair that can pass the test: the widest observation pair plus the widest tolerance."""
     widest = 0.0 if slack is None or len(slack) == 0 else 2.0 * float(slack.max())
     return float(observed.max()) + d_comp + widest

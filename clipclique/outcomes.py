@@ -41,6 +41,24 @@ class CapHit(StrEnum):
     TIME_LIMIT = "time_limit"  # inliers.time_limit_s: the clique search ran out of time
 
 
+@dataclass(frozen=True, kw_only=True)
+class RegionSplit:
+    """How a frame beyond `matching.max_candidates` was searched: region by region (clipclique.regions).
+
+    A building of identical rooms is truly ambiguous: every copy of the room holding the heaviest
+    clique holds one as heavy, and `tied_regions` says in how many places the frame fits equally well.
+    """
+
+    regions: int  # map regions holding candidates, each searched alone
+    layouts: int  # distinct regions among them (the others are copies of one, searched once)
+    tied_regions: int  # the region holding the heaviest clique and its copies; 0 without a clique
+
+    @property
+    def ambiguous(self) -> bool:
+        """Whether more than one region holds the heaviest clique."""
+        return self.tied_regions > 1
+
+
 class FailureKind(Enum):
     """Which stage left a frame without a pose."""
 

@@ -35,10 +35,10 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
-                        refine, similarity, verification)
-from clipclique.config import LocalizationConfig
+                        refine, regions, similarity, verification)
+from clipclique.config import InlierConfig, LocalizationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, Stage
+from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import correspondence_weights, fit_rigid_conditioned
 from clipclique.projection import pair_iou
 from clipclique.types import Hypothesis, Map, Observations, Pose
@@ -70,6 +70,7 @@ class LocalizationResult:
     num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
     cap_hit: CapHit | None  # the first bound hit, None when none was
     failure: Failure | None  # why there is no pose; None on success
+    region_split: RegionSplit | None = None  # beyond matching.max_candidates: the regions searched one by one
     notes: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
 
@@ -113,8 +114,12 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
-    candidates, candidate_scores, capped = matching.cap(*matching.match(scores, config.matching),
-                                                        config.matching.max_candidates)
+    candidates, candidate_scores = matching.match(scores, config.matching)
+    split = _beyond_cap(observations, index.map, candidates, candidate_scores, config)
+    if split is None:
+        candidates, candidate_scores, capped = matching.cap(candidates, candidate_scores, config.matching.max_candidates)
+    else:
+        candidates, candidate_scores, capped = candidates[split.kept], candidate_scores[split.kept], split.capped
     lap(Stage.MATCHING)
 
     result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=candidate_scores,
@@ -126,7 +131,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     elif matched < 3:
         result.failure = Failure(kind=FailureKind.FEW_MATCHED, count=matched)
     elif config.inliers.method == "cliques":
-        _solve_cliques(result, observations, index.map, config, lap)
+        _solve_cliques(result, observations, index.map, config, lap, split)
     else:
         _solve_consensus(result, observations, index.map, config, lap)
     if result.failure is None and not result.hypotheses:
@@ -255,34 +260,61 @@ def _check_classes(observations: Observations, map: Map) -> None:
         )
 
 
+def _beyond_cap(observations: Observations, map: Map, candidates: np.ndarray, scores: np.ndarray,
+                config: LocalizationConfig) -> regions.Regions | None:
+    """The candidates split by map region (clipclique.regions) when they exceed matching.max_candidates and
+    lie in more than one region of a clique search; None otherwise (the whole frame is searched, capped)."""
+    if len(candidates) <= config.matching.max_candidates or config.inliers.method != "cliques":
+        return None
+    split = regions.split(observations.ellipsoids.centers, map.ellipsoids.centers, candidates, scores,
+                          _slack(observations, map, candidates, config.inliers),
+                          _objects(observations, config.inliers.duplicate_iou), config.inliers,
+                          config.matching.max_candidates)
+    return split if len(split.rows) > 1 else None
+
+
+def _slack(observations: Observations, map: Map, candidates: np.ndarray, settings: InlierConfig) -> np.ndarray:
+    """(C,) each candidate's compatibility slack for an object seen in part."""
+    return compatibility.partial_view_slack(
+        observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
+        settings.max_slack, settings.slack_min_deficit,
+    )
+
+
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
-                   lap: Callable[[Stage], None]) -> None:
-    """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each.
+                   lap: Callable[[Stage], None], split: regions.Regions | None = None) -> None:
+    """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each; on a
+    map beyond the candidate cap (`split`), region by region (clipclique.regions).
 
     A degenerate clique gives no pose; the search is then asked for twice as many cliques
     until top_n poses are found or the cliques run out (the first ones come back unchanged).
     """
     settings = config.inliers
     candidates, scores = result.candidates, result.candidate_scores
-    slack = compatibility.partial_view_slack(
-        observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
-        settings.max_slack, settings.slack_min_deficit,
-    )
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
-    kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
-                                               max_pairs=settings.max_pairs)
-    if len(kept) < len(candidates):
-        result.cap_hit = result.cap_hit or CapHit.MAX_PAIRS
     objects = _objects(observations, settings.duplicate_iou)
-    edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
-                                                   objects)]
+    if split is None:
+        slack = _slack(observations, map, candidates, settings)
+        kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
+                                                   max_pairs=settings.max_pairs)
+        pairs_capped = len(kept) < len(candidates)
+        edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
+                                                       objects)]
+
+        def search(wanted: int) -> cliquesearch.TopCliques:
+            return cliquesearch.top_cliques(edges, len(candidates), scores, wanted, objects[candidates[:, 0]],
+                                            settings.min_clique_size, settings.max_cliques, settings.time_limit_s)
+    else:
+        layouts, pairs_capped = regions.layouts(split, *centers, candidates, scores, objects, settings)
+
+        def search(wanted: int) -> cliquesearch.TopCliques:
+            return regions.top_cliques(layouts, wanted, settings)
+    if pairs_capped:
+        result.cap_hit = result.cap_hit or CapHit.MAX_PAIRS
     pool = _pool_size(observations, config)
     wanted, tried = pool, 0
     while True:
-        found = cliquesearch.top_cliques(
-            edges, len(candidates), scores, wanted, objects[candidates[:, 0]], settings.min_clique_size,
-            settings.max_cliques, settings.time_limit_s
-        )
+        found = search(wanted)
         lap(Stage.INLIERS)
         fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
         result.hypotheses.extend(fitted[: pool - len(result.hypotheses)])
@@ -293,6 +325,11 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         wanted *= 2
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
+    if split is not None:
+        result.region_split = regions.summary(split, layouts, found)
+        if result.region_split.ambiguous:
+            result.notes.append(f"ambiguous: the best clique fits {result.region_split.tied_regions} identical map "
+                                f"regions equally well (of {result.region_split.regions} searched one by one)")
     if not found.cliques:
         result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
 

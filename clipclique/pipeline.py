@@ -36,7 +36,7 @@ from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
                         refine, regions, similarity, verification)
-from clipclique.config import InlierConfig, LocalizationConfig
+from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import correspondence_weights, fit_rigid_conditioned
@@ -266,19 +266,10 @@ def _beyond_cap(observations: Observations, map: Map, candidates: np.ndarray, sc
     lie in more than one region of a clique search; None otherwise (the whole frame is searched, capped)."""
     if len(candidates) <= config.matching.max_candidates or config.inliers.method != "cliques":
         return None
-    split = regions.split(observations.ellipsoids.centers, map.ellipsoids.centers, candidates, scores,
-                          _slack(observations, map, candidates, config.inliers),
+    split = regions.split(observations.ellipsoids.centers, map.ellipsoids, candidates, scores,
                           _objects(observations, config.inliers.duplicate_iou), config.inliers,
                           config.matching.max_candidates)
     return split if len(split.rows) > 1 else None
-
-
-def _slack(observations: Observations, map: Map, candidates: np.ndarray, settings: InlierConfig) -> np.ndarray:
-    """(C,) each candidate's compatibility slack for an object seen in part."""
-    return compatibility.partial_view_slack(
-        observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]], settings.partial_slack,
-        settings.max_slack, settings.slack_min_deficit,
-    )
 
 
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
@@ -294,7 +285,10 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
     objects = _objects(observations, settings.duplicate_iou)
     if split is None:
-        slack = _slack(observations, map, candidates, settings)
+        slack = compatibility.partial_view_slack(
+            observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]],
+            settings.partial_slack, settings.max_slack, settings.slack_min_deficit,
+        )
         kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
                                                    max_pairs=settings.max_pairs)
         pairs_capped = len(kept) < len(candidates)
@@ -305,7 +299,8 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
             return cliquesearch.top_cliques(edges, len(candidates), scores, wanted, objects[candidates[:, 0]],
                                             settings.min_clique_size, settings.max_cliques, settings.time_limit_s)
     else:
-        layouts, pairs_capped = regions.layouts(split, *centers, candidates, scores, objects, settings)
+        layouts, pairs_capped = regions.layouts(split, observations.ellipsoids, map.ellipsoids, candidates, scores,
+                                                objects, settings)
 
         def search(wanted: int) -> cliquesearch.TopCliques:
             return regions.top_cliques(layouts, wanted, settings)

@@ -20,12 +20,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from numba import njit
 
 from clipclique import cliquesearch, compatibility, matching
 from clipclique.config import InlierConfig
 from clipclique.outcomes import RegionSplit
+from clipclique.types import Ellipsoids
 
 NANOMETRE = 1e-9  # the grain landmark positions are compared on when regions are matched as copies
 
@@ -37,7 +37,6 @@ class Regions:
     kept: np.ndarray  # rows of the matched candidates kept (all, unless a region held more than the cap)
     rows: list[np.ndarray]  # per region, its rows of the kept candidates (ascending); ordered by first row
     copies: list[list[int]]  # per distinct layout, the regions that have it (ascending); the first is searched
-    slack: np.ndarray  # (len(kept),) each kept candidate's compatibility slack
     capped: bool  # a region held more than max_candidates; its best-scored were kept (matching.cap)
 
 
@@ -61,83 +60,140 @@ def region_labels(points: np.ndarray, reach: float) -> np.ndarray:
     span = cells.max(axis=0) + 2
     if float(np.prod(span.astype(np.float64))) > 2.0**62:  # a tiny reach over a huge map: one region
         return np.zeros(len(points), np.int64)
-    keys, of_point = np.unique((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2], return_inverse=True)
-    sources, targets = [np.arange(len(keys))], [np.arange(len(keys))]
-    for offset in itertools.product((-1, 0, 1), repeat=3):
-        if offset > (0, 0, 0):
-            neighbour = keys + (offset[0] * span[1] + offset[1]) * span[2] + offset[2]
-            at = np.minimum(np.searchsorted(keys, neighbour), len(keys) - 1)
-            touching = keys[at] == neighbour
-            sources.append(np.flatnonzero(touching))
-            targets.append(at[touching])
-    sources, targets = np.concatenate(sources), np.concatenate(targets)
-    joined = sp.coo_matrix((np.ones(len(sources), np.int8), (sources, targets)), shape=(len(keys), len(keys)))
-    _, component = connected_components(joined, directed=False)
-    labels = component[of_point.ravel()]
-    _, first = np.unique(labels, return_index=True)
-    renumber = np.empty(len(first), np.int64)
-    renumber[np.argsort(first, kind="stable")] = np.arange(len(first))
-    return renumber[labels]
+    keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    touching = np.array([(dx * span[1] + dy) * span[2] + dz for dx, dy, dz in itertools.product((-1, 0, 1), repeat=3)
+                         if (dx, dy, dz) > (0, 0, 0)], np.int64)  # key steps to the 13 cells after a cell
+    return _joined_cells(keys, np.argsort(keys), touching)
 
 
-def split(observed_centers: np.ndarray, landmark_centers: np.ndarray, candidates: np.ndarray, scores: np.ndarray,
-          slack: np.ndarray, objects: np.ndarray, settings: InlierConfig, max_candidates: int) -> Regions:
-    """The candidates' regions, each region's best `max_candidates` kept, and their copies."""
+@njit(cache=True)
+def _joined_cells(keys: np.ndarray, order: np.ndarray, touching: np.ndarray) -> np.ndarray:
+    """`region_labels` from the points' cell keys sorted by `order`: occupied cells, touching ones joined
+    (union-find), regions numbered by first point. One compiled pass: numpy's unique, sparse graph and
+    connected components took 24 ms for the 100,000 candidates of a building of a thousand rooms."""
+    cell_of = np.empty(len(keys), np.int64)
+    distinct = np.empty(len(keys), np.int64)
+    count = 0
+    for i in range(len(order)):
+        if count == 0 or keys[order[i]] != distinct[count - 1]:
+            distinct[count] = keys[order[i]]
+            count += 1
+        cell_of[order[i]] = count - 1
+    distinct = distinct[:count]
+    parent = np.arange(count)
+    for c in range(count):
+        for step in touching:
+            j = np.searchsorted(distinct, distinct[c] + step)
+            if j < count and distinct[j] == distinct[c] + step:
+                a, b = c, j
+                while parent[a] != a:
+                    a = parent[a]
+                while parent[b] != b:
+                    b = parent[b]
+                parent[max(a, b)] = min(a, b)
+    label_of_root = np.full(count, -1, np.int64)
+    labels = np.empty(len(keys), np.int64)
+    regions = 0
+    for i in range(len(keys)):
+        root = cell_of[i]
+        while parent[root] != root:
+            root = parent[root]
+        if label_of_root[root] < 0:
+            label_of_root[root] = regions
+            regions += 1
+        labels[i] = label_of_root[root]
+    return labels
+
+
+def split(observed_centers: np.ndarray, landmarks: Ellipsoids, candidates: np.ndarray, scores: np.ndarray,
+          objects: np.ndarray, settings: InlierConfig, max_candidates: int) -> Regions:
+    """The candidates' regions, each region's best `max_candidates` kept, and their copies. The reach is
+    taken with the widest slack the settings allow (wider only joins regions: no clique is lost)."""
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
-    labels = region_labels(landmark_centers[candidates[:, 1]], compatibility.pair_reach(observed, settings.d_comp, slack))
-    order = np.argsort(labels, kind="stable")
-    bounds = np.concatenate(([0], np.cumsum(np.bincount(labels))))
+    widest = np.array([settings.max_slack if settings.partial_slack > 0 else 0.0])
+    labels = region_labels(landmarks.centers[candidates[:, 1]], compatibility.pair_reach(observed, settings.d_comp, widest))
+    sizes = np.bincount(labels)
+    order = _grouped(labels, sizes)
+    bounds = np.concatenate(([0], np.cumsum(sizes)))
     rows = [order[start:end] for start, end in itertools.pairwise(bounds)]
-    capped = any(len(region) > max_candidates for region in rows)
+    capped = bool(sizes.max() > max_candidates)
     kept = np.arange(len(candidates))
     if capped:
         rows = [matching.cap(region[:, None], scores[region], max_candidates)[0][:, 0] for region in rows]
         kept = np.sort(np.concatenate(rows))
         rows = [np.searchsorted(kept, region) for region in rows]
-        candidates, scores, slack = candidates[kept], scores[kept], slack[kept]
-    return Regions(kept=kept, rows=rows, copies=_copies(rows, landmark_centers, candidates, scores, slack, objects),
-                   slack=slack, capped=capped)
+        candidates, scores = candidates[kept], scores[kept]
+    return Regions(kept=kept, rows=rows, copies=_copies(rows, landmarks, candidates, scores, objects), capped=capped)
 
 
-def _copies(rows: list[np.ndarray], landmark_centers: np.ndarray, candidates: np.ndarray, scores: np.ndarray,
-            slack: np.ndarray, objects: np.ndarray) -> list[list[int]]:
+@njit(cache=True)
+def _grouped(labels: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """Indices sorted by label, ascending within a label (a counting sort)."""
+    at = np.zeros(len(sizes), np.int64)
+    at[1:] = np.cumsum(sizes)[:-1]
+    order = np.empty(len(labels), np.int64)
+    for i in range(len(labels)):
+        order[at[labels[i]]] = i
+        at[labels[i]] += 1
+    return order
+
+
+def _copies(rows: list[np.ndarray], landmarks: Ellipsoids, candidates: np.ndarray, scores: np.ndarray,
+            objects: np.ndarray) -> list[list[int]]:
     """The regions grouped by layout: a region's candidates, in row order, as (observation's object,
-    observation, score, slack, which of the region's landmarks, its position relative to the region's
-    first candidate's landmark in nanometres); equal records, one layout. Built for all regions at once
-    (one region at a time cost 80 us each, 80 ms for a building of a thousand rooms)."""
+    observation, score, landmark semi-axes (the slack's input), which of the region's landmarks, its
+    position relative to the region's first candidate's landmark in nanometres); equal records, one
+    layout. Built for all regions at once (one region at a time cost 80 us each)."""
     sizes = np.fromiter(map(len, rows), np.int64, len(rows))
     starts = np.concatenate(([0], np.cumsum(sizes)))
     order = np.concatenate(rows)
-    region = np.repeat(np.arange(len(rows)), sizes)
     obs, lm = candidates[order, 0], candidates[order, 1]
-    relative = np.rint((landmark_centers[lm] - landmark_centers[lm[starts[:-1]]][region]) / NANOMETRE)
-    keys, landmark = np.unique(region * (int(lm.max()) + 1) + lm, return_inverse=True)  # by region, then landmark
-    landmark = landmark.ravel() - np.searchsorted(keys, region * (int(lm.max()) + 1))  # the region's landmarks from 0
-    bits = lambda values: np.ascontiguousarray(values, np.float64).view(np.int64)  # noqa: E731
-    record = np.column_stack((objects[obs], obs, bits(scores[order]), bits(slack[order]), landmark,
-                              relative.astype(np.int64)))
+    region = np.repeat(np.arange(len(rows)), sizes)
+    relative = np.rint((landmarks.centers[lm] - landmarks.centers[lm[starts[:-1]]][region]) / NANOMETRE)
+    bits = lambda values: np.ascontiguousarray(values, np.float64).view(np.int64).reshape(len(order), -1)  # noqa: E731
+    record = np.column_stack((objects[obs], obs, bits(scores[order]), bits(landmarks.axes[lm]),
+                              _first_seen(lm, starts, len(landmarks.centers)), relative.astype(np.int64)))
     layouts: dict[bytes, list[int]] = {}
     for r, (start, end) in enumerate(itertools.pairwise(starts)):
         layouts.setdefault(record[start:end].tobytes(), []).append(r)
     return list(layouts.values())
 
 
-def layouts(regions: Regions, observed_centers: np.ndarray, landmark_centers: np.ndarray, candidates: np.ndarray,
+@njit(cache=True)
+def _first_seen(landmarks: np.ndarray, starts: np.ndarray, num_landmarks: int) -> np.ndarray:
+    """Per row, its landmark numbered within its region (rows starts[r]:starts[r + 1]) by first appearance."""
+    local = np.empty(len(landmarks), np.int64)
+    seen = np.full(num_landmarks, -1, np.int64)
+    stamp = np.full(num_landmarks, -1, np.int64)
+    for r in range(len(starts) - 1):
+        count = 0
+        for i in range(starts[r], starts[r + 1]):
+            if stamp[landmarks[i]] != r:
+                stamp[landmarks[i]] = r
+                seen[landmarks[i]] = count
+                count += 1
+            local[i] = seen[landmarks[i]]
+    return local
+
+
+def layouts(regions: Regions, observations: Ellipsoids, landmarks: Ellipsoids, candidates: np.ndarray,
             scores: np.ndarray, objects: np.ndarray, settings: InlierConfig) -> tuple[list[Layout], bool]:
     """Each distinct region's compatibility graph (positions relative to its first landmark, on the
     nanometre grid its copies were matched on), and whether `inliers.max_pairs` cut one."""
-    found, pairs_capped, slack = [], False, regions.slack
+    found, pairs_capped = [], False
     for copies in regions.copies:
         region = regions.rows[copies[0]]
         obs, lm = candidates[region, 0], candidates[region, 1]
-        landmarks, local_landmark = np.unique(lm, return_inverse=True)
-        relative = np.rint((landmark_centers[landmarks] - landmark_centers[lm[0]]) / NANOMETRE) * NANOMETRE
+        unique, local_landmark = np.unique(lm, return_inverse=True)
+        relative = np.rint((landmarks.centers[unique] - landmarks.centers[lm[0]]) / NANOMETRE) * NANOMETRE
         local = np.column_stack((obs, local_landmark.ravel()))
-        kept = compatibility.affordable_candidates(observed_centers, relative, local, scores[region], settings.d_comp,
-                                                   slack[region], max_pairs=settings.max_pairs)
+        slack = compatibility.partial_view_slack(observations.axes[obs], landmarks.axes[lm], settings.partial_slack,
+                                                 settings.max_slack, settings.slack_min_deficit)
+        kept = compatibility.affordable_candidates(observations.centers, relative, local, scores[region],
+                                                   settings.d_comp, slack, max_pairs=settings.max_pairs)
         pairs_capped |= len(kept) < len(region)
-        edges = kept[compatibility.compatibility_graph(observed_centers, relative, local[kept], settings.d_comp,
-                                                       slack[region][kept], objects)]
+        edges = kept[compatibility.compatibility_graph(observations.centers, relative, local[kept], settings.d_comp,
+                                                       slack[kept], objects)]
         found.append(Layout(edges=edges, weights=scores[region], groups=objects[obs],
                             vertices=np.stack([regions.rows[r] for r in copies])))
     return found, pairs_capped

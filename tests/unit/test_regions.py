@@ -11,6 +11,7 @@ from clipclique.config import make_config
 from clipclique.outcomes import CapHit, RegionSplit
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
+from clipclique.types import Ellipsoids
 
 ROOM = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])  # four landmarks, not in a plane
 SCORES = np.array([0.9, 0.8, 0.7, 0.6])  # per observation, equal in every room
@@ -24,11 +25,16 @@ def building(rooms: int = 3, moved: float = 0.0):
     landmarks = np.concatenate([ROOM + [20.0 * r, 0, 0] for r in range(rooms)])
     landmarks[-1, 2] += moved
     candidates = np.array([(k, k + 4 * r) for k in range(4) for r in range(rooms)])
-    return ROOM.copy(), landmarks, candidates, SCORES[candidates[:, 0]], np.zeros(len(candidates)), np.arange(4)
+    return ellipsoids(ROOM), ellipsoids(landmarks), candidates, SCORES[candidates[:, 0]], np.arange(4)
 
 
-def searched(observed, landmarks, candidates, scores, slack, objects, count, max_candidates=100):
-    split = regions.split(observed, landmarks, candidates, scores, slack, objects, SETTINGS, max_candidates)
+def ellipsoids(centers: np.ndarray) -> Ellipsoids:
+    """Spheres of 0.2 m (seen whole: no slack) at `centers`."""
+    return Ellipsoids(centers, np.full((len(centers), 3), 0.2), np.repeat(np.eye(3)[None], len(centers), 0))
+
+
+def searched(observed, landmarks, candidates, scores, objects, count, max_candidates=100):
+    split = regions.split(observed.centers, landmarks, candidates, scores, objects, SETTINGS, max_candidates)
     found, pairs_capped = regions.layouts(split, observed, landmarks, candidates[split.kept], scores[split.kept],
                                           objects, SETTINGS)
     assert not pairs_capped
@@ -37,7 +43,7 @@ def searched(observed, landmarks, candidates, scores, slack, objects, count, max
 
 def whole(observed, landmarks, candidates, scores, count):
     """The one search over the whole compatibility graph the split must equal."""
-    edges = compatibility_graph(observed, landmarks, candidates, SETTINGS.d_comp)
+    edges = compatibility_graph(observed.centers, landmarks.centers, candidates, SETTINGS.d_comp)
     return top_cliques(edges, len(candidates), scores, count, candidates[:, 0], SETTINGS.min_clique_size)
 
 
@@ -59,8 +65,8 @@ def test_three_identical_rooms_are_one_layout_searched_once_and_ranked_by_rows()
 @pytest.mark.parametrize("count", [1, 2, 3, 5])
 @pytest.mark.parametrize("moved", [0.0, 1.0])
 def test_the_split_ranks_as_one_search_of_the_whole_graph(count, moved):
-    observed, landmarks, candidates, scores, slack, objects = building(moved=moved)
-    split, found, best = searched(observed, landmarks, candidates, scores, slack, objects, count)
+    observed, landmarks, candidates, scores, objects = building(moved=moved)
+    split, found, best = searched(observed, landmarks, candidates, scores, objects, count)
     reference = whole(observed, landmarks, candidates, scores, count)
     assert [clique.tolist() for clique in best.cliques] == [clique.tolist() for clique in reference.cliques]
     np.testing.assert_array_equal(best.totals, reference.totals)

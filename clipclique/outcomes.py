@@ -43,7 +43,8 @@ class CapHit(StrEnum):
 
 @dataclass(frozen=True, kw_only=True)
 class RegionSplit:
-    """How a frame beyond `matching.max_candidates` was searched: region by region (clipclique.regions).
+    """How a frame of many candidates in several map regions was searched: region by region
+    (clipclique.regions, `inliers.region_split_from`).
 
     A building of identical rooms is truly ambiguous: every copy of the room holding the heaviest
     clique holds one as heavy, and `tied_regions` says in how many places the frame fits equally well.

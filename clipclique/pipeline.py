@@ -70,7 +70,7 @@ class LocalizationResult:
     num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
     cap_hit: CapHit | None  # the first bound hit, None when none was
     failure: Failure | None  # why there is no pose; None on success
-    region_split: RegionSplit | None = None  # beyond matching.max_candidates: the regions searched one by one
+    region_split: RegionSplit | None = None  # the regions searched one by one (inliers.region_split_from)
     notes: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
 
@@ -115,7 +115,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
     candidates, candidate_scores = matching.match(scores, config.matching)
-    split = _beyond_cap(observations, index.map, candidates, candidate_scores, config)
+    split = _split(observations, index.map, candidates, candidate_scores, config)
     if split is None:
         candidates, candidate_scores, capped = matching.cap(candidates, candidate_scores, config.matching.max_candidates)
     else:
@@ -260,11 +260,13 @@ def _check_classes(observations: Observations, map: Map) -> None:
         )
 
 
-def _beyond_cap(observations: Observations, map: Map, candidates: np.ndarray, scores: np.ndarray,
-                config: LocalizationConfig) -> regions.Regions | None:
-    """The candidates split by map region (clipclique.regions) when they exceed matching.max_candidates and
-    lie in more than one region of a clique search; None otherwise (the whole frame is searched, capped)."""
-    if len(candidates) <= config.matching.max_candidates or config.inliers.method != "cliques":
+def _split(observations: Observations, map: Map, candidates: np.ndarray, scores: np.ndarray,
+           config: LocalizationConfig) -> regions.Regions | None:
+    """The candidates split by map region (clipclique.regions) when a clique search has at least
+    inliers.region_split_from of them (or more than matching.max_candidates) in more than one region;
+    None otherwise (the whole frame is searched, capped)."""
+    split_from = min(config.inliers.region_split_from, config.matching.max_candidates + 1)
+    if len(candidates) < split_from or config.inliers.method != "cliques":
         return None
     split = regions.split(observations.ellipsoids.centers, map.ellipsoids, candidates, scores,
                           _objects(observations, config.inliers.duplicate_iou), config.inliers,
@@ -275,7 +277,7 @@ def _beyond_cap(observations: Observations, map: Map, candidates: np.ndarray, sc
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
                    lap: Callable[[Stage], None], split: regions.Regions | None = None) -> None:
     """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each; on a
-    map beyond the candidate cap (`split`), region by region (clipclique.regions).
+    map of many candidates in several regions (`split`), region by region (clipclique.regions).
 
     A degenerate clique gives no pose; the search is then asked for twice as many cliques
     until top_n poses are found or the cliques run out (the first ones come back unchanged).

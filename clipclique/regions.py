@@ -1,26 +1,29 @@
-"""The clique search split by map region, for a frame whose candidates exceed `matching.max_candidates`.
+"""The clique search split by map region, for a frame of many candidates spread over several regions.
 
 Two landmarks farther apart than compatibility's reach (the widest observation pair plus the widest
-tolerance) are never compatible, so no clique spans two regions of the map that far apart. On a map
-beyond the cap (a building of a thousand identical rooms keeps a thousand copies of each candidate)
-the candidates are split by region instead of cut to the cap: the cap is counted per region, each
-region's cliques are searched alone, and regions that are copies of one another (the same
-observations, scores, tolerances and landmark layout to a nanometre, positions taken relative to the
-region's first candidate) share one search whose cliques are mapped onto every copy. The heaviest
-cliques overall are merged in `cliquesearch`'s order (heavier first, ties by the sorted member lists),
-so the ranking is the one a single search over the regions' graphs gives.
-
-Only frames beyond the cap take this path: a frame within it is searched whole, to the bit, as before.
+tolerance) are never compatible, so no clique spans two regions of the map that far apart. A building
+of identical rooms keeps a copy of each candidate per room (a thousand rooms: 100,000 candidates, five
+times `matching.max_candidates`), and one search over all of them expands every room's equally heavy
+cliques. From `inliers.region_split_from` candidates (or beyond the cap) each region is searched alone,
+the cap counted per region, and regions that are copies of one another (the same observations, scores,
+landmark shapes and layout to a nanometre, positions relative to the region's first candidate) share
+one search whose cliques are mapped onto every copy. A region's graph is tested on its own landmarks
+exactly as the whole map's would be; where a test is decided by less than DECIDED_BY, its copies are
+tested one by one. The heaviest cliques overall are merged in `cliquesearch`'s order (heavier first,
+ties by the sorted member lists): the same cliques as one search of the whole graph, to the bit, when
+no cap is hit. Only `reached` differs: it counts each region's own search.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from scipy.spatial import cKDTree
 
 from clipclique import cliquesearch, compatibility, matching
 from clipclique.config import InlierConfig
@@ -28,6 +31,8 @@ from clipclique.outcomes import RegionSplit
 from clipclique.types import Ellipsoids
 
 NANOMETRE = 1e-9  # the grain landmark positions are compared on when regions are matched as copies
+DECIDED_BY = 1e-8  # metres: copies' pair distances agree to a few nanometres; a test this near its tolerance
+# could go the other way in a copy, so the copies of such a region are tested one by one
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -178,25 +183,72 @@ def _first_seen(landmarks: np.ndarray, starts: np.ndarray, num_landmarks: int) -
 
 def layouts(regions: Regions, observations: Ellipsoids, landmarks: Ellipsoids, candidates: np.ndarray,
             scores: np.ndarray, objects: np.ndarray, settings: InlierConfig) -> tuple[list[Layout], bool]:
-    """Each distinct region's compatibility graph (positions relative to its first landmark, on the
-    nanometre grid its copies were matched on), and whether `inliers.max_pairs` cut one."""
+    """Each distinct region's compatibility graph, tested on its own landmarks exactly as the whole map's
+    graph would be, and whether `inliers.max_pairs` cut one. A layout whose first region has a pair test
+    decided by less than DECIDED_BY (its copies' distances agree only to a few nanometres) is split back
+    into its regions, each tested on its own."""
     found, pairs_capped = [], False
     for copies in regions.copies:
-        region = regions.rows[copies[0]]
-        obs, lm = candidates[region, 0], candidates[region, 1]
-        unique, local_landmark = np.unique(lm, return_inverse=True)
-        relative = np.rint((landmarks.centers[unique] - landmarks.centers[lm[0]]) / NANOMETRE) * NANOMETRE
-        local = np.column_stack((obs, local_landmark.ravel()))
-        slack = compatibility.partial_view_slack(observations.axes[obs], landmarks.axes[lm], settings.partial_slack,
-                                                 settings.max_slack, settings.slack_min_deficit)
-        kept = compatibility.affordable_candidates(observations.centers, relative, local, scores[region],
-                                                   settings.d_comp, slack, max_pairs=settings.max_pairs)
-        pairs_capped |= len(kept) < len(region)
-        edges = kept[compatibility.compatibility_graph(observations.centers, relative, local[kept], settings.d_comp,
-                                                       slack[kept], objects)]
-        found.append(Layout(edges=edges, weights=scores[region], groups=objects[obs],
-                            vertices=np.stack([regions.rows[r] for r in copies])))
+        edges, capped, close = _graph(regions.rows[copies[0]], observations, landmarks, candidates, objects, settings,
+                                      scores, check=len(copies) > 1)
+        pairs_capped |= capped
+        found.append(_layout(regions, copies[:1] if close else copies, edges, candidates, scores, objects))
+        for r in copies[1:] if close else []:
+            edges, capped, _ = _graph(regions.rows[r], observations, landmarks, candidates, objects, settings, scores,
+                                      check=False)
+            pairs_capped |= capped
+            found.append(_layout(regions, [r], edges, candidates, scores, objects))
     return found, pairs_capped
+
+
+def _layout(regions: Regions, copies: list[int], edges: np.ndarray, candidates: np.ndarray, scores: np.ndarray,
+            objects: np.ndarray) -> Layout:
+    region = regions.rows[copies[0]]
+    return Layout(edges=edges, weights=scores[region], groups=objects[candidates[region, 0]],
+                  vertices=np.stack([regions.rows[r] for r in copies]))
+
+
+def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, candidates: np.ndarray,
+           objects: np.ndarray, settings: InlierConfig, scores: np.ndarray, *, check: bool
+           ) -> tuple[np.ndarray, bool, bool]:
+    """(local edges, whether max_pairs cut the region, whether `check` found a test decided by less than
+    DECIDED_BY): the pipeline's compatibility graph of one region's candidates."""
+    obs, lm = candidates[region, 0], candidates[region, 1]
+    unique, local_landmark = np.unique(lm, return_inverse=True)
+    points, local = landmarks.centers[unique], np.column_stack((obs, local_landmark.ravel()))
+    slack = compatibility.partial_view_slack(observations.axes[obs], landmarks.axes[lm], settings.partial_slack,
+                                             settings.max_slack, settings.slack_min_deficit)
+    kept = compatibility.affordable_candidates(observations.centers, points, local, scores[region],
+                                               settings.d_comp, slack, max_pairs=settings.max_pairs)
+    edges = kept[compatibility.compatibility_graph(observations.centers, points, local[kept], settings.d_comp,
+                                                   slack[kept], objects)]
+    close = check and _closest_test(observations.centers, landmarks.centers[lm[kept]], obs[kept], lm[kept],
+                                    objects[obs[kept]], slack[kept], settings.d_comp) < DECIDED_BY
+    return edges, len(kept) < len(region), close
+
+
+def _closest_test(observed_centers: np.ndarray, points: np.ndarray, obs: np.ndarray, lm: np.ndarray,
+                  shown: np.ndarray, slack: np.ndarray, d_comp: float) -> float:
+    """How near its tolerance the closest-run compatibility test between these candidates is, in metres
+    (over every pair within reach, plus DECIDED_BY for pairs at its edge)."""
+    observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
+    reach = compatibility.pair_reach(observed, d_comp, slack) + DECIDED_BY
+    pairs = cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64, copy=False)
+    return _closest(pairs, points, obs, lm, shown, observed, d_comp, slack)
+
+
+@njit(cache=True)
+def _closest(pairs, points, obs, lm, shown, observed, d_comp, slack):
+    """`_closest_test`'s margin over `pairs`, the pairs compatibility tests (other object, other landmark)."""
+    closest = np.inf
+    for p in range(len(pairs)):
+        a, b = pairs[p, 0], pairs[p, 1]
+        if shown[a] == shown[b] or lm[a] == lm[b]:
+            continue
+        mapped = math.sqrt((points[a, 0] - points[b, 0]) ** 2 + (points[a, 1] - points[b, 1]) ** 2
+                           + (points[a, 2] - points[b, 2]) ** 2)
+        closest = min(closest, abs(abs(observed[obs[a], obs[b]] - mapped) - (d_comp + slack[a] + slack[b])))
+    return closest
 
 
 def top_cliques(found: list[Layout], count: int, settings: InlierConfig) -> cliquesearch.TopCliques:

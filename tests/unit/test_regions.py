@@ -115,3 +115,34 @@ def test_one_region_beyond_the_cap_is_capped_as_before():
     config = make_config("clipclique", overrides={"matching.max_candidates": 6})
     result = localize(observations, index_map(map, config), config)
     assert result.cap_hit is CapHit.MAX_CANDIDATES and len(result.candidates) == 6 and result.region_split is None
+
+
+def test_copies_whose_pair_test_is_a_close_call_are_tested_one_by_one():
+    """Landmark 1 sits d_comp farther from landmark 0 than observation 1 from observation 0: that test is decided
+    by round-off, which a copy's coordinates could round the other way."""
+    observed, landmarks, candidates, scores, objects = building()
+    centers = landmarks.centers.copy()
+    centers[[1, 5, 9], 0] += SETTINGS.d_comp
+    landmarks = ellipsoids(centers)
+    split, found, best = searched(observed, landmarks, candidates, scores, objects, count=5)
+    assert split.copies == [[0, 1, 2]] and [layout.vertices.shape[0] for layout in found] == [1, 1, 1]
+    reference = whole(observed, landmarks, candidates, scores, 5)
+    assert [clique.tolist() for clique in best.cliques] == [clique.tolist() for clique in reference.cliques]
+    # room 2's coordinates (40 m along) round that test the other way: one copy of three keeps all four landmarks
+    assert best.cliques[0].tolist() == [2, 5, 8, 11] and len(best.cliques[1]) == 3
+
+
+def test_many_candidates_in_several_regions_are_split_below_the_cap_with_the_same_hypotheses():
+    room = synthetic_map(np.random.default_rng(0), num_landmarks=30)
+    map = duplicate_rooms(room, 6, gap=20.0)
+    observations, _ = synthetic_query(room, np.random.default_rng(1))
+
+    def run(split_from):
+        config = make_config("clipclique", overrides={"inliers.region_split_from": split_from})
+        return localize(observations, index_map(map, config), config)
+
+    split, whole_map = run(20), run(1_000_000)
+    assert split.region_split is not None and whole_map.region_split is None and split.cap_hit is None
+    assert [h.correspondences.tolist() for h in split.hypotheses] == [h.correspondences.tolist()
+                                                                       for h in whole_map.hypotheses]
+    assert [h.score for h in split.hypotheses] == [h.score for h in whole_map.hypotheses]

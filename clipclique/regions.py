@@ -17,13 +17,11 @@ no cap is hit. Only `reached` differs: it counts each region's own search.
 from __future__ import annotations
 
 import itertools
-import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
 from clipclique import cliquesearch, compatibility, matching
 from clipclique.config import InlierConfig
@@ -212,7 +210,8 @@ def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, 
            objects: np.ndarray, settings: InlierConfig, scores: np.ndarray, *, check: bool
            ) -> tuple[np.ndarray, bool, bool]:
     """(local edges, whether max_pairs cut the region, whether `check` found a test decided by less than
-    DECIDED_BY): the pipeline's compatibility graph of one region's candidates."""
+    DECIDED_BY: one the graph with d_comp DECIDED_BY wider has and the one DECIDED_BY narrower lacks):
+    the pipeline's compatibility graph of one region's candidates."""
     obs, lm = candidates[region, 0], candidates[region, 1]
     unique, local_landmark = np.unique(lm, return_inverse=True)
     points, local = landmarks.centers[unique], np.column_stack((obs, local_landmark.ravel()))
@@ -220,35 +219,10 @@ def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, 
                                              settings.max_slack, settings.slack_min_deficit)
     kept = compatibility.affordable_candidates(observations.centers, points, local, scores[region],
                                                settings.d_comp, slack, max_pairs=settings.max_pairs)
-    edges = kept[compatibility.compatibility_graph(observations.centers, points, local[kept], settings.d_comp,
-                                                   slack[kept], objects)]
-    close = check and _closest_test(observations.centers, landmarks.centers[lm[kept]], obs[kept], lm[kept],
-                                    objects[obs[kept]], slack[kept], settings.d_comp) < DECIDED_BY
-    return edges, len(kept) < len(region), close
-
-
-def _closest_test(observed_centers: np.ndarray, points: np.ndarray, obs: np.ndarray, lm: np.ndarray,
-                  shown: np.ndarray, slack: np.ndarray, d_comp: float) -> float:
-    """How near its tolerance the closest-run compatibility test between these candidates is, in metres
-    (over every pair within reach, plus DECIDED_BY for pairs at its edge)."""
-    observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
-    reach = compatibility.pair_reach(observed, d_comp, slack) + DECIDED_BY
-    pairs = cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64, copy=False)
-    return _closest(pairs, points, obs, lm, shown, observed, d_comp, slack)
-
-
-@njit(cache=True)
-def _closest(pairs, points, obs, lm, shown, observed, d_comp, slack):
-    """`_closest_test`'s margin over `pairs`, the pairs compatibility tests (other object, other landmark)."""
-    closest = np.inf
-    for p in range(len(pairs)):
-        a, b = pairs[p, 0], pairs[p, 1]
-        if shown[a] == shown[b] or lm[a] == lm[b]:
-            continue
-        mapped = math.sqrt((points[a, 0] - points[b, 0]) ** 2 + (points[a, 1] - points[b, 1]) ** 2
-                           + (points[a, 2] - points[b, 2]) ** 2)
-        closest = min(closest, abs(abs(observed[obs[a], obs[b]] - mapped) - (d_comp + slack[a] + slack[b])))
-    return closest
+    graph = lambda d_comp: compatibility.compatibility_graph(observations.centers, points, local[kept], d_comp,  # noqa: E731
+                                                             slack[kept], objects)
+    close = check and len(graph(settings.d_comp + DECIDED_BY)) != len(graph(settings.d_comp - DECIDED_BY))
+    return kept[graph(settings.d_comp)], len(kept) < len(region), close
 
 
 def top_cliques(found: list[Layout], count: int, settings: InlierConfig) -> cliquesearch.TopCliques:

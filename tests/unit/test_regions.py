@@ -87,16 +87,20 @@ def test_the_cap_is_counted_per_region():
     assert [clique.tolist() for clique in best.cliques] == [[0, 3, 6], [1, 4, 7], [2, 5, 8]]
 
 
+ROOM_MAP = synthetic_map(np.random.default_rng(0), num_landmarks=30)
+ROOM_QUERY = synthetic_query(ROOM_MAP, np.random.default_rng(1))[0]  # seen in room 0
+
+
+def in_six_rooms(**overrides):
+    """The query localized in six copies of ROOM_MAP 20 m apart."""
+    map = duplicate_rooms(ROOM_MAP, 6, gap=20.0)
+    config = make_config("clipclique", overrides=overrides)
+    return localize(ROOM_QUERY, index_map(map, config), config)
+
+
 def test_a_building_beyond_the_cap_is_localized_without_a_cap_and_said_ambiguous():
-    room = synthetic_map(np.random.default_rng(0), num_landmarks=30)
-    map = duplicate_rooms(room, 6, gap=20.0)
-    observations, _ = synthetic_query(room, np.random.default_rng(1))
-
-    def run(max_candidates):
-        config = make_config("clipclique", overrides={"matching.max_candidates": max_candidates})
-        return localize(observations, index_map(map, config), config)
-
-    split, free = run(20), run(10_000_000)
+    split = in_six_rooms(**{"matching.max_candidates": 20})
+    free = in_six_rooms(**{"matching.max_candidates": 10_000_000})
     assert len(free.candidates) > 20 and free.cap_hit is None and free.region_split is None
     assert split.cap_hit is None and len(split.candidates) == len(free.candidates)
     assert split.region_split == RegionSplit(regions=6, layouts=1, tied_regions=6) and split.region_split.ambiguous
@@ -105,7 +109,7 @@ def test_a_building_beyond_the_cap_is_localized_without_a_cap_and_said_ambiguous
     for got, want in zip(split.hypotheses, free.hypotheses):
         np.testing.assert_array_equal(got.correspondences, want.correspondences)
         assert got.score == want.score
-    rooms = {int(h.correspondences[0, 1]) // len(room) for h in split.hypotheses}
+    rooms = {int(h.correspondences[0, 1]) // len(ROOM_MAP) for h in split.hypotheses}
     assert len(rooms) > 1  # the same fit in several rooms
 
 
@@ -133,15 +137,8 @@ def test_copies_whose_pair_test_is_a_close_call_are_tested_one_by_one():
 
 
 def test_many_candidates_in_several_regions_are_split_below_the_cap_with_the_same_hypotheses():
-    room = synthetic_map(np.random.default_rng(0), num_landmarks=30)
-    map = duplicate_rooms(room, 6, gap=20.0)
-    observations, _ = synthetic_query(room, np.random.default_rng(1))
-
-    def run(split_from):
-        config = make_config("clipclique", overrides={"inliers.region_split_from": split_from})
-        return localize(observations, index_map(map, config), config)
-
-    split, whole_map = run(20), run(1_000_000)
+    split = in_six_rooms(**{"inliers.region_split_from": 20})
+    whole_map = in_six_rooms(**{"inliers.region_split_from": 1_000_000})
     assert split.region_split is not None and whole_map.region_split is None and split.cap_hit is None
     assert [h.correspondences.tolist() for h in split.hypotheses] == [h.correspondences.tolist()
                                                                        for h in whole_map.hypotheses]

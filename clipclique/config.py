@@ -92,8 +92,9 @@ class InlierConfig:
     max_pairs: int = ranged(2_000_000, 1, 1_000_000_000)
     # Beyond the paper: from this many candidates (or beyond matching.max_candidates), candidates that lie in
     # several map regions farther apart than compatibility reaches (a building of look-alike rooms) are searched
-    # region by region, copies of one room once (clipclique.regions): the same hypotheses; num_cliques then counts
-    # each region's own search, and the candidate cap applies per region.
+    # region by region, copies of one room once (clipclique.regions), when copies at least halve the searches:
+    # the same hypotheses; num_cliques then counts each region's own search, and the candidate cap applies per
+    # region. Rooms that differ are searched as one map, capped as before.
     region_split_from: int = ranged(2_000, 1, 1_000_000_000)
     min_clique_size: int = ranged(3, 3, 1000)  # fewer than 3 cannot fix a 6-DoF pose
     max_cliques: int = ranged(100_000, 1, 10_000_000)  # enumeration stops here and says so

@@ -93,9 +93,10 @@ ROOM_MAP = synthetic_map(np.random.default_rng(0), num_landmarks=30)
 ROOM_QUERY = synthetic_query(ROOM_MAP, np.random.default_rng(1))[0]  # seen in room 0
 
 
-def in_six_rooms(**overrides):
-    """The query localized in six copies of ROOM_MAP 20 m apart."""
+def in_six_rooms(jitter: float = 0.0, **overrides):
+    """The query localized in six copies of ROOM_MAP 20 m apart (every landmark moved by up to `jitter` m)."""
     map = duplicate_rooms(ROOM_MAP, 6, gap=20.0)
+    map.ellipsoids.centers[:] += np.random.default_rng(2).uniform(-jitter, jitter, map.ellipsoids.centers.shape)
     config = make_config("clipclique", overrides=overrides)
     return localize(ROOM_QUERY, index_map(map, config), config)
 
@@ -145,3 +146,12 @@ def test_many_candidates_in_several_regions_are_split_below_the_cap_with_the_sam
     assert [h.correspondences.tolist() for h in split.hypotheses] == [h.correspondences.tolist()
                                                                        for h in whole_map.hypotheses]
     assert [h.score for h in split.hypotheses] == [h.score for h in whole_map.hypotheses]
+
+
+def test_rooms_that_differ_are_searched_as_one_map_and_capped_as_before():
+    """Six rooms a centimetre apart from each other's layout: six layouts, no copy to search once, so the split
+    would cost six graphs and searches for nothing; the whole map is searched, its cap as before."""
+    split = in_six_rooms(jitter=0.01, **{"inliers.region_split_from": 20})
+    capped = in_six_rooms(jitter=0.01, **{"matching.max_candidates": 20})
+    assert split.region_split is None and split.cap_hit is None
+    assert capped.region_split is None and capped.cap_hit is CapHit.MAX_CANDIDATES and len(capped.candidates) == 20

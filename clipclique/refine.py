@@ -28,54 +28,97 @@ def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: n
 
 def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
                     radius: float, landmarks: cKDTree | None = None) -> list[np.ndarray]:
-    """`nearby_pairs` of each pose (a re-ranked frame has fifty): the observations moved by all of them, the
-    landmarks within reach of each (`_within_reach`; `landmarks`: a KD-tree of the map's centres, None: built
-    when needed), then one compiled one-to-one pass."""
+    """`nearby_pairs` of each pose (a re-ranked frame has fifty), by `_stacked_nearby_pairs`."""
     rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
     translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
-    moved = (np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]).reshape(-1, 3)
-    reach = radius * (1 + 1e-9) + 1e-12  # a hair wider than the strict test below
-    point, lm = _within_reach(moved, map.ellipsoids.centers, reach, landmarks)
-    distance = np.linalg.norm(moved[point] - map.ellipsoids.centers[lm], axis=-1)  # the dense matrix's very values
-    pose, obs = np.divmod(point, len(observations))
-    allowed = (distance < radius) & (similarity[obs, lm] > 0)
-    pose, obs, lm = pose[allowed], obs[allowed], lm[allowed]
-    order = np.lexsort((lm, obs, distance[allowed], pose))  # per pose nearest first, ties by observation, landmark
-    pose, obs, lm = pose[order], obs[order], lm[order]
-    taken, per_pose = _one_to_one(pose, obs, lm, len(poses), len(observations), len(map))
-    pairs, ends = np.column_stack((obs[taken], lm[taken])), np.cumsum(per_pose).tolist()
+    pairs, counts = _stacked_nearby_pairs(rotations, translations, observations, map, similarity, radius, landmarks)
+    ends = np.cumsum(counts).tolist()
     return [pairs[start:end] for start, end in zip([0, *ends], ends)]
+
+
+def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, observations: Observations, map: Map,
+                          similarity: np.ndarray, radius: float,
+                          landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
+    """The nearby pairs of B poses (rotations (B, 3, 3), translations (B, 3)) stacked pose after pose, and (B,)
+    how many each has: the observations moved by all of them, the pairs nearer than `radius` (`_near_pairs`),
+    then one compiled pass orders them and picks one-to-one (a numpy pass each cost more than the work)."""
+    moved = (np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]).reshape(-1, 3)
+    near = _near_pairs(moved, map.ellipsoids.centers, similarity, radius, len(observations), landmarks)
+    return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
 
 
 DENSE_PAIRS = 1 << 18  # up to this many (moved observation, landmark) pairs, every one is tested
 
 
-def _within_reach(points: np.ndarray, centers: np.ndarray, reach: float,
-                  landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
-    """(point, landmark) index pairs at most `reach` apart, in no particular order: every pair tested by a
-    compiled loop for a room-sized map (fifty poses of a frame against 47 landmarks: 61,000 pairs, tens of
-    microseconds), a KD-tree join beyond (a map of 47,000 landmarks costs a join, not a distance matrix)."""
+def _near_pairs(points: np.ndarray, centers: np.ndarray, similarity: np.ndarray, radius: float, num_obs: int,
+                landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(distance, pose, observation, landmark) of every moved observation (point = pose * num_obs +
+    observation) nearer than `radius` to a landmark its similarity to is positive, by pose, observation,
+    landmark: every pair tested by a compiled loop for a room-sized map (fifty poses of a frame against 47
+    landmarks: 35,000 pairs, tens of microseconds), a KD-tree join beyond (a map of 47,000 landmarks costs a
+    join, not a distance matrix; `landmarks`: a KD-tree of the map's centres, None: built here)."""
     if len(points) * len(centers) <= DENSE_PAIRS:
-        return _pairs_within(points, centers, reach)
+        return _every_near_pair(points, centers, similarity, radius, num_obs)
     tree = cKDTree(centers) if landmarks is None else landmarks
-    near = cKDTree(points).sparse_distance_matrix(tree, reach, output_type="ndarray")
-    return near["i"].astype(np.int64), near["j"].astype(np.int64)
+    reach = radius * (1 + 1e-9) + 1e-12  # a hair wider than the strict test of `_near`
+    join = cKDTree(points).sparse_distance_matrix(tree, reach, output_type="ndarray")
+    point, landmark = join["i"].astype(np.int64), join["j"].astype(np.int64)
+    order = np.argsort(point * len(centers) + landmark)
+    return _listed_near_pairs(points, centers, similarity, radius, num_obs, point[order], landmark[order])
 
 
 @njit(cache=True)
-def _pairs_within(points, centers, reach):
-    """Every (point, centre) index pair at most `reach` apart, tested one by one."""
-    point, centre = [], []
-    limit = reach * reach
+def _near(point, centre, similarity, observation, landmark, radius):
+    """The distance of `point` and `centre` as np.linalg.norm computes it (((dx^2 + dy^2) + dz^2) ** 0.5), and
+    whether it is below `radius` with a positive similarity of the observation to the landmark."""
+    dx = point[0] - centre[0]
+    dy = point[1] - centre[1]
+    dz = point[2] - centre[2]
+    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return distance, distance < radius and similarity[observation, landmark] > 0
+
+
+@njit(cache=True)
+def _every_near_pair(points, centers, similarity, radius, num_obs):
+    """`_near_pairs` testing every (point, centre) pair."""
+    capacity = len(points) * len(centers)
+    distance, pose, obs, lm = (np.empty(capacity), np.empty(capacity, np.int64), np.empty(capacity, np.int64),
+                               np.empty(capacity, np.int64))
+    count = 0
     for p in range(len(points)):
-        for c in range(len(centers)):
-            dx = points[p, 0] - centers[c, 0]
-            dy = points[p, 1] - centers[c, 1]
-            dz = points[p, 2] - centers[c, 2]
-            if dx * dx + dy * dy + dz * dz <= limit:
-                point.append(p)
-                centre.append(c)
-    return np.array(point, np.int64), np.array(centre, np.int64)
+        for n in range(len(centers)):
+            d, near = _near(points[p], centers[n], similarity, p % num_obs, n, radius)
+            if near:
+                distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
+                count += 1
+    return distance[:count], pose[:count], obs[:count], lm[:count]
+
+
+@njit(cache=True)
+def _listed_near_pairs(points, centers, similarity, radius, num_obs, point, landmark):
+    """`_near_pairs` of the listed (point, landmark) candidates, ordered by point, then landmark."""
+    distance, pose, obs, lm = (np.empty(len(point)), np.empty(len(point), np.int64), np.empty(len(point), np.int64),
+                               np.empty(len(point), np.int64))
+    count = 0
+    for p, n in zip(point, landmark):
+        d, near = _near(points[p], centers[n], similarity, p % num_obs, n, radius)
+        if near:
+            distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
+            count += 1
+    return distance[:count], pose[:count], obs[:count], lm[:count]
+
+
+@njit(cache=True)
+def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks):
+    """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties kept in that order)
+    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took."""
+    first = np.searchsorted(pose, np.arange(num_poses + 1))
+    obs, lm = obs.copy(), lm.copy()
+    for b in range(num_poses):  # a stable sort per pose keeps observation and landmark order among ties
+        nearest = first[b] + np.argsort(distance[first[b]: first[b + 1]], kind="mergesort")
+        obs[first[b]: first[b + 1]], lm[first[b]: first[b + 1]] = obs[nearest], lm[nearest]
+    taken, per_pose = _one_to_one(pose, obs, lm, num_poses, num_obs, num_landmarks)
+    return np.column_stack((obs, lm))[taken], per_pose
 
 
 @njit(cache=True)
@@ -100,35 +143,51 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> None:
     """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place,
     as long as they are at least as many as it had (a refit never rests on fewer objects). The
-    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty).
+    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty), their
+    poses held as stacked arrays between rounds and written back once.
     `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
-    active = list(hypotheses)
+    rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
+    translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
+    sizes = np.array([len(h.correspondences) for h in hypotheses], np.int64)
+    refined: dict[int, np.ndarray] = {}  # hypothesis -> its latest nearby pairs
+    active = np.arange(len(hypotheses))
     for _ in range(rounds):
-        if not active:
-            return
-        nearby = nearby_pairs_of([h.pose for h in active], observations, map, similarity, radius, landmarks)
-        refits = [(hypothesis, pairs) for hypothesis, pairs in zip(active, nearby)
-                  if len(pairs) >= max(3, len(hypothesis.correspondences))]
-        if not refits:
-            return
+        if not len(active):
+            break
+        pairs, counts = _stacked_nearby_pairs(rotations[active], translations[active], observations, map, similarity,
+                                              radius, landmarks)
+        starts = np.cumsum(counts) - counts
+        refits = np.flatnonzero(counts >= np.maximum(3, sizes[active]))
+        if not len(refits):
+            break
         # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
         # each distinct set is fitted once.
         distinct: dict[bytes, int] = {}
-        fitted = np.array([distinct.setdefault(pairs.tobytes(), len(distinct)) for _, pairs in refits])
-        sets = [refits[first][1] for first in np.unique(fitted, return_index=True)[1]]
-        sizes = np.array([len(pairs) for pairs in sets])
-        valid = np.arange(sizes.max()) < sizes[:, None]
-        padded = np.zeros((*valid.shape, 2), np.int64)
-        padded[valid] = np.concatenate(sets)
-        obs, lm = padded[..., 0], padded[..., 1]
-        w = valid * correspondence_weights(similarity[obs, lm].ravel(), observations.ellipsoids.axes[obs].reshape(-1, 3),
-                                           map.ellipsoids.axes[lm].reshape(-1, 3), weights).reshape(valid.shape)
-        rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs], map.ellipsoids.centers[lm], w)
-        ok &= np.count_nonzero(w, axis=1) >= 3
-        rotation, translation, ok = rotation[fitted], translation[fitted], ok[fitted]
-        active = []
-        for b in np.flatnonzero(ok):
-            hypothesis, pairs = refits[b]
-            hypothesis.pose = Pose(rotation[b], translation[b])
-            hypothesis.correspondences = pairs
-            active.append(hypothesis)
+        fitted = np.array([distinct.setdefault(pairs[starts[r]: starts[r] + counts[r]].tobytes(), len(distinct))
+                           for r in refits.tolist()])
+        firsts = refits[np.unique(fitted, return_index=True)[1]]
+        rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
+                                           weights)
+        kept = ok[fitted]
+        refits, fitted = refits[kept], fitted[kept]
+        active = active[refits]
+        rotations[active], translations[active], sizes[active] = rotation[fitted], translation[fitted], counts[refits]
+        for hypothesis, start, count in zip(active.tolist(), starts[refits].tolist(), counts[refits].tolist()):
+            refined[hypothesis] = pairs[start: start + count]
+    for i, pairs in refined.items():
+        hypotheses[i].pose = Pose(rotations[i], translations[i])
+        hypotheses[i].correspondences = pairs
+
+
+def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,
+           similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
+    with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
+    valid = np.arange(counts.max()) < counts[:, None]
+    at = (np.arange(valid.shape[1]) + starts[:, None])[valid]
+    obs, lm = np.zeros(valid.shape, np.int64), np.zeros(valid.shape, np.int64)
+    obs[valid], lm[valid] = pairs[at, 0], pairs[at, 1]
+    w = valid * correspondence_weights(similarity[obs, lm].ravel(), observations.ellipsoids.axes[obs].reshape(-1, 3),
+                                       map.ellipsoids.axes[lm].reshape(-1, 3), weights).reshape(valid.shape)
+    rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs], map.ellipsoids.centers[lm], w)
+    return rotation, translation, ok & (np.count_nonzero(w, axis=1) >= 3)

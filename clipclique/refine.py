@@ -58,53 +58,46 @@ def _near_pairs(points: np.ndarray, centers: np.ndarray, similarity: np.ndarray,
     landmarks: 35,000 pairs, tens of microseconds), a KD-tree join beyond (a map of 47,000 landmarks costs a
     join, not a distance matrix; `landmarks`: a KD-tree of the map's centres, None: built here)."""
     if len(points) * len(centers) <= DENSE_PAIRS:
-        return _every_near_pair(points, centers, similarity, radius, num_obs)
+        return _near_pairs_listed(points, centers, similarity, radius, num_obs, None, None)
     tree = cKDTree(centers) if landmarks is None else landmarks
-    reach = radius * (1 + 1e-9) + 1e-12  # a hair wider than the strict test of `_near`
-    join = cKDTree(points).sparse_distance_matrix(tree, reach, output_type="ndarray")
+    join = cKDTree(points).sparse_distance_matrix(tree, _reach(radius), output_type="ndarray")
     point, landmark = join["i"].astype(np.int64), join["j"].astype(np.int64)
     order = np.argsort(point * len(centers) + landmark)
-    return _listed_near_pairs(points, centers, similarity, radius, num_obs, point[order], landmark[order])
+    return _near_pairs_listed(points, centers, similarity, radius, num_obs, point[order], landmark[order])
 
 
 @njit(cache=True)
-def _near(point, centre, similarity, observation, landmark, radius):
-    """The distance of `point` and `centre` as np.linalg.norm computes it (((dx^2 + dy^2) + dz^2) ** 0.5), and
-    whether it is below `radius` with a positive similarity of the observation to the landmark."""
-    dx = point[0] - centre[0]
-    dy = point[1] - centre[1]
-    dz = point[2] - centre[2]
-    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
-    return distance, distance < radius and similarity[observation, landmark] > 0
+def _reach(radius):
+    """A hair wider than `radius`: a pair beyond it is surely not nearer than `radius`, whatever the rounding."""
+    return radius * (1 + 1e-9) + 1e-12
 
 
 @njit(cache=True)
-def _every_near_pair(points, centers, similarity, radius, num_obs):
-    """`_near_pairs` testing every (point, centre) pair."""
-    capacity = len(points) * len(centers)
-    distance, pose, obs, lm = (np.empty(capacity), np.empty(capacity, np.int64), np.empty(capacity, np.int64),
-                               np.empty(capacity, np.int64))
-    count = 0
-    for p in range(len(points)):
-        for n in range(len(centers)):
-            d, near = _near(points[p], centers[n], similarity, p % num_obs, n, radius)
-            if near:
-                distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
+def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, landmark):
+    """`_near_pairs` of the listed (point, landmark) candidates ordered by point, then landmark, or of every
+    (point, centre) pair when `point` is None. The distance is np.linalg.norm's, ((dx^2 + dy^2) + dz^2) ** 0.5
+    in that order, its square root taken only within `_reach` (most pairs of a map are far)."""
+    total = len(points) * len(centers) if point is None else len(point)
+    distance, pose, obs, lm = (np.empty(total), np.empty(total, np.int64), np.empty(total, np.int64),
+                               np.empty(total, np.int64))
+    count, limit = 0, _reach(radius) ** 2
+    p, n = 0, -1
+    for i in range(total):
+        if point is None:  # the next pair in order, without a division per pair
+            n += 1
+            if n == len(centers):
+                p, n = p + 1, 0
+        else:
+            p, n = point[i], landmark[i]
+        dx = points[p, 0] - centers[n, 0]
+        dy = points[p, 1] - centers[n, 1]
+        dz = points[p, 2] - centers[n, 2]
+        squared = dx * dx + dy * dy + dz * dz
+        if squared <= limit:
+            d, k = np.sqrt(squared), p % num_obs
+            if d < radius and similarity[k, n] > 0:
+                distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, k, n
                 count += 1
-    return distance[:count], pose[:count], obs[:count], lm[:count]
-
-
-@njit(cache=True)
-def _listed_near_pairs(points, centers, similarity, radius, num_obs, point, landmark):
-    """`_near_pairs` of the listed (point, landmark) candidates, ordered by point, then landmark."""
-    distance, pose, obs, lm = (np.empty(len(point)), np.empty(len(point), np.int64), np.empty(len(point), np.int64),
-                               np.empty(len(point), np.int64))
-    count = 0
-    for p, n in zip(point, landmark):
-        d, near = _near(points[p], centers[n], similarity, p % num_obs, n, radius)
-        if near:
-            distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
-            count += 1
     return distance[:count], pose[:count], obs[:count], lm[:count]
 
 

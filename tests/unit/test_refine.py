@@ -139,3 +139,47 @@ def test_pairs_are_taken_nearest_first_one_to_one():
         if similarity[k, n] > 0 and k not in used_obs and n not in used_lm:
             used_obs.add(k), used_lm.add(n), expected.append((k, n))
     np.testing.assert_array_equal(nearby_pairs(Pose.identity(), observations, map, similarity, radius=1.0), expected)
+
+
+def numpy_near_pairs(points, centers, similarity, radius, num_obs):
+    """`refine._near_pairs` written with numpy: every pair's np.linalg.norm, the strict test, in row-major order."""
+    distance = np.linalg.norm(points[:, None] - centers[None], axis=-1)
+    point, landmark = np.nonzero((distance < radius) & (similarity[np.arange(len(points)) % num_obs] > 0))
+    return distance[point, landmark], point // num_obs, point % num_obs, landmark
+
+
+@pytest.mark.parametrize("dense_pairs", [0, refine_module.DENSE_PAIRS], ids=["kd-tree join", "every pair tested"])
+def test_the_compiled_near_pairs_hold_numpys_very_distances(dense_pairs, monkeypatch):
+    monkeypatch.setattr(refine_module, "DENSE_PAIRS", dense_pairs)
+    rng = np.random.default_rng(5)
+    for trial in range(100):
+        num_obs, poses, count = int(rng.integers(1, 12)), int(rng.integers(1, 6)), int(rng.integers(1, 40))
+        points = rng.normal(scale=0.6, size=(poses * num_obs, 3))
+        centers = rng.normal(scale=0.6, size=(count, 3))
+        if trial % 2:  # on a grid: pairs exactly at the radius, and ties
+            points, centers = np.round(points * 4) / 4, np.round(centers * 4) / 4
+        similarity = np.where(rng.random((num_obs, count)) < 0.8, rng.random((num_obs, count)), 0.0)
+        radius = float(rng.choice([0.25, 0.5, 0.7]))
+        got = refine_module._near_pairs(points, centers, similarity, radius, num_obs, None)
+        for ours, theirs in zip(got, numpy_near_pairs(points, centers, similarity, radius, num_obs)):
+            assert ours.tobytes() == theirs.tobytes()  # the same bits, not merely close
+
+
+def test_the_compiled_order_and_choice_match_lexsort_and_a_greedy_loop():
+    rng = np.random.default_rng(6)
+    for trial in range(200):
+        num_poses, num_obs, num_landmarks = int(rng.integers(1, 5)), int(rng.integers(1, 8)), int(rng.integers(1, 9))
+        candidates = np.array([(b, k, n) for b in range(num_poses) for k in range(num_obs) for n in range(num_landmarks)
+                               if rng.random() < 0.6], np.int64).reshape(-1, 3)
+        distance = rng.choice([0.1, 0.2, 0.3], size=len(candidates))  # many exact ties
+        pose, obs, lm = candidates.T
+        pairs, per_pose = refine_module._nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks)
+        expected, counts = [], np.zeros(num_poses, np.int64)
+        for b in range(num_poses):
+            used_obs, used_lm = set(), set()
+            for i in np.lexsort((lm, obs, distance, pose)):
+                if pose[i] == b and obs[i] not in used_obs and lm[i] not in used_lm:
+                    used_obs.add(obs[i]), used_lm.add(lm[i]), expected.append((obs[i], lm[i]))
+                    counts[b] += 1
+        np.testing.assert_array_equal(pairs, np.array(expected, np.int64).reshape(-1, 2))
+        np.testing.assert_array_equal(per_pose, counts)

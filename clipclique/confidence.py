@@ -24,6 +24,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
@@ -62,6 +63,56 @@ def _missed_in_frame(evidence: Evidence) -> np.ndarray:
     return missed - missed.min()
 
 
+def _summed_similarity(evidence: Evidence) -> np.ndarray:
+    """Each hypothesis's similarity summed over its correspondences, to the bit as
+    `similarity[tuple(correspondences.T)].sum()` adds them, one gather and one compiled pass for all (an index
+    and a sum per hypothesis cost more than a frame's whole arithmetic)."""
+    pairs = [np.asarray(h.correspondences).reshape(-1, 2) for h in evidence.hypotheses]
+    if not pairs:
+        return np.zeros(0)
+    stacked = np.concatenate(pairs)
+    values = np.ascontiguousarray(evidence.similarity[stacked[:, 0], stacked[:, 1]])
+    ends = np.cumsum([len(p) for p in pairs])
+    return _group_sums(values, ends, values.dtype.type(0)).astype(float)
+
+
+@njit(cache=True)
+def _group_sums(values: np.ndarray, ends: np.ndarray, zero) -> np.ndarray:
+    """The sum of each group values[ends[b - 1]: ends[b]] (`zero`: 0 of the values' type)."""
+    sums = np.empty(len(ends), values.dtype)
+    start = 0
+    for b in range(len(ends)):
+        sums[b] = _pairwise_sum(values, start, ends[b], zero)
+        start = ends[b]
+    return sums
+
+
+@njit(cache=True)
+def _pairwise_sum(values: np.ndarray, start: int, stop: int, zero):
+    """values[start: stop].sum() as numpy adds a contiguous array, to the bit: in order below 8 values, else in
+    8 running sums combined pairwise then the rest in order, halves of a multiple of 8 above 128 values."""
+    count = stop - start
+    if count < 8:
+        total = zero
+        for i in range(start, stop):
+            total += values[i]
+        return total
+    if count <= 128:
+        partial = values[start: start + 8].copy()
+        end = stop - count % 8
+        for i in range(start + 8, end, 8):
+            for j in range(8):
+                partial[j] += values[i + j]
+        total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5])
+                                                                          + (partial[6] + partial[7]))
+        for i in range(end, stop):
+            total += values[i]
+        return total
+    half = count // 2
+    half -= half % 8
+    return _pairwise_sum(values, start, start + half, zero) + _pairwise_sum(values, start + half, stop, zero)
+
+
 FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
     # The verification score with its missed penalty counted beyond the frame's fewest (by count, as the
     # model was fitted; with every missed landmark counted in full, verification.missed_full_area = 0, the
@@ -72,7 +123,7 @@ FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
     "missed_in_frame": (_missed_in_frame, 0),
     "depth_error": (lambda e: np.minimum(e.verification.depth_error, 2.0), 0),
     "size": (lambda e: np.array([len(h.correspondences) for h in e.hypotheses], float), 0),
-    "similarity": (lambda e: np.array([e.similarity[tuple(h.correspondences.T)].sum() for h in e.hypotheses]), 0),
+    "similarity": (lambda e: _summed_similarity(e), 0),
     "observations": (lambda e: np.full(len(e.hypotheses), float(e.num_observations)), 0),
 }
 

@@ -17,6 +17,7 @@ from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
+from clipclique.types import Hypothesis, Pose
 from clipclique.verification import Verification
 
 
@@ -60,6 +61,25 @@ def test_missed_landmarks_count_beyond_the_frame_s_fewest():
     np.testing.assert_allclose(confidence.feature_matrix(room, names)[:, :2], [[3.0, 0.0], [2.25, 1.0], [0.25, 3.0]])
     shift = confidence.feature_matrix(desk, names[:1])[:, 0] - desk.verification.score
     np.testing.assert_allclose(shift, MISSED_WEIGHT * 14)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_compiled_sum_adds_as_numpy_does(dtype):
+    """numpy's pairwise sum (in order below 8 values, 8 running sums up to 128, halves above), to the bit."""
+    rng = np.random.default_rng(7)
+    for count in [*range(0, 140), 255, 256, 257, 1000, 4099]:
+        values = (rng.random(count) * rng.choice([1e-4, 1.0, 1e4], size=count)).astype(dtype)
+        assert dtype(confidence._pairwise_sum(values, 0, count, dtype(0))).tobytes() == values.sum().tobytes()
+
+
+def test_the_similarity_feature_sums_each_hypothesis_s_correspondences_as_numpy_does():
+    rng = np.random.default_rng(8)
+    similarity = rng.random((40, 60)) * rng.choice([1e-3, 1.0, 1e3], size=(40, 60))
+    hypotheses = [Hypothesis(Pose.identity(), np.column_stack((rng.integers(0, 40, size), rng.integers(0, 60, size))),
+                             1.0) for size in [0, 1, 3, 7, 8, 9, 15, 16, 17, 40, 130, 3]]
+    evidence = confidence.Evidence(hypotheses, verification_of([0.0] * 12, [0] * 12), similarity, 40)
+    expected = np.array([similarity[tuple(h.correspondences.T)].sum() for h in hypotheses])
+    assert confidence.FEATURES["similarity"][0](evidence).tobytes() == expected.tobytes()
 
 
 def test_fit_recovers_a_calibrated_model_and_holds_signs():

@@ -141,8 +141,24 @@ def group_medians(values: np.ndarray, groups: np.ndarray, sizes: np.ndarray) -> 
 def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
     """Indices of the landmarks some camera (B positions) may see: nearer than `max_depth` plus their size.
     Of a large map only these are projected."""
-    distance = np.linalg.norm(ellipsoids.centers[None] - translations[:, None], axis=2) - ellipsoids.axes.max(axis=1)
-    return np.flatnonzero((distance <= max_depth).any(axis=0))
+    return np.flatnonzero(_in_range(np.ascontiguousarray(ellipsoids.centers, np.float64), ellipsoids.axes.max(axis=1),
+                                    np.ascontiguousarray(translations, np.float64), max_depth))
+
+
+@njit(cache=True)
+def _in_range(centers: np.ndarray, sizes: np.ndarray, translations: np.ndarray, max_depth: float) -> np.ndarray:
+    """(N,) whether `np.linalg.norm(centers - translation) - sizes <= max_depth` for some translation: the
+    norm as numpy computes it, ((dx^2 + dy^2) + dz^2) ** 0.5, without a (B, N, 3) array of differences."""
+    near = np.zeros(len(centers), np.bool_)
+    for n in range(len(centers)):
+        for b in range(len(translations)):
+            dx = centers[n, 0] - translations[b, 0]
+            dy = centers[n, 1] - translations[b, 1]
+            dz = centers[n, 2] - translations[b, 2]
+            if np.sqrt(dx * dx + dy * dy + dz * dz) - sizes[n] <= max_depth:
+                near[n] = True
+                break
+    return near
 
 
 def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,

@@ -207,3 +207,19 @@ def test_group_medians_are_numpys_to_the_bit():
             values = np.round(values, 1)  # ties
         expected = [np.median(values[groups == b]) if sizes[b] else np.inf for b in range(len(sizes))]
         np.testing.assert_array_equal(group_medians(values, groups, sizes), expected)
+
+
+def test_landmarks_in_range_are_those_numpys_norm_puts_in_range():
+    """The compiled range test against the numpy expression it replaces, with landmarks exactly at the range."""
+    rng = np.random.default_rng(1)
+    for trial in range(300):
+        count, cameras = int(rng.integers(1, 40)), int(rng.integers(1, 8))
+        centers, translations = rng.normal(scale=3.0, size=(count, 3)), rng.normal(scale=2.0, size=(cameras, 3))
+        axes = rng.uniform(0.01, 0.5, (count, 3))
+        if trial % 2:  # on a grid: distances exactly at max_depth plus the size
+            centers, translations, axes = np.round(centers), np.round(translations), np.round(axes * 4) / 4
+        ellipsoids = Ellipsoids(centers, axes, np.tile(np.eye(3), (count, 1, 1)))
+        max_depth = float(rng.choice([1.0, 2.0, 3.0]))
+        distance = np.linalg.norm(centers[None] - translations[:, None], axis=2) - axes.max(axis=1)
+        expected = np.flatnonzero((distance <= max_depth).any(axis=0))
+        np.testing.assert_array_equal(verification._within_range(ellipsoids, translations, max_depth), expected)

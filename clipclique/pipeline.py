@@ -39,7 +39,7 @@ from clipclique import (cliquesearch, compatibility, confidence, consensus, grap
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
-from clipclique.pose import correspondence_weights, fit_rigid_conditioned
+from clipclique.pose import fit_rigid_conditioned, weighted_sets
 from clipclique.projection import pair_iou
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
@@ -401,23 +401,21 @@ def _hypotheses(
     if not sets:
         return []
     sizes = np.array([len(members) for members in sets])
-    valid = np.arange(sizes.max()) < sizes[:, None]
-    members = np.zeros(valid.shape, np.int64)
-    members[valid] = np.concatenate(sets)
+    members = np.concatenate(sets)
     pairs = result.candidates[members]
-    weights = valid * correspondence_weights(
-        result.candidate_scores[members].ravel(),
-        observations.ellipsoids.axes[pairs[..., 0]].reshape(-1, 3),
-        map.ellipsoids.axes[pairs[..., 1]].reshape(-1, 3),
-        config.pose.weights,
-    ).reshape(valid.shape)
-    source, target = observations.ellipsoids.centers[pairs[..., 0]], map.ellipsoids.centers[pairs[..., 1]]
+    first = result.candidates[0]  # shorter sets are padded with the first candidate at weight 0
+    source, target, weights = weighted_sets(
+        pairs, result.candidate_scores[members], sizes, (first[0], first[1], result.candidate_scores[0]),
+        (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
+        config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     ok &= (np.count_nonzero(weights, axis=1) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
-    return [
-        Hypothesis(Pose(rotation[b], translation[b]), pairs[b, : sizes[b]], float(scores[b]), float(measure[b]))
-        for b in np.flatnonzero(ok)
-    ]
+    kept = np.flatnonzero(ok)
+    ends = np.cumsum(sizes)
+    return [Hypothesis(Pose(r, t), pairs[end - size: end], float(score), conditioning)
+            for r, t, end, size, score, conditioning in zip(
+                rotation[kept], translation[kept], ends[kept].tolist(), sizes[kept].tolist(), scores[kept].tolist(),
+                measure[kept].tolist())]
 
 
 def _verify(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig) -> None:

@@ -262,6 +262,56 @@ def correspondence_weights(
     return similarity * completeness_weights(observed_axes, landmark_axes) if mode == "both" else similarity
 
 
+_WEIGHT_MODES = {"none": 0, "sim": 1, "com": 2, "both": 3}
+
+
+def weighted_sets(pairs: np.ndarray, scores: np.ndarray, counts: np.ndarray, pad: tuple[int, int, float],
+                  observed: tuple[np.ndarray, np.ndarray], landmarks: tuple[np.ndarray, np.ndarray],
+                  mode: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a batch fit of correspondence sets reads, in one compiled pass: (B, P, 3) observed and landmark
+    centres and (B, P) `correspondence_weights` of B sets stacked one after another in `pairs` (M, 2) with
+    their `scores` (M,), `counts[b]` pairs each, padded to the longest with the pair and score `pad` at weight
+    0 (times its weight: numpy's `valid * weights`, the same bits). `observed`, `landmarks`: (centres, axes)."""
+    return _weighted_sets(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(scores, np.float64),
+                          np.asarray(counts, np.int64), pad[0], pad[1], float(pad[2]), *observed, *landmarks,
+                          _WEIGHT_MODES[mode])
+
+
+@njit(cache=True)
+def _weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, observed_centers, observed_axes,
+                   landmark_centers, landmark_axes, mode):
+    """`weighted_sets` with the mode as a number (`_WEIGHT_MODES`)."""
+    width = counts.max() if len(counts) else 0
+    source, target = np.empty((len(counts), width, 3)), np.empty((len(counts), width, 3))
+    weights = np.empty((len(counts), width))
+    start = 0
+    for b in range(len(counts)):
+        for p in range(width):
+            valid = p < counts[b]
+            k, n, score = ((pairs[start + p, 0], pairs[start + p, 1], scores[start + p]) if valid
+                           else (pad_observation, pad_landmark, pad_score))
+            source[b, p], target[b, p] = observed_centers[k], landmark_centers[n]
+            weights[b, p] = (1.0 if valid else 0.0) * _weight(score, observed_axes[k], landmark_axes[n], mode)
+        start += counts[b]
+    return source, target, weights
+
+
+@njit(cache=True)
+def _weight(score, observed_axes, landmark_axes, mode):
+    """One pair's `correspondence_weights`, numpy's operations in numpy's order: np.maximum and np.minimum
+    (NaN kept, +0 over -0) and einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1."""
+    if mode == 0:
+        return 1.0
+    similarity = score if score > 0.0 or np.isnan(score) else 0.0
+    if mode == 1:
+        return similarity
+    observed = (observed_axes[0] * observed_axes[0] + observed_axes[2] * observed_axes[2]) + observed_axes[1] * observed_axes[1]
+    landmark = (landmark_axes[0] * landmark_axes[0] + landmark_axes[2] * landmark_axes[2]) + landmark_axes[1] * landmark_axes[1]
+    ratio = np.sqrt(observed / (landmark if landmark > 1e-12 or np.isnan(landmark) else 1e-12))
+    completeness = ratio if ratio < 1.0 or np.isnan(ratio) else 1.0
+    return completeness if mode == 2 else similarity * completeness
+
+
 def completeness_weights(observed_axes: np.ndarray, landmark_axes: np.ndarray) -> np.ndarray:
     observed = np.einsum("ij,ij->i", observed_axes, observed_axes)
     landmark = np.einsum("ij,ij->i", landmark_axes, landmark_axes)

@@ -14,7 +14,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
-from clipclique.pose import correspondence_weights, fit_rigid_batch
+from clipclique.pose import fit_rigid_batch, weighted_sets
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
@@ -42,9 +42,23 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
     """The nearby pairs of B poses (rotations (B, 3, 3), translations (B, 3)) stacked pose after pose, and (B,)
     how many each has: the observations moved by all of them, the pairs nearer than `radius` (`_near_pairs`),
     then one compiled pass orders them and picks one-to-one (a numpy pass each cost more than the work)."""
-    moved = (np.einsum("bij,kj->bki", rotations, observations.ellipsoids.centers) + translations[:, None]).reshape(-1, 3)
+    moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
     near = _near_pairs(moved, map.ellipsoids.centers, similarity, radius, len(observations), landmarks)
     return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
+
+
+@njit(cache=True)
+def _moved(rotations, translations, points):
+    """(B * K, 3) the K points moved by each of B poses, to the bit as
+    `np.einsum("bij,kj->bki", rotations, points) + translations[:, None]`: each coordinate einsum's sum of three
+    products, (r0 x0 + r2 x2) + r1 x1, then the translation (two numpy passes cost more than the arithmetic)."""
+    moved = np.empty((len(rotations) * len(points), 3))
+    for b in range(len(rotations)):
+        for k in range(len(points)):
+            for i in range(3):
+                moved[b * len(points) + k, i] = ((rotations[b, i, 0] * points[k, 0] + rotations[b, i, 2] * points[k, 2])
+                                                 + rotations[b, i, 1] * points[k, 1]) + translations[b, i]
+    return moved
 
 
 DENSE_PAIRS = 1 << 18  # up to this many (moved observation, landmark) pairs, every one is tested
@@ -156,8 +170,9 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
         # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
         # each distinct set is fitted once.
         distinct: dict[bytes, int] = {}
-        fitted = np.array([distinct.setdefault(pairs[starts[r]: starts[r] + counts[r]].tobytes(), len(distinct))
-                           for r in refits.tolist()])
+        stacked, row = pairs.tobytes(), pairs.itemsize * 2  # each set's bytes, sliced from all of them
+        fitted = np.array([distinct.setdefault(stacked[start * row: end * row], len(distinct))
+                           for start, end in zip(starts[refits].tolist(), (starts + counts)[refits].tolist())])
         firsts = refits[np.unique(fitted, return_index=True)[1]]
         rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
                                            weights)
@@ -176,11 +191,9 @@ def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observatio
            similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
     with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
-    valid = np.arange(counts.max()) < counts[:, None]
-    at = (np.arange(valid.shape[1]) + starts[:, None])[valid]
-    obs, lm = np.zeros(valid.shape, np.int64), np.zeros(valid.shape, np.int64)
-    obs[valid], lm[valid] = pairs[at, 0], pairs[at, 1]
-    w = valid * correspondence_weights(similarity[obs, lm].ravel(), observations.ellipsoids.axes[obs].reshape(-1, 3),
-                                       map.ellipsoids.axes[lm].reshape(-1, 3), weights).reshape(valid.shape)
-    rotation, translation, ok = fit_rigid_batch(observations.ellipsoids.centers[obs], map.ellipsoids.centers[lm], w)
+    chosen = pairs[np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())]
+    source, target, w = weighted_sets(chosen, similarity[chosen[:, 0], chosen[:, 1]], counts, (0, 0, similarity[0, 0]),
+                                      (observations.ellipsoids.centers, observations.ellipsoids.axes),
+                                      (map.ellipsoids.centers, map.ellipsoids.axes), weights)
+    rotation, translation, ok = fit_rigid_batch(source, target, w)
     return rotation, translation, ok & (np.count_nonzero(w, axis=1) >= 3)

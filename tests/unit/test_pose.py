@@ -4,7 +4,7 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
 from clipclique.pose import (MIN_SPREAD_M, RELATIVE_SPREAD, DegeneratePoseError, correspondence_weights, fit_rigid,
-                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity)
+                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity, weighted_sets)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -167,3 +167,27 @@ def test_public_linear_algebra_stands_in_for_numpys_gufuncs_to_the_bit():
     assert np.isnan(s[7]).all() and np.array_equal(s[:7], private[0](matrices[:7])[1])
     assert np.isnan(public[1](np.where(np.isnan(broken), np.nan, symmetric))[7]).all()
     assert np.isnan(public[2](broken)[7]) and np.isfinite(public[2](broken)[8])
+
+
+@pytest.mark.parametrize("mode", ["none", "sim", "com", "both"])
+def test_weighted_sets_are_the_padded_numpy_construction_to_the_bit(mode):
+    """Sets of 0 to 19 pairs padded with a pair at weight 0, scores negative, -0, 0 and NaN, axes with a zero
+    norm: the centres and `valid * correspondence_weights(...)` as the callers wrote them with numpy."""
+    rng = np.random.default_rng(10)
+    observed_centers, observed_axes = rng.normal(size=(12, 3)), rng.uniform(0.0, 0.4, (12, 3))
+    landmark_centers, landmark_axes = rng.normal(size=(30, 3)), rng.uniform(0.0, 0.4, (30, 3))
+    observed_axes[3], landmark_axes[5] = 0.0, 0.0
+    for trial in range(60):
+        counts = rng.integers(0, 20, int(rng.integers(1, 8)))
+        pairs = np.column_stack((rng.integers(0, 12, counts.sum()), rng.integers(0, 30, counts.sum())))
+        scores = rng.choice([-0.5, -0.0, 0.0, 0.3, 0.8, 1.0, np.nan], size=counts.sum())
+        pad = (int(rng.integers(0, 12)), int(rng.integers(0, 30)), float(rng.choice([0.0, 0.7, np.nan])))
+        valid = np.arange(max(counts.max(), 0)) < counts[:, None]
+        obs, lm, score = np.full(valid.shape, pad[0]), np.full(valid.shape, pad[1]), np.full(valid.shape, pad[2])
+        obs[valid], lm[valid], score[valid] = pairs[:, 0], pairs[:, 1], scores
+        expected = valid * correspondence_weights(score.ravel(), observed_axes[obs].reshape(-1, 3),
+                                                  landmark_axes[lm].reshape(-1, 3), mode).reshape(valid.shape)
+        source, target, weights = weighted_sets(pairs, scores, counts, pad, (observed_centers, observed_axes),
+                                                (landmark_centers, landmark_axes), mode)
+        assert weights.tobytes() == expected.tobytes()
+        assert source.tobytes() == observed_centers[obs].tobytes() and target.tobytes() == landmark_centers[lm].tobytes()

@@ -183,3 +183,12 @@ def test_the_compiled_order_and_choice_match_lexsort_and_a_greedy_loop():
                     counts[b] += 1
         np.testing.assert_array_equal(pairs, np.array(expected, np.int64).reshape(-1, 2))
         np.testing.assert_array_equal(per_pose, counts)
+
+
+def test_the_compiled_move_is_numpys_einsum_to_the_bit():
+    rng = np.random.default_rng(9)
+    for poses, points in [(1, 1), (1, 7), (3, 1), (50, 15), (17, 40)]:
+        rotations = np.array([Rotation.random(random_state=seed).as_matrix() for seed in range(poses)])
+        translations, centers = rng.normal(scale=3.0, size=(poses, 3)), rng.normal(scale=2.0, size=(points, 3))
+        expected = (np.einsum("bij,kj->bki", rotations, centers) + translations[:, None]).reshape(-1, 3)
+        assert refine_module._moved(rotations, translations, centers).tobytes() == expected.tobytes()

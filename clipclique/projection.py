@@ -50,20 +50,42 @@ def project(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndar
     centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, N, 3)
     conics = (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
     # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
-    depths = centers[..., 2]
-    reach = np.sqrt(np.maximum(conics[..., 2, 2] + depths**2, 0.0))
-    in_front = depths - reach > MIN_DEPTH
-    c33 = np.where(in_front, conics[..., 2, 2], -1.0)  # in front: C*33 = reach^2 - depth^2 < 0
-    boxes = np.empty(conics.shape[:2] + (4,))
-    for axis_index in (0, 1):  # u from (C*11, C*13), v from (C*22, C*23); C*33 < 0 orders the two roots
-        c_ii, c_i3 = conics[..., axis_index, axis_index], conics[..., axis_index, 2]
-        root = np.sqrt(np.maximum(c_i3**2 - c_ii * c33, 0.0))
-        boxes[..., axis_index], boxes[..., axis_index + 2] = (c_i3 + root) / c33, (c_i3 - root) / c33
-    full_areas = np.where(in_front, box_area(boxes), 0.0)
-    boxes = np.clip(boxes, 0.0, np.array([camera.width, camera.height] * 2, float))
-    visible = (in_front & (depths <= camera.max_depth)
-               & (boxes[..., 2] > boxes[..., 0]) & (boxes[..., 3] > boxes[..., 1]))
-    return Projection(conics, boxes, visible, depths, full_areas)
+    boxes, visible, full_areas = _outline_boxes(conics, centers[..., 2], float(camera.width), float(camera.height),
+                                                float(camera.max_depth))
+    return Projection(conics, boxes, visible, centers[..., 2], full_areas)
+
+
+@njit(cache=True)
+def _outline_boxes(conics: np.ndarray, depths: np.ndarray, width: float, height: float,
+                   max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (pose, ellipsoid): the box of the outline clipped to the image, whether it is visible, and the
+    unclipped box's area (0 unless the ellipsoid is wholly in front). C*33 = reach^2 - depth^2 < 0 in front
+    orders the two roots of each axis; elsewhere -1 stands in. One compiled pass, numpy's operations in order
+    (np.maximum(x, 0) gives +0 for -0, np.clip keeps -0): a dozen (B, N) numpy passes cost more than the work."""
+    count, size = depths.shape
+    boxes, visible, full_areas = np.empty((count, size, 4)), np.empty((count, size), np.bool_), np.empty((count, size))
+    limits = (width, height, width, height)
+    for b in range(count):
+        for n in range(size):
+            conic, depth = conics[b, n], depths[b, n]
+            reach = np.sqrt(_at_least_zero(conic[2, 2] + depth * depth))
+            in_front = depth - reach > MIN_DEPTH
+            c33 = conic[2, 2] if in_front else -1.0
+            box = boxes[b, n]
+            for axis in range(2):  # u from (C*11, C*13), v from (C*22, C*23)
+                root = np.sqrt(_at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
+                box[axis], box[axis + 2] = (conic[axis, 2] + root) / c33, (conic[axis, 2] - root) / c33
+            full_areas[b, n] = (_at_least_zero(box[2] - box[0]) * _at_least_zero(box[3] - box[1])) if in_front else 0.0
+            for i in range(4):
+                box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
+            visible[b, n] = in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1]
+    return boxes, visible, full_areas
+
+
+@njit(cache=True)
+def _at_least_zero(value: float) -> float:
+    """np.maximum(value, 0.0): NaN kept, +0 for -0."""
+    return value if value > 0.0 or np.isnan(value) else 0.0
 
 
 def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:

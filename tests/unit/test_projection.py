@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from clipclique.geometry import look_at, random_rotation
-from clipclique.projection import box_iou, ellipse_outlines, pair_iou, project
+from clipclique.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
 
 CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
@@ -89,3 +89,36 @@ def test_pair_iou_is_box_iou_to_the_bit():
     a, b = boxes[:200], boxes[200:]
     np.testing.assert_array_equal([pair_iou(x, y) for x, y in zip(a, b)], box_iou(a, b))
     assert box_iou(a, b).min() == 0.0 and 0.0 < box_iou(a, b).max() < 1.0
+
+
+def numpy_outline_boxes(conics: np.ndarray, depths: np.ndarray, camera: Camera):
+    """The boxes, visibility and full areas of `project` as written with numpy passes before they were compiled."""
+    reach = np.sqrt(np.maximum(conics[..., 2, 2] + depths**2, 0.0))
+    in_front = depths - reach > MIN_DEPTH
+    c33 = np.where(in_front, conics[..., 2, 2], -1.0)
+    boxes = np.empty(conics.shape[:2] + (4,))
+    for axis_index in (0, 1):
+        c_ii, c_i3 = conics[..., axis_index, axis_index], conics[..., axis_index, 2]
+        root = np.sqrt(np.maximum(c_i3**2 - c_ii * c33, 0.0))
+        boxes[..., axis_index], boxes[..., axis_index + 2] = (c_i3 + root) / c33, (c_i3 - root) / c33
+    full_areas = np.where(in_front, box_area(boxes), 0.0)
+    boxes = np.clip(boxes, 0.0, np.array([camera.width, camera.height] * 2, float))
+    visible = (in_front & (depths <= camera.max_depth) & (boxes[..., 2] > boxes[..., 0]) & (boxes[..., 3] > boxes[..., 1]))
+    return boxes, visible, full_areas
+
+
+def test_the_compiled_boxes_are_the_numpy_passes_to_the_bit():
+    """Landmarks in view, behind, around and beside the camera, cut by the image border, at the depth limit."""
+    rng = np.random.default_rng(11)
+    for trial in range(40):
+        count = int(rng.integers(1, 60))
+        centers = rng.uniform(-4.0, 4.0, (count, 3))
+        if trial % 2:
+            centers = np.round(centers)  # on a grid: centres exactly at the depth limit, on the axes
+        ellipsoids = Ellipsoids(centers, rng.uniform(0.0, 0.6, (count, 3)), np.array([random_rotation(rng) for _ in range(count)]))
+        poses = [look_at(rng.uniform(-3.0, 3.0, 3), rng.uniform(-1.0, 1.0, 3)) for _ in range(int(rng.integers(1, 6)))]
+        camera = Camera(CAMERA.intrinsics, 640, 480, float(rng.choice([3.0, 4.0, 8.0])))
+        seen = project(ellipsoids, np.array([p.rotation for p in poses]), np.array([p.translation for p in poses]), camera)
+        for ours, theirs in zip((seen.boxes, seen.visible, seen.full_areas),
+                                numpy_outline_boxes(seen.dual_conics, seen.depths, camera)):
+            assert ours.tobytes() == theirs.tobytes()

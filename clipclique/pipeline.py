@@ -437,9 +437,9 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
                    model.predict(confidence.Evidence(hypotheses, checked, similarity_seen, len(seen))))
-    for rank, hypothesis in enumerate(result.hypotheses):
-        hypothesis.verification = float(checked.score[rank])
-        hypothesis.confidence = None if probability is None else float(probability[rank])
+    confidences = [None] * len(result.hypotheses) if probability is None else probability.tolist()
+    for hypothesis, score, confident in zip(result.hypotheses, checked.score.tolist(), confidences):
+        hypothesis.verification, hypothesis.confidence = score, confident
     if config.inliers.rerank != "none":
         if config.inliers.rerank == "confidence" and probability is None:
             raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")

@@ -67,12 +67,11 @@ def _summed_similarity(evidence: Evidence) -> np.ndarray:
     """Each hypothesis's similarity summed over its correspondences, to the bit as
     `similarity[tuple(correspondences.T)].sum()` adds them, one gather and one compiled pass for all (an index
     and a sum per hypothesis cost more than a frame's whole arithmetic)."""
-    pairs = [np.asarray(h.correspondences).reshape(-1, 2) for h in evidence.hypotheses]
-    if not pairs:
+    if not evidence.hypotheses:
         return np.zeros(0)
-    stacked = np.concatenate(pairs)
+    stacked = np.concatenate([h.correspondences for h in evidence.hypotheses]).reshape(-1, 2)
     values = np.ascontiguousarray(evidence.similarity[stacked[:, 0], stacked[:, 1]])
-    ends = np.cumsum([len(p) for p in pairs])
+    ends = np.cumsum([len(h.correspondences) for h in evidence.hypotheses])
     return _group_sums(values, ends, values.dtype.type(0)).astype(float)
 
 

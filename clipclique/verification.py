@@ -65,7 +65,7 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     verified once; a hypothesis's figures do not depend on the others'."""
     require_image(observations, "image verification")
     distinct: dict[bytes, int] = {}
-    alike = np.array([distinct.setdefault(_identity(h), len(distinct)) for h in hypotheses], np.int64)
+    alike = np.array([distinct.setdefault(key, len(distinct)) for key in _identities(hypotheses)], np.int64)
     if len(distinct) == len(hypotheses):
         return _verify_all(hypotheses, observations, map, params)
     firsts = np.unique(alike, return_index=True)[1]
@@ -76,11 +76,14 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
 
 
-def _identity(hypothesis: Hypothesis) -> bytes:
-    """The bits a hypothesis's verification depends on."""
-    pose = hypothesis.pose
-    return (np.asarray(pose.rotation, np.float64).tobytes() + np.asarray(pose.translation, np.float64).tobytes()
-            + np.asarray(hypothesis.correspondences, np.int64).tobytes())
+def _identities(hypotheses: list[Hypothesis]) -> list[bytes]:
+    """The bits each hypothesis's verification depends on: its pose (float64 rotation then translation, sliced
+    from one array of them all) and its pairs (int64)."""
+    rotations = np.array([h.pose.rotation for h in hypotheses], np.float64).reshape(-1, 9)
+    translations = np.array([h.pose.translation for h in hypotheses], np.float64).reshape(-1, 3)
+    poses, size = np.concatenate((rotations, translations), axis=1).tobytes(), 12 * 8
+    return [poses[b * size: (b + 1) * size] + np.asarray(h.correspondences, np.int64).tobytes()
+            for b, h in enumerate(hypotheses)]
 
 
 def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: Map,

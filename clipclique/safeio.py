@@ -116,7 +116,7 @@ def read_image(path: Path, mode: str | None = None, error: type[ClipcliqueError]
             width, height = image.size
             if width * height > max_pixels:
                 raise error(f"{path}: image declares {width} x {height} pixels, more than the {max_pixels} allowed")
-            return np.asarray(image.convert(mode) if mode else image)
+            return np.asarray(image.convert(mode) if mode and image.mode != mode else image)  # convert copies even to its own mode
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as problem:
         raise error(f"{path}: unreadable image ({problem})") from None
     except ImportError:  # once ultralytics is imported, its patched Image.open tries an optional HEIF plugin on failure

@@ -10,6 +10,8 @@ from __future__ import annotations
 import gc
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -28,6 +30,18 @@ ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "
 def _tool(version: Annotated[bool, typer.Option("--version", callback=version_option(TOOL), is_eager=True,
                                                 help="print the version and exit")] = False) -> None:
     """clipclique-loc: localize RGB-D frames against a landmark map (CLIP-Clique and its baselines)."""
+
+
+@contextmanager
+def imports_kept() -> Iterator[None]:
+    """Imports made without garbage collection and then frozen (`gc.freeze`): what they make (numba's and Rerun's
+    types, ...) is never garbage, yet every full collection of a run walked it again (two during the imports alone)."""
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        gc.enable()
 
 
 @app.command()
@@ -86,17 +100,19 @@ def run(
                                           rich_help_panel=OUTPUT)] = False,
 ) -> None:
     """Localize each frame; print the paper's table; write results, TUM poses and a recording to the run's folder."""
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.progress import Progress
+    with imports_kept():
+        from rich.console import Console
+        from rich.markup import escape
+        from rich.progress import Progress
 
-    from clipclique.commands import rerun_hint
-    from clipclique.config import method_key
-    from clipclique.exits import user_errors
-    from localization.run import RunSettings, run_and_save
-    from localization.tables import make_console, print_documents, print_frames
+        from clipclique.commands import rerun_hint
+        from clipclique.config import method_key
+        from clipclique.exits import user_errors
+        from localization.run import RunSettings, run_and_save
+        from localization.tables import make_console, print_documents, print_frames
 
-    gc.freeze()  # what the imports made (numba's and Rerun's types, ...) is never garbage: no collection walks it again
+        if not no_rrd:
+            import clipclique.viz  # noqa: F401  (Rerun: imported here to be kept with the rest)
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     with user_errors(TOOL):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -15,7 +16,7 @@ from typer.testing import CliRunner
 from clipclique.geometry import random_rotation
 from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
-from localization.cli import app
+from localization.cli import app, imports_kept
 from localization.run import choose_encoder, read_ahead
 from localization.results import ALL_STAGES, json_safe, read_results, tum_line
 from localization.tables import results_table, run_banner
@@ -264,3 +265,17 @@ def test_frames_read_ahead_come_in_order_errors_where_reached_and_closing_stops_
             seen.append(frame)
     assert seen == ["frame 3", "frame 4"]  # the frames before the unreadable one, then its error
     assert list(read_ahead(frames, range(0))) == [] and list(read_ahead(frames, range(7, 8))) == ["frame 7"]
+
+
+def test_the_run_commands_imports_are_frozen_and_collection_resumes_after_them():
+    """`clipclique-loc run` imports without collecting and freezes what its imports made; a failed import
+    (a broken install) must not leave the run without garbage collection."""
+    gc.unfreeze()
+    try:
+        with pytest.raises(ImportError), imports_kept():
+            assert not gc.isenabled()
+            import clipclique_no_such_module  # noqa: F401
+        assert gc.isenabled()
+        assert gc.get_freeze_count() > 1000  # this process's objects, frozen
+    finally:
+        gc.unfreeze()

@@ -33,7 +33,10 @@ DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 # "previous" is the second round's starting point (re-ranking the five heaviest cliques, every missed
 # landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers. The third
 # round's starting point is "no missed share" (each missed landmark costing alike however many the pose expects).
-PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0}
+# The look-alike candidates (the third round's matching lever) are off in "previous" and "before";
+# "no look-alike candidates" is today's without them.
+PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0,
+            "matching.lookalike_candidates": 0}
 BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
 LEVERS: dict[str, dict[str, Any]] = {
     "before": BEFORE,
@@ -49,6 +52,10 @@ LEVERS: dict[str, dict[str, Any]] = {
     "no missed penalty": {"verification.missed_weight": 0.0},
     "rerank confidence": {"inliers.rerank": "confidence"},
     "no missed share": {"verification.missed_share_from": 0.0},
+    "no look-alike candidates": {"matching.lookalike_candidates": 0},
+    "look-alike candidates 1": {"matching.lookalike_candidates": 1},
+    "look-alike candidates 3": {"matching.lookalike_candidates": 3},
+    "look-alike candidates, any size": {"matching.lookalike_size_ratio": 1000.0},
 }
 
 

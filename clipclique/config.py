@@ -71,6 +71,14 @@ class MatchingConfig:
     k: int = ranged(3, 1, 1000)  # kNN
     top_m_fraction: float = ranged(0.25, 1e-6, 1.0)  # adaptive: M = fraction of the landmarks
     min_similarity: float = ranged(0.0, -1.0, 1.0)  # candidates at or below this are dropped
+    # Beyond the paper (0 = the gap rule alone): adaptive matching also keeps, per observation, this many of the
+    # most similar landmarks of each look-alike class of its own (similarity.lookalike_weight > 0) whose size
+    # agrees with the observation's (lookalike_size_ratio; matching.with_lookalikes), so a cup detected as
+    # "bottle" keeps its cups as candidates; with re-ranking, each clique holding such a pair is also fitted
+    # without it (README "Beyond the paper", benchmark/accuracy_levers.py).
+    lookalike_candidates: int = ranged(2, 0, 1000)
+    # ... only landmarks whose sorted semi-axes are each within this factor of the observation's (1000: any size)
+    lookalike_size_ratio: float = ranged(1.5, 1.0, 1000.0)
     # Candidates kept at most (the best-scored; matching.cap): more would only flood the
     # compatibility graph (and memory). Hitting it is reported (CapHit.MAX_CANDIDATES).
     max_candidates: int = ranged(20_000, 1, 10_000_000)
@@ -196,7 +204,7 @@ class LocalizationConfig:
 # The baselines keep the paper's literal descriptors (no class term, exact labels).
 LITERAL = {"similarity.class_weight": 0.0, "similarity.lookalike_weight": 0.0, "inliers.partial_slack": 0.0,
            "inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0,
-           "verification.missed_share_from": 0.0}
+           "verification.missed_share_from": 0.0, "matching.lookalike_candidates": 0}
 
 METHOD_PRESETS: dict[str, dict[str, Any]] = {
     "clipclique": {},

@@ -19,27 +19,45 @@ FLAT = 1e-12  # a row whose largest gap is at most this has no gap at all
 PARTIAL_SORT_FROM = 1024  # landmarks: from here a row's best are picked by partition before sorting
 
 
-def match(similarity: np.ndarray, config: MatchingConfig) -> tuple[np.ndarray, np.ndarray]:
-    """The configured strategy, then candidates at or below `config.min_similarity` dropped."""
+def match(similarity: np.ndarray, config: MatchingConfig, lookalike: np.ndarray | None = None,
+          landmark_classes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The configured strategy, then candidates at or below `config.min_similarity` dropped: the candidates,
+    their scores, and (C,) which of them only `with_lookalikes` added.
+
+    Adaptive matching also keeps, per observation, its `config.lookalike_candidates` most similar
+    landmarks of each class `lookalike` (K, N) marks as one its detector confuses with its own
+    (`landmark_classes` (N,) groups them)."""
+    added = None
     if config.strategy == "adaptive":
         candidates = adaptive_matches(similarity, top_m(similarity.shape[1], config.top_m_fraction))
+        if config.lookalike_candidates and lookalike is not None and landmark_classes is not None:
+            candidates, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes,
+                                                config.lookalike_candidates)
     elif config.strategy == "knn":
         candidates = knn_matches(similarity, config.k)
     else:
         candidates = mutual_best_matches(similarity)
+    added = np.zeros(len(candidates), bool) if added is None else added
     scores = similarity[candidates[:, 0], candidates[:, 1]]
     keep = scores > config.min_similarity
-    return candidates[keep], scores[keep]
+    return candidates[keep], scores[keep], added[keep]
 
 
 def cap(candidates: np.ndarray, scores: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """At most `limit` candidates: the best-scored (ties by row), in their original row order;
     and whether any were dropped. A flat similarity on a map of thousands of look-alike landmarks
     would otherwise keep a quarter of the map per observation."""
-    if len(candidates) <= limit:
+    kept = best_rows(scores, limit)
+    if kept is None:
         return candidates, scores, False
-    kept = np.sort(np.argsort(-scores, kind="stable")[:limit])
     return candidates[kept], scores[kept], True
+
+
+def best_rows(scores: np.ndarray, limit: int) -> np.ndarray | None:
+    """The rows `cap` keeps (sorted), None when all `scores` fit within `limit`."""
+    if len(scores) <= limit:
+        return None
+    return np.sort(np.argsort(-scores, kind="stable")[:limit])
 
 
 def top_m(num_landmarks: int, fraction: float) -> int:
@@ -62,6 +80,47 @@ def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
     if num_obs == 0 or m == 0:
         return np.zeros((0, 2), dtype=np.int64)
     return _before_largest_gap(similarity, np.ascontiguousarray(_best_first(similarity, m)))  # one compiled layout: one cache load
+
+
+def with_lookalikes(candidates: np.ndarray, similarity: np.ndarray, lookalike: np.ndarray,
+                    landmark_classes: np.ndarray, per_class: int) -> tuple[np.ndarray, np.ndarray]:
+    """`candidates` plus each observation's `per_class` most similar landmarks of every class marked in its row
+    of `lookalike` (K, N), in the candidates' order (by observation, best first, ties by landmark index), and
+    (C,) which of them were added.
+
+    A detection of a cup labelled "bottle" matches the map's bottles far better than its cups (the class
+    term), so the largest similarity gap falls between the two classes and the right cup is never a
+    candidate: on a cluttered desk four in five such detections lost their landmark so. Its best cups
+    (by their neighbourhoods) come back as lighter candidates; a clique still needs them to agree."""
+    rows, columns = np.nonzero(lookalike)
+    if per_class == 0 or len(rows) == 0:
+        return candidates, np.zeros(len(candidates), bool)
+    values = similarity[rows, columns]
+    order = np.lexsort((columns, -values, landmark_classes[columns], rows))  # by row, class, best first
+    rows, columns, classes = rows[order], columns[order], landmark_classes[columns[order]]
+    group = np.r_[True, (rows[1:] != rows[:-1]) | (classes[1:] != classes[:-1])]
+    starts = np.flatnonzero(group)
+    rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.r_[starts, len(rows)]))
+    added = np.column_stack((rows[rank < per_class], columns[rank < per_class])).astype(np.int64)
+    merged = np.unique(np.concatenate((candidates, added)), axis=0)
+    scores = similarity[merged[:, 0], merged[:, 1]]
+    merged = merged[np.lexsort((merged[:, 1], -scores, merged[:, 0]))]
+    kept = np.zeros(similarity.shape, bool)
+    kept[candidates[:, 0], candidates[:, 1]] = True
+    return merged, ~kept[merged[:, 0], merged[:, 1]]
+
+
+def similar_in_size(pairs: np.ndarray, observed_axes: np.ndarray, landmark_axes: np.ndarray, ratio: float) -> np.ndarray:
+    """`pairs` (K, N) bool, cleared where the observation's sorted semi-axes (K, 3) and the landmark's (N, 3)
+    differ by more than `ratio` on some axis: of the added look-alike candidates on a cluttered desk the right
+    ones differ by a median factor of 1.3, the wrong ones by 2.1 (a cup is not a bowl's size)."""
+    rows, columns = np.nonzero(pairs)
+    observed = np.sort(observed_axes, axis=1)[rows]
+    mapped = np.sort(landmark_axes, axis=1)[columns]
+    apart = (np.maximum(observed, mapped) > ratio * np.minimum(observed, mapped)).any(axis=1)
+    kept = pairs.copy()
+    kept[rows[apart], columns[apart]] = False
+    return kept
 
 
 def knn_matches(similarity: np.ndarray, k: int) -> np.ndarray:

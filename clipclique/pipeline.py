@@ -19,7 +19,9 @@ calibrated confidence (`clipclique.confidence`) when the observations carry thei
 `inliers.rerank_pool` hypotheses the inlier stage then fits (the heaviest cliques). Beyond the paper, by default:
 each pose is refitted with every observation it brings near a similar landmark (`pose.refine_radius`,
 clipclique.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
-detected twice with two classes) never enter one clique together. Missing CLIP embeddings make "fused" fall back to SH only (a note
+detected twice with two classes) never enter one clique together; adaptive matching also keeps each observation's
+best landmarks of its look-alike classes (`matching.lookalike_candidates`), and with re-ranking each clique holding
+such a pair is also fitted without it. Missing CLIP embeddings make "fused" fall back to SH only (a note
 says so) and make "clip" a ClipcliqueError.
 """
 
@@ -73,6 +75,8 @@ class LocalizationResult:
     region_split: RegionSplit | None = None  # the regions searched one by one (inliers.region_split_from)
     notes: list[str] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
+    # (C,) candidates only `matching.lookalike_candidates` added (the gap rule did not keep them); None: none were
+    lookalike_added: np.ndarray | None = None
 
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
@@ -114,17 +118,18 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
-    candidates, candidate_scores = matching.match(scores, config.matching)
+    lookalike = _lookalike_landmarks(observations, index, config)
+    candidates, candidate_scores, added = matching.match(scores, config.matching, lookalike, index.map.class_ids)
     split = _split(observations, index.map, candidates, candidate_scores, config)
-    if split is None:
-        candidates, candidate_scores, capped = matching.cap(candidates, candidate_scores, config.matching.max_candidates)
-    else:
-        candidates, candidate_scores, capped = candidates[split.kept], candidate_scores[split.kept], split.capped
+    kept = matching.best_rows(candidate_scores, config.matching.max_candidates) if split is None else split.kept
+    capped = kept is not None if split is None else split.capped
+    if kept is not None:
+        candidates, candidate_scores, added = candidates[kept], candidate_scores[kept], added[kept]
     lap(Stage.MATCHING)
 
     result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=candidate_scores,
                                 similarity=scores, num_cliques=0, cap_hit=CapHit.MAX_CANDIDATES if capped else None,
-                                failure=None, notes=notes, timings=timings)
+                                failure=None, notes=notes, timings=timings, lookalike_added=added)
     matched = np.count_nonzero(np.bincount(candidates[:, 0]))
     if len(observations) < 3:
         result.failure = Failure(kind=FailureKind.FEW_OBSERVATIONS, count=len(observations))
@@ -238,6 +243,18 @@ def _histogram_similarity(
     return similarity.with_class_term(sh, classes, weight)
 
 
+def _lookalike_landmarks(observations: Observations, index: MapIndex, config: LocalizationConfig) -> np.ndarray | None:
+    """(K, N) whether each landmark's class is a look-alike of (not the same as) each observation's and its size
+    agrees (`matching.lookalike_size_ratio`), for `matching.lookalike_candidates`; None when that is off."""
+    settings = config.matching
+    if settings.strategy != "adaptive" or settings.lookalike_candidates == 0 or config.similarity.lookalike_weight == 0:
+        return None
+    classes = observations.class_ids
+    lookalike = (index.kernel_by_landmark[classes] > 0) & (classes[:, None] != index.map.class_ids[None])
+    return matching.similar_in_size(lookalike, observations.ellipsoids.axes, index.map.ellipsoids.axes,
+                                    settings.lookalike_size_ratio)
+
+
 def _missing_embeddings(observations: Observations, map: Map) -> str | None:
     """Why CLIP similarity cannot be computed, or None when it can."""
     if map.text_embeddings is None:
@@ -323,6 +340,10 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         if len(result.hypotheses) == pool or tried < wanted or found.cap is not None:
             break
         wanted *= 2
+    if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
+        without = _without_added(found.cliques, result.lookalike_added, settings.min_clique_size)
+        result.hypotheses.extend(_hypotheses(result, observations, map, config, without,
+                                             np.array([scores[members].sum() for members in without])))
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if split is not None:
@@ -337,8 +358,30 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
 def _pool_size(observations: Observations, config: LocalizationConfig) -> int:
     """Hypotheses the inlier stage fits: `inliers.rerank_pool` (at least top_n) when they will be re-ranked in
     the image (verification keeps the top_n), else top_n."""
-    reranked = config.inliers.rerank != "none" and observations.boxes is not None and observations.camera is not None
-    return max(config.top_n, config.inliers.rerank_pool) if reranked else config.top_n
+    return max(config.top_n, config.inliers.rerank_pool) if _reranked(observations, config) else config.top_n
+
+
+def _reranked(observations: Observations, config: LocalizationConfig) -> bool:
+    """Whether the hypotheses will be re-ranked in the image (`inliers.rerank`, boxes and camera given)."""
+    return config.inliers.rerank != "none" and observations.boxes is not None and observations.camera is not None
+
+
+def _without_added(cliques: list[np.ndarray], added: np.ndarray, min_size: int) -> list[np.ndarray]:
+    """Each clique holding candidates only `matching.lookalike_candidates` added, without them, where at least
+    `min_size` remain and neither a clique nor an earlier such set is that set already, in the cliques' order.
+
+    An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
+    as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
+    a cluttered desk: verification chooses between both."""
+    known = {tuple(sorted(members.tolist())) for members in cliques}
+    out = []
+    for members in cliques:
+        rest = members[~added[members]]
+        key = tuple(sorted(rest.tolist()))
+        if min_size <= len(rest) < len(members) and key not in known:
+            known.add(key)
+            out.append(rest)
+    return out
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:

@@ -26,16 +26,16 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 
 # (scene, method) -> sha256 of the canonical outcome of every frame
 EXPECTED = {
-    ('demo', 'clipclique'): '0c95056cd8e482061a17e863fb2447c096595b26c4a8ba649a437501cc39841c',
+    ('demo', 'clipclique'): '8da611850949ad54f9c635c86a62981b6f4a15dd9d05e85bc803c2856b1c3f96',
     ('demo', 'sh'): '8c8efc539f617ff72db0365183c875c255c892b62e3712a84c5d0f9acf37b6de',
     ('demo', 'cliploc'): '3ea921293186fb0081366456683b0a4af63fcd5d47e75d0100bb7c0e80641bee',
-    ('demo_tum', 'clipclique'): 'b32005fb43eb42dcba2e29b012dec3379807d90bffeca41507b26f76d0b0700f',
+    ('demo_tum', 'clipclique'): '71e604e956da5eb8f1c0c2646f24e268c6ef11629e3c830f3293e13f8d92d2d0',
     ('demo_tum', 'sh'): 'd00095ded048d884b4b45901d91fa44fc1291c596611d511469b25fcae1ab3f3',
     ('demo_tum', 'cliploc'): '7c52ac866549fb1dc3b1e42b27b387b0fe114678f4c09912f03ccea1fdf89a93',
-    ('demo_apartment', 'clipclique'): '163a332782849784635e9b6f3d6b7306e09d6ed63358c39829c4eb71ead0e4f2',
+    ('demo_apartment', 'clipclique'): '258897efa173f0581b6f6933841d8b35597439c8f5b9cfdb40de067fd6563011',
     ('demo_apartment', 'sh'): '03c56e0134714fa6fad3d5ece0227496bef33399be9ddd23ab27ed6a9748add8',
     ('demo_apartment', 'cliploc'): 'c9882ce04158329075aa2796693cbd49779428e4adf6ae04da8035e25432f1dc',
-    ('demo_desk', 'clipclique'): 'cbb3c2d26845a0cc62baf6fcc7e248da388efe6cd6f9d89f46a26c6c17d5667e',
+    ('demo_desk', 'clipclique'): '35e33ae102f12e53cac522af00e2d3d2480170efdfb69f03aa10ae436276c6eb',
     ('demo_desk', 'sh'): '6d78133ee9e45a90a64e45eb3982d85c0d0029e74dcf5accba819e774992ca63',
     ('demo_desk', 'cliploc'): 'd9c74cbb3b78ece3fee5c66f4c096c75383d66a53eff351a773e187c0c2156cf',
 }

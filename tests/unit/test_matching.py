@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 
 from clipclique.config import MatchingConfig
-from clipclique.matching import FLAT, adaptive_matches, cap, knn_matches, match, mutual_best_matches, top_m
+from clipclique.matching import (FLAT, adaptive_matches, best_rows, cap, knn_matches, match, mutual_best_matches,
+                                 similar_in_size, top_m, with_lookalikes)
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -73,14 +74,14 @@ def test_mutual_best_keeps_only_pairs_that_choose_each_other():
 
 def test_match_drops_candidates_at_or_below_min_similarity():
     similarity = np.array([[0.9, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
-    candidates, scores = match(similarity, MatchingConfig(strategy="knn", k=2, min_similarity=0.0))
+    candidates, scores, _ = match(similarity, MatchingConfig(strategy="knn", k=2, min_similarity=0.0))
     np.testing.assert_array_equal(candidates, [[0, 0]])
     np.testing.assert_array_equal(scores, [0.9])
 
 
 def test_empty_inputs_give_no_candidates():
     for strategy in ("adaptive", "knn", "one_to_one"):
-        candidates, scores = match(np.zeros((0, 5)), MatchingConfig(strategy=strategy))
+        candidates, scores, _ = match(np.zeros((0, 5)), MatchingConfig(strategy=strategy))
         assert candidates.shape == (0, 2) and scores.shape == (0,)
 
 
@@ -91,8 +92,9 @@ def test_cap_keeps_the_best_scored_candidates_in_row_order():
     assert hit
     np.testing.assert_array_equal(kept_scores, [0.9, 0.8, 0.8, 0.95, 0.8])  # ties at 0.8 by row: rows 3, 4, 9
     np.testing.assert_array_equal(kept, candidates[[0, 3, 4, 7, 9]])
+    np.testing.assert_array_equal(best_rows(scores, 5), [0, 3, 4, 7, 9])  # the rows, for marks that ride along
     same, _, hit = cap(candidates, scores, limit=12)
-    assert not hit and same is candidates
+    assert not hit and same is candidates and best_rows(scores, 12) is None
 
 
 def test_long_rows_pick_the_same_best_landmarks_as_a_full_stable_sort():
@@ -123,3 +125,55 @@ def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
         count = np.where(gaps.max(axis=1, initial=-np.inf) > FLAT, gaps.argmax(axis=1) + 1, m) if m > 1 else np.ones(len(order), int)
         expected = [(i, order[i, j]) for i in range(len(order)) for j in range(count[i])]
         np.testing.assert_array_equal(adaptive_matches(similarity, m), np.array(expected).reshape(-1, 2))
+
+
+def test_with_lookalikes_adds_each_observations_best_of_every_lookalike_class():
+    similarity = np.array([[0.9, 0.3, 0.35, 0.2, 0.1],
+                           [0.1, 0.8, 0.2, 0.2, 0.6]])
+    landmark_classes = np.array([0, 1, 1, 2, 2])
+    lookalike = np.array([[False, True, True, True, True],  # observation 0: classes 1 and 2 are look-alikes
+                          [False, False, False, False, False]])  # observation 1: none
+    candidates = np.array([[0, 0], [1, 1]])
+    # best of class 1 for observation 0 is landmark 2 (0.35), of class 2 landmark 3 (0.2); kept best first
+    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 1)
+    np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 3], [1, 1]])
+    np.testing.assert_array_equal(added, [False, True, True, False])
+    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 2)
+    np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 1], [0, 3], [0, 4], [1, 1]])
+    np.testing.assert_array_equal(added, [False, True, True, True, True, False])
+    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 0)
+    np.testing.assert_array_equal(merged, candidates)
+    assert not added.any()
+    already = np.array([[0, 0], [0, 2], [1, 1]])  # a pair the gap rule kept is not added twice, nor marked
+    merged, added = with_lookalikes(already, similarity, lookalike, landmark_classes, 1)
+    np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 3], [1, 1]])
+    np.testing.assert_array_equal(added, [False, False, True, False])
+
+
+def test_match_adds_lookalikes_only_when_asked_and_only_to_adaptive_matching():
+    similarity = np.array([[0.9, 0.3, 0.35, 0.2]])
+    lookalike = np.array([[False, True, True, False]])
+    classes = np.array([0, 1, 1, 2])
+    on = MatchingConfig(strategy="adaptive", top_m_fraction=1.0, lookalike_candidates=1)
+    candidates, scores, added = match(similarity, on, lookalike, classes)
+    np.testing.assert_array_equal(candidates, [[0, 0], [0, 2]])
+    np.testing.assert_array_equal(scores, [0.9, 0.35])
+    np.testing.assert_array_equal(added, [False, True])
+    off = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=0)
+    np.testing.assert_array_equal(match(similarity, off, lookalike, classes)[0], [[0, 0]])
+    above = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=1, min_similarity=0.4)  # the floor holds for them too
+    np.testing.assert_array_equal(match(similarity, above, lookalike, classes)[0], [[0, 0]])
+    knn = MatchingConfig(strategy="knn", k=1, lookalike_candidates=1)
+    np.testing.assert_array_equal(match(similarity, knn, lookalike, classes)[0], [[0, 0]])
+
+
+def test_similar_in_size_clears_pairs_apart_by_more_than_the_ratio_on_a_sorted_axis():
+    observed = np.array([[0.05, 0.1, 0.04]])  # sorted: 0.04, 0.05, 0.1
+    landmarks = np.array([[0.1, 0.05, 0.04],  # the same object turned: same sorted axes
+                          [0.04, 0.05, 0.14],  # longest axis 1.4x: within 1.5
+                          [0.04, 0.05, 0.16],  # 1.6x: apart
+                          [0.0, 0.05, 0.1]])  # a degenerate axis: apart
+    pairs = np.ones((1, 4), bool)
+    np.testing.assert_array_equal(similar_in_size(pairs, observed, landmarks, 1.5), [[True, True, False, False]])
+    np.testing.assert_array_equal(similar_in_size(pairs, observed, landmarks, 2.0), [[True, True, True, False]])
+    assert pairs.all()  # the input is left as it was

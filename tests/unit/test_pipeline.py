@@ -8,7 +8,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
-from clipclique.pipeline import _objects, index_map, localize
+from clipclique.pipeline import _objects, _without_added, index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations
 
@@ -207,3 +207,15 @@ def test_an_observation_overlapping_an_earlier_one_shows_that_ones_object():
     assert _objects(observations, 0.8).tolist() == [0, 0, 0, 3, 3]  # box 2 overlaps box 0 at 0.67, box 1 at 0.82
     assert _objects(observations, 0.85).tolist() == [0, 1, 2, 3, 4]
     assert _objects(observations, 0.0).tolist() == [0, 1, 2, 3, 4]  # 0: off
+
+
+def test_cliques_holding_added_lookalike_pairs_are_also_tried_without_them():
+    added = np.array([False, False, False, True, True, False])
+    cliques = [np.array([0, 1, 2, 3]),  # without 3: {0, 1, 2}
+               np.array([3, 4, 0, 1]),  # without 3 and 4: {0, 1}, too few
+               np.array([2, 1, 0, 4]),  # without 4: {0, 1, 2} again
+               np.array([5, 1, 2]),  # nothing added: as it is
+               np.array([5, 1, 2, 4])]  # without 4: {1, 2, 5}, a clique already
+    without = _without_added(cliques, added, 3)
+    assert [members.tolist() for members in without] == [[0, 1, 2]]
+    assert _without_added(cliques, added, 2)[1].tolist() == [0, 1]

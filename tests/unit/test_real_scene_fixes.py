@@ -148,3 +148,23 @@ def test_top_clique_scores_equal_the_literal_reference_on_desk_clutter():
         reference = literal_reference.localize(observations, desk, alpha=0.0)
         assert len(ours) == len(reference) == 5
         np.testing.assert_allclose([h.score for h in ours], [h.score for h in reference], rtol=1e-9)
+
+
+def test_a_bottle_observation_keeps_the_mapped_cup_when_a_mapped_bottle_outscores_it():
+    # Two alike groups of a desk: the mapped bottle (landmark 4) shares the observed cup's class label and
+    # neighbourhood, so the gap rule keeps it alone; matching.lookalike_candidates (on by default) brings the
+    # cup back when its size agrees with the observation's (matching.lookalike_size_ratio).
+    names = ["bottle", "book", "cup", "keyboard", "mouse"]
+    classes = ["cup", "book", "keyboard", "mouse", "bottle", "book", "keyboard", "mouse"]
+    offsets = np.array([[0, 0, 0], [0.4, 0, 0], [0, 0.4, 0], [0.4, 0.4, 0]])
+    map = labelled_map(classes, names, np.r_[offsets, offsets + [5, 5, 0]])
+    cup_as_bottle = seen(map, POSE, [0, 1, 2, 3], classes=[0, 1, 3, 4])
+    plain = make_config("clipclique", overrides={**SH_ONLY, "matching.lookalike_candidates": 0})
+    assert candidate_landmarks(cup_as_bottle, map, plain, 0) == {4}
+    assert candidate_landmarks(cup_as_bottle, map, make_config("clipclique-paper", overrides=SH_ONLY), 0) == {4}
+    lever = make_config("clipclique", overrides=SH_ONLY)
+    assert candidate_landmarks(cup_as_bottle, map, lever, 0) == {4, 0}
+    bowl_sized = seen(map, POSE, [0, 1, 2, 3], classes=[0, 1, 3, 4], axes=[[0.1, 0.1, 0.1]] + [[0.2] * 3] * 3)
+    assert candidate_landmarks(bowl_sized, map, lever, 0) == {4}  # the cup landmark is twice its size
+    wide = make_config("clipclique", overrides={**SH_ONLY, "matching.lookalike_size_ratio": 2.5})
+    assert candidate_landmarks(bowl_sized, map, wide, 0) == {4, 0}

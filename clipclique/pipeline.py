@@ -61,6 +61,7 @@ class MapIndex:
     kernel_by_landmark: np.ndarray | None = None  # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
     landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
+    class_groups: matching.ClassGroups | None = None  # landmarks by class, look-alike classes (matching.lookalike_candidates)
 
 
 @dataclass(kw_only=True)
@@ -92,7 +93,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
                     text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
                     kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
-                    landmark_tree=cKDTree(map.ellipsoids.centers))
+                    landmark_tree=cKDTree(map.ellipsoids.centers),
+                    class_groups=matching.class_groups(map.class_ids, kernel, map.ellipsoids.axes))
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -118,8 +120,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
-    lookalike = _lookalike_landmarks(observations, index, config)
-    candidates, candidate_scores, added = matching.match(scores, config.matching, lookalike, index.map.class_ids)
+    candidates, candidate_scores, added = matching.match(scores, config.matching, _lookalikes(observations, index, config))
     split = _split(observations, index.map, candidates, candidate_scores, config)
     kept = matching.best_rows(candidate_scores, config.matching.max_candidates) if split is None else split.kept
     capped = kept is not None if split is None else split.capped
@@ -243,16 +244,14 @@ def _histogram_similarity(
     return similarity.with_class_term(sh, classes, weight)
 
 
-def _lookalike_landmarks(observations: Observations, index: MapIndex, config: LocalizationConfig) -> np.ndarray | None:
-    """(K, N) whether each landmark's class is a look-alike of (not the same as) each observation's and its size
-    agrees (`matching.lookalike_size_ratio`), for `matching.lookalike_candidates`; None when that is off."""
+def _lookalikes(observations: Observations, index: MapIndex, config: LocalizationConfig) -> matching.Lookalikes | None:
+    """What `matching.lookalike_candidates` needs of this query; None when that is off."""
     settings = config.matching
-    if settings.strategy != "adaptive" or settings.lookalike_candidates == 0 or config.similarity.lookalike_weight == 0:
+    if (settings.strategy != "adaptive" or settings.lookalike_candidates == 0 or config.similarity.lookalike_weight == 0
+            or index.class_groups is None):
         return None
-    classes = observations.class_ids
-    lookalike = (index.kernel_by_landmark[classes] > 0) & (classes[:, None] != index.map.class_ids[None])
-    return matching.similar_in_size(lookalike, observations.ellipsoids.axes, index.map.ellipsoids.axes,
-                                    settings.lookalike_size_ratio)
+    return matching.Lookalikes(groups=index.class_groups, classes=observations.class_ids,
+                               axes=np.sort(np.asarray(observations.ellipsoids.axes, np.float64), axis=1))
 
 
 def _missing_embeddings(observations: Observations, map: Map) -> str | None:

@@ -1,9 +1,10 @@
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from clipclique.config import MatchingConfig
-from clipclique.matching import (FLAT, adaptive_matches, best_rows, cap, knn_matches, match, mutual_best_matches,
-                                 similar_in_size, top_m, with_lookalikes)
+from clipclique.matching import (FLAT, Lookalikes, adaptive_matches, best_rows, cap, class_groups, knn_matches, match,
+                                 mutual_best_matches, top_m, with_lookalikes)
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -127,53 +128,152 @@ def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
         np.testing.assert_array_equal(adaptive_matches(similarity, m), np.array(expected).reshape(-1, 2))
 
 
+def _reference_with_lookalikes(candidates, similarity, kernel, landmark_classes, observed_classes, observed_axes,
+                               landmark_axes, per_class, ratio):
+    """The (K, N) mask and numpy sorts `with_lookalikes` replaced (commit 290fca9), the literal reference."""
+    lookalike = ((kernel.toarray()[:, landmark_classes][observed_classes] > 0)
+                 & (observed_classes[:, None] != landmark_classes[None]))
+    rows, columns = np.nonzero(lookalike)
+    observed, mapped = np.sort(observed_axes, axis=1)[rows], np.sort(landmark_axes, axis=1)[columns]
+    apart = (np.maximum(observed, mapped) > ratio * np.minimum(observed, mapped)).any(axis=1)
+    lookalike[rows[apart], columns[apart]] = False
+    rows, columns = np.nonzero(lookalike)
+    if per_class == 0 or len(rows) == 0:
+        return candidates, np.zeros(len(candidates), bool)
+    values = similarity[rows, columns]
+    order = np.lexsort((columns, -values, landmark_classes[columns], rows))
+    rows, columns, classes = rows[order], columns[order], landmark_classes[columns[order]]
+    group = np.r_[True, (rows[1:] != rows[:-1]) | (classes[1:] != classes[:-1])]
+    starts = np.flatnonzero(group)
+    rank = np.arange(len(rows)) - np.repeat(starts, np.diff(np.r_[starts, len(rows)]))
+    added = np.column_stack((rows[rank < per_class], columns[rank < per_class])).astype(np.int64)
+    merged = np.unique(np.concatenate((candidates, added)), axis=0)
+    scores = similarity[merged[:, 0], merged[:, 1]]
+    merged = merged[np.lexsort((merged[:, 1], -scores, merged[:, 0]))]
+    kept = np.zeros(similarity.shape, bool)
+    kept[candidates[:, 0], candidates[:, 1]] = True
+    return merged, ~kept[merged[:, 0], merged[:, 1]]
+
+
+def _kernel(num_classes, pairs):
+    """(C, C) a class kernel: 1 on the diagonal, 0.6 between the look-alike `pairs`."""
+    rows = [a for a, b in pairs] + [b for a, b in pairs] + list(range(num_classes))
+    columns = [b for a, b in pairs] + [a for a, b in pairs] + list(range(num_classes))
+    return sp.csr_matrix((np.r_[np.full(2 * len(pairs), 0.6), np.ones(num_classes)], (rows, columns)),
+                         shape=(num_classes, num_classes))
+
+
+def _both(candidates, similarity, kernel, landmark_classes, observed_classes, per_class, observed_axes=None,
+          landmark_axes=None, ratio=1.5):
+    """`with_lookalikes` and the reference on one case, checked equal to the bit; the compiled result."""
+    observed_axes = np.ones((len(similarity), 3)) if observed_axes is None else observed_axes
+    landmark_axes = np.ones((similarity.shape[1], 3)) if landmark_axes is None else landmark_axes
+    lookalikes = Lookalikes(groups=class_groups(landmark_classes, kernel, landmark_axes), classes=observed_classes,
+                            axes=np.sort(observed_axes, axis=1))
+    merged, added = with_lookalikes(candidates, similarity, lookalikes, per_class, ratio)
+    expected, expected_added = _reference_with_lookalikes(candidates, similarity, kernel, landmark_classes,
+                                                          observed_classes, observed_axes, landmark_axes, per_class,
+                                                          ratio)
+    np.testing.assert_array_equal(merged, expected)
+    np.testing.assert_array_equal(added, expected_added)
+    assert merged.dtype == expected.dtype and added.dtype == expected_added.dtype
+    return merged, added
+
+
 def test_with_lookalikes_adds_each_observations_best_of_every_lookalike_class():
     similarity = np.array([[0.9, 0.3, 0.35, 0.2, 0.1],
                            [0.1, 0.8, 0.2, 0.2, 0.6]])
     landmark_classes = np.array([0, 1, 1, 2, 2])
-    lookalike = np.array([[False, True, True, True, True],  # observation 0: classes 1 and 2 are look-alikes
-                          [False, False, False, False, False]])  # observation 1: none
+    kernel = _kernel(4, [(0, 1), (0, 2)])  # observation 0 (class 0): classes 1 and 2 look alike; 1 (class 3): none
+    observed_classes = np.array([0, 3])
     candidates = np.array([[0, 0], [1, 1]])
     # best of class 1 for observation 0 is landmark 2 (0.35), of class 2 landmark 3 (0.2); kept best first
-    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 1)
+    merged, added = _both(candidates, similarity, kernel, landmark_classes, observed_classes, 1)
     np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 3], [1, 1]])
     np.testing.assert_array_equal(added, [False, True, True, False])
-    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 2)
+    merged, added = _both(candidates, similarity, kernel, landmark_classes, observed_classes, 2)
     np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 1], [0, 3], [0, 4], [1, 1]])
     np.testing.assert_array_equal(added, [False, True, True, True, True, False])
-    merged, added = with_lookalikes(candidates, similarity, lookalike, landmark_classes, 0)
+    merged, added = _both(candidates, similarity, kernel, landmark_classes, observed_classes, 0)
     np.testing.assert_array_equal(merged, candidates)
     assert not added.any()
     already = np.array([[0, 0], [0, 2], [1, 1]])  # a pair the gap rule kept is not added twice, nor marked
-    merged, added = with_lookalikes(already, similarity, lookalike, landmark_classes, 1)
+    merged, added = _both(already, similarity, kernel, landmark_classes, observed_classes, 1)
     np.testing.assert_array_equal(merged, [[0, 0], [0, 2], [0, 3], [1, 1]])
     np.testing.assert_array_equal(added, [False, False, True, False])
 
 
+def test_with_lookalikes_breaks_equal_similarities_by_landmark_index():
+    similarity = np.array([[0.9, 0.4, 0.4, 0.4, 0.4, 0.4]])
+    landmark_classes = np.array([0, 2, 1, 2, 1, 1])  # classes interleaved: grouping must keep index order
+    kernel = _kernel(3, [(0, 1), (0, 2)])
+    merged, added = _both(np.array([[0, 0]]), similarity, kernel, landmark_classes, np.array([0]), 2)
+    np.testing.assert_array_equal(merged, [[0, 0], [0, 1], [0, 2], [0, 3], [0, 4]])  # landmark 5 ranks third of 1
+    np.testing.assert_array_equal(added, [False, True, True, True, True])
+
+
+def test_with_lookalikes_leaves_the_candidates_as_they_came_without_lookalikes():
+    similarity = np.array([[0.2, 0.9, 0.5], [0.3, 0.1, 0.8]])
+    candidates = np.array([[1, 2], [0, 1], [0, 2]])  # not in row order: nothing is merged, so nothing is sorted
+    merged, added = _both(candidates, similarity, _kernel(2, []), np.array([0, 1, 1]), np.array([0, 1]), 2)
+    np.testing.assert_array_equal(merged, candidates)
+    assert not added.any()
+    # look-alike classes, but none of a size with the observation: the same
+    kernel = _kernel(2, [(0, 1)])
+    landmark_axes = np.full((3, 3), 2.0)
+    merged, _ = _both(candidates, similarity, kernel, np.array([0, 1, 1]), np.array([0, 0]), 2,
+                      landmark_axes=landmark_axes)
+    np.testing.assert_array_equal(merged, candidates)
+
+
+def test_with_lookalikes_keeps_a_whole_class_smaller_than_per_class_and_only_landmarks_of_a_size():
+    similarity = np.array([[0.9, 0.1, 0.7, 0.3, 0.5]])
+    landmark_classes = np.array([0, 1, 1, 1, 1])
+    landmark_axes = np.array([[1.0, 1, 1], [1, 1, 1], [1, 1, 1.6], [1, 1.4, 1], [1, 1, 1]])  # landmark 2 is apart
+    merged, added = _both(np.array([[0, 0]]), similarity, _kernel(2, [(0, 1)]), landmark_classes, np.array([0]), 10,
+                          landmark_axes=landmark_axes)
+    np.testing.assert_array_equal(merged, [[0, 0], [0, 4], [0, 3], [0, 1]])
+    np.testing.assert_array_equal(added, [False, True, True, True])
+
+
+def test_with_lookalikes_matches_the_numpy_reference_on_random_maps_with_ties_and_nan():
+    generator = np.random.default_rng(7)
+    for trial in range(300):
+        num_obs, num_landmarks, num_classes = generator.integers(1, 8), generator.integers(1, 40), generator.integers(1, 6)
+        similarity = generator.integers(0, 5, (num_obs, num_landmarks)) / 4.0  # few values: many ties
+        if trial % 5 == 0:
+            similarity[generator.random(similarity.shape) < 0.1] = np.nan
+        landmark_classes = generator.integers(0, num_classes, num_landmarks)
+        pairs = [(a, b) for a in range(num_classes) for b in range(a + 1, num_classes) if generator.random() < 0.5]
+        candidates = adaptive_matches(similarity, top_m(num_landmarks, 0.25))
+        _both(candidates, similarity, _kernel(num_classes, pairs), landmark_classes,
+              generator.integers(0, num_classes, num_obs), int(generator.integers(1, 5)),
+              observed_axes=generator.uniform(0.5, 1.5, (num_obs, 3)),
+              landmark_axes=generator.uniform(0.5, 1.5, (num_landmarks, 3)), ratio=float(generator.uniform(1.0, 2.0)))
+
+
 def test_match_adds_lookalikes_only_when_asked_and_only_to_adaptive_matching():
     similarity = np.array([[0.9, 0.3, 0.35, 0.2]])
-    lookalike = np.array([[False, True, True, False]])
     classes = np.array([0, 1, 1, 2])
+    lookalikes = Lookalikes(groups=class_groups(classes, _kernel(3, [(0, 1)]), np.ones((4, 3))),
+                            classes=np.array([0]), axes=np.ones((1, 3)))
     on = MatchingConfig(strategy="adaptive", top_m_fraction=1.0, lookalike_candidates=1)
-    candidates, scores, added = match(similarity, on, lookalike, classes)
+    candidates, scores, added = match(similarity, on, lookalikes)
     np.testing.assert_array_equal(candidates, [[0, 0], [0, 2]])
     np.testing.assert_array_equal(scores, [0.9, 0.35])
     np.testing.assert_array_equal(added, [False, True])
     off = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=0)
-    np.testing.assert_array_equal(match(similarity, off, lookalike, classes)[0], [[0, 0]])
+    np.testing.assert_array_equal(match(similarity, off, lookalikes)[0], [[0, 0]])
     above = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=1, min_similarity=0.4)  # the floor holds for them too
-    np.testing.assert_array_equal(match(similarity, above, lookalike, classes)[0], [[0, 0]])
+    np.testing.assert_array_equal(match(similarity, above, lookalikes)[0], [[0, 0]])
     knn = MatchingConfig(strategy="knn", k=1, lookalike_candidates=1)
-    np.testing.assert_array_equal(match(similarity, knn, lookalike, classes)[0], [[0, 0]])
+    np.testing.assert_array_equal(match(similarity, knn, lookalikes)[0], [[0, 0]])
 
 
-def test_similar_in_size_clears_pairs_apart_by_more_than_the_ratio_on_a_sorted_axis():
-    observed = np.array([[0.05, 0.1, 0.04]])  # sorted: 0.04, 0.05, 0.1
-    landmarks = np.array([[0.1, 0.05, 0.04],  # the same object turned: same sorted axes
-                          [0.04, 0.05, 0.14],  # longest axis 1.4x: within 1.5
-                          [0.04, 0.05, 0.16],  # 1.6x: apart
-                          [0.0, 0.05, 0.1]])  # a degenerate axis: apart
-    pairs = np.ones((1, 4), bool)
-    np.testing.assert_array_equal(similar_in_size(pairs, observed, landmarks, 1.5), [[True, True, False, False]])
-    np.testing.assert_array_equal(similar_in_size(pairs, observed, landmarks, 2.0), [[True, True, True, False]])
-    assert pairs.all()  # the input is left as it was
+def test_class_groups_group_landmarks_by_class_and_leave_a_class_out_of_its_own_lookalikes():
+    groups = class_groups(np.array([2, 0, 2, 1]), _kernel(3, [(0, 2)]), np.array([[3.0, 1, 2]] * 4))
+    np.testing.assert_array_equal(groups.landmarks, [1, 3, 0, 2])
+    np.testing.assert_array_equal(groups.starts, [0, 1, 2, 4])
+    np.testing.assert_array_equal(groups.lookalike_starts, [0, 1, 1, 2])
+    np.testing.assert_array_equal(groups.lookalikes, [2, 0])
+    np.testing.assert_array_equal(groups.axes, [[1.0, 2, 3]] * 4)

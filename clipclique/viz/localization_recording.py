@@ -18,7 +18,7 @@ from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, P
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import RecordingFile, ScalarColumns, Worker, queued
+from clipclique.viz.recording import ColumnsAtClose, RecordingFile, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -42,7 +42,7 @@ WINDOW_COLOR = (120, 120, 255)
 GT_FRUSTUM_M = 0.4
 ESTIMATE_FRUSTUM_M = 0.25
 LOWER_RANK_ALPHA = 110  # top-1 estimate opaque, the rest of the top-N faded
-TRAJECTORY_POINTS = 300  # trajectories are re-logged each frame, thinned to this many points
+TRAJECTORY_POINTS = 300  # trajectories are drawn whole at each frame, thinned to this many points
 NO_POSE = "metrics/error/no_pose"  # a red cross at 0 on the error plots for each frame without a pose
 ERRORS = ("metrics/error/translation_m", "metrics/error/rotation_deg")  # cleared (a gap) where there is none
 LEGEND = (
@@ -62,7 +62,7 @@ class LocalizationRecorder:
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
     recording costs the localization loop next to nothing. Call `flush` to wait for it. The per-frame
-    scalars (`metrics/...`) reach the stream only at `close`, as columns.
+    scalars (`metrics/...`), text log, trajectories and clears reach the stream only at `close`, as columns.
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
@@ -71,7 +71,8 @@ class LocalizationRecorder:
         self._gt_positions: list[np.ndarray] = []
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
-        self._metrics = ScalarColumns()  # sent at close
+        self._late = ColumnsAtClose()  # metrics, text log, trajectories and clears: sent at close
+        self._now: tuple[int, float | None] = (0, None)  # the frame being logged and its timestamp (None: not Unix)
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
         log_map(self.stream, map, d_adj)
@@ -103,6 +104,7 @@ class LocalizationRecorder:
         self.stream.set_time("frame", sequence=frame.index)
         if frame.timestamp >= UNIX_TIME_MIN:
             self.stream.set_time("time", timestamp=frame.timestamp)
+        self._now = (frame.index, frame.timestamp if frame.timestamp >= UNIX_TIME_MIN else None)
         top1 = result.hypotheses[0].pose if result.hypotheses else None
         self._log_images(frame, detections)
         self._log_cameras(frame, result, evaluation)
@@ -120,7 +122,7 @@ class LocalizationRecorder:
         `placement` (the ground truth, else the top-1 estimate)."""
         if placement is None:
             for path in (WINDOW_SOURCES, WINDOW_PATH):
-                self.stream.log(path, rr.Clear(recursive=False))
+                self._late.clear(path, *self._now)
             return
         moved = query.fusion.moved
         ages = np.repeat(np.arange(len(moved))[::-1], [len(e) for e in moved])  # 0 = the newest frame
@@ -138,7 +140,7 @@ class LocalizationRecorder:
     def close(self) -> None:
         try:
             self._worker.stop()
-            self._metrics.send(self.stream)
+            self._late.send(self.stream)
         except BaseException:
             self._recording.abort()
             raise
@@ -186,27 +188,22 @@ class LocalizationRecorder:
         if frame.pose is not None:
             self._gt_positions.append(frame.pose.translation)
             path = np.array(self._gt_positions)[thinned(len(self._gt_positions))]
-            self.stream.log("world/trajectory/gt", rr.LineStrips3D([path], colors=GT_CAMERA))
+            self._late.add("world/trajectory/gt", *self._now, path, gt_trajectory_columns)
         if result.hypotheses:
             success = evaluation.success.get(1) if evaluation is not None else None
             self._estimate_positions.append(result.hypotheses[0].pose.translation)
             self._estimate_correct.append(-1 if success is None else int(success))
             keep = thinned(len(self._estimate_positions))
-            self.stream.log(
-                "world/trajectory/estimate",
-                rr.Points3D(
-                    np.array(self._estimate_positions)[keep],
-                    colors=correctness_colors(np.array(self._estimate_correct)[keep]),
-                    radii=rr.Radius.ui_points(4.0),
-                ),
-            )
+            self._late.add("world/trajectory/estimate", *self._now,
+                           (np.array(self._estimate_positions)[keep], np.array(self._estimate_correct)[keep]),
+                           estimate_trajectory_columns)
 
     def _log_observations(self, observations: Observations, truth: Pose | None, estimate: Pose | None) -> None:
         labels = [self.map.class_names[c] for c in observations.class_ids]
         for name, pose, color in (("gt", truth, GT_CAMERA), ("estimate", estimate, ESTIMATE_CAMERA)):
             path = f"world/observations/{name}"
             if pose is None or len(observations) == 0:
-                self.stream.log(path, rr.Clear(recursive=False))
+                self._late.clear(path, *self._now)
                 continue
             placed = observations.ellipsoids.transformed(pose)
             colors = np.broadcast_to(color, (len(observations), 3))
@@ -223,7 +220,7 @@ class LocalizationRecorder:
         landmarks = self.map.ellipsoids.centers
         candidates = np.asarray(result.candidates, dtype=np.int64).reshape(-1, 2)
         if placement is None or len(candidates) == 0:
-            self.stream.log("world/correspondences/candidates", rr.Clear(recursive=False))
+            self._late.clear("world/correspondences/candidates", *self._now)
         else:
             observed = placement.apply(observations.ellipsoids.centers)
             obs, lm = candidates.T
@@ -258,7 +255,7 @@ class LocalizationRecorder:
         box names the class), the others on hover."""
         path = f"{CAMERA}/projected_landmarks"
         if not result.hypotheses or observations.camera is None:
-            self.stream.log(path, rr.Clear(recursive=False))
+            self._late.clear(path, *self._now)
             return
         pose = result.hypotheses[0].pose
         seen = project(self.map.ellipsoids, pose.rotation[None], pose.translation[None], observations.camera)
@@ -286,7 +283,7 @@ class LocalizationRecorder:
     def _log_metrics(
         self, frame: Frame, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None
     ) -> None:
-        """Kept until `close`, which sends each series as one column (see ScalarColumns)."""
+        """Kept until `close`, which sends each series as one column (see ColumnsAtClose)."""
         scalars: dict[str, float] = {
             "count/observations": len(observations),
             "count/candidates": len(result.candidates),
@@ -304,14 +301,13 @@ class LocalizationRecorder:
             if evaluation.precision is not None:
                 scalars["match/precision"] = evaluation.precision
             scalars["match/recall"] = evaluation.recall
-        stamp = frame.timestamp if frame.timestamp >= UNIX_TIME_MIN else None
         for name, value in scalars.items():
-            self._metrics.add(f"metrics/{name}", frame.index, stamp, value)
+            self._late.scalar(f"metrics/{name}", *self._now, value)
         if "error/translation_m" not in scalars:  # no line drawn across a frame without a pose
             for path in ERRORS:
-                self._metrics.clear(path, frame.index, stamp)
+                self._late.clear(path, *self._now)
             if not result.hypotheses:
-                self._metrics.add(NO_POSE, frame.index, stamp, 0.0)
+                self._late.scalar(NO_POSE, *self._now, 0.0)
 
     def _log_text(
         self,
@@ -329,18 +325,38 @@ class LocalizationRecorder:
                 f"; top-1 TE {evaluation.translation_error:.2f} m, "
                 f"RE {math.degrees(evaluation.rotation_error):.1f} deg"
             )
-        self.stream.log("log", rr.TextLog(line, level=rr.TextLogLevel.INFO))
+        lines = [(line, rr.TextLogLevel.INFO)]
         if result.failure is not None:
-            self.stream.log("log", rr.TextLog(f"no pose: {result.failure.message}", level=rr.TextLogLevel.WARN))
+            lines.append((f"no pose: {result.failure.message}", rr.TextLogLevel.WARN))
         if result.cap_hit is not None:
-            self.stream.log("log", rr.TextLog(f"bound hit: {result.cap_hit}", level=rr.TextLogLevel.WARN))
-        for note in result.notes:
-            self.stream.log("log", rr.TextLog(note, level=rr.TextLogLevel.INFO))
+            lines.append((f"bound hit: {result.cap_hit}", rr.TextLogLevel.WARN))
+        lines += [(note, rr.TextLogLevel.INFO) for note in result.notes]
+        for text_line in lines:
+            self._late.add("log", *self._now, text_line, text_log_columns)
 
     def _clear_ranks(self, parent: str, shown: int) -> None:
         """Remove ranks a previous frame drew but this one has no hypothesis for."""
         for rank in range(shown + 1, self._ranks_shown + 1):
-            self.stream.log(f"{parent}/{rank}", rr.Clear(recursive=True))
+            self._late.clear(f"{parent}/{rank}", *self._now, recursive=True)
+
+
+def text_log_columns(lines: list[tuple[str, str]]) -> list[rr.ComponentColumn]:
+    """Text log lines (text, level), one row each."""
+    texts, levels = zip(*lines)
+    return list(rr.TextLog.columns(text=texts, level=levels))
+
+
+def gt_trajectory_columns(paths: list[np.ndarray]) -> list[rr.ComponentColumn]:
+    """The ground-truth trajectory so far at each frame: one strip a row."""
+    return list(rr.LineStrips3D.columns(strips=paths, colors=[GT_CAMERA] * len(paths)))
+
+
+def estimate_trajectory_columns(rows: list[tuple[np.ndarray, np.ndarray]]) -> list[rr.ComponentColumn]:
+    """The top-1 positions so far at each frame (positions, match_correctness codes), coloured by correctness."""
+    positions, codes = zip(*rows)
+    points = rr.Points3D.columns(positions=np.concatenate(positions),
+                                 colors=correctness_colors(np.concatenate(codes))).partition([len(p) for p in positions])
+    return [*points, *rr.Points3D.columns(radii=[rr.Radius.ui_points(4.0)] * len(rows))]
 
 
 def thinned(count: int, limit: int = TRAJECTORY_POINTS) -> np.ndarray:

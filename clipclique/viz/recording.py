@@ -6,9 +6,10 @@ import functools
 import os
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import TracebackType
+from typing import TypeVar
 
 import rerun as rr
 import rerun.blueprint as rrb
@@ -119,36 +120,52 @@ class _Discarded(Exception):
     """Marks a worker whose remaining jobs are dropped (the run failed)."""
 
 
-class ScalarColumns:
-    """Per-frame scalars (and the frames where a series has a gap) kept until the run ends and then sent as one
-    column per series: one call per series per run, where logging them frame by frame took about fifteen
-    Rerun calls a frame on the recorder's thread, each building archetypes under the GIL the run needs."""
+Row = TypeVar("Row")
+
+
+class ColumnsAtClose:
+    """Per-frame data that need not reach the stream while the run goes (metrics, text log lines, trajectories,
+    clears), kept until the run ends and then sent as one column per entity and kind: one Rerun call each per run,
+    where logging it frame by frame took a call (archetype construction and conversion in Python, under the GIL
+    the run needs) per entity per frame on the recorder's thread. A viewer sees the same values at the same frames;
+    a run killed before `send` loses them."""
 
     def __init__(self) -> None:
-        self._rows: dict[str, list[tuple[int, float | None, float | None]]] = {}  # path -> (frame, stamp, value)
+        # (path, how rows become columns) -> [(frame, stamp, row)]
+        self._rows: dict[tuple[str, Callable[[list], Iterable[rr.ComponentColumn]]], list[tuple[int, float | None, object]]] = {}
 
-    def add(self, path: str, frame: int, timestamp: float | None, value: float) -> None:
-        """`value` at `frame` (and at `timestamp` on the timeline `time`, unless None)."""
-        self._rows.setdefault(path, []).append((frame, timestamp, float(value)))
+    def add(self, path: str, frame: int, timestamp: float | None, row: Row,
+            columns: Callable[[list[Row]], Iterable[rr.ComponentColumn]]) -> None:
+        """`row` at `frame` (and at `timestamp` on the timeline `time`, unless None); `columns` makes the
+        component columns of a list of such rows, one row each."""
+        self._rows.setdefault((path, columns), []).append((frame, timestamp, row))
 
-    def clear(self, path: str, frame: int, timestamp: float | None) -> None:
-        """A gap at `frame`: a Clear, so the plot draws no line across it."""
-        self._rows.setdefault(path, []).append((frame, timestamp, None))
+    def scalar(self, path: str, frame: int, timestamp: float | None, value: float) -> None:
+        self.add(path, frame, timestamp, float(value), scalar_columns)
+
+    def clear(self, path: str, frame: int, timestamp: float | None, *, recursive: bool = False) -> None:
+        """A Clear at `frame` (e.g. a gap, so a plot draws no line across it)."""
+        self.add(path, frame, timestamp, recursive, clear_columns)
 
     def send(self, stream: rr.RecordingStream) -> None:
-        """Everything added, as columns: values and gaps of each series, rows with a timestamp and without apart
-        (a column's timelines cover all its rows)."""
-        for path, rows in self._rows.items():
-            for cleared in (False, True):
-                for stamped in (True, False):
-                    part = [row for row in rows if (row[2] is None) == cleared and (row[1] is not None) == stamped]
-                    if not part:
-                        continue
-                    frames, stamps, values = zip(*part)
-                    indexes = [rr.TimeColumn("frame", sequence=frames)]
-                    if stamped:
-                        indexes.append(rr.TimeColumn("time", timestamp=stamps))
-                    columns = (rr.Clear.columns(is_recursive=[False] * len(part)) if cleared
-                               else rr.Scalars.columns(scalars=values))
-                    stream.send_columns(path, indexes=indexes, columns=columns)
+        """Everything added, as columns, rows with a timestamp and without apart (a column's timelines cover
+        all its rows)."""
+        for (path, columns), rows in self._rows.items():
+            for stamped in (True, False):
+                part = [row for row in rows if (row[1] is not None) == stamped]
+                if not part:
+                    continue
+                frames, stamps, values = zip(*part)
+                indexes = [rr.TimeColumn("frame", sequence=frames)]
+                if stamped:
+                    indexes.append(rr.TimeColumn("time", timestamp=stamps))
+                stream.send_columns(path, indexes=indexes, columns=columns(list(values)))
         self._rows.clear()
+
+
+def scalar_columns(values: list[float]) -> Iterable[rr.ComponentColumn]:
+    return rr.Scalars.columns(scalars=values)
+
+
+def clear_columns(recursive: list[bool]) -> Iterable[rr.ComponentColumn]:
+    return rr.Clear.columns(is_recursive=recursive)

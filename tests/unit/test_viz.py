@@ -76,14 +76,18 @@ class LogSpy:
                           {str(c.component_descriptor()): c.as_arrow_array().to_pylist() for c in columns}))
         self._send_columns(path, indexes=indexes, columns=columns, **kwargs)
 
+    def rows(self, path: str, component: str) -> list[tuple[int, list]]:
+        """(frame, the instances of that row) of every row sent in `path`'s columns of `component`."""
+        return [(frame, value) for sent_path, timelines, components in self.sent
+                if sent_path == path and component in components
+                for frame, value in zip(timelines["frame"], components[component], strict=True)]
+
     def series(self, path: str, component: str = "Scalars:scalars") -> dict[int, object]:
         """Frame -> the one value sent at that frame in `path`'s columns of `component`."""
         rows = {}
-        for sent_path, timelines, components in self.sent:
-            if sent_path == path and component in components:
-                for frame, value in zip(timelines["frame"], components[component], strict=True):
-                    assert frame not in rows, (path, frame)
-                    (rows[frame],) = value  # one value a row
+        for frame, value in self.rows(path, component):
+            assert frame not in rows, (path, frame)
+            (rows[frame],) = value  # one value a row
         return rows
 
     @property
@@ -316,15 +320,17 @@ def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
     recorder.log_frame(first.frame, first.detections, first.observations, first.result, first.evaluation)
     failed = dataclasses.replace(second.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2))
     recorder.log_frame(second.frame, second.detections, second.observations, failed, None)
+    recorder.close()  # clears and the text log are sent as columns at close
     for rank in (1, 2, 3):
-        (clear,) = spy.last(f"world/hypotheses/{rank}")
-        assert isinstance(clear, rr.Clear)
-        assert isinstance(spy.last(f"world/camera/estimate/{rank}")[0], rr.Clear)
-    assert isinstance(spy.last("world/observations/estimate")[0], rr.Clear)
-    assert not isinstance(spy.last("world/observations/gt")[0], rr.Clear)  # the truth still places them
-    warnings = [a[0] for path, a in spy.calls if path == "log" and "no pose" in str(a[0].text.as_arrow_array())]
-    assert len(warnings) == 1
-    recorder.close()
+        assert spy.series(f"world/hypotheses/{rank}", "Clear:is_recursive") == {second.frame.index: True}
+        assert spy.series(f"world/camera/estimate/{rank}", "Clear:is_recursive") == {second.frame.index: True}
+    assert spy.series("world/observations/estimate", "Clear:is_recursive") == {second.frame.index: False}
+    assert spy.series("world/observations/gt", "Clear:is_recursive") == {}  # the truth still places them
+    assert [path for path, _ in spy.calls if path == "world/observations/gt"] == ["world/observations/gt"] * 2
+    lines = [(frame, text, level) for (frame, (text,)), (_, (level,))
+             in zip(spy.rows("log", "TextLog:text"), spy.rows("log", "TextLog:level"), strict=True)]
+    assert [frame for frame, text, _ in lines if text.startswith(f"frame {frame} ")] == [first.frame.index, second.frame.index]
+    assert [(frame, level) for frame, text, level in lines if "no pose" in text] == [(second.frame.index, "WARN")]
 
 
 def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
@@ -411,13 +417,36 @@ def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):
     transform = spy.last("world/camera/gt")[0]
     assert len(transform.translation.as_arrow_array()) == 0  # cleared, not left at the last pose
     assert len(transform.mat3x3.as_arrow_array()) == 0
-    assert isinstance(spy.last("world/observations/gt")[0], rr.Clear)
     (placed,) = spy.last("world/observations/estimate")
     expected = f.result.hypotheses[0].pose.apply(f.observations.ellipsoids.centers)
     centers = np.array(placed.centers.as_arrow_array().to_pylist())
     np.testing.assert_allclose(centers, expected, atol=1e-5)
-    assert not any(path == "world/trajectory/gt" for path, _ in spy.calls)
     recorder.close()
+    assert spy.series("world/observations/gt", "Clear:is_recursive") == {f.frame.index: False}
+    assert spy.rows("world/trajectory/gt", "LineStrips3D:strips") == []
+
+
+def test_trajectories_so_far_are_sent_at_close_one_row_a_frame(tmp_path, run):
+    """At each frame the viewer shows the ground-truth path and the top-1 positions up to that frame (sent as
+    columns at close, as they were once logged frame by frame)."""
+    map, frames = run
+    recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
+    spy = LogSpy(recorder)
+    for f in frames[:3]:
+        recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
+    assert spy.sent == []  # nothing before close
+    recorder.close()
+    indices = [f.frame.index for f in frames[:3]]
+    paths = spy.rows("world/trajectory/gt", "LineStrips3D:strips")
+    assert [frame for frame, _ in paths] == indices
+    for k, (_, (strip,)) in enumerate(paths):
+        np.testing.assert_allclose(strip, [f.frame.pose.translation for f in frames[:k + 1]], atol=1e-6)
+    points = spy.rows("world/trajectory/estimate", "Points3D:positions")
+    assert [frame for frame, _ in points] == indices
+    np.testing.assert_allclose(points[-1][1], [f.result.hypotheses[0].pose.translation for f in frames[:3]], atol=1e-6)
+    colors = [color for _, color in spy.rows("world/trajectory/estimate", "Points3D:colors")]
+    assert [len(c) for c in colors] == [1, 2, 3] and colors[1] == colors[2][:2]  # a point keeps its colour
+    assert spy.series("world/trajectory/estimate", "Points3D:radii") == {i: pytest.approx(-4.0) for i in indices}
 
 
 def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):

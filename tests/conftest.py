@@ -336,14 +336,15 @@ def run_rerun_cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def read_entities(path: Path) -> dict[str, tuple[int, set[str]]]:
-    """Entity path -> (rows logged, data columns) of a recording, read back with `rerun rrd print`."""
+    """Entity path -> (rows logged, data columns) of a recording, read back with `rerun rrd print`; the rows are
+    those of its column with the most (a recording may send an entity's components in chunks of their own)."""
     printed = run_rerun_cli("rrd", "print", str(path))
     assert printed.returncode == 0, printed.stderr
-    entities: dict[str, tuple[int, set[str]]] = {}
+    counts: dict[str, dict[str, int]] = {}  # entity -> column -> rows
     for rows, entity, columns in re.findall(r"with (\d+) rows .*? - (\S+) - data columns: \[(.*)\]", printed.stdout):
-        count, known = entities.get(entity, (0, set()))
-        entities[entity] = (count + int(rows), known | set(columns.split()))
-    return entities
+        for column in columns.split():
+            counts.setdefault(entity, {})[column] = counts.get(entity, {}).get(column, 0) + int(rows)
+    return {entity: (max(columns.values()), set(columns)) for entity, columns in counts.items()}
 
 
 @pytest.fixture(scope="session")

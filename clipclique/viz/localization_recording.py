@@ -61,8 +61,11 @@ class LocalizationRecorder:
     """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
-    recording costs the localization loop next to nothing. Call `flush` to wait for it. The per-frame
-    scalars (`metrics/...`), text log, trajectories and clears reach the stream only at `close`, as columns.
+    recording costs the localization loop next to nothing. Call `flush` to wait for it. Only the images, the
+    detections and the cameras go to the stream frame by frame; the rest (placed observations, matches and
+    cliques, the projected landmarks, trajectories, metrics, text log, clears) is kept
+    and sent at `close`, one column per entity and component, which costs that thread a fraction of the Rerun
+    calls (see ColumnsAtClose).
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
@@ -71,7 +74,7 @@ class LocalizationRecorder:
         self._gt_positions: list[np.ndarray] = []
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
-        self._late = ColumnsAtClose()  # metrics, text log, trajectories and clears: sent at close
+        self._late = ColumnsAtClose()  # all but the images, detections and cameras: sent at close
         self._now: tuple[int, float | None] = (0, None)  # the frame being logged and its timestamp (None: not Unix)
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
@@ -130,12 +133,12 @@ class LocalizationRecorder:
         stacked = Ellipsoids(*(np.concatenate([getattr(e, name) for e in moved]).reshape(shape)
                                for name, shape in (("centers", (-1, 3)), ("axes", (-1, 3)), ("rotations", (-1, 3, 3)))))
         classes = np.concatenate([sources.class_ids for sources in query.fusion.sources]).astype(np.int64)
-        self.stream.log(WINDOW_SOURCES, ellipsoids3d(stacked.transformed(placement), classes,
+        self._late.log(WINDOW_SOURCES, *self._now, ellipsoids3d(stacked.transformed(placement), classes,
                                                      colors=np.column_stack((shade // 2, shade // 2, shade)),
                                                      fill_mode="MajorWireframe", show_labels=False),
                         rr.AnyValues(frame=np.repeat(query.frames, [len(e) for e in moved])))
         cameras = placement.apply(np.array([pose.translation for pose in query.poses]))
-        self.stream.log(WINDOW_PATH, rr.LineStrips3D([cameras], colors=WINDOW_COLOR, radii=rr.Radius.ui_points(2.0)))
+        self._late.log(WINDOW_PATH, *self._now, rr.LineStrips3D([cameras], colors=WINDOW_COLOR, radii=rr.Radius.ui_points(2.0)))
 
     def close(self) -> None:
         try:
@@ -179,8 +182,8 @@ class LocalizationRecorder:
         height, width = frame.rgb.shape[:2]
         for rank, hypothesis in enumerate(result.hypotheses, start=1):
             color = np.append(ESTIMATE_CAMERA, 255 if rank == 1 else LOWER_RANK_ALPHA)
-            self.stream.log(
-                f"world/camera/estimate/{rank}",
+            self.stream.log(  # live: a Pinhole sent as columns apart from its Transform3D breaks the viewer's
+                f"world/camera/estimate/{rank}",  # transform tree ("does not form the root of a 2D subspace")
                 *camera(hypothesis.pose, frame.intrinsics, width, height, color, ESTIMATE_FRUSTUM_M),
             )
         self._clear_ranks("world/camera/estimate", len(result.hypotheses))
@@ -207,8 +210,8 @@ class LocalizationRecorder:
                 continue
             placed = observations.ellipsoids.transformed(pose)
             colors = np.broadcast_to(color, (len(observations), 3))
-            self.stream.log(
-                path,
+            self._late.log(
+                path, *self._now,
                 # labels on hover only: the landmarks carry the visible ones
                 ellipsoids3d(placed, observations.class_ids, labels, colors, "MajorWireframe", show_labels=False),
             )
@@ -225,8 +228,8 @@ class LocalizationRecorder:
             observed = placement.apply(observations.ellipsoids.centers)
             obs, lm = candidates.T
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
-            self.stream.log(
-                "world/correspondences/candidates",
+            self._late.log(
+                "world/correspondences/candidates", *self._now,
                 rr.LineStrips3D(
                     np.stack((observed[obs], landmarks[lm]), axis=1),
                     colors=correctness_colors(correct),
@@ -238,8 +241,8 @@ class LocalizationRecorder:
             obs, lm = np.asarray(hypothesis.correspondences, dtype=np.int64).reshape(-1, 2).T
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
             origin = np.broadcast_to(hypothesis.pose.translation, (len(lm), 3))
-            self.stream.log(
-                f"world/hypotheses/{rank}",
+            self._late.log(
+                f"world/hypotheses/{rank}", *self._now,
                 rr.LineStrips3D(
                     np.stack((origin, landmarks[lm]), axis=1),
                     colors=correctness_colors(correct),
@@ -269,8 +272,8 @@ class LocalizationRecorder:
                 iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
                 label = f"IoU {iou:.2f}"
             labels.append(label)
-        self.stream.log(
-            path,
+        self._late.log(
+            path, *self._now,
             rr.LineStrips2D(
                 ellipse_outlines(seen.dual_conics[0, shown]),
                 class_ids=annotation_ids(self.map.class_ids[shown]),

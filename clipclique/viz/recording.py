@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import queue
@@ -11,6 +12,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TypeVar
 
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -124,11 +126,12 @@ Row = TypeVar("Row")
 
 
 class ColumnsAtClose:
-    """Per-frame data that need not reach the stream while the run goes (metrics, text log lines, trajectories,
-    clears), kept until the run ends and then sent as one column per entity and kind: one Rerun call each per run,
-    where logging it frame by frame took a call (archetype construction and conversion in Python, under the GIL
-    the run needs) per entity per frame on the recorder's thread. A viewer sees the same values at the same frames;
-    a run killed before `send` loses them."""
+    """Per-frame data that need not reach the stream while the run goes (the recording is complete only at the end
+    anyway), kept until the run ends and then sent as one column per entity and component: one Rerun call each per
+    run, where logging it frame by frame took a call per entity per frame on the recorder's thread (Python work
+    under the GIL the run needs). Scalars, clears and trajectories are kept as plain values and built into
+    archetypes only at the end; `log` keeps a ready archetype's Arrow batches. A viewer sees the same values at the
+    same frames; a run killed before `send` loses them. Small data only: images belong on the stream."""
 
     def __init__(self) -> None:
         # (path, how rows become columns) -> [(frame, stamp, row)]
@@ -147,6 +150,13 @@ class ColumnsAtClose:
         """A Clear at `frame` (e.g. a gap, so a plot draws no line across it)."""
         self.add(path, frame, timestamp, recursive, clear_columns)
 
+    def log(self, path: str, frame: int, timestamp: float | None, *archetypes: rr.AsComponents) -> None:
+        """What `stream.log(path, *archetypes)` at `frame` would log, its Arrow batches (built now) sent at the
+        end, one column per component: each component keeps its own frames, as a logged archetype's do."""
+        for archetype in archetypes:
+            for batch in archetype.as_component_batches():
+                self.add(path, frame, timestamp, batch.as_arrow_array(), BatchColumn(batch.component_descriptor()))
+
     def send(self, stream: rr.RecordingStream) -> None:
         """Everything added, as columns, rows with a timestamp and without apart (a column's timelines cover
         all its rows)."""
@@ -161,6 +171,26 @@ class ColumnsAtClose:
                     indexes.append(rr.TimeColumn("time", timestamp=stamps))
                 stream.send_columns(path, indexes=indexes, columns=columns(list(values)))
         self._rows.clear()
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchColumn:
+    """Arrow batches of one component, one a row, as a column (the rows of `ColumnsAtClose.log`)."""
+
+    descriptor: rr.ComponentDescriptor
+
+    def __call__(self, batches: list[pa.Array]) -> list[rr.ComponentColumn]:
+        return [rr.ComponentColumn(self.descriptor, _Batch(pa.concat_arrays(batches)), lengths=[len(b) for b in batches])]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Batch:
+    """A ready Arrow array as Rerun's ComponentBatchLike."""
+
+    array: pa.Array
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
 
 
 def scalar_columns(values: list[float]) -> Iterable[rr.ComponentColumn]:

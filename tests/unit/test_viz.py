@@ -18,6 +18,7 @@ from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
+from clipclique.viz.recording import ColumnsAtClose
 from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
@@ -64,6 +65,12 @@ class LogSpy:
         self._send_columns = recorder.stream.send_columns
         recorder.stream.log = self
         recorder.stream.send_columns = self.send_columns
+        self._late_log = recorder._late.log
+        recorder._late.log = self.late_log  # what is logged as columns at close, seen here when logged
+
+    def late_log(self, path: str, frame: int, timestamp: float | None, *archetypes) -> None:
+        self._calls.append((path, archetypes))
+        self._late_log(path, frame, timestamp, *archetypes)
 
     def __call__(self, path: str, *archetypes, **kwargs) -> None:
         self._calls.append((path, archetypes))
@@ -424,6 +431,29 @@ def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):
     recorder.close()
     assert spy.series("world/observations/gt", "Clear:is_recursive") == {f.frame.index: False}
     assert spy.rows("world/trajectory/gt", "LineStrips3D:strips") == []
+
+
+def test_archetypes_kept_until_close_come_back_per_frame_and_component():
+    """`ColumnsAtClose.log` sends what `stream.log` would have: each frame's batch of each component (an empty one
+    too), a component only at the frames that had it, a timestamp only on the rows that had one."""
+    sent = {}
+
+    class Stream:
+        def send_columns(self, path, indexes, columns):
+            times = {index.timeline_name(): index.as_arrow_array().to_pylist() for index in indexes}
+            for column in columns:
+                sent[str(column.component_descriptor()), "time" in times] = (times["frame"], column.as_arrow_array().to_pylist())
+
+    late = ColumnsAtClose()
+    late.log("p", 3, None, rr.Points3D([[0, 0, 0], [1, 2, 3]], labels=["a", "b"]))
+    late.log("p", 4, None, rr.Points3D(np.zeros((0, 3))))
+    late.log("p", 7, 1.5e9, rr.Points3D([[4, 5, 6]]), rr.AnyValues(score=0.25))
+    late.send(Stream())
+    assert sent[("Points3D:positions", False)] == ([3, 4], [[[0, 0, 0], [1, 2, 3]], []])
+    assert sent[("Points3D:positions", True)] == ([7], [[[4, 5, 6]]])
+    assert sent[("Points3D:labels", False)] == ([3], [["a", "b"]])
+    assert sent[("score", True)] == ([7], [[0.25]])
+    assert len(sent) == 4
 
 
 def test_trajectories_so_far_are_sent_at_close_one_row_a_frame(tmp_path, run):

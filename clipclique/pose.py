@@ -252,14 +252,20 @@ def correspondence_weights(
 
     `s_total` is the similarity the matching used (negative values clipped to 0); the
     completeness `w_com = min(1, sqrt(|axes_obs|^2 / |axes_map|^2))` shrinks the weight of an
-    object seen only in part, whose observed centre is biased.
+    object seen only in part, whose observed centre is biased. One pair at a time by `_weight`, the
+    formula `weighted_sets` computes for the pipeline.
     """
-    if mode == "none":
-        return np.ones(len(scores))
-    if mode == "com":
-        return completeness_weights(observed_axes, landmark_axes)
-    similarity = np.maximum(scores, 0.0)
-    return similarity * completeness_weights(observed_axes, landmark_axes) if mode == "both" else similarity
+    return _weights(np.ascontiguousarray(scores, np.float64), np.ascontiguousarray(observed_axes, np.float64),
+                    np.ascontiguousarray(landmark_axes, np.float64), _WEIGHT_MODES[mode])
+
+
+@njit(cache=True)
+def _weights(scores, observed_axes, landmark_axes, mode):
+    """`correspondence_weights` with the mode as a number (`_WEIGHT_MODES`)."""
+    weights = np.empty(len(scores))
+    for i in range(len(scores)):
+        weights[i] = _weight(scores[i], observed_axes[i], landmark_axes[i], mode)
+    return weights
 
 
 _WEIGHT_MODES = {"none": 0, "sim": 1, "com": 2, "both": 3}
@@ -310,9 +316,3 @@ def _weight(score, observed_axes, landmark_axes, mode):
     ratio = np.sqrt(observed / (landmark if landmark > 1e-12 or np.isnan(landmark) else 1e-12))
     completeness = ratio if ratio < 1.0 or np.isnan(ratio) else 1.0
     return completeness if mode == 2 else similarity * completeness
-
-
-def completeness_weights(observed_axes: np.ndarray, landmark_axes: np.ndarray) -> np.ndarray:
-    observed = np.einsum("ij,ij->i", observed_axes, observed_axes)
-    landmark = np.einsum("ij,ij->i", landmark_axes, landmark_axes)
-    return np.minimum(1.0, np.sqrt(observed / np.maximum(landmark, 1e-12)))

@@ -169,6 +169,28 @@ def test_public_linear_algebra_stands_in_for_numpys_gufuncs_to_the_bit():
     assert np.isnan(public[2](broken)[7]) and np.isfinite(public[2](broken)[8])
 
 
+def numpy_weights(scores, observed_axes, landmark_axes, mode):
+    """`correspondence_weights` as the callers wrote it with numpy (the reference the compiled pass must equal)."""
+    if mode == "none":
+        return np.ones(len(scores))
+    completeness = np.minimum(1.0, np.sqrt(np.einsum("ij,ij->i", observed_axes, observed_axes)
+                                           / np.maximum(np.einsum("ij,ij->i", landmark_axes, landmark_axes), 1e-12)))
+    if mode == "com":
+        return completeness
+    similarity = np.maximum(scores, 0.0)
+    return similarity * completeness if mode == "both" else similarity
+
+
+@pytest.mark.parametrize("mode", ["none", "sim", "com", "both"])
+def test_correspondence_weights_are_the_numpy_formula_to_the_bit(mode):
+    rng = np.random.default_rng(11)
+    scores = rng.choice([-0.5, -0.0, 0.0, 0.3, 0.8, 1.0, np.nan], size=200)
+    observed, landmark = rng.uniform(0.0, 0.4, (200, 3)), rng.uniform(0.0, 0.4, (200, 3))
+    observed[3], landmark[5] = 0.0, 0.0
+    got = correspondence_weights(scores, observed, landmark, mode)
+    assert got.tobytes() == numpy_weights(scores, observed, landmark, mode).tobytes()
+
+
 @pytest.mark.parametrize("mode", ["none", "sim", "com", "both"])
 def test_weighted_sets_are_the_padded_numpy_construction_to_the_bit(mode):
     """Sets of 0 to 19 pairs padded with a pair at weight 0, scores negative, -0, 0 and NaN, axes with a zero
@@ -185,8 +207,8 @@ def test_weighted_sets_are_the_padded_numpy_construction_to_the_bit(mode):
         valid = np.arange(max(counts.max(), 0)) < counts[:, None]
         obs, lm, score = np.full(valid.shape, pad[0]), np.full(valid.shape, pad[1]), np.full(valid.shape, pad[2])
         obs[valid], lm[valid], score[valid] = pairs[:, 0], pairs[:, 1], scores
-        expected = valid * correspondence_weights(score.ravel(), observed_axes[obs].reshape(-1, 3),
-                                                  landmark_axes[lm].reshape(-1, 3), mode).reshape(valid.shape)
+        expected = valid * numpy_weights(score.ravel(), observed_axes[obs].reshape(-1, 3),
+                                         landmark_axes[lm].reshape(-1, 3), mode).reshape(valid.shape)
         source, target, weights = weighted_sets(pairs, scores, counts, pad, (observed_centers, observed_axes),
                                                 (landmark_centers, landmark_axes), mode)
         assert weights.tobytes() == expected.tobytes()

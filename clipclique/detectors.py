@@ -58,19 +58,24 @@ def instance_boxes(instances: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 @njit(cache=True)
 def _instance_table(instances: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray]:
     """Per id 0..top: its pixel count and its xyxy box (inclusive min, exclusive max); id 0 and
-    negative ids are not counted."""
+    negative ids are not counted. A row is read as runs of one id (objects are contiguous), each run
+    counted and boxed once."""
     height, width = instances.shape
     counts = np.zeros(top + 1, np.int64)
     boxes = np.empty((top + 1, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = width, height, 0, 0
     for v in range(height):
-        for u in range(width):
-            value = instances[v, u]
+        u = 0
+        while u < width:
+            value, start = instances[v, u], u
+            u += 1
+            while u < width and instances[v, u] == value:
+                u += 1
             if value > 0:
-                counts[value] += 1
-                boxes[value, 0] = min(boxes[value, 0], u)
+                counts[value] += u - start
+                boxes[value, 0] = min(boxes[value, 0], start)
                 boxes[value, 1] = min(boxes[value, 1], v)
-                boxes[value, 2] = max(boxes[value, 2], u + 1)
+                boxes[value, 2] = max(boxes[value, 2], u)
                 boxes[value, 3] = v + 1  # rows come in order: the last one seen is the lowest
     return counts, boxes
 
@@ -86,11 +91,29 @@ def id_counts(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """(K, H, W) masks of `ids` in an instance image, each compared inside its box (`instance_boxes`) only:
-    the same masks as comparing the whole image per id, at the cost of the boxes' area."""
-    masks = np.zeros((len(ids), *instances.shape), bool)
-    for mask, object_id, (x0, y0, x1, y1) in zip(masks, ids, boxes.astype(np.int64)):
-        mask[y0:y1, x0:x1] = instances[y0:y1, x0:x1] == object_id
-    return masks
+    the same masks as comparing the whole image per id, at the cost of the boxes' area (compiled: no
+    temporary per mask)."""
+    return _box_masks(np.ascontiguousarray(instances), np.asarray(ids), np.asarray(boxes).astype(np.int64).reshape(-1, 4))
+
+
+@njit(cache=True)
+def _box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """`box_masks` with integer boxes (clipped to the image), on flat arrays indexed by unsigned integers
+    so that the compiler vectorizes each row's comparison."""
+    height, width = instances.shape
+    masks = np.zeros(len(ids) * height * width, np.bool_)
+    image = instances.ravel()
+    for k in range(len(ids)):
+        object_id = ids[k]
+        x0, y0 = max(boxes[k, 0], 0), max(boxes[k, 1], 0)
+        x1, y1 = min(boxes[k, 2], width), min(boxes[k, 3], height)
+        for v in range(y0, y1):
+            row = np.uint64(v * width)
+            out = np.uint64(k * height * width) + row
+            for u in range(x0, x1):
+                t = np.uint64(u)
+                masks[out + t] = image[row + t] == object_id
+    return masks.reshape((len(ids), height, width))
 
 
 def vocabulary_index(class_names: list[str]) -> dict[str, int]:

@@ -16,13 +16,16 @@ from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from clipclique.detectors import InstanceDetector, mask_boxes, vocabulary_index
 from clipclique.types import Detections, Frame
 
 
-def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: int) -> np.ndarray:
-    """(n, H, W) filled axis-aligned ellipses: (n, 2) centres and semi-axes in (row, column) pixels.
+def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: int,
+                  excluded: np.ndarray | None = None) -> np.ndarray:
+    """(n, H, W) filled axis-aligned ellipses: (n, 2) centres and semi-axes in (row, column) pixels,
+    less the pixels of an (H, W) `excluded` mask when given.
 
     Each is evaluated only in its bounding box widened by a pixel (every pixel beyond lies outside it by more
     than a pixel), with the same arithmetic per pixel as over the whole frame: the same masks, a small part
@@ -35,6 +38,8 @@ def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: in
         v = np.arange(v0, v1)[:, None]
         u = np.arange(u0, u1)[None]
         mask[v0:v1, u0:u1] = ((v - v_center) / v_radius) ** 2 + ((u - u_center) / u_radius) ** 2 <= 1.0
+        if excluded is not None:
+            mask[v0:v1, u0:u1] &= ~excluded[v0:v1, u0:u1]
     return masks
 
 
@@ -42,11 +47,16 @@ def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious
              scores: np.ndarray) -> Detections:
     """The kept true detections (with `class_ids`, possibly confused) followed by `spurious` masks
     of no object (instance id -1): what a simulated detector reports (the true boxes are kept, only the
-    spurious masks are boxed)."""
-    masks = np.concatenate((true.masks[kept], spurious))
+    spurious masks are boxed). Each true mask lies in its box (`InstanceDetector`'s do): only its box is
+    copied, into masks allocated once."""
+    true_boxes = np.asarray(true.boxes, np.float64).reshape(-1, 4)[kept]
+    masks = np.zeros((len(true_boxes) + len(spurious), *true.masks.shape[1:]), bool)
+    for mask, k, (x0, y0, x1, y1) in zip(masks, np.flatnonzero(kept), true_boxes.astype(np.int64).tolist()):
+        mask[y0:y1, x0:x1] = true.masks[k, y0:y1, x0:x1]
+    masks[len(true_boxes):] = spurious
     return Detections(
         masks,
-        np.concatenate((np.asarray(true.boxes, np.float64).reshape(-1, 4)[kept], mask_boxes(spurious).reshape(-1, 4))),
+        np.concatenate((true_boxes, mask_boxes(spurious).reshape(-1, 4))),
         np.concatenate((class_ids, spurious_ids)).astype(int),
         scores,
         np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
@@ -163,26 +173,19 @@ class SimulatedYoloDetector:
         true = self.truth.detect(frame)
         height, width = frame.depth.shape
         boxes = true.boxes.astype(np.int64).reshape(-1, 4)  # each mask lies in its box: read there only
-        windows = [(slice(y0, y1), slice(x0, x1)) for x0, y0, x1, y1 in boxes.tolist()]
-        pixels = np.array([mask[window].sum() for mask, window in zip(true.masks, windows)], float)
+        pixels, far = far_masks(true.masks, boxes, frame.depth, self.far_m)
         border = self.border_px
         truncated = ((boxes[:, :2] < border).any(axis=1) | (boxes[:, 2] > width - border)
                      | (boxes[:, 3] > height - border))  # the mask reaches the band `border` pixels wide
-        depths = np.array([self._median_depth(frame.depth[window][mask[window]]) for mask, window in zip(true.masks, windows)])
+        pixels = pixels.astype(float)
         chance = (self.detect_max * pixels / (pixels + self.half_pixels)
-                  * np.where(truncated, self.truncated_factor, 1.0) * np.where(depths > self.far_m, self.far_factor, 1.0))
+                  * np.where(truncated, self.truncated_factor, 1.0) * np.where(far, self.far_factor, 1.0))
         kept = rng.random(len(true)) < chance
         class_ids = self._confused(rng, true.class_ids[kept])
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
         detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
         return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections
-
-    @staticmethod
-    def _median_depth(depths: np.ndarray) -> float:
-        """The median of a mask's valid depths (0 without any)."""
-        valid = depths[depths > 0]
-        return float(np.median(valid)) if len(valid) else 0.0
 
     def _with_duplicates(self, rng: np.random.Generator, detections: Detections, true_classes: np.ndarray) -> Detections:
         """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the hits)."""
@@ -212,12 +215,94 @@ class SimulatedYoloDetector:
     def _false_positives(self, rng: np.random.Generator, frame: Frame, count: int) -> tuple[np.ndarray, np.ndarray]:
         """Elliptic masks 10-30 cm across at their depth, centred on valid depth off every mapped object."""
         height, width = frame.depth.shape
-        mapped = np.isin(frame.instances, list(self.truth.mapped_ids)) if frame.instances is not None else np.zeros((height, width), bool)
-        free = np.flatnonzero((frame.depth > 0) & ~mapped)
-        if count == 0 or len(free) == 0:
+        if count == 0:  # as below, without a draw
+            return np.zeros((0, height, width), bool), np.zeros(0, int)
+        mapped, free = self._free_pixels(frame)
+        if len(free) == 0:
             return np.zeros((0, height, width), bool), np.zeros(0, int)
         centers = np.column_stack(np.unravel_index(free[rng.integers(0, len(free), count)], (height, width)))
         size_m = rng.uniform(0.05, 0.15, (count, 2))
         radii = size_m * frame.intrinsics[0, 0] / frame.depth[centers[:, 0], centers[:, 1]][:, None]
-        blobs = ellipse_masks(centers, radii, height, width) & ~mapped
+        blobs = ellipse_masks(centers, radii, height, width, excluded=mapped)
         return blobs, rng.integers(0, len(self.truth.class_names), count)
+
+    @cached_property
+    def _mapped_table(self) -> np.ndarray | None:
+        """Dataset object id -> whether the map's vocabulary has its class, as a table indexed by id (None
+        where an id is negative or too large to index a table by)."""
+        ids = np.array(sorted(self.truth.mapped_ids), np.int64)
+        if len(ids) and (ids[0] < 0 or ids[-1] > 1 << 24):
+            return None
+        table = np.zeros(ids[-1] + 1 if len(ids) else 0, bool)
+        table[ids] = True
+        return table
+
+    def _free_pixels(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) pixels of a mapped object, and the flat indices of those with depth > 0 off them (ascending)."""
+        if frame.instances is None:
+            mapped = np.zeros(frame.depth.shape, bool)
+        elif self._mapped_table is None:
+            mapped = np.isin(frame.instances, list(self.truth.mapped_ids))
+        else:
+            return _free_pixels(np.ascontiguousarray(frame.instances), np.ascontiguousarray(frame.depth), self._mapped_table)
+        return mapped, np.flatnonzero((frame.depth > 0) & ~mapped)
+
+
+def far_masks(masks: np.ndarray, boxes: np.ndarray, depth: np.ndarray, far: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per mask (each inside its (K, 4) integer box): its pixel count, and whether the median of its positive
+    depths (0 without any) is beyond `far`, as `np.median` of those depths would say; the median itself only
+    where it falls between two depths either side of `far`, the rest from counts in one compiled pass."""
+    pixels, above, valid, below_top, above_bottom = _far_counts(masks, boxes, np.ascontiguousarray(depth), far)
+    beyond = np.where(valid % 2 == 1, 2 * above > valid, above > valid // 2)
+    beyond[valid == 0] = 0.0 > far
+    for k in np.flatnonzero((valid > 0) & (valid % 2 == 0) & (2 * above == valid)):
+        beyond[k] = np.median(np.array([below_top[k], above_bottom[k]])) > far
+    return pixels, beyond
+
+
+@njit(cache=True)
+def _far_counts(masks: np.ndarray, boxes: np.ndarray, depth: np.ndarray,
+                far: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per mask, in its box: pixels, those with depth > 0 beyond `far` and all with depth > 0, and the
+    largest such depth not beyond `far` and the smallest beyond (in the depth's type)."""
+    count = len(boxes)
+    height, width = depth.shape
+    pixels, above, valid = np.zeros(count, np.int64), np.zeros(count, np.int64), np.zeros(count, np.int64)
+    below_top, above_bottom = np.zeros(count, depth.dtype), np.zeros(count, depth.dtype)
+    for k in range(count):
+        x0, y0 = max(boxes[k, 0], 0), max(boxes[k, 1], 0)
+        x1, y1 = min(boxes[k, 2], width), min(boxes[k, 3], height)
+        seen_below, seen_above = False, False
+        for v in range(y0, y1):
+            for u in range(x0, x1):
+                if masks[k, v, u]:
+                    pixels[k] += 1
+                    value = depth[v, u]
+                    if value > 0:
+                        valid[k] += 1
+                        if value > far:
+                            above[k] += 1
+                            if not seen_above or value < above_bottom[k]:
+                                above_bottom[k], seen_above = value, True
+                        elif not seen_below or value > below_top[k]:
+                            below_top[k], seen_below = value, True
+    return pixels, above, valid, below_top, above_bottom
+
+
+@njit(cache=True)
+def _free_pixels(instances: np.ndarray, depth: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`SimulatedYoloDetector._free_pixels` with the mapped ids as a table: `np.isin` and `np.flatnonzero`
+    in one pass."""
+    height, width = depth.shape
+    mapped = np.zeros((height, width), np.bool_)
+    free = np.empty(height * width, np.int64)
+    count = 0
+    for v in range(height):
+        for u in range(width):
+            value = instances[v, u]
+            hit = value >= 0 and value < len(table) and table[value]
+            mapped[v, u] = hit
+            if depth[v, u] > 0 and not hit:
+                free[count] = v * width + u
+                count += 1
+    return mapped, free[:count]

@@ -11,8 +11,15 @@ import pytest
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.types import Frame, Pose
 from clipclique.backends import make_detector
-from clipclique.detectors import InstanceDetector, id_counts, instance_boxes, mask_boxes
-from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector, ellipse_masks, read_lookalikes
+from clipclique.detectors import InstanceDetector, box_masks, id_counts, instance_boxes, mask_boxes
+from clipclique.sim.detectors import (
+    SimulatedDetector,
+    SimulatedYoloDetector,
+    degraded,
+    ellipse_masks,
+    far_masks,
+    read_lookalikes,
+)
 from clipclique.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
@@ -54,6 +61,110 @@ def test_instance_boxes_are_the_masks_ids_counts_and_boxes(largest):
         assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(got, expected))
 
 
+def blocky_instances(seed: int) -> np.ndarray:
+    """An instance image of rectangles over one another (long runs of one id a row, as real ones have),
+    with ids 0, negative and positive, one object split in two."""
+    rng = np.random.default_rng(seed)
+    instances = np.zeros((48, 64), np.int32)
+    for object_id in rng.choice([-2, 1, 2, 3, 5, 6, 9, 11], 14):
+        v0, u0 = rng.integers(0, 44), rng.integers(0, 60)
+        instances[v0:v0 + rng.integers(1, 25), u0:u0 + rng.integers(1, 30)] = object_id
+    instances[:, -1] = 4  # a last column of its own: a run ends at the image's edge
+    instances[0, 0], instances[47, 0] = 7, 7
+    return instances
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_instance_boxes_and_box_masks_match_numpy_on_blocky_images(seed):
+    """The compiled table reads runs of one id: counts and boxes as numpy's per id over the whole image, and
+    the compiled box masks equal comparing the whole image per id."""
+    instances = blocky_instances(seed)
+    ids, counts, boxes = instance_boxes(instances)
+    expected_ids, expected_counts = np.unique(instances[instances > 0], return_counts=True)
+    whole = instances[None] == expected_ids[:, None, None]
+    np.testing.assert_array_equal(ids, expected_ids)
+    np.testing.assert_array_equal(counts, expected_counts)
+    np.testing.assert_array_equal(boxes, mask_boxes(whole))
+    masks = box_masks(instances, ids, boxes)
+    assert masks.dtype == bool and masks.shape == whole.shape
+    np.testing.assert_array_equal(masks, whole)
+    np.testing.assert_array_equal(box_masks(instances, ids[:2], boxes[:2]), whole[:2])  # a subset, as detect keeps
+    assert box_masks(instances, ids[:0], boxes[:0]).shape == (0, 48, 64)
+
+
+def median_beyond(depths: np.ndarray, far: float) -> bool:
+    """The straightforward reference: numpy's median of the positive depths (0 without any) beyond `far`."""
+    valid = depths[depths > 0]
+    return (float(np.median(valid)) if len(valid) else 0.0) > far
+
+
+def test_far_masks_say_what_numpys_median_says():
+    """Counts decide where the median is plainly either side; between two depths either side of `far` it is
+    numpy's own median of the two. Odd and even counts, depths exactly at `far`, ties, NaN, -0, inf, none."""
+    far = 3.5
+    f32 = np.float32
+    cases = [
+        [], [0.0, -0.0, np.nan], [3.5], [3.5000002], [3.4999998, 3.5000002], [3.5, 3.5000002],
+        [3.4999998, 3.5000005],  # mean 3.50000015: rounds in float32 to 3.5000002 > 3.5
+        [3.0, 4.0], [3.0, 4.0000005], [2.0, 3.5, 3.5, 6.0], [1.0, 3.5, 3.7, 9.0], [1.0, 2.0, 5.0],
+        [np.inf, 1.0], [np.inf, 3.5], [np.inf, np.inf, 1.0], [np.nan, 4.0, -0.0, 3.0], [7.0] * 6,
+        [3.5] * 4 + [3.6] * 4, [3.4] * 3 + [3.6] * 3, [3.4] * 3 + [3.6] * 4, [-1.0, 4.0],
+    ]
+    rng = np.random.default_rng(2)
+    cases += [rng.choice([0.0, np.nan, 3.4999998, 3.5, 3.5000002, 1.0, 6.0], rng.integers(1, 30)) for _ in range(300)]
+    height, width = 6, 8
+    masks, boxes, depth, expected = [], [], np.zeros((height, width * len(cases)), f32), []
+    for k, values in enumerate(cases):
+        mask = np.zeros((height, width * len(cases)), bool)
+        flat = np.zeros(height * width, bool)
+        flat[:len(values)] = True
+        mask[:, k * width:(k + 1) * width] = flat.reshape(height, width)
+        block = np.zeros(height * width, f32)
+        block[:len(values)] = np.array(values, f32)
+        depth[:, k * width:(k + 1) * width] = block.reshape(height, width)
+        masks.append(mask)
+        boxes.append([k * width, 0, (k + 1) * width, height])
+        expected.append(median_beyond(np.array(values, f32), far))
+    pixels, beyond = far_masks(np.array(masks), np.array(boxes, np.int64), depth, far)
+    np.testing.assert_array_equal(pixels, [len(values) for values in cases])
+    np.testing.assert_array_equal(beyond, expected)
+    assert 0 < sum(expected) < len(expected)
+    for k in (6, 10):  # the medians between two depths either side of `far`
+        assert median_beyond(np.array(cases[k], f32), far) == bool(beyond[k])
+    # float64 depths and a negative `far`: no positive depth reads as 0, beyond a negative `far`
+    _, negative = far_masks(np.array(masks[:3]), np.array(boxes[:3], np.int64), depth.astype(np.float64), -1.0)
+    assert negative.tolist() == [True, True, True]
+
+
+def test_free_pixels_are_numpys_isin_and_flatnonzero():
+    detector = SimulatedYoloDetector(InstanceDetector({1: "cup", 2: "book", 4: "cup", 5: "plant", 40: "book"}, DESK))
+    frame = desk_frame(0)
+    rng = np.random.default_rng(1)
+    frame.instances = rng.choice(np.array([-3, 0, 1, 2, 4, 5, 39, 40, 41, 10**6], np.int32), frame.instances.shape)
+    frame.depth = rng.choice(np.array([0.0, -0.0, np.nan, -1.0, 0.5, np.inf], np.float32), frame.depth.shape)
+    mapped, free = detector._free_pixels(frame)
+    expected = np.isin(frame.instances, [1, 2, 4, 40])
+    np.testing.assert_array_equal(mapped, expected)
+    np.testing.assert_array_equal(free, np.flatnonzero((frame.depth > 0) & ~expected))
+    assert free.dtype == np.int64 and len(free) > 0
+    frame.instances = None
+    mapped, free = detector._free_pixels(frame)
+    assert not mapped.any() and np.array_equal(free, np.flatnonzero(frame.depth > 0))
+
+
+def test_degraded_copies_the_true_boxes_into_masks_as_a_concatenation_would():
+    rng = np.random.default_rng(3)
+    frame = make_frame()
+    frame.instances = blocky_instances(0)
+    true = InstanceDetector({i: "chair" for i in range(12)}, CLASSES).detect(frame)
+    spurious = ellipse_masks(np.array([[10.0, 10.0], [40.0, 60.0]]), np.array([[4.0, 6.0], [9.0, 3.0]]), 48, 64)
+    for kept in (rng.random(len(true)) < 0.5, np.ones(len(true), bool), np.zeros(len(true), bool)):
+        detections = degraded(true, kept, true.class_ids[kept], spurious, np.array([1, 2]), np.ones(kept.sum() + 2))
+        np.testing.assert_array_equal(detections.masks, np.concatenate((true.masks[kept], spurious)))
+        np.testing.assert_array_equal(detections.boxes, mask_boxes(detections.masks))
+        assert detections.instance_ids.tolist() == true.instance_ids[kept].tolist() + [-1, -1]
+
+
 def test_ellipse_masks_match_the_whole_frame_formula_to_the_pixel():
     """Evaluated in each blob's box only, yet the same masks as the formula over every pixel (the simulated
     detectors' output, and so every result on the generated scenes, depends on it): blobs inside, cut by
@@ -67,6 +178,8 @@ def test_ellipse_masks_match_the_whole_frame_formula_to_the_pixel():
     expected = (((v[None] - centers[:, 0, None, None]) / radii[:, 0, None, None]) ** 2
                 + ((u[None] - centers[:, 1, None, None]) / radii[:, 1, None, None]) ** 2) <= 1.0
     np.testing.assert_array_equal(ellipse_masks(centers, radii, height, width), expected)
+    excluded = np.random.default_rng(6).random((height, width)) < 0.3
+    np.testing.assert_array_equal(ellipse_masks(centers, radii, height, width, excluded), expected & ~excluded)
     assert expected.any(axis=(1, 2)).sum() >= 42 and expected[-3].all()  # most blobs drawn, the huge one everywhere
     assert ellipse_masks(np.zeros((0, 2)), np.zeros((0, 2)), height, width).shape == (0, height, width)
 

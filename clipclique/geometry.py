@@ -13,6 +13,7 @@ depth pixel lie, in compiled code: about 30x faster than the KD-tree search open
 
 from __future__ import annotations
 
+import enum
 import functools
 import math
 from collections.abc import Callable
@@ -63,22 +64,77 @@ def fit_ellipsoid_depth(
 
 
 def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The PCA box of the points whose neighbour distance `spread` is not an outlier."""
-    limit = _outlier_limit(spread, params.outlier_std_ratio)
-    kept, mean, scatter = _inlier_moments(points, spread, limit)
+    """The PCA box of the points whose neighbour distance `spread` is not an outlier: numpy's `eigh` and
+    matrix product, the sums, bounds and ordering around them in compiled code (the same operations)."""
+    limit, kept, mean, scatter = _inliers(points, spread, params.outlier_std_ratio)
     if kept < params.min_points:
         return None
     _, rotation = np.linalg.eigh(scatter)
-    low, high = _extents(points, spread, limit, mean, rotation)
-    center = mean + rotation @ ((low + high) / 2)
-    axes = (high - low) / 2
-    if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < params.min_axis:
+    middle, axes = _extents_halved(points, spread, limit, mean, rotation)
+    center = mean + rotation @ middle
+    ordered, axes, rotation = _oriented(axes, rotation, params.min_axis)
+    if ordered == Oriented.DEGENERATE:
         return None
-    order = np.argsort(-axes)  # largest axis first, a stable convention for viewers and tests
-    rotation = rotation[:, order]
-    if np.linalg.det(rotation) < 0:
-        rotation[:, 2] = -rotation[:, 2]
-    return center, axes[order], rotation
+    if ordered == Oriented.UNSURE:  # numpy's sort and determinant decide, as they always have
+        order = np.argsort(-axes)  # largest axis first, a stable convention for viewers and tests
+        rotation = rotation[:, order]
+        if np.linalg.det(rotation) < 0:
+            rotation[:, 2] = -rotation[:, 2]
+        axes = axes[order]
+    return center, axes, rotation
+
+
+class Oriented(enum.IntEnum):
+    """What `_oriented` made of a box's axes."""
+
+    DONE = 0  # axes largest first, the rotation's columns in their order, right-handed
+    DEGENERATE = 1  # an axis not finite or below the minimum: no ellipsoid
+    UNSURE = 2  # two axes equal (numpy's sort orders ties its own way) or not a rotation: left as they were
+
+
+@njit(cache=True)
+def _oriented(axes: np.ndarray, rotation: np.ndarray, min_axis: float) -> tuple[int, np.ndarray, np.ndarray]:
+    """The box's axes largest first and the rotation's columns in that order, its third column negated where
+    the determinant is negative; the sign of a determinant of +-1 from its cofactors is LAPACK's."""
+    if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < min_axis:
+        return Oriented.DEGENERATE, axes, rotation
+    a, b, c = axes[0], axes[1], axes[2]
+    if a == b or b == c or a == c:
+        return Oriented.UNSURE, axes, rotation
+    if a > b:
+        order = (0, 1, 2) if b > c else ((0, 2, 1) if a > c else (2, 0, 1))
+    else:
+        order = (1, 0, 2) if a > c else ((1, 2, 0) if b > c else (2, 1, 0))
+    sorted_axes, turned = np.empty(3), np.empty((3, 3))
+    for j in range(3):
+        sorted_axes[j] = axes[order[j]]
+        for i in range(3):
+            turned[i, j] = rotation[i, order[j]]
+    determinant = (turned[0, 0] * (turned[1, 1] * turned[2, 2] - turned[1, 2] * turned[2, 1])
+                   - turned[0, 1] * (turned[1, 0] * turned[2, 2] - turned[1, 2] * turned[2, 0])
+                   + turned[0, 2] * (turned[1, 0] * turned[2, 1] - turned[1, 1] * turned[2, 0]))
+    if abs(determinant) < 0.5:
+        return Oriented.UNSURE, axes, rotation
+    if determinant < 0:
+        for i in range(3):
+            turned[i, 2] = -turned[i, 2]
+    return Oriented.DONE, sorted_axes, turned
+
+
+@njit(cache=True)
+def _inliers(points: np.ndarray, spread: np.ndarray, ratio: float) -> tuple[float, int, np.ndarray, np.ndarray]:
+    """(`_outlier_limit`, then `_inlier_moments` within it) in one call."""
+    limit = _outlier_limit(spread, ratio)
+    count, mean, scatter = _inlier_moments(points, spread, limit)
+    return limit, count, mean, scatter
+
+
+@njit(cache=True)
+def _extents_halved(points: np.ndarray, spread: np.ndarray, limit: float, mean: np.ndarray,
+                    rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The middle of `_extents` ((low + high) / 2) and half its size ((high - low) / 2), in one call."""
+    low, high = _extents(points, spread, limit, mean, rotation)
+    return (low + high) / 2, (high - low) / 2
 
 
 @njit(cache=True)

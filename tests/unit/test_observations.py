@@ -344,3 +344,54 @@ def test_inlier_moments_sum_in_point_order():
     along = (inliers - mean) @ rotation
     np.testing.assert_allclose(low, along.min(axis=0), rtol=0, atol=1e-12)
     np.testing.assert_allclose(high, along.max(axis=0), rtol=0, atol=1e-12)
+
+
+def numpy_box(points: np.ndarray, spread: np.ndarray, params: FitParams):
+    """The PCA box as numpy wrote it before its ordering was compiled: the reference `_box` keeps to the bit."""
+    from clipclique.geometry import _extents, _inlier_moments, _outlier_limit
+
+    limit = _outlier_limit(spread, params.outlier_std_ratio)
+    kept, mean, scatter = _inlier_moments(points, spread, limit)
+    if kept < params.min_points:
+        return None
+    _, rotation = np.linalg.eigh(scatter)
+    low, high = _extents(points, spread, limit, mean, rotation)
+    center = mean + rotation @ ((low + high) / 2)
+    axes = (high - low) / 2
+    if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < params.min_axis:
+        return None
+    order = np.argsort(-axes)
+    rotation = rotation[:, order]
+    if np.linalg.det(rotation) < 0:
+        rotation[:, 2] = -rotation[:, 2]
+    return center, axes[order], rotation
+
+
+def test_box_orders_its_axes_as_numpy_did_to_the_bit():
+    """Random clouds of every elongation and orientation, axes exactly equal (a cube's corners: numpy's sort
+    decides), flat and too small clouds, infinite spreads: the same boxes, or None, to the bit."""
+    from clipclique.geometry import Oriented, _box, _oriented
+
+    rng = np.random.default_rng(11)
+    params = FitParams(min_points=4)
+    cases = []
+    for _ in range(400):
+        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        scale = rng.choice([0.0, 0.004, 0.05, 0.3, 1.0], 3)
+        points = rng.normal(0, 1, (int(rng.integers(3, 120)), 3)) * scale @ turn + rng.normal(0, 3, 3)
+        spread = np.where(rng.random(len(points)) < 0.05, np.inf, rng.uniform(0, 1, len(points)))
+        cases.append((points, spread))
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
+    for stretch in ([1, 1, 1], [2, 1, 1], [1, 3, 1], [1, 1, 0.5], [0.5, 0.5, 2]):
+        cases.append((corners * stretch, np.zeros(8)))
+    outcomes = {"box": 0, "none": 0}
+    for points, spread in cases:
+        got, want = _box(points, spread, params), numpy_box(points, spread, params)
+        assert (got is None) == (want is None)
+        outcomes["none" if got is None else "box"] += 1
+        if got is not None:
+            assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want))
+            assert np.linalg.det(got[2]) > 0 and np.all(np.diff(got[1]) <= 0)
+    assert outcomes["box"] > 80 and outcomes["none"] > 80
+    assert _oriented(np.ones(3), np.eye(3), 0.01)[0] == Oriented.UNSURE  # the cube's ties took numpy's way
+    assert _oriented(np.array([1.0, 2.0, 3.0]), np.eye(3)[:, [2, 1, 0]], 0.01)[0] == Oriented.DONE

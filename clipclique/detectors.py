@@ -29,7 +29,7 @@ class Detector(Protocol):
 
 def empty_detections(height: int, width: int) -> Detections:
     return Detections(np.zeros((0, height, width), bool), np.zeros((0, 4)), np.zeros(0, int), np.zeros(0),
-                      np.zeros(0, int))
+                      np.zeros(0, int), masks_in_boxes=True)
 
 
 def mask_boxes(masks: np.ndarray) -> np.ndarray:
@@ -150,4 +150,5 @@ class InstanceDetector:
         classes = np.array([self._map_class.get(int(i), -1) for i in ids], int)
         keep = (classes >= 0) & (counts >= self.min_pixels)
         ids, classes, boxes = ids[keep], classes[keep], boxes[keep]
-        return Detections(box_masks(frame.instances, ids, boxes), boxes, classes, np.ones(len(ids)), ids.astype(int))
+        return Detections(box_masks(frame.instances, ids, boxes), boxes, classes, np.ones(len(ids)), ids.astype(int),
+                          masks_in_boxes=True)

@@ -94,13 +94,13 @@ class Oriented(enum.IntEnum):
 
 @njit(cache=True)
 def _oriented(axes: np.ndarray, rotation: np.ndarray, min_axis: float) -> tuple[int, np.ndarray, np.ndarray]:
-    """The box's axes largest first and the rotation's columns in that order, its third column negated where
-    the determinant is negative; the sign of a determinant of +-1 from its cofactors is LAPACK's."""
+    """(an `Oriented` value, the box's axes largest first, the rotation's columns in that order with its third
+    negated where the determinant is negative): the sign of a determinant of +-1 from cofactors is LAPACK's."""
     if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < min_axis:
-        return Oriented.DEGENERATE, axes, rotation
+        return Oriented.DEGENERATE.value, axes, rotation
     a, b, c = axes[0], axes[1], axes[2]
     if a == b or b == c or a == c:
-        return Oriented.UNSURE, axes, rotation
+        return Oriented.UNSURE.value, axes, rotation
     if a > b:
         order = (0, 1, 2) if b > c else ((0, 2, 1) if a > c else (2, 0, 1))
     else:
@@ -114,11 +114,11 @@ def _oriented(axes: np.ndarray, rotation: np.ndarray, min_axis: float) -> tuple[
                    - turned[0, 1] * (turned[1, 0] * turned[2, 2] - turned[1, 2] * turned[2, 0])
                    + turned[0, 2] * (turned[1, 0] * turned[2, 1] - turned[1, 1] * turned[2, 0]))
     if abs(determinant) < 0.5:
-        return Oriented.UNSURE, axes, rotation
+        return Oriented.UNSURE.value, axes, rotation
     if determinant < 0:
         for i in range(3):
             turned[i, 2] = -turned[i, 2]
-    return Oriented.DONE, sorted_axes, turned
+    return Oriented.DONE.value, sorted_axes, turned
 
 
 @njit(cache=True)

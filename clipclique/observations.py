@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -38,19 +39,19 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated, areas = [], [], [], []
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
-        pixels, in_band = mask_pixels(mask, params.border_px)
+        window = _masked_window(frame.depth, frame.intrinsics, mask, box, params)
+        pixels, in_band = ((window.pixels, window.in_band) if detections.masks_in_boxes
+                           else mask_pixels(mask, params.border_px))
         if pixels < params.min_mask_pixels:
             dropped["tiny mask"] += 1
             continue
         if in_band > params.max_border_fraction * pixels:
             dropped["border sliver"] += 1
             continue
-        window_depth, intrinsics, window_mask, with_depth = _masked_window(frame.depth, frame.intrinsics, mask, box,
-                                                                           params)
-        if with_depth < params.fit.min_points:
+        if window.with_depth < params.fit.min_points:
             dropped["invalid depth"] += 1
             continue
-        fit = fit_ellipsoid_depth(window_depth, intrinsics, window_mask, params.fit)
+        fit = fit_ellipsoid_depth(window.depth, window.intrinsics, window.mask, params.fit)
         if fit is None:
             dropped["degenerate fit"] += 1
             continue
@@ -92,41 +93,62 @@ def _band_pixels(mask: np.ndarray, band: int) -> int:
     return count
 
 
+class Window(NamedTuple):
+    """A detection's box of the frame, widened by the erosion's reach, as the fit reads it."""
+
+    depth: np.ndarray  # the depth, 0 beyond `max_depth`
+    intrinsics: np.ndarray  # the camera's, shifted to the window's origin
+    mask: np.ndarray  # the eroded mask (the mask itself where too little survives)
+    with_depth: int  # pixels of `mask` with a positive depth
+    pixels: int  # pixels of the mask in the window (all of them where the mask lies inside its box)
+    in_band: int  # ... and of those, within the border band (`ObservationParams.border_px`) of the image
+
+
 def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, box: np.ndarray,
-                   params: ObservationParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(depth, intrinsics, eroded mask) cut to the detection's box, and the mask's pixel count with depth:
-    erosion over the box, not the image; depth beyond `params.max_depth` reads as missing (0)."""
+                   params: ObservationParams) -> Window:
+    """The detection's `Window`: erosion over the box, not the image; depth beyond `params.max_depth` reads
+    as missing (0)."""
     height, width = depth.shape
     pad = params.erode_px + 1
     x0, y0 = max(math.floor(box[0]) - pad, 0), max(math.floor(box[1]) - pad, 0)
     x1, y1 = min(math.ceil(box[2]) + pad, width), min(math.ceil(box[3]) + pad, height)
-    window_mask, window_depth, with_depth = _window_pixels(mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], params.erode_px,
-                                                           params.min_mask_pixels, params.max_depth)
+    window_mask, window_depth, with_depth, pixels, in_band = _window_pixels(
+        mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], params.erode_px, params.min_mask_pixels, params.max_depth,
+        (y0, x0, height, width, params.border_px))
     shifted = intrinsics.copy()
     shifted[:2, 2] -= (x0, y0)
-    return window_depth, shifted, window_mask, with_depth
+    return Window(window_depth, shifted, window_mask, with_depth, pixels, in_band)
 
 
 @njit(cache=True)
-def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixels: int,
-                   max_depth: float) -> tuple[np.ndarray, np.ndarray, int]:
+def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixels: int, max_depth: float,
+                   placed: tuple[int, int, int, int, int]) -> tuple[np.ndarray, np.ndarray, int, int, int]:
     """A detection's window prepared in compiled code, without scipy's and numpy's per-call overhead.
 
     Returns the mask eroded `erode_px` times by the 4-neighbour cross with pixels beyond the edge
     unset (`scipy.ndimage.binary_erosion`'s), or the mask itself where fewer than `min_pixels`
-    survive; the depth with values beyond `max_depth` (and NaN) set to 0; and how many pixels of
-    the returned mask have a positive depth. The window is copied once into flat arrays indexed by
+    survive; the depth with values beyond `max_depth` (and NaN) set to 0; how many pixels of
+    the returned mask have a positive depth; and the window's mask pixels, and those in the image's
+    border band, where `placed` = (window top, left, image height, width, band) (`mask_pixels` of
+    the whole mask where it lies in the window). The window is copied once into flat arrays indexed by
     unsigned integers, so that the compiler vectorizes the erosion's rows.
     """
+    top, left, image_height, image_width, band = placed
+    everywhere = 2 * band >= min(image_height, image_width)  # the band covers the image (`_band_pixels`)
     height, width = mask.shape
     size = height * width
     given = np.empty(size, np.bool_)
     cut = np.empty((height, width), depth.dtype)
     flat_cut = cut.reshape(size)
+    pixels, in_band = 0, 0
     for v in range(height):
         row = np.uint64(v * width)
+        row_in_band = everywhere or top + v < band or top + v >= image_height - band
         for u in range(width):
-            given[row + np.uint64(u)] = mask[v, u]
+            inside = mask[v, u]
+            given[row + np.uint64(u)] = inside
+            pixels += inside
+            in_band += inside and (row_in_band or left + u < band or left + u >= image_width - band)
             value = depth[v, u]
             flat_cut[row + np.uint64(u)] = value if value <= max_depth else 0.0
     eroded = given
@@ -147,7 +169,7 @@ def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixel
     with_depth = 0
     for t in range(size):
         with_depth += eroded[t] and flat_cut[t] > 0
-    return eroded.reshape((height, width)), cut, with_depth
+    return eroded.reshape((height, width)), cut, with_depth, pixels, in_band
 
 
 def crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:

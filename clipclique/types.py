@@ -134,6 +134,7 @@ class Detections:
     class_ids: np.ndarray  # (K,) int, in the map's vocabulary
     scores: np.ndarray  # (K,) float
     instance_ids: np.ndarray  # (K,) int, ground-truth object id, -1 unknown (false positive)
+    masks_in_boxes: bool = False  # every mask lies inside its box: a reader may read the box alone
 
     def __len__(self) -> int:
         return len(self.class_ids)

@@ -60,6 +60,7 @@ def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious
         np.concatenate((class_ids, spurious_ids)).astype(int),
         scores,
         np.concatenate((true.instance_ids[kept], np.full(len(spurious), -1))).astype(int),
+        masks_in_boxes=True,
     )
 
 
@@ -202,6 +203,7 @@ class SimulatedYoloDetector:
             np.concatenate((detections.class_ids, other[chosen])).astype(int),
             np.concatenate((detections.scores, rng.uniform(0.25, 0.5, len(chosen)))),
             np.concatenate((detections.instance_ids, detections.instance_ids[chosen])).astype(int),
+            detections.masks_in_boxes,
         )
 
     def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:

@@ -313,12 +313,50 @@ def test_window_pixels_erode_and_cut_as_scipy_and_numpy():
     mask = np.zeros(depth.shape, bool)
     mask[3:27, 5:40] = rng.random((24, 35)) < 0.95
     for erode_px, min_pixels in ((0, 1), (1, 1), (2, 1), (2, 10_000)):
-        eroded, cut, with_depth = _window_pixels(mask[1:, 2:], depth[1:, 2:], erode_px, min_pixels, 4.0)
+        eroded, cut, with_depth, _, _ = _window_pixels(mask[1:, 2:], depth[1:, 2:], erode_px, min_pixels, 4.0,
+                                                       (1, 2, 30, 44, 3))
         want = ndimage.binary_erosion(mask[1:, 2:], iterations=erode_px) if erode_px else mask[1:, 2:]
         want = want if want.sum() >= min_pixels else mask[1:, 2:]
         want_cut = np.where(depth[1:, 2:] <= 4.0, depth[1:, 2:], 0).astype(np.float32)
         assert np.array_equal(eroded, want) and cut.dtype == np.float32 and np.array_equal(cut, want_cut)
         assert with_depth == np.count_nonzero(want & (want_cut > 0))
+
+
+@pytest.mark.parametrize("band", [0, 3, 6, 21, 22, 40])
+def test_window_counts_are_mask_pixels_of_a_mask_inside_it(band):
+    """The window pass counts a mask that lies inside the window as `mask_pixels` counts the whole mask:
+    windows at the image's corners, its edges and inside, bands of 0 to wider than half the image."""
+    rng = np.random.default_rng(band)
+    depth = rng.uniform(0.5, 3.0, (44, 60)).astype(np.float32)
+    for top, left, bottom, right in ((0, 0, 20, 25), (30, 41, 44, 60), (5, 9, 40, 52), (0, 0, 44, 60), (10, 0, 13, 60)):
+        mask = np.zeros(depth.shape, bool)
+        mask[top:bottom, left:right] = rng.random((bottom - top, right - left)) < 0.6
+        *_, pixels, in_band = _window_pixels(mask[top:bottom, left:right], depth[top:bottom, left:right], 1, 1, 8.0,
+                                             (top, left, 44, 60, band))
+        assert (pixels, in_band) == mask_pixels(mask, band)
+
+
+def test_masks_in_boxes_are_counted_in_their_windows_with_the_same_outcome():
+    """Detections whose masks lie in their boxes are counted in the fit's windows, not over the whole image:
+    the same observations, areas, drop counts and crops as counting the whole masks."""
+    frame, sphere = sphere_frame()
+    sliver, tiny, cut = np.zeros_like(sphere), np.zeros_like(sphere), np.zeros_like(sphere)
+    sliver[0:6, 100:140] = True  # in the border band
+    tiny[200:205, 300:305] = True
+    cut[150:230, 0:60] = True  # truncated by the image's edge, most of it inside, on a bulge of the wall
+    v, u = np.mgrid[150:230, 0:60]
+    frame.depth[150:230, 0:60] = (3.0 + ((u - 30) ** 2 + (v - 190) ** 2) / 1500).astype(np.float32)
+    detections = detections_of([sphere, sliver, tiny, cut], [1, 2, 3, 4])
+    assert not detections.masks_in_boxes
+    params = ObservationParams(min_mask_pixels=50)
+    whole = extract_observations(frame, detections, params)
+    detections.masks_in_boxes = True
+    boxed = extract_observations(frame, detections, params)
+    assert whole.dropped == boxed.dropped and whole.dropped["border sliver"] == 1 and whole.dropped["tiny mask"] == 1
+    for field in ("centers", "axes", "rotations"):
+        assert np.array_equal(getattr(whole.observations.ellipsoids, field), getattr(boxed.observations.ellipsoids, field))
+    assert np.array_equal(whole.observations.mask_areas, boxed.observations.mask_areas)
+    assert [c.truncated for c in whole.crops] == [c.truncated for c in boxed.crops] == [False, True]
 
 
 def test_inlier_moments_sum_in_point_order():

@@ -203,7 +203,7 @@ class SimulatedYoloDetector:
             np.concatenate((detections.class_ids, other[chosen])).astype(int),
             np.concatenate((detections.scores, rng.uniform(0.25, 0.5, len(chosen)))),
             np.concatenate((detections.instance_ids, detections.instance_ids[chosen])).astype(int),
-            detections.masks_in_boxes,
+            masks_in_boxes=detections.masks_in_boxes,
         )
 
     def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:

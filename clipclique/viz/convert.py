@@ -29,16 +29,29 @@ def ellipsoids3d(
     show_labels: bool = True,
 ) -> rr.Ellipsoids3D:
     """Ellipsoids coloured by class through the annotation context unless `colors` is given."""
-    return rr.Ellipsoids3D(
-        centers=ellipsoids.centers,
-        half_sizes=ellipsoids.axes,
-        quaternions=Rotation.from_matrix(ellipsoids.rotations).as_quat() if len(ellipsoids) else np.zeros((0, 4)),
-        class_ids=annotation_ids(class_ids),
-        colors=colors,
-        labels=labels,
-        fill_mode=fill_mode,
-        show_labels=show_labels,
-    )
+    return rr.Ellipsoids3D(**ellipsoid_fields(ellipsoids, class_ids, labels, colors, fill_mode, show_labels))
+
+
+def ellipsoid_fields(
+    ellipsoids: Ellipsoids,
+    class_ids: np.ndarray,
+    labels: list[str] | None = None,
+    colors: np.ndarray | None = None,
+    fill_mode: str = "TransparentFillMajorWireframe",
+    show_labels: bool = True,
+) -> dict:
+    """The fields of `ellipsoids3d`'s archetype (those given), for an ArchetypeRows row."""
+    fields = {
+        "centers": ellipsoids.centers,
+        "half_sizes": ellipsoids.axes,
+        "quaternions": Rotation.from_matrix(ellipsoids.rotations).as_quat() if len(ellipsoids) else np.zeros((0, 4)),
+        "class_ids": annotation_ids(class_ids),
+        "colors": colors,
+        "labels": labels,
+        "fill_mode": fill_mode,
+        "show_labels": show_labels,
+    }
+    return {name: value for name, value in fields.items() if value is not None}
 
 
 def camera(
@@ -105,16 +118,19 @@ BOX_LABEL_WIDTH = 3.0  # a box label (`potted plant 0.51`) is about this many ti
 BOX_LABEL_SPACING = 32.0  # image pixels: labels whose anchors are nearer (across: x BOX_LABEL_WIDTH) would overlap
 
 
-def boxes2d(detections: Detections, class_names: list[str]) -> tuple[rr.Boxes2D, rr.Boxes2D]:
+def box_fields(detections: Detections, class_names: list[str]) -> tuple[dict, dict]:
     """The detection boxes with a visible label where it does not crowd a larger box's (the viewer draws it
-    under the box's centre), and the crowded ones labelled on hover only."""
+    under the box's centre), and the crowded ones labelled on hover only: the fields of two Boxes2D (an
+    ArchetypeRows row each), centres and half sizes as `rr.Boxes2D(array=..., array_format=XYXY)` makes them."""
     labels = np.array([f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)], dtype=object)
     boxes = np.asarray(detections.boxes, dtype=np.float64).reshape(-1, 4)
     anchors = np.column_stack(((boxes[:, 0] + boxes[:, 2]) / 2 / BOX_LABEL_WIDTH, boxes[:, 3]))
     shown = spread_labels(anchors, (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), BOX_LABEL_SPACING)
     class_ids = annotation_ids(detections.class_ids)
-    return tuple(rr.Boxes2D(array=boxes[keep], array_format=rr.Box2DFormat.XYXY, class_ids=class_ids[keep],
-                            labels=labels[keep].tolist(), show_labels=visible)
+    centers = (boxes[:, :2] + boxes[:, 2:]) / 2
+    half_sizes = boxes[:, 2:] - centers
+    return tuple({"centers": centers[keep], "half_sizes": half_sizes[keep], "class_ids": class_ids[keep],
+                  "labels": labels[keep].tolist(), "show_labels": visible}
                  for keep, visible in ((shown, True), (~shown, False)))
 
 

@@ -16,9 +16,9 @@ from clipclique.config import GraphConfig
 from clipclique.projection import box_iou, ellipse_outlines, project
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
-from clipclique.viz.convert import boxes2d, camera, depth_image, ellipsoids3d, rgb_image, segmentation
+from clipclique.viz.convert import box_fields, camera, depth_image, ellipsoid_fields, rgb_image, segmentation
 from clipclique.viz.map_recording import log_map, map_summary
-from clipclique.viz.recording import ColumnsAtClose, RecordingFile, Worker, queued
+from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose, RecordingFile, Worker, queued
 from clipclique.viz.style import (
     ESTIMATE_CAMERA,
     GT_CAMERA,
@@ -55,6 +55,16 @@ LEGEND = (
     "supporting it · **Error plots** a gap and a red cross where a frame has no pose · **Blue** (window "
     "localization) the window's source observations, older frames darker, and its cameras by odometry"
 )
+
+# how the rows kept until close become columns (see ArchetypeRows)
+ELLIPSOIDS = ArchetypeRows(rr.Ellipsoids3D, ("centers", "half_sizes", "quaternions", "class_ids", "colors", "labels"))
+BOXES = ArchetypeRows(rr.Boxes2D, ("centers", "half_sizes", "class_ids", "labels"))
+MATCHES = ArchetypeRows(rr.LineStrips3D, ("strips", "colors"))  # one radius a row
+PATHS = ArchetypeRows(rr.LineStrips3D, ("strips",))  # one colour and radius a row
+OUTLINES = ArchetypeRows(rr.LineStrips2D, ("strips", "class_ids", "labels", "radii"))
+SIMILARITIES = ArchetypeRows(rr.AnyValues, ("similarity",))
+SOURCE_FRAMES = ArchetypeRows(rr.AnyValues, ("frame",))
+CLIQUE_VALUES = ArchetypeRows(rr.AnyValues)
 
 
 class LocalizationRecorder:
@@ -133,12 +143,14 @@ class LocalizationRecorder:
         stacked = Ellipsoids(*(np.concatenate([getattr(e, name) for e in moved]).reshape(shape)
                                for name, shape in (("centers", (-1, 3)), ("axes", (-1, 3)), ("rotations", (-1, 3, 3)))))
         classes = np.concatenate([sources.class_ids for sources in query.fusion.sources]).astype(np.int64)
-        self._late.log(WINDOW_SOURCES, *self._now, ellipsoids3d(stacked.transformed(placement), classes,
-                                                     colors=np.column_stack((shade // 2, shade // 2, shade)),
-                                                     fill_mode="MajorWireframe", show_labels=False),
-                        rr.AnyValues(frame=np.repeat(query.frames, [len(e) for e in moved])))
+        self._late.add(WINDOW_SOURCES, *self._now, ellipsoid_fields(stacked.transformed(placement), classes,
+                                                          colors=np.column_stack((shade // 2, shade // 2, shade)),
+                                                          fill_mode="MajorWireframe", show_labels=False), ELLIPSOIDS)
+        self._late.add(WINDOW_SOURCES, *self._now, {"frame": np.repeat(query.frames, [len(e) for e in moved])},
+                       SOURCE_FRAMES)
         cameras = placement.apply(np.array([pose.translation for pose in query.poses]))
-        self._late.log(WINDOW_PATH, *self._now, rr.LineStrips3D([cameras], colors=WINDOW_COLOR, radii=rr.Radius.ui_points(2.0)))
+        self._late.add(WINDOW_PATH, *self._now,
+                       {"strips": [cameras], "colors": WINDOW_COLOR, "radii": rr.Radius.ui_points(2.0)}, PATHS)
 
     def close(self) -> None:
         try:
@@ -174,9 +186,9 @@ class LocalizationRecorder:
             f"{CAMERA}/detections/masks",
             rr.SegmentationImage(segmentation(detections, (height, width)), opacity=0.45, draw_order=1.0),
         )
-        labelled, crowded = boxes2d(detections, self.map.class_names)
-        self.stream.log(f"{CAMERA}/detections/boxes", labelled)
-        self.stream.log(f"{CAMERA}/detections/crowded_boxes", crowded)
+        labelled, crowded = box_fields(detections, self.map.class_names)
+        self._late.add(f"{CAMERA}/detections/boxes", *self._now, labelled, BOXES)
+        self._late.add(f"{CAMERA}/detections/crowded_boxes", *self._now, crowded, BOXES)
 
     def _log_cameras(self, frame: Frame, result: LocalizationResult, evaluation: FrameEvaluation | None) -> None:
         height, width = frame.rgb.shape[:2]
@@ -210,11 +222,9 @@ class LocalizationRecorder:
                 continue
             placed = observations.ellipsoids.transformed(pose)
             colors = np.broadcast_to(color, (len(observations), 3))
-            self._late.log(
-                path, *self._now,
-                # labels on hover only: the landmarks carry the visible ones
-                ellipsoids3d(placed, observations.class_ids, labels, colors, "MajorWireframe", show_labels=False),
-            )
+            # labels on hover only: the landmarks carry the visible ones
+            self._late.add(path, *self._now, ellipsoid_fields(placed, observations.class_ids, labels, colors,
+                                                              "MajorWireframe", show_labels=False), ELLIPSOIDS)
 
     def _log_matches(self, observations: Observations, result: LocalizationResult, placement: Pose | None) -> None:
         """Candidates run from each observation (placed by ground truth, else the top-1 estimate) to its
@@ -228,28 +238,21 @@ class LocalizationRecorder:
             observed = placement.apply(observations.ellipsoids.centers)
             obs, lm = candidates.T
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
-            self._late.log(
-                "world/correspondences/candidates", *self._now,
-                rr.LineStrips3D(
-                    np.stack((observed[obs], landmarks[lm]), axis=1),
-                    colors=correctness_colors(correct),
-                    radii=rr.Radius.ui_points(1.5),
-                ),
-                rr.AnyValues(similarity=np.asarray(result.candidate_scores, dtype=np.float64)),
-            )
+            self._late.add("world/correspondences/candidates", *self._now,
+                           {"strips": np.stack((observed[obs], landmarks[lm]), axis=1),
+                            "colors": correctness_colors(correct), "radii": rr.Radius.ui_points(1.5)}, MATCHES)
+            self._late.add("world/correspondences/candidates", *self._now,
+                           {"similarity": np.asarray(result.candidate_scores, dtype=np.float64)}, SIMILARITIES)
         for rank, hypothesis in enumerate(result.hypotheses, start=1):
             obs, lm = np.asarray(hypothesis.correspondences, dtype=np.int64).reshape(-1, 2).T
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
             origin = np.broadcast_to(hypothesis.pose.translation, (len(lm), 3))
-            self._late.log(
-                f"world/hypotheses/{rank}", *self._now,
-                rr.LineStrips3D(
-                    np.stack((origin, landmarks[lm]), axis=1),
-                    colors=correctness_colors(correct),
-                    radii=rr.Radius.ui_points(2.5 if rank == 1 else 1.0),
-                ),
-                rr.AnyValues(score=float(hypothesis.score), correct=int((correct == 1).sum()), size=len(lm)),
-            )
+            self._late.add(f"world/hypotheses/{rank}", *self._now,
+                           {"strips": np.stack((origin, landmarks[lm]), axis=1), "colors": correctness_colors(correct),
+                            "radii": rr.Radius.ui_points(2.5 if rank == 1 else 1.0)}, MATCHES)
+            self._late.add(f"world/hypotheses/{rank}", *self._now,
+                           {"score": float(hypothesis.score), "correct": int((correct == 1).sum()), "size": len(lm)},
+                           CLIQUE_VALUES)
         self._clear_ranks("world/hypotheses", len(result.hypotheses))
 
     def _log_projection(self, observations: Observations, result: LocalizationResult) -> None:
@@ -272,16 +275,13 @@ class LocalizationRecorder:
                 iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
                 label = f"IoU {iou:.2f}"
             labels.append(label)
-        self._late.log(
-            path, *self._now,
-            rr.LineStrips2D(
-                ellipse_outlines(seen.dual_conics[0, shown]),
-                class_ids=annotation_ids(self.map.class_ids[shown]),
-                labels=labels,
-                radii=rr.Radius.ui_points(np.where(np.isin(shown, list(supporting)), 2.0, 1.0)),
-                draw_order=2.0,
-            ),
-        )
+        self._late.add(path, *self._now, {
+            "strips": ellipse_outlines(seen.dual_conics[0, shown]),
+            "class_ids": annotation_ids(self.map.class_ids[shown]),
+            "labels": labels,
+            "radii": rr.Radius.ui_points(np.where(np.isin(shown, list(supporting)), 2.0, 1.0)),
+            "draw_order": 2.0,
+        }, OUTLINES)
 
     def _log_metrics(
         self, frame: Frame, observations: Observations, result: LocalizationResult, evaluation: FrameEvaluation | None

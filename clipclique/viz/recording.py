@@ -12,7 +12,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TypeVar
 
-import pyarrow as pa
+import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -129,9 +129,8 @@ class ColumnsAtClose:
     """Per-frame data that need not reach the stream while the run goes (the recording is complete only at the end
     anyway), kept until the run ends and then sent as one column per entity and component: one Rerun call each per
     run, where logging it frame by frame took a call per entity per frame on the recorder's thread (Python work
-    under the GIL the run needs). Scalars, clears and trajectories are kept as plain values and built into
-    archetypes only at the end; `log` keeps a ready archetype's Arrow batches. A viewer sees the same values at the
-    same frames; a run killed before `send` loses them. Small data only: images belong on the stream."""
+    under the GIL the run needs). Rows are kept as plain values (scalars, clears, an archetype's fields: see
+    ArchetypeRows) and built into archetypes only at the end. A viewer sees the same values at the same frames; a run killed before `send` loses them. Small data only: images belong on the stream."""
 
     def __init__(self) -> None:
         # (path, how rows become columns) -> [(frame, stamp, row)]
@@ -150,13 +149,6 @@ class ColumnsAtClose:
         """A Clear at `frame` (e.g. a gap, so a plot draws no line across it)."""
         self.add(path, frame, timestamp, recursive, clear_columns)
 
-    def log(self, path: str, frame: int, timestamp: float | None, *archetypes: rr.AsComponents) -> None:
-        """What `stream.log(path, *archetypes)` at `frame` would log, its Arrow batches (built now) sent at the
-        end, one column per component: each component keeps its own frames, as a logged archetype's do."""
-        for archetype in archetypes:
-            for batch in archetype.as_component_batches():
-                self.add(path, frame, timestamp, batch.as_arrow_array(), BatchColumn(batch.component_descriptor()))
-
     def send(self, stream: rr.RecordingStream) -> None:
         """Everything added, as columns, rows with a timestamp and without apart (a column's timelines cover
         all its rows)."""
@@ -174,23 +166,35 @@ class ColumnsAtClose:
 
 
 @dataclasses.dataclass(frozen=True)
-class BatchColumn:
-    """Arrow batches of one component, one a row, as a column (the rows of `ColumnsAtClose.log`)."""
+class ArchetypeRows:
+    """How rows of plain fields become `archetype`'s columns at close (the `columns` of `ColumnsAtClose.add`): one
+    `archetype.columns` over every row, where building the archetype frame by frame cost its Python conversions
+    each frame. A row holds what `archetype(**row)` would take: the fields in `instanced` one value per instance
+    (arrays or lists, each of the row's instance count; those a row leaves out are not logged), the others one
+    value a row (a splat, as a single colour
+    or radius is logged). A viewer sees what logging `archetype(**row)` at the row's frame shows."""
 
-    descriptor: rr.ComponentDescriptor
+    archetype: type
+    instanced: tuple[str, ...] = ()
 
-    def __call__(self, batches: list[pa.Array]) -> list[rr.ComponentColumn]:
-        return [rr.ComponentColumn(self.descriptor, _Batch(pa.concat_arrays(batches)), lengths=[len(b) for b in batches])]
+    def __call__(self, rows: list[dict]) -> list[rr.ComponentColumn]:
+        columns = []
+        instanced = [name for name in self.instanced if name in rows[0]]
+        if instanced:
+            lengths = [len(row[instanced[0]]) for row in rows]
+            joined = {name: _joined([row[name] for row in rows]) for name in instanced}
+            columns += self.archetype.columns(**joined).partition(lengths)
+        per_row = {name: [row[name] for row in rows] for name in rows[0] if name not in self.instanced}
+        if per_row:
+            columns += self.archetype.columns(**per_row)
+        return columns
 
 
-@dataclasses.dataclass(frozen=True)
-class _Batch:
-    """A ready Arrow array as Rerun's ComponentBatchLike."""
-
-    array: pa.Array
-
-    def as_arrow_array(self) -> pa.Array:
-        return self.array
+def _joined(parts: list) -> np.ndarray | list:
+    """The rows' instances one after another: arrays concatenated, lists chained."""
+    if isinstance(parts[0], np.ndarray):
+        return np.concatenate(parts)
+    return [value for part in parts for value in part]
 
 
 def scalar_columns(values: list[float]) -> Iterable[rr.ComponentColumn]:

@@ -18,7 +18,7 @@ from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, voxel_downsample
 from clipclique.viz.localization_recording import thinned
-from clipclique.viz.recording import ColumnsAtClose
+from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
 from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
@@ -47,9 +47,9 @@ def loc_rrd(tmp_path_factory, run) -> Path:
     return path
 
 
-def rgb_of(batch) -> np.ndarray:
-    """(N, 3) uint8 from a Rerun colour batch (packed 0xRRGGBBAA)."""
-    packed = batch.as_arrow_array().to_numpy(zero_copy_only=False).astype(np.uint32)
+def rgb_of(packed: list[int]) -> np.ndarray:
+    """(N, 3) uint8 from Rerun colours (packed 0xRRGGBBAA)."""
+    packed = np.asarray(packed, dtype=np.uint32)
     return np.column_stack([(packed >> shift) & 0xFF for shift in (24, 16, 8)]).astype(np.uint8)
 
 
@@ -65,12 +65,6 @@ class LogSpy:
         self._send_columns = recorder.stream.send_columns
         recorder.stream.log = self
         recorder.stream.send_columns = self.send_columns
-        self._late_log = recorder._late.log
-        recorder._late.log = self.late_log  # what is logged as columns at close, seen here when logged
-
-    def late_log(self, path: str, frame: int, timestamp: float | None, *archetypes) -> None:
-        self._calls.append((path, archetypes))
-        self._late_log(path, frame, timestamp, *archetypes)
 
     def __call__(self, path: str, *archetypes, **kwargs) -> None:
         self._calls.append((path, archetypes))
@@ -309,14 +303,17 @@ def test_matches_are_coloured_by_ground_truth(tmp_path, run):
     good, bad = frames[0], frames[2]  # frame 2's top-1 is a wrong clique (see the synthetic_run fixture)
     for f in (good, bad):
         recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
-        (strips, _), (top1, _) = spy.last("world/correspondences/candidates"), spy.last("world/hypotheses/1")
+    recorder.close()
+    candidates = spy.rows("world/correspondences/candidates", "LineStrips3D:colors")
+    top1 = spy.rows("world/hypotheses/1", "LineStrips3D:colors")
+    assert [frame for frame, _ in candidates] == [frame for frame, _ in top1] == [good.frame.index, bad.frame.index]
+    for f, (_, strip_colors), (_, top1_colors) in zip((good, bad), candidates, top1):
         visible = len(f.observations)
-        candidate_colors = rgb_of(strips.colors)
+        candidate_colors = rgb_of(strip_colors)
         assert (candidate_colors == CORRECT).all(axis=1).sum() == visible  # the true pairs
         assert (candidate_colors == WRONG).all(axis=1).sum() == len(f.result.candidates) - visible
         expected = CORRECT if f is good else WRONG
-        assert (rgb_of(top1.colors) == expected).all()
-    recorder.close()
+        assert len(top1_colors) == len(f.result.hypotheses[0].correspondences) and (rgb_of(top1_colors) == expected).all()
 
 
 def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
@@ -333,7 +330,9 @@ def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
         assert spy.series(f"world/camera/estimate/{rank}", "Clear:is_recursive") == {second.frame.index: True}
     assert spy.series("world/observations/estimate", "Clear:is_recursive") == {second.frame.index: False}
     assert spy.series("world/observations/gt", "Clear:is_recursive") == {}  # the truth still places them
-    assert [path for path, _ in spy.calls if path == "world/observations/gt"] == ["world/observations/gt"] * 2
+    placed = spy.rows("world/observations/gt", "Ellipsoids3D:centers")
+    assert [(frame, len(centers)) for frame, centers in placed] == [
+        (first.frame.index, len(first.observations)), (second.frame.index, len(second.observations))]
     lines = [(frame, text, level) for (frame, (text,)), (_, (level,))
              in zip(spy.rows("log", "TextLog:text"), spy.rows("log", "TextLog:level"), strict=True)]
     assert [frame for frame, text, _ in lines if text.startswith(f"frame {frame} ")] == [first.frame.index, second.frame.index]
@@ -424,36 +423,51 @@ def test_a_frame_without_ground_truth_is_placed_by_the_estimate(tmp_path, run):
     transform = spy.last("world/camera/gt")[0]
     assert len(transform.translation.as_arrow_array()) == 0  # cleared, not left at the last pose
     assert len(transform.mat3x3.as_arrow_array()) == 0
-    (placed,) = spy.last("world/observations/estimate")
-    expected = f.result.hypotheses[0].pose.apply(f.observations.ellipsoids.centers)
-    centers = np.array(placed.centers.as_arrow_array().to_pylist())
-    np.testing.assert_allclose(centers, expected, atol=1e-5)
     recorder.close()
+    ((frame, centers),) = spy.rows("world/observations/estimate", "Ellipsoids3D:centers")
+    expected = f.result.hypotheses[0].pose.apply(f.observations.ellipsoids.centers)
+    assert frame == f.frame.index
+    np.testing.assert_allclose(np.array(centers), expected, atol=1e-5)
     assert spy.series("world/observations/gt", "Clear:is_recursive") == {f.frame.index: False}
     assert spy.rows("world/trajectory/gt", "LineStrips3D:strips") == []
 
 
-def test_archetypes_kept_until_close_come_back_per_frame_and_component():
-    """`ColumnsAtClose.log` sends what `stream.log` would have: each frame's batch of each component (an empty one
-    too), a component only at the frames that had it, a timestamp only on the rows that had one."""
+def test_archetype_rows_come_back_as_what_logging_each_row_would_log():
+    """`ArchetypeRows` columns hold, row by row, the batches `stream.log(path, archetype(**row))` logs at that frame:
+    every component of each row (an empty row's too), one value a row for the splat fields, a field a row leaves out
+    not at all, and a timestamp only on the rows that had one."""
     sent = {}
 
     class Stream:
         def send_columns(self, path, indexes, columns):
             times = {index.timeline_name(): index.as_arrow_array().to_pylist() for index in indexes}
             for column in columns:
-                sent[str(column.component_descriptor()), "time" in times] = (times["frame"], column.as_arrow_array().to_pylist())
+                sent[path, str(column.component_descriptor()), "time" in times] = (times["frame"], column.as_arrow_array().to_pylist())
 
+    strips = ArchetypeRows(rr.LineStrips3D, ("strips", "colors", "labels"))
+    rows = [(3, None, {"strips": np.arange(12.0).reshape(2, 2, 3), "colors": np.array([[255, 0, 0], [0, 9, 0]], np.uint8),
+                       "labels": ["a", "b"], "radii": -1.5}),
+            (4, None, {"strips": np.zeros((0, 2, 3)), "colors": np.zeros((0, 3), np.uint8), "labels": [], "radii": -2.5}),
+            (7, 1.5e9, {"strips": np.ones((1, 2, 3)), "colors": np.array([[1, 2, 3]], np.uint8), "labels": ["c"],
+                        "radii": -1.0})]
+    values = ArchetypeRows(rr.AnyValues)
     late = ColumnsAtClose()
-    late.log("p", 3, None, rr.Points3D([[0, 0, 0], [1, 2, 3]], labels=["a", "b"]))
-    late.log("p", 4, None, rr.Points3D(np.zeros((0, 3))))
-    late.log("p", 7, 1.5e9, rr.Points3D([[4, 5, 6]]), rr.AnyValues(score=0.25))
+    for frame, stamp, row in rows:
+        late.add("p", frame, stamp, row, strips)
+        late.add("p", frame, stamp, {"score": float(frame) / 4, "size": frame}, values)
+    late.add("q", 5, None, {"strips": [np.zeros((3, 3))], "radii": -2.0}, ArchetypeRows(rr.LineStrips3D, ("strips", "colors")))
     late.send(Stream())
-    assert sent[("Points3D:positions", False)] == ([3, 4], [[[0, 0, 0], [1, 2, 3]], []])
-    assert sent[("Points3D:positions", True)] == ([7], [[[4, 5, 6]]])
-    assert sent[("Points3D:labels", False)] == ([3], [["a", "b"]])
-    assert sent[("score", True)] == ([7], [[0.25]])
-    assert len(sent) == 4
+    for frame, stamp, row in rows:
+        for batch in [*rr.LineStrips3D(**row).as_component_batches(),
+                      *rr.AnyValues(score=float(frame) / 4, size=frame).as_component_batches()]:
+            frames, logged = sent["p", str(batch.component_descriptor()), stamp is not None]
+            assert logged[frames.index(frame)] == batch.as_arrow_array().to_pylist(), (frame, batch.component_descriptor())
+    assert sent["p", "LineStrips3D:radii", False] == ([3, 4], [[-1.5], [-2.5]])
+    assert sent["p", "score", True] == ([7], [[1.75]]) and sent["p", "size", False] == ([3, 4], [[3], [4]])
+    assert sent["p", "LineStrips3D:strips", False][1][1] == []  # the empty row is there, empty
+    assert len(sent) == 14  # p: strips, colours, labels, radii, score, size with and without a stamp
+    assert {descriptor for path, descriptor, _ in sent if path == "q"} == {"LineStrips3D:strips", "LineStrips3D:radii"}
+    assert sent["q", "LineStrips3D:strips", False] == ([5], [[np.zeros((3, 3)).tolist()]])
 
 
 def test_trajectories_so_far_are_sent_at_close_one_row_a_frame(tmp_path, run):
@@ -491,9 +505,12 @@ def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):
     medians = []
     for f in (frames[0], frames[2]):
         recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
-        (outlines,) = spy.last("world/camera/gt/projected_landmarks")
-        strips = [np.asarray(s) for s in outlines.strips.as_arrow_array().to_pylist()]
-        labels = outlines.labels.as_arrow_array().to_pylist()
+    recorder.close()
+    path = "world/camera/gt/projected_landmarks"
+    outlines = spy.rows(path, "LineStrips2D:strips")
+    assert [frame for frame, _ in outlines] == [frames[0].frame.index, frames[2].frame.index]
+    for f, (_, strips), (_, labels) in zip((frames[0], frames[2]), outlines, spy.rows(path, "LineStrips2D:labels")):
+        strips = [np.asarray(s) for s in strips]
         pairs = f.result.hypotheses[0].correspondences
         supported = [i for i, label in enumerate(labels) if "IoU" in label]
         ious = np.array([float(labels[i].rsplit(" ", 1)[1]) for i in supported])
@@ -505,22 +522,27 @@ def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):
         ious = np.pad(ious, (0, len(pairs) - len(ious)))  # a landmark out of view overlaps nothing
         medians.append(np.median(ious))
     assert medians[0] > 0.35 and medians[1] < medians[0] - 0.2, medians
-    recorder.close()
 
 
 def test_crowded_detection_labels_show_on_hover_only():
-    """Of boxes whose labels (under each box's centre) would overlap, the largest keeps its visible label."""
+    """Of boxes whose labels (under each box's centre) would overlap, the largest keeps its visible label; the boxes
+    are the ones `rr.Boxes2D` makes of the xyxy corners."""
     from clipclique.types import Detections
-    from clipclique.viz.convert import boxes2d
+    from clipclique.viz.convert import box_fields
 
-    boxes = np.array([[100, 100, 300, 200], [150, 150, 250, 210], [400, 100, 460, 200], [100, 300, 200, 400]], float)
+    boxes = np.array([[100, 100, 300, 200], [150, 150, 250, 210], [400, 100, 460, 200], [100, 300, 200, 400.5]], float)
     detections = Detections(masks=np.zeros((4, 480, 640), bool), boxes=boxes, class_ids=np.array([0, 1, 2, 0]),
                             scores=np.full(4, 0.5), instance_ids=np.arange(4))
-    labelled, crowded = boxes2d(detections, ["chair", "cup", "tv"])
-    assert labelled.labels.as_arrow_array().to_pylist() == ["chair 0.50", "tv 0.50", "chair 0.50"]
-    assert crowded.labels.as_arrow_array().to_pylist() == ["cup 0.50"]  # its label would sit 10 px from the chair's
-    assert crowded.show_labels.as_arrow_array().to_pylist() == [False]
-
+    labelled, crowded = box_fields(detections, ["chair", "cup", "tv"])
+    assert labelled["labels"] == ["chair 0.50", "tv 0.50", "chair 0.50"] and labelled["show_labels"] is True
+    assert crowded["labels"] == ["cup 0.50"] and crowded["show_labels"] is False  # 10 px from the chair's label
+    np.testing.assert_array_equal(labelled["class_ids"], [1, 3, 1])
+    for fields, keep in ((labelled, [0, 2, 3]), (crowded, [1])):
+        expected = rr.Boxes2D(array=boxes[keep], array_format=rr.Box2DFormat.XYXY)
+        for name in ("centers", "half_sizes"):
+            assert rr.Boxes2D(**{name: fields[name]}).as_component_batches()[0].as_arrow_array().to_pylist() == \
+                getattr(expected, name).as_arrow_array().to_pylist()
+    assert all(len(fields) == 0 for fields in box_fields(Detections(np.zeros((0, 4, 5), bool), np.zeros((0, 4)), np.zeros(0, int), np.zeros(0), np.zeros(0, int)), [])[0].values() if not isinstance(fields, bool))
 
 
 def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_entities):
@@ -542,14 +564,16 @@ def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path
         spy = LogSpy(recorder)
         recorder.log_frame(newest.frame, newest.detections, query.observations, newest.result, newest.evaluation)
         recorder.log_window(query, newest.frame.pose)
-    sources = spy.last(WINDOW_SOURCES)[0]
+    ((frame, centers),) = spy.rows(WINDOW_SOURCES, "Ellipsoids3D:centers")
     count = len(frames[0].observations) + len(frames[1].observations)
-    centers = np.array(sources.centers.as_arrow_array().to_pylist(), float)
-    assert len(centers) == count
+    centers = np.array(centers, float)
+    assert frame == newest.frame.index and len(centers) == count
     # every source observation lands in the world where its own frame's ground truth puts it
     expected = np.vstack([f.frame.pose.apply(f.observations.ellipsoids.centers) for f in frames[:2]])
     np.testing.assert_allclose(centers, expected, atol=1e-4)
-    path = spy.last(WINDOW_PATH)[0].strips.as_arrow_array().to_pylist()[0]
+    ((_, source_frames),) = spy.rows(WINDOW_SOURCES, "frame")
+    assert source_frames == [0] * len(frames[0].observations) + [1] * len(frames[1].observations)
+    ((_, (path,)),) = spy.rows(WINDOW_PATH, "LineStrips3D:strips")
     np.testing.assert_allclose(path, [f.frame.pose.translation for f in frames[:2]], atol=1e-4)
 
 

@@ -16,7 +16,15 @@ from clipclique.config import GraphConfig
 from clipclique.projection import box_iou, ellipse_outlines, project
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
 from clipclique.viz.blueprints import localization_blueprint
-from clipclique.viz.convert import box_fields, camera, depth_image, ellipsoid_fields, rgb_image, segmentation
+from clipclique.viz.convert import (
+    box_fields,
+    camera,
+    depth_image,
+    ellipsoid_fields,
+    rgb_image,
+    segmentation,
+    with_quaternions,
+)
 from clipclique.viz.map_recording import log_map, map_summary
 from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose, RecordingFile, Worker, queued
 from clipclique.viz.style import (
@@ -57,7 +65,8 @@ LEGEND = (
 )
 
 # how the rows kept until close become columns (see ArchetypeRows)
-ELLIPSOIDS = ArchetypeRows(rr.Ellipsoids3D, ("centers", "half_sizes", "quaternions", "class_ids", "colors", "labels"))
+ELLIPSOIDS = ArchetypeRows(rr.Ellipsoids3D, ("centers", "half_sizes", "rotations", "class_ids", "colors", "labels"),
+                           convert=with_quaternions)
 BOXES = ArchetypeRows(rr.Boxes2D, ("centers", "half_sizes", "class_ids", "labels"))
 MATCHES = ArchetypeRows(rr.LineStrips3D, ("strips", "colors"))  # one radius a row
 PATHS = ArchetypeRows(rr.LineStrips3D, ("strips",))  # one colour and radius a row

@@ -169,13 +169,14 @@ class ColumnsAtClose:
 class ArchetypeRows:
     """How rows of plain fields become `archetype`'s columns at close (the `columns` of `ColumnsAtClose.add`): one
     `archetype.columns` over every row, where building the archetype frame by frame cost its Python conversions
-    each frame. A row holds what `archetype(**row)` would take: the fields in `instanced` one value per instance
-    (arrays or lists, each of the row's instance count; those a row leaves out are not logged), the others one
-    value a row (a splat, as a single colour
-    or radius is logged). A viewer sees what logging `archetype(**row)` at the row's frame shows."""
+    each frame. A row holds what `archetype(**row)` would take (after `convert`): the fields in `instanced` one
+    value per instance (arrays or lists, each of the row's instance count; those a row leaves out are not logged),
+    the others one value a row (a splat, as a single colour or radius is logged). A viewer sees what logging
+    `archetype(**row)` at the row's frame shows."""
 
     archetype: type
     instanced: tuple[str, ...] = ()
+    convert: Callable[[dict], dict] | None = None  # the joined instanced fields into the archetype's
 
     def __call__(self, rows: list[dict]) -> list[rr.ComponentColumn]:
         columns = []
@@ -183,6 +184,8 @@ class ArchetypeRows:
         if instanced:
             lengths = [len(row[instanced[0]]) for row in rows]
             joined = {name: _joined([row[name] for row in rows]) for name in instanced}
+            if self.convert is not None:
+                joined = self.convert(joined)
             columns += self.archetype.columns(**joined).partition(lengths)
         per_row = {name: [row[name] for row in rows] for name in rows[0] if name not in self.instanced}
         if per_row:

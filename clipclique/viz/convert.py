@@ -75,6 +75,23 @@ def camera(
     return [transform, pinhole(*look, plane)]
 
 
+def camera_row(pose: Pose, intrinsics: np.ndarray, width: int, height: int, color: np.ndarray, plane: float) -> dict:
+    """What `camera` logs for a known pose, as plain fields: a row of `camera_columns`."""
+    return {"translation": pose.translation, "mat3x3": pose.rotation,
+            "image_from_camera": np.asarray(intrinsics, dtype=np.float64).reshape(3, 3), "resolution": (width, height),
+            "image_plane_distance": plane, "color": tuple(np.ravel(color).tolist())}
+
+
+def camera_columns(rows: list[dict]) -> list[rr.ComponentColumn]:
+    """Rows of `camera_row` as the columns of a Transform3D and its Pinhole, one value a row, for one `send_columns`
+    call (a Pinhole sent apart from its Transform3D breaks the viewer's transform tree)."""
+    field = lambda name: [row[name] for row in rows]  # noqa: E731
+    return [*rr.Transform3D.columns(translation=field("translation"), mat3x3=field("mat3x3")),
+            *rr.Pinhole.columns(image_from_camera=field("image_from_camera"), resolution=field("resolution"),
+                                camera_xyz=[rr.ViewCoordinates.RDF] * len(rows),
+                                image_plane_distance=field("image_plane_distance"), color=field("color"))]
+
+
 @functools.lru_cache(maxsize=64)
 def pinhole(intrinsics: bytes, width: int, height: int, color: tuple[int, ...], plane: float) -> rr.Pinhole:
     """Built once per look (`intrinsics`: 3 x 3 float64 bytes): a run's cameras share a few, and building one

@@ -19,6 +19,8 @@ from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import (
     box_fields,
     camera,
+    camera_columns,
+    camera_row,
     depth_image,
     ellipsoid_fields,
     rgb_image,
@@ -80,11 +82,12 @@ class LocalizationRecorder:
     """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
-    recording costs the localization loop next to nothing. Call `flush` to wait for it. Only the images, the
-    detections and the cameras go to the stream frame by frame; the rest (placed observations, matches and
-    cliques, the projected landmarks, trajectories, metrics, text log, clears) is kept
-    and sent at `close`, one column per entity and component, which costs that thread a fraction of the Rerun
-    calls (see ColumnsAtClose).
+    recording costs the localization loop next to nothing. Call `flush` to wait for it. Only the images (rgb,
+    depth, detection masks) and the ground-truth camera they hang in go to the stream frame by frame; the rest
+    (detection boxes, estimated cameras, placed observations, matches and cliques, the projected landmarks,
+    trajectories, metrics, text log, clears) is kept as plain fields and sent at `close`, one column per entity and
+    component, which spares that thread (and the GIL the run needs) building Rerun's objects every frame (see
+    ColumnsAtClose and ArchetypeRows).
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
@@ -93,7 +96,7 @@ class LocalizationRecorder:
         self._gt_positions: list[np.ndarray] = []
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
-        self._late = ColumnsAtClose()  # all but the images, detections and cameras: sent at close
+        self._late = ColumnsAtClose()  # all but the images and the ground-truth camera: sent at close
         self._now: tuple[int, float | None] = (0, None)  # the frame being logged and its timestamp (None: not Unix)
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
@@ -203,10 +206,9 @@ class LocalizationRecorder:
         height, width = frame.rgb.shape[:2]
         for rank, hypothesis in enumerate(result.hypotheses, start=1):
             color = np.append(ESTIMATE_CAMERA, 255 if rank == 1 else LOWER_RANK_ALPHA)
-            self.stream.log(  # live: a Pinhole sent as columns apart from its Transform3D breaks the viewer's
-                f"world/camera/estimate/{rank}",  # transform tree ("does not form the root of a 2D subspace")
-                *camera(hypothesis.pose, frame.intrinsics, width, height, color, ESTIMATE_FRUSTUM_M),
-            )
+            self._late.add(f"world/camera/estimate/{rank}", *self._now,
+                           camera_row(hypothesis.pose, frame.intrinsics, width, height, color, ESTIMATE_FRUSTUM_M),
+                           camera_columns)
         self._clear_ranks("world/camera/estimate", len(result.hypotheses))
 
         if frame.pose is not None:

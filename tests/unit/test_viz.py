@@ -470,6 +470,40 @@ def test_archetype_rows_come_back_as_what_logging_each_row_would_log():
     assert sent["q", "LineStrips3D:strips", False] == ([5], [[np.zeros((3, 3)).tolist()]])
 
 
+def test_cameras_kept_until_close_are_what_logging_them_live_logs():
+    """An estimated camera sent at close (Transform3D and Pinhole in one call) holds, row by row, the batches the
+    live `camera` logs; and the placed observations' quaternions, converted once for all rows, are each row's own."""
+    from scipy.spatial.transform import Rotation
+
+    from clipclique.types import Pose
+    from clipclique.viz.convert import camera, camera_columns, camera_row, ellipsoid_fields
+    from clipclique.viz.localization_recording import ELLIPSOIDS
+
+    rng = np.random.default_rng(3)
+    intrinsics = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
+    poses = [Pose(Rotation.random(random_state=k).as_matrix(), rng.normal(size=3)) for k in range(3)]
+    colors = [np.array([255, 200, 0, alpha]) for alpha in (255, 110, 110)]
+    columns = camera_columns([camera_row(pose, intrinsics, 640, 480, color, 0.25) for pose, color in zip(poses, colors)])
+    sent = {str(column.component_descriptor()): column.as_arrow_array().to_pylist() for column in columns}
+    for k, (pose, color) in enumerate(zip(poses, colors)):
+        for archetype in camera(pose, intrinsics, 640, 480, color, 0.25):
+            for batch in archetype.as_component_batches():
+                assert sent[str(batch.component_descriptor())][k] == batch.as_arrow_array().to_pylist()
+    assert {"Transform3D:translation", "Transform3D:mat3x3", "Pinhole:image_from_camera", "Pinhole:resolution"} <= set(sent)
+
+    rows = [ellipsoid_fields(Ellipsoids(rng.normal(size=(n, 3)), rng.uniform(0.1, 1, (n, 3)),
+                                        Rotation.random(n, random_state=n).as_matrix().reshape(n, 3, 3)),
+                             np.arange(n), [f"o{i}" for i in range(n)], np.full((n, 3), 200, np.uint8), "MajorWireframe",
+                             False) for n in (4, 1, 3)]
+    sent = {str(column.component_descriptor()): column.as_arrow_array().to_pylist()
+            for column in ELLIPSOIDS([dict(row) for row in rows])}
+    for k, row in enumerate(rows):
+        quaternions = Rotation.from_matrix(row["rotations"]).as_quat()
+        live = rr.Ellipsoids3D(**{name: value for name, value in row.items() if name != "rotations"}, quaternions=quaternions)
+        for batch in live.as_component_batches():
+            assert sent[str(batch.component_descriptor())][k] == batch.as_arrow_array().to_pylist()
+
+
 def test_trajectories_so_far_are_sent_at_close_one_row_a_frame(tmp_path, run):
     """At each frame the viewer shows the ground-truth path and the top-1 positions up to that frame (sent as
     columns at close, as they were once logged frame by frame)."""

@@ -66,11 +66,18 @@ LEGEND = (
     "localization) the window's source observations, older frames darker, and its cameras by odometry"
 )
 
+
+def with_correctness_colors(fields: dict) -> dict:
+    """`fields` with their `correct` (match_correctness codes) as colours: green, red or grey."""
+    colors = correctness_colors(fields.pop("correct"))
+    return fields | {"colors": colors}
+
+
 # how the rows kept until close become columns (see ArchetypeRows)
 ELLIPSOIDS = ArchetypeRows(rr.Ellipsoids3D, ("centers", "half_sizes", "rotations", "class_ids", "colors", "labels"),
                            convert=with_quaternions)
 BOXES = ArchetypeRows(rr.Boxes2D, ("centers", "half_sizes", "class_ids", "labels"))
-MATCHES = ArchetypeRows(rr.LineStrips3D, ("strips", "colors"))  # one radius a row
+MATCHES = ArchetypeRows(rr.LineStrips3D, ("strips", "correct"), convert=with_correctness_colors)  # one radius a row
 PATHS = ArchetypeRows(rr.LineStrips3D, ("strips",))  # one colour and radius a row
 OUTLINES = ArchetypeRows(rr.LineStrips2D, ("strips", "class_ids", "labels", "radii"))
 SIMILARITIES = ArchetypeRows(rr.AnyValues, ("similarity",))
@@ -251,7 +258,7 @@ class LocalizationRecorder:
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
             self._late.add("world/correspondences/candidates", *self._now,
                            {"strips": np.stack((observed[obs], landmarks[lm]), axis=1),
-                            "colors": correctness_colors(correct), "radii": rr.Radius.ui_points(1.5)}, MATCHES)
+                            "correct": correct, "radii": rr.Radius.ui_points(1.5)}, MATCHES)
             self._late.add("world/correspondences/candidates", *self._now,
                            {"similarity": np.asarray(result.candidate_scores, dtype=np.float64)}, SIMILARITIES)
         for rank, hypothesis in enumerate(result.hypotheses, start=1):
@@ -259,7 +266,7 @@ class LocalizationRecorder:
             correct = match_correctness(observations.instance_ids[obs], self.map.instance_ids[lm])
             origin = np.broadcast_to(hypothesis.pose.translation, (len(lm), 3))
             self._late.add(f"world/hypotheses/{rank}", *self._now,
-                           {"strips": np.stack((origin, landmarks[lm]), axis=1), "colors": correctness_colors(correct),
+                           {"strips": np.stack((origin, landmarks[lm]), axis=1), "correct": correct,
                             "radii": rr.Radius.ui_points(2.5 if rank == 1 else 1.0)}, MATCHES)
             self._late.add(f"world/hypotheses/{rank}", *self._now,
                            {"score": float(hypothesis.score), "correct": int((correct == 1).sum()), "size": len(lm)},

@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 
 MIN_LUMINANCE = 0.5  # class colours are at least this light: labels are drawn in them on the viewer's dark background
@@ -61,14 +62,18 @@ def annotation_ids(class_ids: np.ndarray) -> np.ndarray:
 
 
 def annotation_context(class_names: list[str]) -> rr.AnnotationContext:
-    """Class labels and colours for segmentation images, boxes and ellipsoids (ids from `annotation_ids`)."""
-    colors = class_colors(class_names)
-    infos = [rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
-    infos += [
-        rr.AnnotationInfo(id=int(i), label=name, color=tuple(int(c) for c in color))
-        for i, name, color in zip(annotation_ids(np.arange(len(class_names))), class_names, colors)
-    ]
-    return rr.AnnotationContext(infos)
+    """Class labels and colours for segmentation images, boxes and ellipsoids (ids from `annotation_ids`).
+
+    Built as its Arrow array: Rerun's own conversion (`rr.AnnotationContext(infos)`) casts an array, which imports
+    pyarrow.compute (about 0.1 s of every recorded run's start) for nothing else."""
+    ids = [0, *annotation_ids(np.arange(len(class_names))).tolist()]
+    labels = ["background", *class_names]
+    colors = [0, *(int.from_bytes(bytes([*color, 255]), "big") for color in class_colors(class_names).tolist())]  # RGBA
+    context = [{"class_id": i, "class_description": {"info": {"id": i, "label": label, "color": color},
+                                                     "keypoint_annotations": [], "keypoint_connections": []}}
+               for i, label, color in zip(ids, labels, colors)]
+    arrow_type = rr.components.AnnotationContextBatch(None).as_arrow_array().type
+    return rr.AnnotationContext(context=pa.array([context], type=arrow_type))
 
 
 def correctness_colors(correct: np.ndarray) -> np.ndarray:

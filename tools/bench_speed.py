@@ -308,7 +308,9 @@ def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory:
     for attempt in range(runs + 1):
         for label, tree in trees.items():
             for record in (True, False):
-                command = [sys.executable, "-c", "from localization.cli import main; main()", "run", scene,
+                # -P: `python -c` puts the working directory (this tree) ahead of PYTHONPATH; without it "before"
+                # ran this tree's code too
+                command = [sys.executable, "-P", "-c", "from localization.cli import main; main()", "run", scene,
                            "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
                 before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 start = time.perf_counter()

@@ -7,6 +7,7 @@ import io
 
 import numpy as np
 import rerun as rr
+from rerun.encodings import ChannelDatatype
 from PIL import Image
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
@@ -120,12 +121,21 @@ def depth_units(depth: np.ndarray) -> np.ndarray:
     return units.astype(np.uint16)
 
 
-def rgb_image(rgb: np.ndarray) -> rr.EncodedImage:
-    return rr.EncodedImage(contents=encode_jpeg(rgb), media_type="image/jpeg")
+def rgb_fields(rgb: np.ndarray) -> dict:
+    """The fields of the rgb's EncodedImage (a JPEG), for an ArchetypeRows row."""
+    return {"blob": encode_jpeg(rgb), "media_type": "image/jpeg"}
 
 
-def depth_image(depth: np.ndarray) -> rr.DepthImage:
-    return rr.DepthImage(depth_units(depth), meter=DEPTH_UNITS_PER_METRE)
+def depth_fields(depth: np.ndarray) -> dict:
+    """The fields of the depth's DepthImage (see `depth_units`), for an ArchetypeRows row."""
+    return image_fields(depth_units(depth)) | {"meter": DEPTH_UNITS_PER_METRE}
+
+
+def image_fields(image: np.ndarray) -> dict:
+    """The buffer and format `rr.DepthImage(image)` or `rr.SegmentationImage(image)` make of a 2D array."""
+    height, width = image.shape
+    format = rr.components.ImageFormat(width=width, height=height, channel_datatype=ChannelDatatype.from_np_dtype(image.dtype))
+    return {"buffer": image.tobytes(), "format": format}
 
 
 def segmentation(detections: Detections, shape: tuple[int, int]) -> np.ndarray:

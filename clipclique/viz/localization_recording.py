@@ -21,9 +21,10 @@ from clipclique.viz.convert import (
     camera,
     camera_columns,
     camera_row,
-    depth_image,
+    depth_fields,
     ellipsoid_fields,
-    rgb_image,
+    image_fields,
+    rgb_fields,
     segmentation,
     with_quaternions,
 )
@@ -83,18 +84,22 @@ OUTLINES = ArchetypeRows(rr.LineStrips2D, ("strips", "class_ids", "labels", "rad
 SIMILARITIES = ArchetypeRows(rr.AnyValues, ("similarity",))
 SOURCE_FRAMES = ArchetypeRows(rr.AnyValues, ("frame",))
 CLIQUE_VALUES = ArchetypeRows(rr.AnyValues)
+ENCODED_IMAGES = ArchetypeRows(rr.EncodedImage)
+DEPTH_IMAGES = ArchetypeRows(rr.DepthImage)
+SEGMENTATION_IMAGES = ArchetypeRows(rr.SegmentationImage)
+IMAGES_PER_SEND = 10  # frames of images sent as one column each (about 4 MB of a VGA frame's)
 
 
 class LocalizationRecorder:
     """Writes one `.rrd` for a localization run; use as a context manager or call `close`.
 
     `log_frame` only queues the frame: a thread of the recorder's own encodes and logs it, so the
-    recording costs the localization loop next to nothing. Call `flush` to wait for it. Only the images (rgb,
-    depth, detection masks) and the ground-truth camera they hang in go to the stream frame by frame; the rest
-    (detection boxes, estimated cameras, placed observations, matches and cliques, the projected landmarks,
-    trajectories, metrics, text log, clears) is kept as plain fields and sent at `close`, one column per entity and
-    component, which spares that thread (and the GIL the run needs) building Rerun's objects every frame (see
-    ColumnsAtClose and ArchetypeRows).
+    recording costs the localization loop next to nothing. Call `flush` to wait for it. Only the ground-truth camera
+    goes to the stream frame by frame; the images (rgb, depth, detection masks) go every IMAGES_PER_SEND frames, and
+    the rest (detection boxes, estimated cameras, placed observations, matches and cliques, the projected landmarks,
+    trajectories, metrics, text log, clears) at `close`, each as plain fields until then and one column per entity
+    and component when sent: that thread (and the GIL the run needs) is spared building Rerun's objects every frame
+    (see ColumnsAtClose and ArchetypeRows), and a viewer sees the same values at the same frames.
     """
 
     def __init__(self, path: Path, map: Map, description: str, *, d_adj: float = GraphConfig.d_adj) -> None:
@@ -104,6 +109,7 @@ class LocalizationRecorder:
         self._estimate_positions: list[np.ndarray] = []  # top-1 of each frame with a pose
         self._estimate_correct: list[int] = []  # match_correctness code of each estimate
         self._late = ColumnsAtClose()  # all but the images and the ground-truth camera: sent at close
+        self._images = ColumnsAtClose()  # sent every IMAGES_PER_SEND frames
         self._now: tuple[int, float | None] = (0, None)  # the frame being logged and its timestamp (None: not Unix)
         self._recording = RecordingFile(path, "clipclique-loc", self._blueprint)
         self.stream = self._recording.stream
@@ -174,6 +180,7 @@ class LocalizationRecorder:
     def close(self) -> None:
         try:
             self._worker.stop()
+            self._images.send(self.stream)
             self._late.send(self.stream)
         except BaseException:
             self._recording.abort()
@@ -199,12 +206,11 @@ class LocalizationRecorder:
     def _log_images(self, frame: Frame, detections: Detections) -> None:
         height, width = frame.rgb.shape[:2]
         self.stream.log(CAMERA, *camera(frame.pose, frame.intrinsics, width, height, GT_CAMERA, GT_FRUSTUM_M))
-        self.stream.log(f"{CAMERA}/rgb", rgb_image(frame.rgb))
-        self.stream.log(DEPTH, depth_image(frame.depth))
-        self.stream.log(
-            f"{CAMERA}/detections/masks",
-            rr.SegmentationImage(segmentation(detections, (height, width)), opacity=0.45, draw_order=1.0),
-        )
+        self._images.add(f"{CAMERA}/rgb", *self._now, rgb_fields(frame.rgb), ENCODED_IMAGES)
+        self._images.add(DEPTH, *self._now, depth_fields(frame.depth), DEPTH_IMAGES)
+        masks = image_fields(segmentation(detections, (height, width))) | {"opacity": 0.45, "draw_order": 1.0}
+        self._images.add(f"{CAMERA}/detections/masks", *self._now, masks, SEGMENTATION_IMAGES)
+        self._images.send(self.stream, full=IMAGES_PER_SEND)
         labelled, crowded = box_fields(detections, self.map.class_names)
         self._late.add(f"{CAMERA}/detections/boxes", *self._now, labelled, BOXES)
         self._late.add(f"{CAMERA}/detections/crowded_boxes", *self._now, crowded, BOXES)

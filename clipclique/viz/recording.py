@@ -149,10 +149,13 @@ class ColumnsAtClose:
         """A Clear at `frame` (e.g. a gap, so a plot draws no line across it)."""
         self.add(path, frame, timestamp, recursive, clear_columns)
 
-    def send(self, stream: rr.RecordingStream) -> None:
+    def send(self, stream: rr.RecordingStream, *, full: int | None = None) -> None:
         """Everything added, as columns, rows with a timestamp and without apart (a column's timelines cover
-        all its rows)."""
-        for (path, columns), rows in self._rows.items():
+        all its rows); with `full`, only the entities holding that many rows (images: a few frames at a time, where
+        a call a frame cost Rerun's archetype building each time, and memory stays bounded)."""
+        sent = [key for key, rows in self._rows.items() if full is None or len(rows) >= full]
+        for path, columns in sent:
+            rows = self._rows.pop((path, columns))
             for stamped in (True, False):
                 part = [row for row in rows if (row[1] is not None) == stamped]
                 if not part:
@@ -162,7 +165,6 @@ class ColumnsAtClose:
                 if stamped:
                     indexes.append(rr.TimeColumn("time", timestamp=stamps))
                 stream.send_columns(path, indexes=indexes, columns=columns(list(values)))
-        self._rows.clear()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -533,6 +533,46 @@ def test_cameras_kept_until_close_are_what_logging_them_live_logs():
             assert sent[str(batch.component_descriptor())][k] == batch.as_arrow_array().to_pylist()
 
 
+def test_images_sent_a_few_frames_at_a_time_hold_what_logging_each_frame_would():
+    """The rgb, depth and mask images go as columns every few frames (`send(full=N)`): each row holds the batches
+    `rr.EncodedImage`, `rr.DepthImage` and `rr.SegmentationImage` make of that frame's image, and nothing waits
+    past N frames but the rest at close."""
+    from clipclique.viz.convert import depth_fields, image_fields, rgb_fields
+    from clipclique.viz.localization_recording import DEPTH_IMAGES, ENCODED_IMAGES, SEGMENTATION_IMAGES
+
+    rng = np.random.default_rng(5)
+    frames = [(rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), rng.uniform(0, 9, (24, 32)).astype(np.float32),
+               rng.integers(0, 300 if k == 1 else 5, (24, 32)).astype(np.uint16 if k == 1 else np.uint8)) for k in range(3)]
+    frames[0][1][3, 4] = np.nan
+    sent = []
+
+    class Stream:
+        def send_columns(self, path, indexes, columns):
+            (frame_index,) = indexes
+            sent.append((path, frame_index.as_arrow_array().to_pylist(),
+                         {str(c.component_descriptor()): c.as_arrow_array().to_pylist() for c in columns}))
+
+    images = ColumnsAtClose()
+    for k, (rgb, depth, mask) in enumerate(frames):
+        images.add("rgb", k, None, rgb_fields(rgb), ENCODED_IMAGES)
+        images.add("depth", k, None, depth_fields(depth), DEPTH_IMAGES)
+        images.add("masks", k, None, image_fields(mask) | {"opacity": 0.45, "draw_order": 1.0}, SEGMENTATION_IMAGES)
+        images.send(Stream(), full=2)
+        assert [frames_sent for _, frames_sent, _ in sent] == ([] if k == 0 else [[0, 1]] * 3)
+    images.send(Stream())
+    assert [(path, frames_sent) for path, frames_sent, _ in sent[3:]] == [("rgb", [2]), ("depth", [2]), ("masks", [2])]
+    for path, frames_sent, columns in sent:
+        for row, k in enumerate(frames_sent):
+            rgb, depth, mask = frames[k]
+            live = {"rgb": rr.EncodedImage(contents=encode_jpeg(rgb), media_type="image/jpeg"),
+                    "depth": rr.DepthImage(depth_units(depth), meter=100),
+                    "masks": rr.SegmentationImage(mask, opacity=0.45, draw_order=1.0)}[path]
+            batches = live.as_component_batches()
+            assert {str(batch.component_descriptor()) for batch in batches} == set(columns)
+            for batch in batches:
+                assert columns[str(batch.component_descriptor())][row] == batch.as_arrow_array().to_pylist(), (path, k)
+
+
 def test_trajectories_so_far_are_sent_at_close_one_row_a_frame(tmp_path, run):
     """At each frame the viewer shows the ground-truth path and the top-1 positions up to that frame (sent as
     columns at close, as they were once logged frame by frame)."""

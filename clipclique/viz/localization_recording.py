@@ -292,13 +292,13 @@ class LocalizationRecorder:
         shown = np.flatnonzero(seen.visible[0])
         supporting = dict(map(tuple, np.asarray(result.hypotheses[0].correspondences)[:, ::-1].tolist()))
         boxed = np.ones(len(observations), bool) if observations.has_box is None else observations.has_box
-        labels = []
-        for landmark in shown:
-            label = ""
-            if landmark in supporting and observations.boxes is not None and boxed[supporting[landmark]]:
-                iou = box_iou(observations.boxes[supporting[landmark]], seen.boxes[0, landmark])
-                label = f"IoU {iou:.2f}"
-            labels.append(label)
+        labels = [""] * len(shown)
+        labelled = [(k, supporting[landmark]) for k, landmark in enumerate(shown.tolist())
+                    if landmark in supporting and boxed[supporting[landmark]]] if observations.boxes is not None else []
+        if labelled:  # one box_iou for all of them
+            rows, observed = np.array(labelled).T
+            for k, iou in zip(rows.tolist(), box_iou(observations.boxes[observed], seen.boxes[0, shown[rows]])):
+                labels[k] = f"IoU {iou:.2f}"
         self._late.add(path, *self._now, {
             "strips": ellipse_outlines(seen.dual_conics[0, shown]),
             "class_ids": annotation_ids(self.map.class_ids[shown]),

@@ -21,17 +21,10 @@ DEPTH_STRIDE = 4  # ... of every fourth pixel (160 x 120 of a VGA frame: a side 
 # Rerun's LZ4 chunk compression makes it 22 kB a frame in 0.5 ms, where a half-size PNG took 45 kB and 18 ms
 
 
-def ellipsoids3d(
-    ellipsoids: Ellipsoids,
-    class_ids: np.ndarray,
-    labels: list[str] | None = None,
-    colors: np.ndarray | None = None,
-    fill_mode: str = "TransparentFillMajorWireframe",
-    show_labels: bool = True,
-) -> rr.Ellipsoids3D:
-    """Ellipsoids coloured by class through the annotation context unless `colors` is given."""
-    return rr.Ellipsoids3D(**with_quaternions(ellipsoid_fields(ellipsoids, class_ids, labels, colors, fill_mode,
-                                                               show_labels)))
+def ellipsoids3d(ellipsoids: Ellipsoids, class_ids: np.ndarray, **options) -> rr.Ellipsoids3D:
+    """Ellipsoids coloured by class through the annotation context unless `colors` is given (`options`: those of
+    `ellipsoid_fields`)."""
+    return rr.Ellipsoids3D(**with_quaternions(ellipsoid_fields(ellipsoids, class_ids, **options)))
 
 
 def ellipsoid_fields(
@@ -42,7 +35,7 @@ def ellipsoid_fields(
     fill_mode: str = "TransparentFillMajorWireframe",
     show_labels: bool = True,
 ) -> dict:
-    """The fields of `ellipsoids3d`'s archetype (those given), for an ArchetypeRows row, but `rotations` (N, 3, 3)
+    """The fields of the ellipsoids' Ellipsoids3D (those given), for an ArchetypeRows row, but `rotations` (N, 3, 3)
     where it takes quaternions: `with_quaternions` converts them, for a whole column at once when the rows are
     kept until close (scipy's conversion costs about as much for one frame as for a thousand)."""
     fields = {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import io
+import math
 
 import numpy as np
 import rerun as rr
@@ -133,14 +134,26 @@ def image_fields(image: np.ndarray) -> dict:
 
 def segmentation(detections: Detections, shape: tuple[int, int]) -> np.ndarray:
     """(H, W) annotation ids of the detection masks (0 = none); where masks overlap the higher score
-    wins. uint8 while the ids fit, which halves the (uncompressed) image."""
+    wins. uint8 while the ids fit, which halves the (uncompressed) image. Masks that lie in their boxes
+    (`Detections.masks_in_boxes`) are read in their boxes only (a pixel's margin either side): the same image."""
     if len(detections) == 0:
         return np.zeros(shape, dtype=np.uint8)
     ids = annotation_ids(detections.class_ids)
     label = np.zeros(shape, dtype=np.min_scalar_type(ids.max()))
+    everywhere = (slice(None), slice(None))
     for k in np.argsort(detections.scores, kind="stable"):  # a higher score paints over a lower one
-        np.copyto(label, ids[k], where=detections.masks[k], casting="unsafe")
+        rows, columns = box_window(detections.boxes[k], shape) if detections.masks_in_boxes else everywhere
+        np.copyto(label[rows, columns], ids[k], where=detections.masks[k, rows, columns], casting="unsafe")
     return label
+
+
+def box_window(box: np.ndarray, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """(rows, columns) of an xyxy pixel box widened by a pixel and clipped to an (H, W) image: every pixel
+    of a mask inside the box, whichever way its edges were rounded."""
+    x0, y0, x1, y1 = np.asarray(box, dtype=np.float64).tolist()
+    height, width = shape
+    return (slice(min(max(math.floor(y0) - 1, 0), height), min(max(math.ceil(y1) + 1, 0), height)),
+            slice(min(max(math.floor(x0) - 1, 0), width), min(max(math.ceil(x1) + 1, 0), width)))
 
 
 BOX_LABEL_WIDTH = 3.0  # a box label (`potted plant 0.51`) is about this many times wider than tall

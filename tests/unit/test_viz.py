@@ -183,6 +183,40 @@ def test_segmentation_higher_score_wins_and_zero_is_background():
     assert not segmentation(empty, (4, 5)).any()
 
 
+def test_segmentation_reads_masks_in_their_boxes_only_where_they_lie_there():
+    """Masks that lie in their boxes are painted from their boxes alone: byte for byte the image of painting
+    every mask over the whole frame (overlaps, ties in score, boxes with fractional, edge and out-of-frame
+    corners, an empty mask); a mask outside its box is painted whole when the detector does not promise."""
+    def painted_whole(detections: Detections, shape: tuple[int, int]) -> np.ndarray:
+        ids = detections.class_ids + 1
+        label = np.zeros(shape, dtype=np.min_scalar_type(ids.max()))
+        for k in np.argsort(detections.scores, kind="stable"):
+            label[detections.masks[k]] = ids[k]
+        return label
+
+    rng = np.random.default_rng(4)
+    shape = (30, 40)
+    boxes = np.array([[0, 0, 12.5, 9.2], [5.7, 3.1, 40, 30], [30.2, 20.9, 44, 35], [-3, -2, 4, 5], [10, 10, 10, 10],
+                      [8, 2, 20, 14]])
+    masks = np.zeros((len(boxes), *shape), bool)
+    for mask, (x0, y0, x1, y1) in zip(masks, boxes):
+        rows, columns = slice(max(int(np.floor(y0)), 0), int(np.ceil(y1))), slice(max(int(np.floor(x0)), 0), int(np.ceil(x1)))
+        mask[rows, columns] = rng.random(mask[rows, columns].shape) < 0.7
+    scores = np.array([0.9, 0.5, 0.5, 0.7, 0.2, 0.5])  # ties: the later detection paints over
+    class_ids = np.array([3, 300, 1, 0, 7, 2])  # an id over 255: uint16
+    for ids in (class_ids, class_ids % 200):
+        inside = Detections(masks, boxes, ids, scores, np.arange(len(ids)), masks_in_boxes=True)
+        label = segmentation(inside, shape)
+        expected = painted_whole(inside, shape)
+        assert label.dtype == expected.dtype and label.tobytes() == expected.tobytes()
+        assert len(np.unique(label)) > 4
+    outside = masks.copy()
+    outside[0, 25:, 30:] = True  # beyond its box
+    spilled = Detections(outside, boxes, class_ids, scores, np.arange(len(boxes)))
+    assert segmentation(spilled, shape).tobytes() == painted_whole(spilled, shape).tobytes()
+    assert (segmentation(spilled, shape)[25:, 30:] != 0).all()
+
+
 def test_depth_is_subsampled_centimetres_and_jpeg_is_small():
     depth = np.full((8, 12), 9.0, dtype=np.float32)
     depth[0, 0], depth[0, 4], depth[4, 0], depth[4, 4], depth[1, 1] = 0.0, 1.234, np.nan, 4.0, 2.0

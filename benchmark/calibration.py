@@ -24,6 +24,7 @@ from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
+from clipclique.stack import Stack
 from clipclique.types import Map, Observations, Pose
 
 BINS = 10  # reliability diagram and ECE: equal-width confidence bins
@@ -78,8 +79,9 @@ def collect(sequences: list[SequenceLike], methods: tuple[str, ...] = METHODS) -
                 has_correct.append(any(hits))
                 if not result.hypotheses:
                     continue
-                checked = verification.verify(result.hypotheses, cached.observations, sequence.map, config.verification)
-                evidence = confidence.Evidence(result.hypotheses, checked, result.similarity, len(cached.observations))
+                stack = Stack.of(result.hypotheses)
+                checked = verification.verify_stack(stack, cached.observations, sequence.map, config.verification)
+                evidence = confidence.Evidence(stack, checked, result.similarity, len(cached.observations))
                 features.append(confidence.feature_matrix(evidence))
                 correct += hits
                 scene += [sequence.name] * len(hits)

@@ -28,7 +28,7 @@ from numba import njit
 from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
-from clipclique.types import Hypothesis
+from clipclique.stack import Stack
 from clipclique.verification import Verification
 
 MODEL_FORMAT = "clipclique confidence model"
@@ -40,7 +40,7 @@ L2 = 1e-2  # ridge on the standardized coefficients: a few hundred frames per sc
 class Evidence:
     """One frame's hypotheses and what was measured of them."""
 
-    hypotheses: list[Hypothesis]
+    hypotheses: Stack  # (`Stack.of` a list of them)
     verification: Verification
     similarity: np.ndarray  # (K, N) the matrix the matching used
     num_observations: int
@@ -67,11 +67,11 @@ def _summed_similarity(evidence: Evidence) -> np.ndarray:
     """Each hypothesis's similarity summed over its correspondences, to the bit as
     `similarity[tuple(correspondences.T)].sum()` adds them, one gather and one compiled pass for all (an index
     and a sum per hypothesis cost more than a frame's whole arithmetic)."""
-    if not evidence.hypotheses:
+    if not len(evidence.hypotheses):
         return np.zeros(0)
-    stacked = np.concatenate([h.correspondences for h in evidence.hypotheses]).reshape(-1, 2)
-    values = np.ascontiguousarray(evidence.similarity[stacked[:, 0], stacked[:, 1]])
-    ends = np.cumsum([len(h.correspondences) for h in evidence.hypotheses])
+    pairs = evidence.hypotheses.pairs
+    values = np.ascontiguousarray(evidence.similarity[pairs[:, 0], pairs[:, 1]])
+    ends = np.cumsum(evidence.hypotheses.counts)
     return _group_sums(values, ends, values.dtype.type(0)).astype(float)
 
 
@@ -121,7 +121,7 @@ FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
     "mean_iou": (lambda e: e.verification.mean_iou, 0),
     "missed_in_frame": (_missed_in_frame, 0),
     "depth_error": (lambda e: np.minimum(e.verification.depth_error, 2.0), 0),
-    "size": (lambda e: np.array([len(h.correspondences) for h in e.hypotheses], float), 0),
+    "size": (lambda e: e.hypotheses.counts.astype(float), 0),
     "similarity": (lambda e: _summed_similarity(e), 0),
     "observations": (lambda e: np.full(len(e.hypotheses), float(e.num_observations)), 0),
 }

@@ -43,7 +43,8 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.types import Hypothesis, Map, Observations, Pose
+from clipclique.stack import Stack
+from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
 class MapIndex:
@@ -132,20 +133,21 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
                                 similarity=scores, num_cliques=0, cap_hit=CapHit.MAX_CANDIDATES if capped else None,
                                 failure=None, notes=notes, timings=timings, lookalike_added=added)
     matched = np.count_nonzero(np.bincount(candidates[:, 0]))
+    pool = _NONE
     if len(observations) < 3:
         result.failure = Failure(kind=FailureKind.FEW_OBSERVATIONS, count=len(observations))
     elif matched < 3:
         result.failure = Failure(kind=FailureKind.FEW_MATCHED, count=matched)
     elif config.inliers.method == "cliques":
-        _solve_cliques(result, observations, index.map, config, lap, split)
+        pool = _solve_cliques(result, observations, index.map, config, lap, split)
     else:
-        _solve_consensus(result, observations, index.map, config, lap)
-    if result.failure is None and not result.hypotheses:
+        pool = _solve_consensus(result, observations, index.map, config, lap)
+    if result.failure is None and not len(pool):
         result.failure = Failure(kind=FailureKind.DEGENERATE)
-    if config.pose.refine_radius > 0:
-        refine.refine(result.hypotheses, observations, index.map, scores, config.pose.refine_radius,
-                      config.pose.weights, landmarks=index.landmark_tree)
-    _verify(result, observations, index.map, config)
+    if config.pose.refine_radius > 0 and len(pool):
+        pool = refine.refined(pool, observations, index.map, scores, config.pose.refine_radius, config.pose.weights,
+                              landmarks=index.landmark_tree)[0]
+    _verify(result, pool, observations, index.map, config)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
@@ -294,9 +296,10 @@ def _split(observations: Observations, map: Map, candidates: np.ndarray, scores:
 
 
 def _solve_cliques(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
-                   lap: Callable[[Stage], None], split: regions.Regions | None = None) -> None:
-    """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each; on a
-    map of many candidates in several regions (`split`), region by region (clipclique.regions).
+                   lap: Callable[[Stage], None], split: regions.Regions | None = None) -> Stack:
+    """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each (the
+    pool, stacked); on a map of many candidates in several regions (`split`), region by region
+    (clipclique.regions).
 
     A degenerate clique gives no pose; the search is then asked for twice as many cliques
     until top_n poses are found or the cliques run out (the first ones come back unchanged).
@@ -328,21 +331,22 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     if pairs_capped:
         result.cap_hit = result.cap_hit or CapHit.MAX_PAIRS
     pool = _pool_size(observations, config)
-    wanted, tried = pool, 0
+    wanted, tried, fits, fitted = pool, 0, [], 0
     while True:
         found = search(wanted)
         lap(Stage.INLIERS)
-        fitted = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
-        result.hypotheses.extend(fitted[: pool - len(result.hypotheses)])
+        fit = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
+        fits.append(fit.take(np.arange(min(len(fit), pool - fitted))))
+        fitted += len(fits[-1])
         lap(Stage.POSE)
         tried = len(found.cliques)
-        if len(result.hypotheses) == pool or tried < wanted or found.cap is not None:
+        if fitted == pool or tried < wanted or found.cap is not None:
             break
         wanted *= 2
     if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
         without = _without_added(found.cliques, result.lookalike_added, settings.min_clique_size)
-        result.hypotheses.extend(_hypotheses(result, observations, map, config, without,
-                                             np.array([scores[members].sum() for members in without])))
+        fits.append(_hypotheses(result, observations, map, config, without,
+                                np.array([scores[members].sum() for members in without])))
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if split is not None:
@@ -352,6 +356,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
                                 f"regions equally well (of {result.region_split.regions} searched one by one)")
     if not found.cliques:
         result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
+    return Stack.joined(fits)
 
 
 def _pool_size(observations: Observations, config: LocalizationConfig) -> int:
@@ -405,8 +410,8 @@ def _first_overlapping(boxes: np.ndarray, duplicate_iou: float) -> np.ndarray:
 
 
 def _solve_consensus(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
-                     lap: Callable[[Stage], None]) -> None:
-    """RANSAC / PROSAC inlier sets, each refit with the weighted pose."""
+                     lap: Callable[[Stage], None]) -> Stack:
+    """RANSAC / PROSAC inlier sets, each refit with the weighted pose (the pool, stacked)."""
     settings = config.inliers
     obs, lm = result.candidates[:, 0], result.candidates[:, 1]
     image = None
@@ -428,20 +433,21 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
     )
     result.num_cliques = found.num_hypotheses
     lap(Stage.INLIERS)
-    result.hypotheses.extend(_hypotheses(result, observations, map, config, found.inlier_sets, np.array(found.scores)))
+    pool = _hypotheses(result, observations, map, config, found.inlier_sets, np.array(found.scores))
     if not found.inlier_sets:
         result.failure = Failure(kind=FailureKind.NO_MINIMAL_SET)
     lap(Stage.POSE)
+    return pool
 
 
 def _hypotheses(
     result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, sets: list[np.ndarray], scores: np.ndarray
-) -> list[Hypothesis]:
+) -> Stack:
     """The weighted pose of each correspondence set, in order, fitted in one batch (shorter sets
     padded with weight 0). A degenerate set (collinear, fewer than 3 positive weights) or one too
     poorly conditioned to fix the rotation (config.pose.min_conditioning) gives none."""
     if not sets:
-        return []
+        return _NONE
     sizes = np.array([len(members) for members in sets])
     members = np.concatenate(sets)
     pairs = result.candidates[members]
@@ -452,16 +458,17 @@ def _hypotheses(
         config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     ok &= (np.count_nonzero(weights, axis=1) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
-    kept = np.flatnonzero(ok)
-    ends = np.cumsum(sizes)
-    return [Hypothesis(Pose(r, t), pairs[end - size: end], float(score), conditioning)
-            for r, t, end, size, score, conditioning in zip(
-                rotation[kept], translation[kept], ends[kept].tolist(), sizes[kept].tolist(), scores[kept].tolist(),
-                measure[kept].tolist())]
+    return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
+                 counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
 
 
-def _verify(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig) -> None:
-    """Verification score and confidence of every hypothesis, then `inliers.rerank` and `min_confidence`.
+_NONE = Stack.of([])  # no hypothesis
+
+
+def _verify(result: LocalizationResult, pool: Stack, observations: Observations, map: Map,
+            config: LocalizationConfig) -> None:
+    """Verification score and confidence of every hypothesis of the pool, then `inliers.rerank` and
+    `min_confidence`: `result.hypotheses`, the kept ones built from the stack.
 
     Observations without boxes and camera (a library caller's own) are left unverified and in the
     clique score's order (a note says so), unless a confidence floor asks for verification.
@@ -469,24 +476,24 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
     if observations.boxes is None or observations.camera is None:
         if config.min_confidence > 0:
             verification.require_image(observations, "min_confidence")
-        if config.inliers.rerank != "none" and result.hypotheses:
+        if config.inliers.rerank != "none" and len(pool):
             result.notes.append(f"no boxes or camera: inliers.rerank = {config.inliers.rerank} not applied")
+        result.hypotheses = pool.hypotheses()
         return
-    if not result.hypotheses:
+    if not len(pool):
         return
-    seen, hypotheses, similarity_seen = _with_boxes(observations, result.hypotheses, result.similarity)
-    checked = verification.verify(hypotheses, seen, map, config.verification)
+    seen, narrowed, similarity_seen = _with_boxes(observations, pool, result.similarity)
+    checked = verification.verify_stack(narrowed, seen, map, config.verification)
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
-                   model.predict(confidence.Evidence(hypotheses, checked, similarity_seen, len(seen))))
-    confidences = [None] * len(result.hypotheses) if probability is None else probability.tolist()
-    for hypothesis, score, confident in zip(result.hypotheses, checked.score.tolist(), confidences):
-        hypothesis.verification, hypothesis.confidence = score, confident
+                   model.predict(confidence.Evidence(narrowed, checked, similarity_seen, len(seen))))
+    kept = None
     if config.inliers.rerank != "none":
         if config.inliers.rerank == "confidence" and probability is None:
             raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
-        result.hypotheses = [result.hypotheses[i] for i in np.argsort(-key, kind="stable")[: config.top_n]]
+        kept = np.argsort(-key, kind="stable")[: config.top_n]
+    result.hypotheses = pool.hypotheses(kept, checked.score, probability)
     if config.min_confidence > 0:
         if probability is None:
             raise ClipcliqueError("min_confidence needs a confidence model (none is shipped in this build)")
@@ -497,18 +504,17 @@ def _verify(result: LocalizationResult, observations: Observations, map: Map, co
                                      best_confidence=best)
 
 
-def _with_boxes(observations: Observations, hypotheses: list[Hypothesis],
-                similarity: np.ndarray) -> tuple[Observations, list[Hypothesis], np.ndarray]:
+def _with_boxes(observations: Observations, pool: Stack, similarity: np.ndarray) -> tuple[Observations, Stack, np.ndarray]:
     """What verification and confidence may read: the observations with a box in the query image, each
     hypothesis with its correspondences among them (renumbered), and their rows of the similarity.
     Unchanged when every observation has a box (a single frame)."""
     if observations.has_box is None or observations.has_box.all():
-        return observations, hypotheses, similarity
+        return observations, pool, similarity
     kept = np.flatnonzero(observations.has_box)
     renumber = np.full(len(observations), -1)
     renumber[kept] = np.arange(len(kept))
-    narrowed = []
-    for hypothesis in hypotheses:
-        pairs = hypothesis.correspondences[observations.has_box[hypothesis.correspondences[:, 0]]]
-        narrowed.append(replace(hypothesis, correspondences=np.column_stack((renumber[pairs[:, 0]], pairs[:, 1]))))
+    boxed = observations.has_box[pool.pairs[:, 0]]
+    pairs = pool.pairs[boxed]
+    narrowed = replace(pool, pairs=np.column_stack((renumber[pairs[:, 0]], pairs[:, 1])),
+                       counts=np.bincount(pool.owners()[boxed], minlength=len(pool)))
     return observations.subset(kept), narrowed, similarity[kept]

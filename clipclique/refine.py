@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
 from clipclique.pose import fit_rigid_batch, weighted_sets
+from clipclique.stack import Stack
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
@@ -148,16 +149,27 @@ def _one_to_one(pose, obs, lm, num_poses, num_obs, num_landmarks):
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> None:
-    """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place,
-    as long as they are at least as many as it had (a refit never rests on fewer objects). The
-    hypotheses still refining are refitted together, one batch per round (a re-ranked frame has fifty), their
-    poses held as stacked arrays between rounds and written back once.
-    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
-    rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
-    translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
-    sizes = np.array([len(h.correspondences) for h in hypotheses], np.int64)
-    refined: dict[int, np.ndarray] = {}  # hypothesis -> its latest nearby pairs
-    active = np.arange(len(hypotheses))
+    """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place
+    (`refined` of their stack)."""
+    stack, moved = refined(Stack.of(hypotheses), observations, map, similarity, radius, weights, rounds, landmarks)
+    ends = np.cumsum(stack.counts)
+    for i in np.flatnonzero(moved).tolist():
+        hypotheses[i].pose = Pose(stack.rotations[i], stack.translations[i])
+        hypotheses[i].correspondences = stack.pairs[ends[i] - stack.counts[i]: ends[i]]
+
+
+def refined(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> tuple[Stack, np.ndarray]:
+    """The stack with each hypothesis's pose and pairs replaced by the refit on its nearby pairs, as long as
+    they are at least as many as it had (a refit never rests on fewer objects), `rounds` times; and (B,)
+    which were replaced. The hypotheses still refining are refitted together, one batch per round (a
+    re-ranked frame has fifty). `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built
+    only where a round needs it)."""
+    rotations, translations, sizes = stack.rotations.copy(), stack.translations.copy(), stack.counts.copy()
+    found = [stack.pairs]  # every round's pairs after the stack's own; `origin` indexes them all, joined
+    origin, offset = stack.starts(), len(stack.pairs)
+    moved = np.zeros(len(stack), bool)
+    active = np.arange(len(stack))
     for _ in range(rounds):
         if not len(active):
             break
@@ -180,11 +192,14 @@ def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, s
         refits, fitted = refits[kept], fitted[kept]
         active = active[refits]
         rotations[active], translations[active], sizes[active] = rotation[fitted], translation[fitted], counts[refits]
-        for hypothesis, start, count in zip(active.tolist(), starts[refits].tolist(), counts[refits].tolist()):
-            refined[hypothesis] = pairs[start: start + count]
-    for i, pairs in refined.items():
-        hypotheses[i].pose = Pose(rotations[i], translations[i])
-        hypotheses[i].correspondences = pairs
+        origin[active], moved[active] = offset + starts[refits], True
+        found.append(pairs)
+        offset += len(pairs)
+    if not moved.any():
+        return stack, moved
+    gather = np.repeat(origin - (np.cumsum(sizes) - sizes), sizes) + np.arange(sizes.sum())
+    return Stack(rotations=rotations, translations=translations, pairs=np.concatenate(found)[gather], counts=sizes,
+                 scores=stack.scores, conditioning=stack.conditioning), moved
 
 
 def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,

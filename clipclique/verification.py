@@ -34,6 +34,7 @@ from numba import njit
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.projection import Projection, box_area, box_iou, pair_iou, project
+from clipclique.stack import Stack
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
 
@@ -60,45 +61,48 @@ def require_image(observations: Observations, why: str) -> None:
 
 def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
            params: VerificationConfig = VerificationConfig()) -> Verification:
-    """Verification of each hypothesis against the observations' boxes and centres. Hypotheses alike (one
-    pose, one set of pairs: refinement often brings several cliques of a re-ranked pool to one) are
-    verified once; a hypothesis's figures do not depend on the others'."""
+    """Verification of each hypothesis against the observations' boxes and centres (`verify_stack`)."""
+    return verify_stack(Stack.of(hypotheses), observations, map, params)
+
+
+def verify_stack(stack: Stack, observations: Observations, map: Map,
+                 params: VerificationConfig = VerificationConfig()) -> Verification:
+    """Verification of each hypothesis of the stack. Hypotheses alike (one pose, one set of pairs: refinement
+    often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
+    depend on the others'."""
     require_image(observations, "image verification")
     distinct: dict[bytes, int] = {}
-    alike = np.array([distinct.setdefault(key, len(distinct)) for key in _identities(hypotheses)], np.int64)
-    if len(distinct) == len(hypotheses):
-        return _verify_all(hypotheses, observations, map, params)
+    alike = np.array([distinct.setdefault(key, len(distinct)) for key in _identities(stack)], np.int64)
+    if len(distinct) == len(stack):
+        return _verify_all(stack, observations, map, params)
     firsts = np.unique(alike, return_index=True)[1]
-    checked = _verify_all([hypotheses[i] for i in firsts], observations, map, params)
+    checked = _verify_all(stack.take(firsts), observations, map, params)
     return replace(checked, **{name: getattr(checked, name)[alike] for name in _PER_HYPOTHESIS})
 
 
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
 
 
-def _identities(hypotheses: list[Hypothesis]) -> list[bytes]:
-    """The bits each hypothesis's verification depends on: its pose (float64 rotation then translation, sliced
-    from one array of them all) and its pairs (int64)."""
-    rotations = np.array([h.pose.rotation for h in hypotheses], np.float64).reshape(-1, 9)
-    translations = np.array([h.pose.translation for h in hypotheses], np.float64).reshape(-1, 3)
-    poses, size = np.concatenate((rotations, translations), axis=1).tobytes(), 12 * 8
-    return [poses[b * size: (b + 1) * size] + np.asarray(h.correspondences, np.int64).tobytes()
-            for b, h in enumerate(hypotheses)]
+def _identities(stack: Stack) -> list[bytes]:
+    """The bits each hypothesis's verification depends on: its pose (float64 rotation then translation) and
+    its pairs (int64), sliced from one array of each."""
+    poses = np.concatenate((stack.rotations.reshape(-1, 9), stack.translations), axis=1).astype(np.float64).tobytes()
+    pairs, pose_size, pair_size = np.asarray(stack.pairs, np.int64).tobytes(), 12 * 8, 2 * 8
+    return [poses[b * pose_size: (b + 1) * pose_size] + pairs[start * pair_size: end * pair_size]
+            for b, (start, end) in enumerate(zip(stack.starts().tolist(), np.cumsum(stack.counts).tolist()))]
 
 
-def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: Map,
-                params: VerificationConfig) -> Verification:
-    """`verify` of every hypothesis, alike or not."""
+def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig) -> Verification:
+    """`verify_stack` of every hypothesis, alike or not."""
     camera = observations.camera
-    rotations = np.array([h.pose.rotation for h in hypotheses]).reshape(-1, 3, 3)
-    translations = np.array([h.pose.translation for h in hypotheses]).reshape(-1, 3)
+    rotations, translations = stack.rotations, stack.translations
     nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
     seen = project(map.ellipsoids.subset(nearby), rotations, translations, camera)
     slot = np.full(len(map), -1)  # landmark -> its column in `seen`, -1 out of range
     slot[nearby] = np.arange(len(nearby))
 
-    owner = np.repeat(np.arange(len(hypotheses)), [len(h.correspondences) for h in hypotheses])
-    pairs = np.concatenate([h.correspondences for h in hypotheses]).reshape(-1, 2).astype(np.int64)
+    owner = stack.owners()
+    pairs = np.asarray(stack.pairs, np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
     at = np.maximum(slot[lm], 0)
     in_view = (slot[lm] >= 0) & seen.visible[owner, at]
@@ -106,8 +110,8 @@ def _verify_all(hypotheses: list[Hypothesis], observations: Observations, map: M
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
     depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
     agreement = np.maximum(1.0 - depth_gap / params.depth_tolerance, 0.0)
-    count = len(hypotheses)
-    sizes = np.bincount(owner, minlength=count)
+    count = len(stack)
+    sizes = stack.counts
     overlap = np.bincount(owner, iou * agreement, minlength=count)
     mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
     depth_error = group_medians(depth_gap, owner, sizes)

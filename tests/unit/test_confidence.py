@@ -17,6 +17,7 @@ from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
+from clipclique.stack import Stack
 from clipclique.types import Hypothesis, Pose
 from clipclique.verification import Verification
 
@@ -55,8 +56,8 @@ def test_missed_landmarks_count_beyond_the_frame_s_fewest():
     """A detector that misses 14 more landmarks at every pose (a cluttered desk) leaves the
     scene-portable features as they were; the verification feature is the score plus a frame constant."""
     names = ("verification_in_frame", "missed_in_frame", "margin")
-    room = confidence.Evidence([], verification_of([3.0, 2.5, 1.0], [0, 1, 3]), np.zeros((0, 0)), 8)
-    desk = confidence.Evidence([], verification_of([3.0, 2.5, 1.0], [14, 15, 17]), np.zeros((0, 0)), 8)
+    room = confidence.Evidence(Stack.of([]), verification_of([3.0, 2.5, 1.0], [0, 1, 3]), np.zeros((0, 0)), 8)
+    desk = confidence.Evidence(Stack.of([]), verification_of([3.0, 2.5, 1.0], [14, 15, 17]), np.zeros((0, 0)), 8)
     np.testing.assert_allclose(confidence.feature_matrix(desk, names), confidence.feature_matrix(room, names))
     np.testing.assert_allclose(confidence.feature_matrix(room, names)[:, :2], [[3.0, 0.0], [2.25, 1.0], [0.25, 3.0]])
     shift = confidence.feature_matrix(desk, names[:1])[:, 0] - desk.verification.score
@@ -77,7 +78,7 @@ def test_the_similarity_feature_sums_each_hypothesis_s_correspondences_as_numpy_
     similarity = rng.random((40, 60)) * rng.choice([1e-3, 1.0, 1e3], size=(40, 60))
     hypotheses = [Hypothesis(Pose.identity(), np.column_stack((rng.integers(0, 40, size), rng.integers(0, 60, size))),
                              1.0) for size in [0, 1, 3, 7, 8, 9, 15, 16, 17, 40, 130, 3]]
-    evidence = confidence.Evidence(hypotheses, verification_of([0.0] * 12, [0] * 12), similarity, 40)
+    evidence = confidence.Evidence(Stack.of(hypotheses), verification_of([0.0] * 12, [0] * 12), similarity, 40)
     expected = np.array([similarity[tuple(h.correspondences.T)].sum() for h in hypotheses])
     assert confidence.FEATURES["similarity"][0](evidence).tobytes() == expected.tobytes()
 

@@ -14,6 +14,7 @@ from clipclique.geometry import look_at
 from clipclique.pipeline import index_map, localize
 from clipclique.projection import project
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
+from clipclique.stack import Stack
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 from clipclique.verification import group_medians, verify
 
@@ -54,7 +55,7 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit(
     map, truth, observations = room()
     poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
-    checked, every = verify(pool, observations, map), verification._verify_all(pool, observations, map, VerificationConfig())
+    checked, every = verify(pool, observations, map), verification._verify_all(Stack.of(pool), observations, map, VerificationConfig())
     for name in verification._PER_HYPOTHESIS:
         np.testing.assert_array_equal(getattr(checked, name), getattr(every, name))
     assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike

@@ -1,0 +1,82 @@
+"""A frame's hypotheses as stacked arrays, from the pose fits through refinement, verification and confidence.
+
+A re-ranked frame fits fifty poses or more and keeps top_n: a `Hypothesis` object built for each, and its
+arrays gathered back at every later stage, cost more than those stages' arithmetic. The pool travels as one
+`Stack` instead, and only the hypotheses a frame keeps become `Hypothesis` objects (`Stack.hypotheses`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clipclique.types import Hypothesis, Pose
+
+
+@dataclass(kw_only=True)
+class Stack:
+    """B hypotheses, row b of each array; their correspondences one after another in `pairs`."""
+
+    rotations: np.ndarray  # (B, 3, 3) camera-to-map
+    translations: np.ndarray  # (B, 3)
+    pairs: np.ndarray  # (M, 2) int (observation, landmark), hypothesis after hypothesis
+    counts: np.ndarray  # (B,) int64, how many pairs each holds
+    scores: np.ndarray  # (B,) the ranking score (Hypothesis.score)
+    conditioning: np.ndarray  # (B,) Hypothesis.conditioning, NaN where not measured
+
+    def __len__(self) -> int:
+        return len(self.counts)
+
+    def starts(self) -> np.ndarray:
+        """(B,) where each hypothesis's pairs begin."""
+        return np.cumsum(self.counts) - self.counts
+
+    def owners(self) -> np.ndarray:
+        """(M,) the hypothesis each pair belongs to."""
+        return np.repeat(np.arange(len(self)), self.counts)
+
+    def take(self, rows: np.ndarray) -> Stack:
+        """The hypotheses `rows` (int, in that order), their pairs gathered with them."""
+        rows = np.asarray(rows, np.int64)
+        counts = self.counts[rows]
+        gather = np.repeat(self.starts()[rows] - (np.cumsum(counts) - counts), counts) + np.arange(counts.sum())
+        return Stack(rotations=self.rotations[rows], translations=self.translations[rows], pairs=self.pairs[gather],
+                     counts=counts, scores=self.scores[rows], conditioning=self.conditioning[rows])
+
+    def hypotheses(self, rows: np.ndarray | None = None, verification: np.ndarray | None = None,
+                   confidence: np.ndarray | None = None) -> list[Hypothesis]:
+        """`Hypothesis` objects of `rows` (None: all, in order), with their verification scores and confidences
+        where given (arrays over all B rows)."""
+        rows = np.arange(len(self)) if rows is None else np.asarray(rows, np.int64)
+        ends = np.cumsum(self.counts)
+        verified = [None] * len(self) if verification is None else verification.tolist()
+        confident = [None] * len(self) if confidence is None else confidence.tolist()
+        return [Hypothesis(Pose(self.rotations[b], self.translations[b]), self.pairs[end - count: end], score,
+                           conditioning, verified[b], confident[b])
+                for b, end, count, score, conditioning in zip(
+                    rows.tolist(), ends[rows].tolist(), self.counts[rows].tolist(), self.scores[rows].tolist(),
+                    self.conditioning[rows].tolist())]
+
+    @staticmethod
+    def of(hypotheses: list[Hypothesis]) -> Stack:
+        """The stack of a list of hypotheses (a library caller's own, or a frame's result)."""
+        return Stack(rotations=np.array([h.pose.rotation for h in hypotheses], np.float64).reshape(-1, 3, 3),
+                     translations=np.array([h.pose.translation for h in hypotheses], np.float64).reshape(-1, 3),
+                     pairs=np.concatenate([np.asarray(h.correspondences).reshape(-1, 2) for h in hypotheses]
+                                          or [np.zeros((0, 2), np.int64)]),
+                     counts=np.array([len(h.correspondences) for h in hypotheses], np.int64),
+                     scores=np.array([h.score for h in hypotheses], np.float64),
+                     conditioning=np.array([h.conditioning for h in hypotheses], np.float64))
+
+    @staticmethod
+    def joined(stacks: list[Stack]) -> Stack:
+        """The stacks one after another (none: an empty stack)."""
+        if len(stacks) == 1:
+            return stacks[0]
+        return Stack(rotations=np.concatenate([s.rotations for s in stacks] or [np.zeros((0, 3, 3))]),
+                     translations=np.concatenate([s.translations for s in stacks] or [np.zeros((0, 3))]),
+                     pairs=np.concatenate([s.pairs for s in stacks] or [np.zeros((0, 2), np.int64)]),
+                     counts=np.concatenate([s.counts for s in stacks] or [np.zeros(0, np.int64)]),
+                     scores=np.concatenate([s.scores for s in stacks] or [np.zeros(0)]),
+                     conditioning=np.concatenate([s.conditioning for s in stacks] or [np.zeros(0)]))

@@ -377,14 +377,29 @@ def _without_added(cliques: list[np.ndarray], added: np.ndarray, min_size: int) 
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
     a cluttered desk: verification chooses between both."""
-    known = {tuple(sorted(members.tolist())) for members in cliques}
+    if not cliques:
+        return []
+    sizes = np.array([len(members) for members in cliques])
+    members = np.concatenate(cliques).astype(np.int64)
+    owner = np.repeat(np.arange(len(cliques)), sizes)
+    kept = ~added[members]
+    rest_sizes = np.bincount(owner[kept], minlength=len(cliques))
+    shrunk = np.flatnonzero((min_size <= rest_sizes) & (rest_sizes < sizes))
+    if not len(shrunk):
+        return []
+    # a set's key: its members ascending, as bytes sliced from every clique's (and every rest's) sorted members
+    ordered = members[np.lexsort((members, owner))]
+    rests = ordered[~added[ordered]]
+    ends, rest_ends = np.cumsum(sizes).tolist(), np.cumsum(rest_sizes).tolist()
+    whole, rest, row = ordered.tobytes(), rests.tobytes(), ordered.itemsize
+    possible = set(rest_sizes[shrunk].tolist())  # only a clique of a rest's size can be that rest
+    known = {whole[(end - size) * row: end * row] for end, size in zip(ends, sizes.tolist()) if size in possible}
     out = []
-    for members in cliques:
-        rest = members[~added[members]]
-        key = tuple(sorted(rest.tolist()))
-        if min_size <= len(rest) < len(members) and key not in known:
+    for b in shrunk.tolist():
+        key = rest[(rest_ends[b] - rest_sizes[b]) * row: rest_ends[b] * row]
+        if key not in known:
             known.add(key)
-            out.append(rest)
+            out.append(cliques[b][kept[ends[b] - sizes[b]: ends[b]]])
     return out
 
 

@@ -48,26 +48,31 @@ def project(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndar
     view = camera.intrinsics @ rotations.transpose(0, 2, 1)  # (B, 3, 3)
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
     centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, N, 3)
-    conics = (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
     # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
-    boxes, visible, full_areas = _outline_boxes(conics, centers[..., 2], float(camera.width), float(camera.height),
-                                                float(camera.max_depth))
+    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), centers, float(camera.width),
+                                                        float(camera.height), float(camera.max_depth))
     return Projection(conics, boxes, visible, centers[..., 2], full_areas)
 
 
 @njit(cache=True)
-def _outline_boxes(conics: np.ndarray, depths: np.ndarray, width: float, height: float,
-                   max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per (pose, ellipsoid): the box of the outline clipped to the image, whether it is visible, and the
-    unclipped box's area (0 unless the ellipsoid is wholly in front). C*33 = reach^2 - depth^2 < 0 in front
-    orders the two roots of each axis; elsewhere -1 stands in. One compiled pass, numpy's operations in order
-    (np.maximum(x, 0) gives +0 for -0, np.clip keeps -0): a dozen (B, N) numpy passes cost more than the work."""
-    count, size = depths.shape
+def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, height: float,
+                   max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per (pose, ellipsoid), from vec(V M V^T) (B, N, 9) and h (B, N, 3): the dual conic V M V^T - h h^T, the
+    box of the outline clipped to the image, whether it is visible, and the unclipped box's area (0 unless the
+    ellipsoid is wholly in front). C*33 = reach^2 - depth^2 < 0 in front orders the two roots of each axis;
+    elsewhere -1 stands in. One compiled pass, numpy's operations in order (np.maximum(x, 0) gives +0 for -0,
+    np.clip keeps -0): a dozen (B, N) numpy passes cost more than the work."""
+    count, size = centers.shape[:2]
+    conics = np.empty((count, size, 3, 3))
     boxes, visible, full_areas = np.empty((count, size, 4)), np.empty((count, size), np.bool_), np.empty((count, size))
     limits = (width, height, width, height)
     for b in range(count):
         for n in range(size):
-            conic, depth = conics[b, n], depths[b, n]
+            conic, center = conics[b, n], centers[b, n]
+            for i in range(3):
+                for j in range(3):
+                    conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
+            depth = center[2]
             reach = np.sqrt(_at_least_zero(conic[2, 2] + depth * depth))
             in_front = depth - reach > MIN_DEPTH
             c33 = conic[2, 2] if in_front else -1.0
@@ -79,7 +84,7 @@ def _outline_boxes(conics: np.ndarray, depths: np.ndarray, width: float, height:
             for i in range(4):
                 box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
             visible[b, n] = in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1]
-    return boxes, visible, full_areas
+    return conics, boxes, visible, full_areas
 
 
 @njit(cache=True)

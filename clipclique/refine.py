@@ -116,35 +116,40 @@ def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, land
     return distance[:count], pose[:count], obs[:count], lm[:count]
 
 
+SORTED_BY_INSERTION = 64  # a pose's near pairs up to this many are ordered by insertion (a frame's: a few dozen)
+
+
 @njit(cache=True)
 def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks):
     """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties kept in that order)
-    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took."""
+    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took. One pass
+    per pose: a stable sort of its pairs by distance (insertion, a merge sort beyond SORTED_BY_INSERTION), then
+    the greedy choice of pairs neither side of which that pose has used yet."""
     first = np.searchsorted(pose, np.arange(num_poses + 1))
-    obs, lm = obs.copy(), lm.copy()
-    for b in range(num_poses):  # a stable sort per pose keeps observation and landmark order among ties
-        nearest = first[b] + np.argsort(distance[first[b]: first[b + 1]], kind="mergesort")
-        obs[first[b]: first[b + 1]], lm[first[b]: first[b + 1]] = obs[nearest], lm[nearest]
-    taken, per_pose = _one_to_one(pose, obs, lm, num_poses, num_obs, num_landmarks)
-    return np.column_stack((obs, lm))[taken], per_pose
-
-
-@njit(cache=True)
-def _one_to_one(pose, obs, lm, num_poses, num_obs, num_landmarks):
-    """Greedy one-to-one pairing of (pose, observation, landmark) candidates in their order: which are taken
-    (neither side used yet by that pose) and how many each pose takes."""
-    obs_used_by = np.full(num_obs, -1)
-    landmark_used_by = np.full(num_landmarks, -1)
-    taken = np.zeros(len(pose), np.bool_)
+    order = np.empty(len(pose), np.int64)
+    pairs = np.empty((len(pose), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
-    for i in range(len(pose)):
-        b, k, n = pose[i], obs[i], lm[i]
-        if obs_used_by[k] != b and landmark_used_by[n] != b:
-            obs_used_by[k] = b
-            landmark_used_by[n] = b
-            taken[i] = True
-            per_pose[b] += 1
-    return taken, per_pose
+    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(num_landmarks, -1)
+    count = 0
+    for b in range(num_poses):
+        start, stop = first[b], first[b + 1]
+        if stop - start <= SORTED_BY_INSERTION:
+            for i in range(start, stop):
+                j = i
+                while j > start and distance[order[j - 1]] > distance[i]:
+                    order[j] = order[j - 1]
+                    j -= 1
+                order[j] = i
+        else:
+            order[start: stop] = start + np.argsort(distance[start: stop], kind="mergesort")
+        for i in range(start, stop):
+            k, n = obs[order[i]], lm[order[i]]
+            if obs_used_by[k] != b and landmark_used_by[n] != b:
+                obs_used_by[k], landmark_used_by[n] = b, b
+                pairs[count, 0], pairs[count, 1] = k, n
+                count += 1
+                per_pose[b] += 1
+    return pairs[:count].copy(), per_pose
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,

@@ -219,3 +219,30 @@ def test_cliques_holding_added_lookalike_pairs_are_also_tried_without_them():
     without = _without_added(cliques, added, 3)
     assert [members.tolist() for members in without] == [[0, 1, 2]]
     assert _without_added(cliques, added, 2)[1].tolist() == [0, 1]
+
+
+def without_added_loop(cliques, added, min_size):
+    """`_without_added` written as a loop over the cliques with sorted tuples as keys."""
+    known = {tuple(sorted(members.tolist())) for members in cliques}
+    out = []
+    for members in cliques:
+        rest = members[~added[members]]
+        key = tuple(sorted(rest.tolist()))
+        if min_size <= len(rest) < len(members) and key not in known:
+            known.add(key)
+            out.append(rest)
+    return out
+
+
+def test_cliques_without_added_pairs_are_the_loop_s_in_its_order():
+    rng, found = np.random.default_rng(12), 0
+    for trial in range(300):
+        count = int(rng.integers(1, 12))
+        added = rng.random(count) < rng.choice([0.0, 0.2, 0.5])
+        cliques = [rng.permutation(count)[: int(rng.integers(1, count + 1))] for _ in range(int(rng.integers(0, 15)))]
+        cliques += [rng.permutation(members) for members in cliques[:2]]  # a clique twice, in another order
+        min_size = int(rng.integers(1, 4))
+        got, expected = _without_added(cliques, added, min_size), without_added_loop(cliques, added, min_size)
+        assert [m.tolist() for m in got] == [m.tolist() for m in expected]
+        found += len(expected)
+    assert found > 100

@@ -122,3 +122,15 @@ def test_the_compiled_boxes_are_the_numpy_passes_to_the_bit():
         for ours, theirs in zip((seen.boxes, seen.visible, seen.full_areas),
                                 numpy_outline_boxes(seen.dual_conics, seen.depths, camera)):
             assert ours.tobytes() == theirs.tobytes()
+        assert seen.dual_conics.tobytes() == numpy_dual_conics(ellipsoids, poses, camera).tobytes()
+
+
+def numpy_dual_conics(ellipsoids: Ellipsoids, poses: list, camera: Camera) -> np.ndarray:
+    """`project`'s dual conics as written with numpy passes, V M V^T - h h^T, before the subtraction was compiled."""
+    rotations, translations = np.array([p.rotation for p in poses]), np.array([p.translation for p in poses])
+    shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
+    spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
+    view = camera.intrinsics @ rotations.transpose(0, 2, 1)
+    kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
+    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
+    return (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]

@@ -166,9 +166,11 @@ def test_the_compiled_near_pairs_hold_numpys_very_distances(dense_pairs, monkeyp
 
 
 def test_the_compiled_order_and_choice_match_lexsort_and_a_greedy_loop():
+    tested = set()
     rng = np.random.default_rng(6)
     for trial in range(200):
-        num_poses, num_obs, num_landmarks = int(rng.integers(1, 5)), int(rng.integers(1, 8)), int(rng.integers(1, 9))
+        most = 30 if trial % 4 == 0 else 9  # beyond SORTED_BY_INSERTION pairs a pose: the merge sort
+        num_poses, num_obs, num_landmarks = int(rng.integers(1, 5)), int(rng.integers(1, most)), int(rng.integers(1, most))
         candidates = np.array([(b, k, n) for b in range(num_poses) for k in range(num_obs) for n in range(num_landmarks)
                                if rng.random() < 0.6], np.int64).reshape(-1, 3)
         distance = rng.choice([0.1, 0.2, 0.3], size=len(candidates))  # many exact ties
@@ -183,6 +185,9 @@ def test_the_compiled_order_and_choice_match_lexsort_and_a_greedy_loop():
                     counts[b] += 1
         np.testing.assert_array_equal(pairs, np.array(expected, np.int64).reshape(-1, 2))
         np.testing.assert_array_equal(per_pose, counts)
+        sizes = np.bincount(pose, minlength=num_poses)
+        tested |= set(np.where(sizes > refine_module.SORTED_BY_INSERTION, "merge", "insertion").tolist())
+    assert tested == {"merge", "insertion"}
 
 
 def test_the_compiled_move_is_numpys_einsum_to_the_bit():

@@ -390,16 +390,17 @@ def _without_added(cliques: list[np.ndarray], added: np.ndarray, min_size: int) 
     # a set's key: its members ascending, as bytes sliced from every clique's (and every rest's) sorted members
     ordered = members[np.lexsort((members, owner))]
     rests = ordered[~added[ordered]]
-    ends, rest_ends = np.cumsum(sizes).tolist(), np.cumsum(rest_sizes).tolist()
     whole, rest, row = ordered.tobytes(), rests.tobytes(), ordered.itemsize
     possible = set(rest_sizes[shrunk].tolist())  # only a clique of a rest's size can be that rest
-    known = {whole[(end - size) * row: end * row] for end, size in zip(ends, sizes.tolist()) if size in possible}
-    out = []
-    for b in shrunk.tolist():
-        key = rest[(rest_ends[b] - rest_sizes[b]) * row: rest_ends[b] * row]
+    known = {whole[(end - size) * row: end * row]
+             for end, size in zip(np.cumsum(sizes).tolist(), sizes.tolist()) if size in possible}
+    in_order, out = members[kept], []  # each rest in its clique's order
+    rest_ends = np.cumsum(rest_sizes)
+    for start, end in zip((rest_ends - rest_sizes)[shrunk].tolist(), rest_ends[shrunk].tolist()):
+        key = rest[start * row: end * row]
         if key not in known:
             known.add(key)
-            out.append(cliques[b][kept[ends[b] - sizes[b]: ends[b]]])
+            out.append(in_order[start: end])
     return out
 
 

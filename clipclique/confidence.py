@@ -72,16 +72,22 @@ def _summed_similarity(evidence: Evidence) -> np.ndarray:
     pairs = evidence.hypotheses.pairs
     values = np.ascontiguousarray(evidence.similarity[pairs[:, 0], pairs[:, 1]])
     ends = np.cumsum(evidence.hypotheses.counts)
-    return _group_sums(values, ends, values.dtype.type(0)).astype(float)
+    return group_sums(values, ends).astype(float)
+
+
+def group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """The sum of each group values[ends[b - 1]: ends[b]] of a contiguous array, in its type, to the bit as
+    numpy's `.sum()` of each (a sum per group cost more than the arithmetic)."""
+    return _group_sums(values, np.asarray(ends, np.int64), values.dtype.type(0))
 
 
 @njit(cache=True)
 def _group_sums(values: np.ndarray, ends: np.ndarray, zero) -> np.ndarray:
-    """The sum of each group values[ends[b - 1]: ends[b]] (`zero`: 0 of the values' type)."""
+    """`group_sums` (`zero`: 0 of the values' type, where numpy's reduction starts: -0 sums to +0)."""
     sums = np.empty(len(ends), values.dtype)
     start = 0
     for b in range(len(ends)):
-        sums[b] = _pairwise_sum(values, start, ends[b], zero)
+        sums[b] = zero + _pairwise_sum(values, start, ends[b], zero)
         start = ends[b]
     return sums
 

@@ -336,7 +336,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         found = search(wanted)
         lap(Stage.INLIERS)
         fit = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
-        fits.append(fit.take(np.arange(min(len(fit), pool - fitted))))
+        fits.append(fit if len(fit) <= pool - fitted else fit.take(np.arange(pool - fitted)))
         fitted += len(fits[-1])
         lap(Stage.POSE)
         tried = len(found.cliques)
@@ -345,8 +345,9 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         wanted *= 2
     if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
         without = _without_added(found.cliques, result.lookalike_added, settings.min_clique_size)
-        fits.append(_hypotheses(result, observations, map, config, without,
-                                np.array([scores[members].sum() for members in without])))
+        members = np.concatenate(without or [np.zeros(0, np.int64)])
+        fits.append(_hypotheses(result, observations, map, config, without, confidence.group_sums(
+            np.ascontiguousarray(scores[members]), np.cumsum([len(rest) for rest in without]))))
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if split is not None:

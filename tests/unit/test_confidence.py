@@ -73,6 +73,20 @@ def test_the_compiled_sum_adds_as_numpy_does(dtype):
         assert dtype(confidence._pairwise_sum(values, 0, count, dtype(0))).tobytes() == values.sum().tobytes()
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_group_sums_are_numpys_sums_with_negative_zeros_nan_and_empty_groups(dtype):
+    """Each group summed as numpy sums it, from +0: a group of -0 alone sums to +0 at every length."""
+    rng = np.random.default_rng(9)
+    groups = []
+    for count in [0, 1, 2, 7, 8, 9, 16, 17, 128, 129, 300]:
+        groups += [np.full(count, -0.0), rng.choice([-0.0, 0.0, 1.5, -2.25], size=count), rng.normal(size=count)]
+        if count:
+            groups.append(np.where(np.arange(count) == count // 2, np.nan, rng.normal(size=count)))
+    values = np.concatenate(groups).astype(dtype)
+    expected = np.array([group.astype(dtype).sum() for group in groups], dtype)
+    assert confidence.group_sums(values, np.cumsum([len(group) for group in groups])).tobytes() == expected.tobytes()
+
+
 def test_the_similarity_feature_sums_each_hypothesis_s_correspondences_as_numpy_does():
     rng = np.random.default_rng(8)
     similarity = rng.random((40, 60)) * rng.choice([1e-3, 1.0, 1e3], size=(40, 60))

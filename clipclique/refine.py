@@ -41,10 +41,15 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
                           similarity: np.ndarray, radius: float,
                           landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
     """The nearby pairs of B poses (rotations (B, 3, 3), translations (B, 3)) stacked pose after pose, and (B,)
-    how many each has: the observations moved by all of them, the pairs nearer than `radius` (`_near_pairs`),
-    then one compiled pass orders them and picks one-to-one (a numpy pass each cost more than the work)."""
+    how many each has: the observations moved by all of them; for a room-sized map one compiled pass tests every
+    pair and picks each pose's nearest one-to-one (`_nearest_of_all`: fifty poses of a frame against 47 landmarks,
+    35,000 pairs, tens of microseconds); beyond, a KD-tree join lists the pairs nearer than `radius`
+    (`_near_pairs`) and one compiled pass orders them and picks (a numpy pass each cost more than the work)."""
     moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
-    near = _near_pairs(moved, map.ellipsoids.centers, similarity, radius, len(observations), landmarks)
+    centers = np.ascontiguousarray(map.ellipsoids.centers, np.float64)
+    if len(moved) * len(centers) <= DENSE_PAIRS:
+        return _nearest_of_all(moved, centers, similarity, radius, len(rotations), len(observations))
+    near = _near_pairs(moved, centers, similarity, radius, len(observations), landmarks)
     return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
 
 
@@ -69,11 +74,8 @@ def _near_pairs(points: np.ndarray, centers: np.ndarray, similarity: np.ndarray,
                 landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(distance, pose, observation, landmark) of every moved observation (point = pose * num_obs +
     observation) nearer than `radius` to a landmark its similarity to is positive, by pose, observation,
-    landmark: every pair tested by a compiled loop for a room-sized map (fifty poses of a frame against 47
-    landmarks: 35,000 pairs, tens of microseconds), a KD-tree join beyond (a map of 47,000 landmarks costs a
-    join, not a distance matrix; `landmarks`: a KD-tree of the map's centres, None: built here)."""
-    if len(points) * len(centers) <= DENSE_PAIRS:
-        return _near_pairs_listed(points, centers, similarity, radius, num_obs, None, None)
+    landmark, by a KD-tree join (a map of 47,000 landmarks costs a join, not a distance matrix; `landmarks`: a
+    KD-tree of the map's centres, None: built here)."""
     tree = cKDTree(centers) if landmarks is None else landmarks
     join = cKDTree(points).sparse_distance_matrix(tree, _reach(radius), output_type="ndarray")
     point, landmark = join["i"].astype(np.int64), join["j"].astype(np.int64)
@@ -89,31 +91,58 @@ def _reach(radius):
 
 @njit(cache=True)
 def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, landmark):
-    """`_near_pairs` of the listed (point, landmark) candidates ordered by point, then landmark, or of every
-    (point, centre) pair when `point` is None. The distance is np.linalg.norm's, ((dx^2 + dy^2) + dz^2) ** 0.5
-    in that order, its square root taken only within `_reach` (most pairs of a map are far)."""
-    total = len(points) * len(centers) if point is None else len(point)
-    distance, pose, obs, lm = (np.empty(total), np.empty(total, np.int64), np.empty(total, np.int64),
-                               np.empty(total, np.int64))
+    """`_near_pairs` of the listed (point, landmark) candidates ordered by point, then landmark."""
+    distance, pose, obs, lm = (np.empty(len(point)), np.empty(len(point), np.int64), np.empty(len(point), np.int64),
+                               np.empty(len(point), np.int64))
     count, limit = 0, _reach(radius) ** 2
-    p, n = 0, -1
-    for i in range(total):
-        if point is None:  # the next pair in order, without a division per pair
-            n += 1
-            if n == len(centers):
-                p, n = p + 1, 0
-        else:
-            p, n = point[i], landmark[i]
-        dx = points[p, 0] - centers[n, 0]
-        dy = points[p, 1] - centers[n, 1]
-        dz = points[p, 2] - centers[n, 2]
-        squared = dx * dx + dy * dy + dz * dz
-        if squared <= limit:
-            d, k = np.sqrt(squared), p % num_obs
-            if d < radius and similarity[k, n] > 0:
-                distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, k, n
-                count += 1
+    for i in range(len(point)):
+        p, n = point[i], landmark[i]
+        d = _near(points[p], centers[n], limit, radius)
+        if d >= 0 and similarity[p % num_obs, n] > 0:
+            distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
+            count += 1
     return distance[:count], pose[:count], obs[:count], lm[:count]
+
+
+@njit(cache=True)
+def _near(point, center, limit, radius):
+    """The distance of point and centre where it is below `radius`, else -1: np.linalg.norm's,
+    ((dx^2 + dy^2) + dz^2) ** 0.5 in that order, its square root taken only within `limit`, `_reach` squared
+    (most pairs of a map are far)."""
+    dx = point[0] - center[0]
+    dy = point[1] - center[1]
+    dz = point[2] - center[2]
+    squared = dx * dx + dy * dy + dz * dz
+    if squared <= limit:
+        d = np.sqrt(squared)
+        if d < radius:
+            return d
+    return -1.0
+
+
+@njit(cache=True)
+def _nearest_of_all(points, centers, similarity, radius, num_poses, num_obs):
+    """`_nearest_one_to_one` of the near pairs of every (point, centre) pair, pose after pose: each pose's pairs
+    listed by observation, then landmark, then taken nearest first (`_take_nearest`), with no list of all poses'
+    pairs in between."""
+    size = num_obs * len(centers)
+    distance, obs, lm, order = np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size, np.int64)
+    pairs = np.empty((num_poses * min(num_obs, len(centers)), 2), np.int64)
+    per_pose = np.zeros(num_poses, np.int64)
+    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(len(centers), -1)
+    count, limit = 0, _reach(radius) ** 2
+    for b in range(num_poses):
+        near = 0
+        for k in range(num_obs):
+            point = points[b * num_obs + k]
+            for n in range(len(centers)):
+                d = _near(point, centers[n], limit, radius)
+                if d >= 0 and similarity[k, n] > 0:
+                    distance[near], obs[near], lm[near] = d, k, n
+                    near += 1
+        taken = _take_nearest(distance, obs, lm, 0, near, b, order, obs_used_by, landmark_used_by, pairs, count)
+        per_pose[b], count = taken - count, taken
+    return pairs[:count].copy(), per_pose
 
 
 SORTED_BY_INSERTION = 64  # a pose's near pairs up to this many are ordered by insertion (a frame's: a few dozen)
@@ -122,9 +151,8 @@ SORTED_BY_INSERTION = 64  # a pose's near pairs up to this many are ordered by i
 @njit(cache=True)
 def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks):
     """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties kept in that order)
-    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took. One pass
-    per pose: a stable sort of its pairs by distance (insertion, a merge sort beyond SORTED_BY_INSERTION), then
-    the greedy choice of pairs neither side of which that pose has used yet."""
+    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took
+    (`_take_nearest` per pose)."""
     first = np.searchsorted(pose, np.arange(num_poses + 1))
     order = np.empty(len(pose), np.int64)
     pairs = np.empty((len(pose), 2), np.int64)
@@ -132,24 +160,34 @@ def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmar
     obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(num_landmarks, -1)
     count = 0
     for b in range(num_poses):
-        start, stop = first[b], first[b + 1]
-        if stop - start <= SORTED_BY_INSERTION:
-            for i in range(start, stop):
-                j = i
-                while j > start and distance[order[j - 1]] > distance[i]:
-                    order[j] = order[j - 1]
-                    j -= 1
-                order[j] = i
-        else:
-            order[start: stop] = start + np.argsort(distance[start: stop], kind="mergesort")
-        for i in range(start, stop):
-            k, n = obs[order[i]], lm[order[i]]
-            if obs_used_by[k] != b and landmark_used_by[n] != b:
-                obs_used_by[k], landmark_used_by[n] = b, b
-                pairs[count, 0], pairs[count, 1] = k, n
-                count += 1
-                per_pose[b] += 1
+        taken = _take_nearest(distance, obs, lm, first[b], first[b + 1], b, order, obs_used_by, landmark_used_by,
+                              pairs, count)
+        per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose
+
+
+@njit(cache=True)
+def _take_nearest(distance, obs, lm, start, stop, pose, order, obs_used_by, landmark_used_by, pairs, count):
+    """Pose `pose`'s near pairs [start, stop) of distance, obs, lm (by observation, then landmark) nearest first,
+    ties in that order (a stable sort: insertion, a merge sort beyond SORTED_BY_INSERTION), each taken where
+    neither side is used by that pose yet (`obs_used_by`, `landmark_used_by`: the last pose that used each),
+    written to `pairs` from row `count`; the rows written up to."""
+    if stop - start <= SORTED_BY_INSERTION:
+        for i in range(start, stop):
+            j = i
+            while j > start and distance[order[j - 1]] > distance[i]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = i
+    else:
+        order[start: stop] = start + np.argsort(distance[start: stop], kind="mergesort")
+    for i in range(start, stop):
+        k, n = obs[order[i]], lm[order[i]]
+        if obs_used_by[k] != pose and landmark_used_by[n] != pose:
+            obs_used_by[k], landmark_used_by[n] = pose, pose
+            pairs[count, 0], pairs[count, 1] = k, n
+            count += 1
+    return count
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,

@@ -46,9 +46,10 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
     35,000 pairs, tens of microseconds); beyond, a KD-tree join lists the pairs nearer than `radius`
     (`_near_pairs`) and one compiled pass orders them and picks (a numpy pass each cost more than the work)."""
     moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
-    centers = np.ascontiguousarray(map.ellipsoids.centers, np.float64)
+    centers = map.ellipsoids.centers
     if len(moved) * len(centers) <= DENSE_PAIRS:
-        return _nearest_of_all(moved, centers, similarity, radius, len(rotations), len(observations))
+        return _nearest_of_all(moved, np.ascontiguousarray(centers.T, np.float64), similarity, radius, len(rotations),
+                               len(observations))
     near = _near_pairs(moved, centers, similarity, radius, len(observations), landmarks)
     return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
 
@@ -97,7 +98,7 @@ def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, land
     count, limit = 0, _reach(radius) ** 2
     for i in range(len(point)):
         p, n = point[i], landmark[i]
-        d = _near(points[p], centers[n], limit, radius)
+        d = _near(points, p, centers, n, limit, radius)
         if d >= 0 and similarity[p % num_obs, n] > 0:
             distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
             count += 1
@@ -105,13 +106,13 @@ def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, land
 
 
 @njit(cache=True)
-def _near(point, center, limit, radius):
-    """The distance of point and centre where it is below `radius`, else -1: np.linalg.norm's,
+def _near(points, p, centers, n, limit, radius):
+    """The distance of points[p] and centers[n] where it is below `radius`, else -1: np.linalg.norm's,
     ((dx^2 + dy^2) + dz^2) ** 0.5 in that order, its square root taken only within `limit`, `_reach` squared
-    (most pairs of a map are far)."""
-    dx = point[0] - center[0]
-    dy = point[1] - center[1]
-    dz = point[2] - center[2]
+    (most pairs of a map are far). Indices, not rows: a row is an array view, counted in and out per pair."""
+    dx = points[p, 0] - centers[n, 0]
+    dy = points[p, 1] - centers[n, 1]
+    dz = points[p, 2] - centers[n, 2]
     squared = dx * dx + dy * dy + dz * dz
     if squared <= limit:
         d = np.sqrt(squared)
@@ -121,25 +122,34 @@ def _near(point, center, limit, radius):
 
 
 @njit(cache=True)
-def _nearest_of_all(points, centers, similarity, radius, num_poses, num_obs):
-    """`_nearest_one_to_one` of the near pairs of every (point, centre) pair, pose after pose: each pose's pairs
-    listed by observation, then landmark, then taken nearest first (`_take_nearest`), with no list of all poses'
-    pairs in between."""
-    size = num_obs * len(centers)
-    distance, obs, lm, order = np.empty(size), np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size, np.int64)
-    pairs = np.empty((num_poses * min(num_obs, len(centers)), 2), np.int64)
+def _nearest_of_all(points, by_axis, similarity, radius, num_poses, num_obs):
+    """`_nearest_one_to_one` of the near pairs of every point and every centre (by_axis: (3, N), the centres'
+    x, y and z), pose after pose: each point's squared distances to all centres in one branch-free loop
+    (vectorized), the near pairs listed by observation, then landmark, and taken nearest first
+    (`_take_nearest`), with no list of all poses' pairs in between. The distance as `_near` computes it."""
+    size = by_axis.shape[1]
+    distance, obs, lm = np.empty(num_obs * size), np.empty(num_obs * size, np.int64), np.empty(num_obs * size, np.int64)
+    order, squared = np.empty(num_obs * size, np.int64), np.empty(size)
+    pairs = np.empty((num_poses * min(num_obs, size), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
-    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(len(centers), -1)
+    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(size, -1)
+    xs, ys, zs = by_axis[0], by_axis[1], by_axis[2]
     count, limit = 0, _reach(radius) ** 2
     for b in range(num_poses):
         near = 0
         for k in range(num_obs):
-            point = points[b * num_obs + k]
-            for n in range(len(centers)):
-                d = _near(point, centers[n], limit, radius)
-                if d >= 0 and similarity[k, n] > 0:
-                    distance[near], obs[near], lm[near] = d, k, n
-                    near += 1
+            x, y, z = points[b * num_obs + k, 0], points[b * num_obs + k, 1], points[b * num_obs + k, 2]
+            for n in range(size):
+                dx = x - xs[n]
+                dy = y - ys[n]
+                dz = z - zs[n]
+                squared[n] = dx * dx + dy * dy + dz * dz
+            for n in range(size):
+                if squared[n] <= limit:
+                    d = np.sqrt(squared[n])
+                    if d < radius and similarity[k, n] > 0:
+                        distance[near], obs[near], lm[near] = d, k, n
+                        near += 1
         taken = _take_nearest(distance, obs, lm, 0, near, b, order, obs_used_by, landmark_used_by, pairs, count)
         per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose

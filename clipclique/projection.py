@@ -73,14 +73,14 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
                 for j in range(3):
                     conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
             depth = center[2]
-            reach = np.sqrt(_at_least_zero(conic[2, 2] + depth * depth))
+            reach = np.sqrt(at_least_zero(conic[2, 2] + depth * depth))
             in_front = depth - reach > MIN_DEPTH
             c33 = conic[2, 2] if in_front else -1.0
             box = boxes[b, n]
             for axis in range(2):  # u from (C*11, C*13), v from (C*22, C*23)
-                root = np.sqrt(_at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
+                root = np.sqrt(at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
                 box[axis], box[axis + 2] = (conic[axis, 2] + root) / c33, (conic[axis, 2] - root) / c33
-            full_areas[b, n] = (_at_least_zero(box[2] - box[0]) * _at_least_zero(box[3] - box[1])) if in_front else 0.0
+            full_areas[b, n] = (at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])) if in_front else 0.0
             for i in range(4):
                 box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
             visible[b, n] = in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1]
@@ -88,7 +88,7 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
 
 
 @njit(cache=True)
-def _at_least_zero(value: float) -> float:
+def at_least_zero(value: float) -> float:
     """np.maximum(value, 0.0): NaN kept, +0 for -0."""
     return value if value > 0.0 or np.isnan(value) else 0.0
 

@@ -33,7 +33,7 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.projection import Projection, box_area, box_iou, pair_iou, project
+from clipclique.projection import Projection, at_least_zero, box_area, box_iou, pair_iou, project
 from clipclique.stack import Stack
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
@@ -104,17 +104,11 @@ def _verify_all(stack: Stack, observations: Observations, map: Map, params: Veri
     owner = stack.owners()
     pairs = np.asarray(stack.pairs, np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
-    at = np.maximum(slot[lm], 0)
-    in_view = (slot[lm] >= 0) & seen.visible[owner, at]
-    iou = _ious(observations.boxes[obs], seen.boxes[owner, at], in_view)
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
     depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
-    agreement = np.maximum(1.0 - depth_gap / params.depth_tolerance, 0.0)
-    count = len(stack)
-    sizes = stack.counts
-    overlap = np.bincount(owner, iou * agreement, minlength=count)
-    mean_iou = np.bincount(owner, iou, minlength=count) / np.maximum(sizes, 1)
-    depth_error = group_medians(depth_gap, owner, sizes)
+    overlap, mean_iou, depth_error = _pair_figures(
+        obs, lm, owner, slot, seen.visible, seen.boxes, np.ascontiguousarray(observations.boxes, np.float64),
+        depth_gap, float(params.depth_tolerance), stack.counts)
     missed, evidence, expected = _missed(seen, map.class_ids[nearby], observations, params)
     return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
                         missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
@@ -134,15 +128,33 @@ def missed_cost(missed_evidence: np.ndarray, expected_evidence: np.ndarray, para
     return cost * (share_from / np.maximum(expected_evidence, share_from))
 
 
-def group_medians(values: np.ndarray, groups: np.ndarray, sizes: np.ndarray) -> np.ndarray:
-    """np.median of each group's values (inf for an empty group), to the bit, in one sort: `groups`
-    ascending, group b of `sizes[b]` values. A median is (lower + upper) / 2 of the middle pair, as
-    numpy computes it (the middle value twice when the count is odd)."""
-    ordered = values[np.lexsort((values, groups))]
-    starts = np.cumsum(sizes) - sizes
-    middle = (ordered[np.minimum(starts + (sizes - 1) // 2, len(ordered) - 1)]
-              + ordered[np.minimum(starts + sizes // 2, len(ordered) - 1)]) if len(ordered) else np.zeros(len(sizes))
-    return np.where(sizes > 0, middle / 2, np.inf)
+@njit(cache=True)
+def _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, depth_tolerance, sizes):
+    """(B,) overlap, mean IoU and median depth gap of each hypothesis's pairs (obs, lm, owner ascending, slot:
+    each landmark's column of the projection, -1 out of range), in one pass as numpy's passes computed them:
+    the IoU 0 out of view, agreement max(0, 1 - gap / tolerance), sums in pair order from 0 (np.bincount's)."""
+    overlap, iou_sums = np.zeros(len(sizes)), np.zeros(len(sizes))
+    for m in range(len(obs)):
+        b, at = owner[m], slot[lm[m]]
+        iou = pair_iou(boxes[obs[m]], projected[b, at]) if at >= 0 and visible[b, at] else 0.0
+        overlap[b] += iou * at_least_zero(1.0 - depth_gap[m] / depth_tolerance)
+        iou_sums[b] += iou
+    return overlap, iou_sums / np.maximum(sizes, 1), _group_medians(depth_gap, sizes)
+
+
+@njit(cache=True)
+def _group_medians(values, sizes):
+    """np.median of each group of values (group b: the next sizes[b]; inf for an empty group), to the bit where
+    no NaN is in it, one stable sort per group (NaN last): a median is (lower + upper) / 2 of the middle pair,
+    as numpy computes it (the middle value twice when the count is odd)."""
+    medians = np.empty(len(sizes))
+    start = 0
+    for b in range(len(sizes)):
+        group = values[start: start + sizes[b]]
+        ordered = group[np.argsort(group, kind="mergesort")]
+        medians[b] = (ordered[(sizes[b] - 1) // 2] + ordered[sizes[b] // 2]) / 2 if sizes[b] else np.inf
+        start += sizes[b]
+    return medians
 
 
 def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
@@ -192,16 +204,6 @@ def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
     return (np.bincount(hypothesis[~explained], minlength=len(expected)),
             np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)),
             np.bincount(hypothesis, weight, minlength=len(expected)))
-
-
-@njit(cache=True)
-def _ious(boxes: np.ndarray, other: np.ndarray, counted: np.ndarray) -> np.ndarray:
-    """(M,) IoU of boxes[m] and other[m] where counted[m], else 0."""
-    out = np.zeros(len(boxes))
-    for m in range(len(boxes)):
-        if counted[m]:
-            out[m] = pair_iou(boxes[m], other[m])
-    return out
 
 
 @njit(cache=True)

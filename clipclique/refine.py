@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
 from clipclique.pose import fit_rigid_batch, weighted_sets
-from clipclique.stack import Stack
+from clipclique.stack import Stack, alike
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
@@ -234,11 +234,8 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
             break
         # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
         # each distinct set is fitted once.
-        distinct: dict[bytes, int] = {}
-        stacked, row = pairs.tobytes(), pairs.itemsize * 2  # each set's bytes, sliced from all of them
-        fitted = np.array([distinct.setdefault(stacked[start * row: end * row], len(distinct))
-                           for start, end in zip(starts[refits].tolist(), (starts + counts)[refits].tolist())])
-        firsts = refits[np.unique(fitted, return_index=True)[1]]
+        fitted, firsts = alike(np.zeros((len(refits), 0)), pairs, starts[refits], counts[refits])
+        firsts = refits[firsts]
         rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
                                            weights)
         kept = ok[fitted]

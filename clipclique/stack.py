@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from clipclique.types import Hypothesis, Pose
 
@@ -80,3 +81,41 @@ class Stack:
                      counts=np.concatenate([s.counts for s in stacks] or [np.zeros(0, np.int64)]),
                      scores=np.concatenate([s.scores for s in stacks] or [np.zeros(0)]),
                      conditioning=np.concatenate([s.conditioning for s in stacks] or [np.zeros(0)]))
+
+
+def alike(poses: np.ndarray, pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which of R items are alike, bit for bit: item r is row r of `poses` (R, P) float (P = 0: pairs alone) and the
+    pairs[starts[r]: starts[r] + counts[r]] of `pairs` (M, 2) int. (R,) each item's group, numbered in order of
+    first appearance, and (G,) each group's first item: the work of each group done once (`_alike`)."""
+    bits = np.ascontiguousarray(poses, np.float64).view(np.int64)
+    return _alike(bits, np.ascontiguousarray(pairs, np.int64), np.asarray(starts, np.int64),
+                  np.asarray(counts, np.int64))
+
+
+@njit(cache=True)
+def _alike(bits, pairs, starts, counts):
+    """`alike` of poses as their bits (int64): each item against the first item of every group before it (a
+    frame's fifty hypotheses: a few thousand comparisons, most ended by the first number)."""
+    group, firsts = np.empty(len(counts), np.int64), np.empty(len(counts), np.int64)
+    found = 0
+    for r in range(len(counts)):
+        group[r] = -1
+        for g in range(found):
+            f = firsts[g]
+            if counts[f] == counts[r] and _same(bits[f], bits[r]) and _same(pairs[starts[f]: starts[f] + counts[f]],
+                                                                             pairs[starts[r]: starts[r] + counts[r]]):
+                group[r] = g
+                break
+        if group[r] < 0:
+            group[r], firsts[found] = found, r
+            found += 1
+    return group, firsts[:found].copy()
+
+
+@njit(cache=True)
+def _same(a, b):
+    """Whether two int arrays of one shape hold the same numbers."""
+    for i in range(a.size):
+        if a.flat[i] != b.flat[i]:
+            return False
+    return True

@@ -33,8 +33,8 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.projection import Projection, at_least_zero, box_area, box_iou, pair_iou, project
-from clipclique.stack import Stack
+from clipclique.projection import Projection, at_least_zero, box_iou, pair_iou, project
+from clipclique.stack import Stack, alike
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
 
@@ -71,25 +71,15 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
     often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
     depend on the others'."""
     require_image(observations, "image verification")
-    distinct: dict[bytes, int] = {}
-    alike = np.array([distinct.setdefault(key, len(distinct)) for key in _identities(stack)], np.int64)
-    if len(distinct) == len(stack):
+    poses = np.concatenate((stack.rotations.reshape(-1, 9), stack.translations), axis=1)
+    group, firsts = alike(poses, stack.pairs, stack.starts(), stack.counts)
+    if len(firsts) == len(stack):
         return _verify_all(stack, observations, map, params)
-    firsts = np.unique(alike, return_index=True)[1]
     checked = _verify_all(stack.take(firsts), observations, map, params)
-    return replace(checked, **{name: getattr(checked, name)[alike] for name in _PER_HYPOTHESIS})
+    return replace(checked, **{name: getattr(checked, name)[group] for name in _PER_HYPOTHESIS})
 
 
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
-
-
-def _identities(stack: Stack) -> list[bytes]:
-    """The bits each hypothesis's verification depends on: its pose (float64 rotation then translation) and
-    its pairs (int64), sliced from one array of each."""
-    poses = np.concatenate((stack.rotations.reshape(-1, 9), stack.translations), axis=1).astype(np.float64).tobytes()
-    pairs, pose_size, pair_size = np.asarray(stack.pairs, np.int64).tobytes(), 12 * 8, 2 * 8
-    return [poses[b * pose_size: (b + 1) * pose_size] + pairs[start * pair_size: end * pair_size]
-            for b, (start, end) in enumerate(zip(stack.starts().tolist(), np.cumsum(stack.counts).tolist()))]
 
 
 def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig) -> Verification:
@@ -192,30 +182,41 @@ def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
             params: VerificationConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps,
     (B,) the same counted by size: min(1, projected box area / (missed_full_area * image area)), and (B,) every
-    landmark projected well into the image, detected or not, counted by size alike."""
-    area = box_area(seen.boxes)
-    expected = seen.visible & (area >= params.min_visible_pixels) & (area >= 0.5 * seen.full_areas)
-    hypothesis, landmark = np.nonzero(expected)  # few of a large map are in view: test only those
-    explained = _explained(hypothesis, landmark, seen.boxes, class_ids, observations.boxes, observations.class_ids,
-                           params.explained_iou)
+    landmark projected well into the image, detected or not, counted by size alike (`_missed_evidence`)."""
     camera = observations.camera
-    full = params.missed_full_area * camera.width * camera.height
-    weight = np.minimum(1.0, area[hypothesis, landmark] / full) if full > 0 else np.ones(len(hypothesis))
-    return (np.bincount(hypothesis[~explained], minlength=len(expected)),
-            np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)),
-            np.bincount(hypothesis, weight, minlength=len(expected)))
+    return _missed_evidence(seen.boxes, seen.visible, seen.full_areas, np.asarray(class_ids, np.int64),
+                            np.ascontiguousarray(observations.boxes, np.float64),
+                            np.asarray(observations.class_ids, np.int64), float(params.min_visible_pixels),
+                            float(params.explained_iou), float(params.missed_full_area * camera.width * camera.height))
 
 
 @njit(cache=True)
-def _explained(hypothesis: np.ndarray, landmark: np.ndarray, boxes: np.ndarray, class_ids: np.ndarray,
-               detected: np.ndarray, detected_classes: np.ndarray, explained_iou: float) -> np.ndarray:
-    """(E,) whether a detection of landmark[e]'s class overlaps its projected box under hypothesis[e]
-    with IoU >= explained_iou."""
-    explained = np.zeros(len(hypothesis), np.bool_)
-    for e in range(len(hypothesis)):
-        box, wanted = boxes[hypothesis[e], landmark[e]], class_ids[landmark[e]]
-        for k in range(len(detected)):
-            if detected_classes[k] == wanted and pair_iou(box, detected[k]) >= explained_iou:
-                explained[e] = True
-                break
-    return explained
+def _missed_evidence(boxes: np.ndarray, visible: np.ndarray, full_areas: np.ndarray, class_ids: np.ndarray,
+                     detected: np.ndarray, detected_classes: np.ndarray, min_pixels: float, explained_iou: float,
+                     full: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_missed` of the projected boxes (B, N, 4) in one pass, pose after pose, landmark after landmark, as numpy's
+    passes computed it: the area box_area's, a landmark expected where visible with area >= min_pixels and half
+    its unclipped area, weighed min(1, area / full) (1 where full is 0), summed in that order from 0."""
+    count, size = visible.shape
+    missed, evidence, expected = np.zeros(count, np.int64), np.zeros(count), np.zeros(count)
+    for b in range(count):
+        for n in range(size):
+            box = boxes[b, n]
+            area = at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])
+            if visible[b, n] and area >= min_pixels and area >= 0.5 * full_areas[b, n]:
+                weight = (1.0 if area / full >= 1.0 else area / full) if full > 0 else 1.0
+                expected[b] += weight
+                if not _explained(box, class_ids[n], detected, detected_classes, explained_iou):
+                    missed[b] += 1
+                    evidence[b] += weight
+    return missed, evidence, expected
+
+
+@njit(cache=True)
+def _explained(box: np.ndarray, wanted: int, detected: np.ndarray, detected_classes: np.ndarray,
+               explained_iou: float) -> bool:
+    """Whether a detection of class `wanted` overlaps the projected box with IoU >= explained_iou."""
+    for k in range(len(detected)):
+        if detected_classes[k] == wanted and pair_iou(box, detected[k]) >= explained_iou:
+            return True
+    return False

@@ -12,7 +12,7 @@ from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
 from clipclique.pipeline import index_map, localize
-from clipclique.projection import box_iou, project
+from clipclique.projection import box_area, box_iou, project
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.stack import Stack
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
@@ -255,6 +255,43 @@ def test_the_compiled_pair_figures_are_the_numpy_passes_to_the_bit():
         got = verification._pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes)
         for ours, theirs in zip(got, numpy_pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
                                                         0.5, sizes)):
+            assert ours.tobytes() == theirs.tobytes()
+
+
+def numpy_missed(boxes, visible, full_areas, class_ids, detected, detected_classes, min_pixels, explained_iou, full):
+    """Missed landmarks, their evidence and the expected evidence as numpy passes computed them before they were
+    compiled: the expected ones by a mask, each tested against every detection of its class, np.bincount sums."""
+    area = box_area(boxes)
+    expected = visible & (area >= min_pixels) & (area >= 0.5 * full_areas)
+    hypothesis, landmark = np.nonzero(expected)
+    explained = np.array([any(detected_classes[k] == class_ids[n] and box_iou(boxes[b, n], detected[k]) >= explained_iou
+                              for k in range(len(detected))) for b, n in zip(hypothesis, landmark)], bool)
+    weight = np.minimum(1.0, area[hypothesis, landmark] / full) if full > 0 else np.ones(len(hypothesis))
+    return (np.bincount(hypothesis[~explained], minlength=len(expected)),
+            np.bincount(hypothesis[~explained], weight[~explained], minlength=len(expected)),
+            np.bincount(hypothesis, weight, minlength=len(expected)))
+
+
+def test_the_compiled_missed_landmarks_are_the_numpy_passes_to_the_bit():
+    """Boxes at the pixel floor and at half their unclipped area, empty boxes, detections of other classes, IoU
+    exactly at the threshold, landmarks as large as the full area and beyond, and full = 0 (every one counts 1)."""
+    rng = np.random.default_rng(14)
+    for trial in range(300):
+        count, size, detections = int(rng.integers(1, 6)), int(rng.integers(0, 15)), int(rng.integers(0, 8))
+        corners = np.round(rng.uniform(0, 80, (count * size + detections, 2, 2)))
+        corners[::6, 1, 0] = corners[::6, 0, 0]  # empty boxes
+        boxes = np.concatenate((corners.min(axis=1), corners.max(axis=1)), axis=1)
+        projected, detected = boxes[: count * size].reshape(count, size, 4), boxes[count * size:]
+        area = box_area(projected)
+        full_areas = np.where(rng.random((count, size)) < 0.3, 2 * area, area * rng.uniform(0.5, 3, (count, size)))
+        visible = rng.random((count, size)) < 0.8
+        class_ids, detected_classes = rng.integers(0, 3, size), rng.integers(0, 3, detections)
+        min_pixels, full = float(rng.choice([0.0, 100.0, 400.0])), float(rng.choice([0.0, 900.0, 2500.0]))
+        explained_iou = float(rng.choice([0.0, 0.1, 0.5]))
+        got = verification._missed_evidence(projected, visible, full_areas, class_ids, detected, detected_classes,
+                                            min_pixels, explained_iou, full)
+        for ours, theirs in zip(got, numpy_missed(projected, visible, full_areas, class_ids, detected, detected_classes,
+                                                  min_pixels, explained_iou, full)):
             assert ours.tobytes() == theirs.tobytes()
 
 

@@ -97,7 +97,7 @@ def test_a_degenerate_best_clique_is_skipped_and_the_search_goes_on():
     config = make_config("clipclique", overrides={"top_n": 1})
     result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=scores, similarity=np.eye(6),
                                 num_cliques=0, cap_hit=None, failure=None)
-    _solve_cliques(result, observations, map, config, lambda stage: None)
-    assert len(result.hypotheses) == 1 and result.failure is None
-    assert result.hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]
-    np.testing.assert_allclose(result.hypotheses[0].pose.translation, [0, 5, 0], atol=1e-9)
+    hypotheses = _solve_cliques(result, observations, map, config, lambda stage: None).hypotheses()
+    assert len(hypotheses) == 1 and result.failure is None
+    assert hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]
+    np.testing.assert_allclose(hypotheses[0].pose.translation, [0, 5, 0], atol=1e-9)

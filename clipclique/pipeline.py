@@ -43,7 +43,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.stack import Stack
+from clipclique.stack import Stack, same
 from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
@@ -335,7 +335,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     while True:
         found = search(wanted)
         lap(Stage.INLIERS)
-        fit = _hypotheses(result, observations, map, config, found.cliques[tried:], found.totals[tried:])
+        fit = _hypotheses(result, observations, map, config, *_stacked(found.cliques[tried:]), found.totals[tried:])
         fits.append(fit if len(fit) <= pool - fitted else fit.take(np.arange(pool - fitted)))
         fitted += len(fits[-1])
         lap(Stage.POSE)
@@ -344,10 +344,9 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
             break
         wanted *= 2
     if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
-        without = _without_added(found.cliques, result.lookalike_added, settings.min_clique_size)
-        members = np.concatenate(without or [np.zeros(0, np.int64)])
-        fits.append(_hypotheses(result, observations, map, config, without, confidence.group_sums(
-            np.ascontiguousarray(scores[members]), np.cumsum([len(rest) for rest in without]))))
+        members, sizes = _without_added(*_stacked(found.cliques), result.lookalike_added, settings.min_clique_size)
+        fits.append(_hypotheses(result, observations, map, config, members, sizes,
+                                confidence.group_sums(np.ascontiguousarray(scores[members]), np.cumsum(sizes))))
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if split is not None:
@@ -371,38 +370,63 @@ def _reranked(observations: Observations, config: LocalizationConfig) -> bool:
     return config.inliers.rerank != "none" and observations.boxes is not None and observations.camera is not None
 
 
-def _without_added(cliques: list[np.ndarray], added: np.ndarray, min_size: int) -> list[np.ndarray]:
-    """Each clique holding candidates only `matching.lookalike_candidates` added, without them, where at least
-    `min_size` remain and neither a clique nor an earlier such set is that set already, in the cliques' order.
+def _stacked(sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Sets of candidates as one array of their members, set after set, and (B,) their sizes."""
+    return (np.concatenate(sets).astype(np.int64) if sets else np.zeros(0, np.int64),
+            np.array([len(members) for members in sets], np.int64))
+
+
+def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray,
+                   min_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each clique (of `members`, clique after clique, `sizes[c]` each) holding candidates only
+    `matching.lookalike_candidates` added, without them, where at least `min_size` remain and neither a clique nor
+    an earlier such set is that set already, in the cliques' order: their members (in each clique's order) and
+    sizes, stacked alike.
 
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
     a cluttered desk: verification chooses between both."""
-    if not cliques:
-        return []
-    sizes = np.array([len(members) for members in cliques])
-    members = np.concatenate(cliques).astype(np.int64)
-    owner = np.repeat(np.arange(len(cliques)), sizes)
-    kept = ~added[members]
-    rest_sizes = np.bincount(owner[kept], minlength=len(cliques))
-    shrunk = np.flatnonzero((min_size <= rest_sizes) & (rest_sizes < sizes))
-    if not len(shrunk):
-        return []
-    # a set's key: its members ascending, as bytes sliced from every clique's (and every rest's) sorted members
-    ordered = members[np.lexsort((members, owner))]
-    rests = ordered[~added[ordered]]
-    whole, rest, row = ordered.tobytes(), rests.tobytes(), ordered.itemsize
-    possible = set(rest_sizes[shrunk].tolist())  # only a clique of a rest's size can be that rest
-    known = {whole[(end - size) * row: end * row]
-             for end, size in zip(np.cumsum(sizes).tolist(), sizes.tolist()) if size in possible}
-    in_order, out = members[kept], []  # each rest in its clique's order
-    rest_ends = np.cumsum(rest_sizes)
-    for start, end in zip((rest_ends - rest_sizes)[shrunk].tolist(), rest_ends[shrunk].tolist()):
-        key = rest[start * row: end * row]
-        if key not in known:
-            known.add(key)
-            out.append(in_order[start: end])
-    return out
+    kept = _rests_kept(members, sizes, added, min_size)
+    pieces = np.repeat(kept, sizes)
+    rests = pieces & ~added[members]
+    return members[rests], np.bincount(np.repeat(np.arange(len(sizes)), sizes)[rests], minlength=len(sizes))[kept]
+
+
+@njit(cache=True)
+def _rests_kept(members, sizes, added, min_size):
+    """(C,) whether each clique's rest without added candidates is one `_without_added` keeps: each clique and
+    rest compared as sorted members, one after another (a frame's fifty cliques, a few thousand comparisons)."""
+    starts = np.cumsum(sizes) - sizes
+    ordered = np.empty_like(members)  # each clique's members ascending, then each kept rest's
+    for c in range(len(sizes)):
+        ordered[starts[c]: starts[c] + sizes[c]] = np.sort(members[starts[c]: starts[c] + sizes[c]])
+    kept = np.zeros(len(sizes), np.bool_)
+    rest = np.empty(sizes.max() if len(sizes) else 0, members.dtype)
+    rests = np.empty(len(members), members.dtype)  # the kept rests ascending, one after another
+    rest_starts, rest_sizes, count, used = np.empty(len(sizes), np.int64), np.empty(len(sizes), np.int64), 0, 0
+    for c in range(len(sizes)):
+        size = 0
+        for i in range(starts[c], starts[c] + sizes[c]):
+            if not added[ordered[i]]:
+                rest[size] = ordered[i]
+                size += 1
+        if size < min_size or size == sizes[c]:
+            continue
+        known = False
+        for d in range(len(sizes)):
+            if sizes[d] == size and same(ordered[starts[d]: starts[d] + size], rest[:size]):
+                known = True
+                break
+        for j in range(count):
+            if known:
+                break
+            known = rest_sizes[j] == size and same(rests[rest_starts[j]: rest_starts[j] + size], rest[:size])
+        if not known:
+            kept[c] = True
+            rests[used: used + size] = rest[:size]
+            rest_starts[count], rest_sizes[count] = used, size
+            count, used = count + 1, used + size
+    return kept
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
@@ -450,23 +474,20 @@ def _solve_consensus(result: LocalizationResult, observations: Observations, map
     )
     result.num_cliques = found.num_hypotheses
     lap(Stage.INLIERS)
-    pool = _hypotheses(result, observations, map, config, found.inlier_sets, np.array(found.scores))
+    pool = _hypotheses(result, observations, map, config, *_stacked(found.inlier_sets), np.array(found.scores))
     if not found.inlier_sets:
         result.failure = Failure(kind=FailureKind.NO_MINIMAL_SET)
     lap(Stage.POSE)
     return pool
 
 
-def _hypotheses(
-    result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig, sets: list[np.ndarray], scores: np.ndarray
-) -> Stack:
-    """The weighted pose of each correspondence set, in order, fitted in one batch (shorter sets
-    padded with weight 0). A degenerate set (collinear, fewer than 3 positive weights) or one too
-    poorly conditioned to fix the rotation (config.pose.min_conditioning) gives none."""
-    if not sets:
+def _hypotheses(result: LocalizationResult, observations: Observations, map: Map, config: LocalizationConfig,
+                members: np.ndarray, sizes: np.ndarray, scores: np.ndarray) -> Stack:
+    """The weighted pose of each correspondence set (of candidates `members`, set after set, `sizes[b]` each), in
+    order, fitted in one batch (shorter sets padded with weight 0). A degenerate set (collinear, fewer than 3
+    positive weights) or one too poorly conditioned to fix the rotation (config.pose.min_conditioning) gives none."""
+    if not len(sizes):
         return _NONE
-    sizes = np.array([len(members) for members in sets])
-    members = np.concatenate(sets)
     pairs = result.candidates[members]
     first = result.candidates[0]  # shorter sets are padded with the first candidate at weight 0
     source, target, weights = weighted_sets(

@@ -102,7 +102,7 @@ def _alike(bits, pairs, starts, counts):
         group[r] = -1
         for g in range(found):
             f = firsts[g]
-            if counts[f] == counts[r] and _same(bits[f], bits[r]) and _same(pairs[starts[f]: starts[f] + counts[f]],
+            if counts[f] == counts[r] and same(bits[f], bits[r]) and same(pairs[starts[f]: starts[f] + counts[f]],
                                                                              pairs[starts[r]: starts[r] + counts[r]]):
                 group[r] = g
                 break
@@ -113,8 +113,8 @@ def _alike(bits, pairs, starts, counts):
 
 
 @njit(cache=True)
-def _same(a, b):
-    """Whether two int arrays of one shape hold the same numbers."""
+def same(a, b):
+    """Whether two int arrays of one shape hold the same numbers (compiled code only)."""
     for i in range(a.size):
         if a.flat[i] != b.flat[i]:
             return False

@@ -8,7 +8,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
-from clipclique.pipeline import _objects, _without_added, index_map, localize
+from clipclique.pipeline import _objects, _stacked, _without_added, index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations
 
@@ -216,9 +216,14 @@ def test_cliques_holding_added_lookalike_pairs_are_also_tried_without_them():
                np.array([2, 1, 0, 4]),  # without 4: {0, 1, 2} again
                np.array([5, 1, 2]),  # nothing added: as it is
                np.array([5, 1, 2, 4])]  # without 4: {1, 2, 5}, a clique already
-    without = _without_added(cliques, added, 3)
-    assert [members.tolist() for members in without] == [[0, 1, 2]]
-    assert _without_added(cliques, added, 2)[1].tolist() == [0, 1]
+    assert [members.tolist() for members in without_added(cliques, added, 3)] == [[0, 1, 2]]
+    assert without_added(cliques, added, 2)[1].tolist() == [0, 1]
+
+
+def without_added(cliques, added, min_size):
+    """`_without_added` of a list of cliques, as a list."""
+    members, sizes = _without_added(*_stacked(cliques), added, min_size)
+    return np.split(members, np.cumsum(sizes)[:-1]) if len(sizes) else []
 
 
 def without_added_loop(cliques, added, min_size):
@@ -242,7 +247,7 @@ def test_cliques_without_added_pairs_are_the_loop_s_in_its_order():
         cliques = [rng.permutation(count)[: int(rng.integers(1, count + 1))] for _ in range(int(rng.integers(0, 15)))]
         cliques += [rng.permutation(members) for members in cliques[:2]]  # a clique twice, in another order
         min_size = int(rng.integers(1, 4))
-        got, expected = _without_added(cliques, added, min_size), without_added_loop(cliques, added, min_size)
+        got, expected = without_added(cliques, added, min_size), without_added_loop(cliques, added, min_size)
         assert [m.tolist() for m in got] == [m.tolist() for m in expected]
         found += len(expected)
     assert found > 100

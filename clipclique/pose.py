@@ -91,7 +91,8 @@ def fit_rigid_batch(
     `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
     hold the identity so that callers can mask them without meeting NaN.
     """
-    rotation, translation, ok, _, _ = _fit(source, target, weights)
+    weights = np.ones(np.shape(source)[:2]) if weights is None else weights
+    rotation, translation, ok, _ = fit_rigid_conditioned(source, target, weights)
     return rotation, translation, ok
 
 
@@ -99,40 +100,33 @@ def fit_rigid_conditioned(
     source: np.ndarray, target: np.ndarray, weights: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
-    same weighted covariances (a query's poses need both: measuring them apart doubled the work)."""
-    rotation, translation, ok, source_variances, target_variances = _fit(source, target, weights)
-    return rotation, translation, ok, np.minimum(_ratio(source_variances), _ratio(target_variances))
+    same weighted covariances (a query's poses need both: measuring them apart doubled the work).
 
-
-def _fit(source: np.ndarray, target: np.ndarray,
-         weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_rigid_batch` and the (B, 3) principal variances of either side."""
-    if weights is None:
-        weights = np.ones(source.shape[:2])
+    Compiled passes around LAPACK's SVD of the cross-covariances and one eigvalsh call for both sides'."""
+    weights = np.asarray(weights)
     total = weights.sum(axis=1)  # numpy's pairwise sum: the kernels add in order, as einsum does
     source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
-    mean_source, mean_target, cross, source_spread, target_spread = _moments(
-        np.ascontiguousarray(weights, np.float64), total, source, target)
+    mean_source, mean_target, cross, spreads = _moments(np.ascontiguousarray(weights, np.float64), total, source,
+                                                        target)
     u, _, vt = _svd(cross)
-    sign = np.sign(_det(u @ vt))
-    u[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]
+    _proper(u, vt)
     rotation = u @ vt
-    source_variances, target_variances = _eigvalsh(source_spread), _eigvalsh(target_spread)
+    variances = _eigvalsh(spreads)  # (2, B, 3)
     translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
-    ok = _settled(rotation, translation, total, source_variances, target_variances)
-    return rotation, translation, ok, source_variances, target_variances
+    ok, measure = _settled(rotation, translation, total, variances[0], variances[1])
+    return rotation, translation, ok, measure
 
 
 @njit(cache=True)
 def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
-             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per set b, with w = weights / total (1 where the total is not positive): the weighted means of
-    source and target, the cross-covariance sum_p w_p t_p s_p^T and either side's covariance, of the
-    centred points. Each sum adds its terms in order from 0, each term (w_p * x_i) * y_j, as
-    `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one call instead of a dozen."""
+    source and target, the cross-covariance sum_p w_p t_p s_p^T and (2, B, 3, 3) either side's covariance
+    (source first), of the centred points. Each sum adds its terms in order from 0, each term
+    (w_p * x_i) * y_j, as `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one call instead of a dozen."""
     count, points = weights.shape
     mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
-    cross, source_spread, target_spread = np.zeros((count, 3, 3)), np.zeros((count, 3, 3)), np.zeros((count, 3, 3))
+    cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
     w = np.empty(points)
     centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
     for b in range(count):
@@ -151,23 +145,56 @@ def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
             for i in range(3):
                 for j in range(3):
                     cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
-                    source_spread[b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
-                    target_spread[b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
-    return mean_source, mean_target, cross, source_spread, target_spread
+                    spreads[0, b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
+                    spreads[1, b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
+    return mean_source, mean_target, cross, spreads
+
+
+@njit(cache=True)
+def _proper(u: np.ndarray, vt: np.ndarray) -> None:
+    """In place, u's third column negated where u vt is a reflection, so that u vt is a rotation: what
+    `u[:, :, 2] *= np.where(sign == 0, 1, sign)` with `sign = np.sign(np.linalg.det(u @ vt))` does, without the
+    product and LAPACK's determinant. The SVD's u and vt are orthogonal, so det(u) det(vt) and det(u vt) are both
+    +-1 to within round-off and never 0: the same sign, and NaN alike where the SVD gave NaN (then the sets'
+    covariances are not finite either, and `_settled` replaces the rotation)."""
+    for b in range(len(u)):
+        sign = np.sign(_det3(u[b]) * _det3(vt[b]))
+        factor = 1.0 if sign == 0 else sign
+        for i in range(3):
+            u[b, i, 2] *= factor
+
+
+@njit(cache=True)
+def _det3(m: np.ndarray) -> float:
+    """A 3 x 3 determinant by cofactors (its sign is what `_proper` reads)."""
+    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
 
 
 @njit(cache=True)
 def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, source_variances: np.ndarray,
-             target_variances: np.ndarray) -> np.ndarray:
-    """(B,) whether each set fixes a pose (positive weights, neither side collinear); a set that fixes
-    none gets the identity, in place."""
-    ok = np.empty(len(total), np.bool_)
+             target_variances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) whether each set fixes a pose (positive weights, neither side collinear), and (B,) the smaller of
+    the two sides' `_ratio`, np.minimum's way; a set that fixes none gets the identity, in place."""
+    ok, measure = np.empty(len(total), np.bool_), np.empty(len(total))
     for b in range(len(total)):
         ok[b] = total[b] > 0 and _spread_ok(source_variances[b]) and _spread_ok(target_variances[b])
         if not ok[b]:
             rotation[b] = np.eye(3)
             translation[b] = 0.0
-    return ok
+        source, target = _ratio_of(source_variances[b]), _ratio_of(target_variances[b])
+        measure[b] = source if source < target or np.isnan(source) else target
+    return ok, measure
+
+
+@njit(cache=True)
+def _ratio_of(variances: np.ndarray) -> float:
+    """`_ratio` of one set's (3,) variances with numpy's operations: np.maximum keeps NaN and, on a tie, its
+    second operand (max(-0, +0) is +0)."""
+    if not variances[2] > 0:
+        return 0.0
+    second = variances[1] if variances[1] > 0.0 or np.isnan(variances[1]) else 0.0
+    return np.sqrt(second / variances[2])
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
@@ -192,9 +219,18 @@ def _variances(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def _ratio(variances: np.ndarray) -> np.ndarray:
-    """sqrt(second / largest principal variance); 0 where the points do not spread at all."""
-    spread = variances[..., 2] > 0
-    return np.where(spread, np.sqrt(np.maximum(variances[..., 1], 0.0) / np.where(spread, variances[..., 2], 1.0)), 0.0)
+    """sqrt(second / largest principal variance) of (..., 3) variances; 0 where the points do not spread at all."""
+    flat = np.ascontiguousarray(variances, np.float64).reshape(-1, 3)
+    return _ratios(flat).reshape(variances.shape[:-1])
+
+
+@njit(cache=True)
+def _ratios(variances: np.ndarray) -> np.ndarray:
+    """`_ratio_of` of each row of (M, 3) variances."""
+    out = np.empty(len(variances))
+    for m in range(len(variances)):
+        out[m] = _ratio_of(variances[m])
+    return out
 
 
 @njit(cache=True)
@@ -204,31 +240,29 @@ def _spread_ok(variances: np.ndarray) -> bool:
     return variances[1] > (relative if relative > _MIN_VARIANCE or np.isnan(relative) else _MIN_VARIANCE)
 
 
-# The LAPACK gufuncs np.linalg.svd / eigvalsh / det call, the same results without the wrappers' checks
+# The LAPACK gufuncs np.linalg.svd and eigvalsh call, the same results without the wrappers' checks
 # and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
 # poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
 # NaN variances fail `_spread_ok`: the set is flagged degenerate. The gufuncs are numpy's private API;
 # where a numpy version has moved them, the public wrappers stand in (`_public_linalg`).
-LinearAlgebra = tuple[Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]],
-                      Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]
+LinearAlgebra = tuple[Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]], Callable[[np.ndarray], np.ndarray]]
 
 
 def _private_linalg() -> LinearAlgebra | None:
-    """svd, eigvalsh (lower triangle) and det of stacked square matrices by numpy's own gufuncs; None
+    """svd and eigvalsh (lower triangle) of stacked square matrices by numpy's own gufuncs; None
     where this numpy has none under these names (numpy 2's and numpy 1's)."""
     try:
         from numpy.linalg import _umath_linalg as gufuncs
 
         square_svd = getattr(gufuncs, "svd_f", None) or gufuncs.svd_n_f
-        eigvalsh, det = gufuncs.eigvalsh_lo, gufuncs.det
+        eigvalsh = gufuncs.eigvalsh_lo
     except (ImportError, AttributeError):
         return None
-    return (lambda m: square_svd(m, signature="d->ddd"), lambda m: eigvalsh(m, signature="d->d"),
-            lambda m: det(m, signature="d->d"))
+    return lambda m: square_svd(m, signature="d->ddd"), lambda m: eigvalsh(m, signature="d->d")
 
 
 def _public_linalg() -> LinearAlgebra:
-    """The same three by np.linalg's public functions, NaN for a matrix holding NaN or inf (where the
+    """The same two by np.linalg's public functions, NaN for a matrix holding NaN or inf (where the
     wrappers would raise for the whole stack)."""
 
     def decomposed(function: Callable, matrices: np.ndarray):
@@ -238,11 +272,10 @@ def _public_linalg() -> LinearAlgebra:
             part[~finite] = np.nan
         return out
 
-    return (lambda m: tuple(decomposed(np.linalg.svd, m)), lambda m: decomposed(np.linalg.eigvalsh, m),
-            lambda m: decomposed(np.linalg.det, m))
+    return lambda m: tuple(decomposed(np.linalg.svd, m)), lambda m: decomposed(np.linalg.eigvalsh, m)
 
 
-_svd, _eigvalsh, _det = _private_linalg() or _public_linalg()
+_svd, _eigvalsh = _private_linalg() or _public_linalg()
 
 
 def correspondence_weights(

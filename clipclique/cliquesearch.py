@@ -29,7 +29,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from clipclique.outcomes import CapHit
 
@@ -90,6 +92,7 @@ class Ranked(NamedTuple):
 
     total: np.ndarray  # (count,) summed weight
     size: np.ndarray  # (count,) members
+    slot: np.ndarray  # (count,) the row of `members` each entry's clique is in (an insertion moves no row)
     members: np.ndarray  # (count, longest) sorted vertices, the first `size` valid
 
 
@@ -140,7 +143,8 @@ def top_cliques(
             cap = CapHit.TIME_LIMIT
             break
     filled = int(state[FILLED])
-    cliques = [best.members[i, : best.size[i]].copy() for i in range(filled)]
+    members = best.members[best.slot[:filled]]  # one copy, each clique a view of its row
+    cliques = [row[:size] for row, size in zip(members, best.size[:filled].tolist())]
     return TopCliques(cliques=cliques, totals=best.total[:filled].copy(), reached=int(state[REACHED]), cap=cap)
 
 
@@ -201,57 +205,49 @@ def _prepare(edges, num_nodes, weights, groups, count):
                       np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
                       np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
                       np.zeros(groups.max() + 1, np.int64))
-    best = Ranked(np.zeros(count), np.zeros(count, np.int64), np.zeros((count, longest), np.int64))
+    best = Ranked(np.zeros(count), np.zeros(count, np.int64), np.arange(count), np.zeros((count, longest), np.int64))
     return SearchArrays(Graph(indptr, indices, order, position, potential), state, scratch, best)
 
 
-@njit(cache=True)
-def _lowest_bit(x: np.uint64) -> int:
-    """Index of the lowest set bit of a non-zero word."""
-    index = 0
-    if x & np.uint64(0xFFFFFFFF) == 0:
-        x >>= np.uint64(32)
-        index += 32
-    if x & np.uint64(0xFFFF) == 0:
-        x >>= np.uint64(16)
-        index += 16
-    if x & np.uint64(0xFF) == 0:
-        x >>= np.uint64(8)
-        index += 8
-    if x & np.uint64(0xF) == 0:
-        x >>= np.uint64(4)
-        index += 4
-    if x & np.uint64(0x3) == 0:
-        x >>= np.uint64(2)
-        index += 2
-    if x & np.uint64(0x1) == 0:
-        index += 1
-    return index
+@intrinsic
+def _lowest_bit(typing_context, word):
+    """Index of the lowest set bit of a non-zero word (LLVM's cttz: one instruction)."""
+    if word != types.uint64:
+        return None
+
+    def codegen(context, builder, signature, arguments):
+        return builder.cttz(arguments[0], ir.Constant(ir.IntType(1), 0))
+
+    return types.int64(word), codegen
 
 
-@njit(cache=True)
-def _popcount(x: np.uint64) -> int:
-    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
+@intrinsic
+def _popcount(typing_context, word):
+    """Set bits of a word (LLVM's ctpop: one instruction)."""
+    if word != types.uint64:
+        return None
+
+    def codegen(context, builder, signature, arguments):
+        return builder.ctpop(arguments[0])
+
+    return types.int64(word), codegen
 
 
 @njit(cache=True)
 def _better(total: float, clique: np.ndarray, size: int, best_total: np.ndarray, best_members: np.ndarray,
-            best_size: np.ndarray, i: int) -> bool:
+            best_size: np.ndarray, best_slot: np.ndarray, i: int) -> bool:
     """Whether `clique` ranks before entry i: heavier, or as heavy and lexicographically smaller."""
     if total != best_total[i]:
         return total > best_total[i]
     for k in range(min(size, best_size[i])):
-        if clique[k] != best_members[i, k]:
-            return clique[k] < best_members[i, k]
+        if clique[k] != best_members[best_slot[i], k]:
+            return clique[k] < best_members[best_slot[i], k]
     return size < best_size[i]
 
 
 @njit(cache=True)
 def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
-           best_size: np.ndarray, best_members: np.ndarray) -> None:
+           best_size: np.ndarray, best_slot: np.ndarray, best_members: np.ndarray) -> None:
     """Insert a maximal clique into the ranked top list if it ranks high enough."""
     clique[:size].sort()
     total = 0.0
@@ -259,19 +255,22 @@ def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray
         total += weights[clique[k]]
     filled = state[FILLED]
     at = filled
-    while at > 0 and _better(total, clique, size, best_total, best_members, best_size, at - 1):
+    while at > 0 and _better(total, clique, size, best_total, best_members, best_size, best_slot, at - 1):
         at -= 1
     capacity = len(best_total)
     if at >= capacity:
         return
     last = min(filled, capacity - 1)
+    row = best_slot[last]  # a free row, or the one the last entry leaves
     for i in range(last, at, -1):
         best_total[i] = best_total[i - 1]
         best_size[i] = best_size[i - 1]
-        best_members[i, :] = best_members[i - 1, :]
+        best_slot[i] = best_slot[i - 1]
     best_total[at] = total
     best_size[at] = size
-    best_members[at, :size] = clique[:size]
+    best_slot[at] = row
+    for k in range(size):
+        best_members[row, k] = clique[k]
     state[FILLED] = min(filled + 1, capacity)
 
 
@@ -292,7 +291,7 @@ def _search(problem, arrays, budget):
     state = arrays.state
     (local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo, members, weight_so_far,
      group_stamp) = arrays.scratch
-    best_total, best_size, best_members = arrays.best
+    best_total, best_size, best_slot, best_members = arrays.best
     words = adjacency.shape[1]
     clique = np.zeros(members.shape[0], np.int64)
     while budget > 0:
@@ -377,7 +376,7 @@ def _search(problem, arrays, budget):
                     clique[0] = members[0]
                     for k in range(1, size):
                         clique[k] = local_vertex[members[k]]
-                    _offer(clique, size, weights, state, best_total, best_size, best_members)
+                    _offer(clique, size, weights, state, best_total, best_size, best_slot, best_members)
                     state[REACHED] += 1
                     if state[REACHED] >= max_cliques:
                         state[STATUS] = COUNT_CAP

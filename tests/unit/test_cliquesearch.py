@@ -101,3 +101,43 @@ def test_a_degenerate_best_clique_is_skipped_and_the_search_goes_on():
     assert len(hypotheses) == 1 and result.failure is None
     assert hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]
     np.testing.assert_allclose(hypotheses[0].pose.translation, [0, 5, 0], atol=1e-9)
+
+
+def test_the_bit_intrinsics_count_and_find_bits_as_python_does():
+    """`_popcount` and `_lowest_bit` (LLVM's ctpop and cttz) on hand-made words: one bit at either end, all
+    64, alternating patterns, and random words; `_popcount(0)` is 0."""
+    from numba import njit
+
+    from clipclique.cliquesearch import _lowest_bit, _popcount
+
+    @njit
+    def both(words):
+        out = np.empty((len(words), 2), np.int64)
+        for i in range(len(words)):
+            out[i, 0] = _popcount(words[i])
+            out[i, 1] = _lowest_bit(words[i]) if words[i] else -1
+        return out
+
+    rng = np.random.default_rng(2)
+    words = [0, 1, 2, 3, 1 << 63, (1 << 64) - 1, 0x5555555555555555, 0xAAAAAAAAAAAAAAAA, 1 << 32, (1 << 32) - 1]
+    words += [int(w) for w in rng.integers(0, 2**63, 40, dtype=np.uint64) << np.uint64(1)]
+    got = both(np.array(words, np.uint64))
+    assert got[:, 0].tolist() == [bin(w).count("1") for w in words]
+    assert got[:, 1].tolist() == [(w & -w).bit_length() - 1 for w in words]
+
+
+def test_each_clique_is_its_own_sorted_members_and_the_top_list_holds_the_heaviest_first():
+    """The ranked list keeps its cliques in fixed rows (`Ranked.slot`): after many insertions before the
+    last entry, each returned clique still holds its own members, sorted, and its total by `clique_total`."""
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        nodes = 30
+        edges = np.array([(a, b) for a in range(nodes) for b in range(a + 1, nodes) if rng.random() < 0.5])
+        weights = rng.random(nodes)
+        found = top_cliques(edges, nodes, weights, 12)
+        adjacent = {tuple(edge) for edge in edges.tolist()}
+        assert len(found.cliques) == 12 and np.all(np.diff(found.totals) <= 0)
+        for members, total in zip(found.cliques, found.totals):
+            assert np.all(np.diff(members) > 0)
+            assert all((a, b) in adjacent for i, a in enumerate(members.tolist()) for b in members[i + 1:].tolist())
+        np.testing.assert_array_equal(clique_total(found.cliques, weights), found.totals)

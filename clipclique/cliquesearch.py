@@ -39,6 +39,7 @@ SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or
 RUNNING, DONE, COUNT_CAP = 0, 1, 2  # search status (state[STATUS])
 OUTER, LEVEL, REACHED, STATUS, FILLED, FRESH, STAMP = range(7)  # slots of the int state array
 TOLERANCE = 1e-9  # relative slack of the cut against float round-off
+INSERTION_SORT_UP_TO = 64  # values `_rank_descending` sorts in place (quadratic; merge sort beyond)
 
 
 @dataclass(kw_only=True)
@@ -85,6 +86,7 @@ class Scratch(NamedTuple):
     members: np.ndarray  # (width + 1,) the clique being grown: the first vertex, then local vertices
     weight_so_far: np.ndarray  # (width + 1,) its weight per level
     group_stamp: np.ndarray  # (groups,) last bound computation that counted each group
+    rank: np.ndarray  # (width,) an ordering of local vertices (`_rank_descending`)
 
 
 class Ranked(NamedTuple):
@@ -129,12 +131,11 @@ def top_cliques(
     if count < 1 or num_nodes < min_size:
         return TopCliques(cliques=[], totals=np.zeros(0), reached=0, cap=None)
     problem = Problem(weights, groups, min_size, max_cliques)
-    arrays = _prepare(edges, num_nodes, weights, groups, count)
-    state, best = arrays.state, arrays.best
     deadline = time.perf_counter() + time_limit_s
+    arrays = _started(problem, edges, num_nodes, count)
+    state, best = arrays.state, arrays.best
     cap = None
     while True:
-        _search(problem, arrays, SLICE)
         if state[STATUS] == COUNT_CAP:
             cap = CapHit.MAX_CLIQUES
         if state[STATUS] != RUNNING:
@@ -142,6 +143,7 @@ def top_cliques(
         if time.perf_counter() > deadline:
             cap = CapHit.TIME_LIMIT
             break
+        _search(problem, arrays, SLICE)
     filled = int(state[FILLED])
     members = best.members[best.slot[:filled]]  # one copy, each clique a view of its row
     cliques = [row[:size] for row, size in zip(members, best.size[:filled].tolist())]
@@ -157,6 +159,15 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
     padded[np.arange(sizes.max()) < sizes[:, None]] = np.fromiter(itertools.chain.from_iterable(cliques), np.int64)
     padded.sort(axis=1)
     return np.cumsum(np.append(weights, 0.0)[padded], axis=1)[:, -1]  # cumsum adds left to right, as the search
+
+
+@njit(cache=True)
+def _started(problem, edges, num_nodes, count):
+    """`_prepare` and the search's first slice in one call (most searches end within it: one dispatch of the
+    arrays fewer)."""
+    arrays = _prepare(edges, num_nodes, problem.weights, problem.groups, count)
+    _search(problem, arrays, SLICE)
+    return arrays
 
 
 @njit(cache=True)
@@ -204,7 +215,7 @@ def _prepare(edges, num_nodes, weights, groups, count):
                       np.full(num_nodes, -1, np.int64), np.zeros((width, words), np.uint64),
                       np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
                       np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
-                      np.zeros(groups.max() + 1, np.int64))
+                      np.zeros(groups.max() + 1, np.int64), np.zeros(width, np.int64))
     best = Ranked(np.zeros(count), np.zeros(count, np.int64), np.arange(count), np.zeros((count, longest), np.int64))
     return SearchArrays(Graph(indptr, indices, order, position, potential), state, scratch, best)
 
@@ -231,6 +242,23 @@ def _popcount(typing_context, word):
         return builder.ctpop(arguments[0])
 
     return types.int64(word), codegen
+
+
+@njit(cache=True)
+def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
+    """rank[:count] = np.argsort(-values[:count], kind="mergesort"): largest first, NaN last, ties in index order;
+    up to INSERTION_SORT_UP_TO values without allocating (an insertion sort: a frame's neighbourhood is a few dozen
+    vertices), more by the merge sort (a building's may hold thousands)."""
+    if count > INSERTION_SORT_UP_TO:
+        rank[:count] = np.argsort(-values[:count], kind="mergesort")
+        return
+    for i in range(count):
+        value = values[i]
+        j = i
+        while j > 0 and (value > values[rank[j - 1]] or (np.isnan(values[rank[j - 1]]) and not np.isnan(value))):
+            rank[j] = rank[j - 1]
+            j -= 1
+        rank[j] = i
 
 
 @njit(cache=True)
@@ -290,7 +318,7 @@ def _search(problem, arrays, budget):
     indptr, indices, order, position, potential = arrays.graph
     state = arrays.state
     (local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo, members, weight_so_far,
-     group_stamp) = arrays.scratch
+     group_stamp, rank) = arrays.scratch
     best_total, best_size, best_slot, best_members = arrays.best
     words = adjacency.shape[1]
     clique = np.zeros(members.shape[0], np.int64)
@@ -326,8 +354,8 @@ def _search(problem, arrays, budget):
                         group_best[count] = weights[u]
                         local_group[count] = groups[u]
                         count += 1
-                ranked = np.argsort(-group_best[:count])
-                for k in ranked:
+                _rank_descending(group_best, count, rank)  # any order of equal values adds the same
+                for k in rank[:count]:
                     if group_stamp[local_group[k]] != state[STAMP]:
                         group_stamp[local_group[k]] = state[STAMP]
                         bound += group_best[k]
@@ -336,9 +364,11 @@ def _search(problem, arrays, budget):
             # v's neighbourhood as local vertices 0..d-1, heaviest first (ties by index).
             d = indptr[v + 1] - indptr[v]
             neighbours = indices[indptr[v]:indptr[v + 1]]
-            ranked = np.argsort(-weights[neighbours], kind="mergesort")
             for i in range(d):
-                u = neighbours[ranked[i]]
+                local_weight[i] = weights[neighbours[i]]
+            _rank_descending(local_weight, d, rank)
+            for i in range(d):
+                u = neighbours[rank[i]]
                 local_vertex[i] = u
                 local_weight[i] = weights[u]
                 local_group[i] = groups[u]

@@ -206,14 +206,51 @@ def landmark_histograms(
 def _normalized(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray, width: int) -> sp.csr_matrix:
     """The compiled walks' rows L2-normalized and stored as `_l2_normalized` has scipy store them."""
     n = len(pointers) - 1
-    # the L2 norms exactly as _l2_normalized has scipy compute them (np.add.reduceat of the squares per row)
-    norms = np.zeros(n)
-    rows = np.flatnonzero(np.diff(pointers))
-    norms[rows] = np.add.reduceat(values * values, pointers[rows])
-    norms = np.sqrt(norms)
-    scale = np.where(norms > 0, 1.0 / np.maximum(norms, 1e-300), 0.0)
-    pointers, bins, values = _scaled_reversed(pointers, bins, values, scale)
+    pointers, bins, values = _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
     return sp.csr_matrix((values, bins, pointers), shape=(n, width))
+
+
+@njit(cache=True)
+def _inverse_norms(pointers: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """(n,) 1 / the L2 norm of each row (0 for a row of norm 0 or NaN), exactly as `_l2_normalized` has scipy and
+    numpy compute it: np.add.reduceat of the squares (a row's first square plus numpy's pairwise sum of the
+    rest), np.sqrt, then `np.where(norms > 0, 1 / np.maximum(norms, 1e-300), 0)`; one pass instead of six calls."""
+    n = len(pointers) - 1
+    squares = values * values
+    scale = np.zeros(n)
+    for v in range(n):
+        start, end = pointers[v], pointers[v + 1]
+        if end > start:
+            norm = np.sqrt(squares[start] + _pairwise_sum(squares, start + 1, end - start - 1))
+            if norm > 0:
+                scale[v] = 1.0 / (norm if norm > 1e-300 else 1e-300)
+    return scale
+
+
+@njit(cache=True)
+def _pairwise_sum(values: np.ndarray, start: int, count: int) -> float:
+    """values[start:start + count] summed as numpy's add reduction does (pairwise_sum in numpy's loops): in order
+    below 8 terms, in 8 interleaved partial sums up to 128, else the two halves (a multiple of 8 first) apart."""
+    if count < 8:
+        total = -0.0
+        for i in range(start, start + count):
+            total += values[i]
+        return total
+    if count <= 128:
+        p0, p1, p2, p3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+        p4, p5, p6, p7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+        i = start + 8
+        while i < start + count - count % 8:
+            p0, p1, p2, p3 = p0 + values[i], p1 + values[i + 1], p2 + values[i + 2], p3 + values[i + 3]
+            p4, p5, p6, p7 = p4 + values[i + 4], p5 + values[i + 5], p6 + values[i + 6], p7 + values[i + 7]
+            i += 8
+        total = ((p0 + p1) + (p2 + p3)) + ((p4 + p5) + (p6 + p7))
+        for k in range(i, start + count):
+            total += values[k]
+        return total
+    half = count // 2
+    half -= half % 8
+    return _pairwise_sum(values, start, half) + _pairwise_sum(values, start + half, count - half)
 
 
 @njit(cache=True)

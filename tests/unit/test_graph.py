@@ -131,3 +131,31 @@ def test_landmark_histograms_store_the_sparse_paths_entries_bit_for_bit():
         assert got.shape == expected.shape
         for name in ("indptr", "indices", "data"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+
+
+def test_inverse_row_norms_are_numpys_formula_to_the_bit():
+    """`_inverse_norms` against what it replaced (np.add.reduceat of the squares of the non-empty rows, np.sqrt,
+    np.where/np.maximum) on rows of every length numpy's pairwise sum splits differently (1 to 300 entries), empty
+    rows, zeros and -0, NaN, infinities, and norms below 1e-300."""
+    from clipclique.graph import _inverse_norms
+
+    def reference(pointers, values):
+        norms = np.zeros(len(pointers) - 1)
+        rows = np.flatnonzero(np.diff(pointers))
+        with np.errstate(over="ignore", invalid="ignore"):
+            norms[rows] = np.add.reduceat(values * values, pointers[rows])
+            norms = np.sqrt(norms)
+            return np.where(norms > 0, 1.0 / np.maximum(norms, 1e-300), 0.0)
+
+    rng = np.random.default_rng(6)
+    lengths = [0, 1, 2, 7, 8, 9, 15, 16, 17, 127, 128, 129, 130, 255, 256, 257, 300, 0]
+    special = [np.zeros(5), np.array([-0.0, 0.0, -0.0]), np.array([1.0, np.nan, 2.0]), np.array([np.inf, 1.0]),
+               np.full(3, 1e-160), np.full(20, 1e-170), np.array([1e200, 1e200])]
+    rows = [rng.normal(size=length) * 10.0 ** rng.integers(-3, 4) for length in lengths] + special
+    rows += [rng.random(int(length)) for length in rng.integers(0, 400, 60)]
+    pointers = np.r_[0, np.cumsum([len(row) for row in rows])].astype(np.int64)
+    values = np.concatenate(rows)
+    expected = reference(pointers, values)
+    got = _inverse_norms(pointers, values)
+    assert np.array_equal(got.view(np.int64), expected.view(np.int64))
+    assert _inverse_norms(np.zeros(1, np.int64), np.zeros(0)).shape == (0,)

@@ -316,8 +316,11 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
                                                    max_pairs=settings.max_pairs)
         pairs_capped = len(kept) < len(candidates)
-        edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
-                                                       objects)]
+        if pairs_capped:
+            edges = kept[compatibility.compatibility_graph(*centers, candidates[kept], settings.d_comp, slack[kept],
+                                                           objects)]
+        else:  # all kept: no copies
+            edges = compatibility.compatibility_graph(*centers, candidates, settings.d_comp, slack, objects)
 
         def search(wanted: int) -> cliquesearch.TopCliques:
             return cliquesearch.top_cliques(edges, len(candidates), scores, wanted, objects[candidates[:, 0]],

@@ -247,8 +247,8 @@ def _popcount(typing_context, word):
 @njit(cache=True)
 def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
     """rank[:count] = np.argsort(-values[:count], kind="mergesort"): largest first, NaN last, ties in index order;
-    up to INSERTION_SORT_UP_TO values without allocating (an insertion sort: a frame's neighbourhood is a few dozen
-    vertices), more by the merge sort (a building's may hold thousands)."""
+    up to INSERTION_SORT_UP_TO values in place (an insertion sort, quicker on a short run than the merge sort's
+    allocations), more by the merge sort."""
     if count > INSERTION_SORT_UP_TO:
         rank[:count] = np.argsort(-values[:count], kind="mergesort")
         return

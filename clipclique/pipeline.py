@@ -241,9 +241,8 @@ def _histogram_similarity(
         return sh
     if index.class_distributions is not None:
         classes = similarity.soft_class_similarity(observations.class_ids, index.class_kernel, index.class_distributions)
-    else:
-        classes = similarity.class_similarity(observations.class_ids, index.kernel_by_landmark)
-    return similarity.with_class_term(sh, classes, weight)
+        return similarity.with_class_term(sh, classes, np.arange(len(classes)), weight)
+    return similarity.with_class_term(sh, index.kernel_by_landmark, observations.class_ids, weight)
 
 
 def _lookalikes(observations: Observations, index: MapIndex, config: LocalizationConfig) -> matching.Lookalikes | None:

@@ -53,16 +53,10 @@ def walk_similarity(query_counts: sp.csr_matrix, landmark_counts: sp.csr_matrix)
     return (query_counts @ present.T).toarray() / np.maximum(walks, 1.0)[:, None]
 
 
-def class_similarity(query_classes: np.ndarray, kernel_by_landmark: np.ndarray) -> np.ndarray:
-    """(K, N) the class kernel between each observation's class and each landmark's: 1 for the same
-    class, the look-alike weight for classes a detector confuses, 0 otherwise. `kernel_by_landmark`
-    is `kernel_columns(kernel, landmark_classes)`, made once per map."""
-    return kernel_by_landmark[query_classes]
-
-
 def kernel_columns(kernel: sp.csr_matrix, landmark_classes: np.ndarray) -> np.ndarray:
-    """(C, N) dense: the kernel between every class and each landmark's class."""
-    return kernel.toarray()[:, landmark_classes]
+    """(C, N) dense, C-ordered (a row per query class, read along): the kernel between every class and each
+    landmark's class."""
+    return np.ascontiguousarray(kernel.toarray()[:, landmark_classes])
 
 
 def soft_class_similarity(query_classes: np.ndarray, kernel: sp.csr_matrix, distributions: sp.csr_matrix) -> np.ndarray:
@@ -71,11 +65,27 @@ def soft_class_similarity(query_classes: np.ndarray, kernel: sp.csr_matrix, dist
     return (kernel[query_classes] @ distributions.T).toarray()
 
 
-def with_class_term(histogram: np.ndarray, classes: np.ndarray, weight: float) -> np.ndarray:
-    """`weight * S_class + (1 - weight) * S_sh`: an object with no neighbour within d_adj has an
-    empty Semantic Histogram, so without the class term it matches nothing; with it a lone chair
-    still matches the map's chairs (and, more weakly, its look-alikes)."""
-    return weight * classes + (1.0 - weight) * histogram
+def with_class_term(histogram: np.ndarray, classes: np.ndarray, rows: np.ndarray, weight: float) -> np.ndarray:
+    """`weight * S_class + (1 - weight) * S_sh`, S_class = `classes[rows]`, written over `histogram` (K, N) and
+    returned: an object with no neighbour within d_adj has an empty Semantic Histogram, so without the class term it
+    matches nothing; with it a lone chair still matches the map's chairs (and, more weakly, its look-alikes).
+
+    `classes` is the (C, N) kernel between every class and each landmark's class (`kernel_columns`, made once
+    per map) with `rows` the observations' classes, or a (K, N) class term (`soft_class_similarity`) with `rows`
+    0..K-1. One compiled pass instead of a gather and three (K, N) temporaries, numpy's operations in numpy's
+    order: (weight * class) + ((1 - weight) * histogram)."""
+    _with_class_term_into(histogram, np.ascontiguousarray(classes, np.float64), np.asarray(rows, np.int64),
+                          float(weight))
+    return histogram
+
+
+@njit(cache=True)
+def _with_class_term_into(histogram: np.ndarray, classes: np.ndarray, rows: np.ndarray, weight: float) -> None:
+    rest = 1.0 - weight
+    for i in range(histogram.shape[0]):
+        row = classes[rows[i]]
+        for j in range(histogram.shape[1]):
+            histogram[i, j] = weight * row[j] + rest * histogram[i, j]
 
 
 def fuse(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> np.ndarray:

@@ -41,3 +41,26 @@ def test_histogram_similarity_is_scipys_sparse_product_to_the_bit():
     histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 6, kernel=kernel)
     query = histograms[rng.permutation(200)[:20]]
     np.testing.assert_array_equal(histogram_similarity(query, by_bin(histograms)), (query @ histograms.T).toarray())
+
+
+def test_the_class_term_is_the_numpy_formula_to_the_bit_written_over_the_histogram():
+    """`with_class_term` against `weight * classes[rows] + (1 - weight) * histogram` on hand-made values (0, -0, NaN,
+    infinities, 1), weights 0, 1 and between, rows repeated or out of order, a (K, N) term with rows 0..K-1, and
+    no observations or no landmarks."""
+    from clipclique.similarity import with_class_term
+
+    rng = np.random.default_rng(12)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, 0.5, 1e-300])
+    for weight in (0.0, 1.0, 0.3, 0.7, 1 / 3):
+        for observations, landmarks in ((6, 9), (0, 9), (4, 0), (30, 200)):
+            classes = rng.choice(special, (5, landmarks)) if landmarks < 100 else rng.random((5, landmarks))
+            histogram = rng.choice(special, (observations, landmarks)) if landmarks < 100 else rng.random((observations, landmarks))
+            rows = rng.integers(0, 5, observations)
+            with np.errstate(invalid="ignore"):
+                expected = weight * classes[rows] + (1.0 - weight) * histogram
+            got = with_class_term(histogram, classes, rows, weight)
+            assert got is histogram and np.array_equal(got.view(np.int64), expected.view(np.int64))
+            term, histogram = rng.random((observations, landmarks)), rng.random((observations, landmarks))
+            expected = weight * term + (1.0 - weight) * histogram
+            got = with_class_term(histogram, term, np.arange(observations), weight)
+            assert np.array_equal(got.view(np.int64), expected.view(np.int64))

@@ -35,7 +35,8 @@ class Staging:
     def __init__(self) -> None:
         self._moves: list[tuple[Path, Path]] = []
         self._removals: list[Path] = []
-        self._previous_handler: signal.Handlers | None = None
+        self._previous_handlers: dict[int, object] = {}  # signal -> its handler before this staging
+        self._interrupted: int | None = None  # the signal that asked the run to stop
 
     def path(self, target: Path) -> Path:
         """Where to write `target` for now; refuses, before any work, a target that cannot be replaced."""
@@ -51,7 +52,10 @@ class Staging:
         self._removals.append(Path(target))
 
     def commit(self) -> None:
-        """Move every staged output into place (each move is atomic) and delete the removals."""
+        """Move every staged output into place (each move is atomic) and delete the removals; never after Ctrl-C
+        or SIGTERM, even where a library swallowed the exception the signal raised (see `_stop`)."""
+        if self._interrupted is not None:
+            _raise_for(self._interrupted)
         missing = [str(partial) for partial, _ in self._moves if not partial.is_file()]
         if missing:
             raise ClipcliqueError(f"outputs not written: {', '.join(missing)}")
@@ -74,17 +78,32 @@ class Staging:
 
     def __enter__(self) -> Staging:
         if threading.current_thread() is threading.main_thread():
-            self._previous_handler = signal.signal(signal.SIGTERM, _terminate)
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                previous = signal.getsignal(signum)
+                if previous is not signal.SIG_IGN:  # a background job's ignored Ctrl-C stays ignored
+                    self._previous_handlers[signum] = previous
+                    signal.signal(signum, self._stop)
         return self
 
     def __exit__(self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None) -> None:
         try:
             self.discard()
         finally:
-            if self._previous_handler is not None:
-                signal.signal(signal.SIGTERM, self._previous_handler)
+            for signum, previous in self._previous_handlers.items():
+                signal.signal(signum, previous)
+            self._previous_handlers.clear()
+
+    def _stop(self, signum: int, frame: FrameType | None) -> None:
+        """Ctrl-C and SIGTERM unwind (SIGTERM like Ctrl-C), so that context managers clean their partial files.
+        The signal is also remembered: its exception lands wherever Python happens to be, and compiled code
+        there may swallow it (pyarrow's first `pa.array` imports pandas inside a Cython function that can only
+        print an exception as ignored), which would let the run go on and commit."""
+        self._interrupted = signum
+        _raise_for(signum)
 
 
-def _terminate(signum: int, frame: FrameType | None) -> None:
-    """SIGTERM unwinds like Ctrl-C, so that context managers clean their partial files."""
+def _raise_for(signum: int) -> None:
+    """What Python raises for Ctrl-C; SIGTERM as the exit status a shell gives a terminated program."""
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
     raise SystemExit(128 + signum)

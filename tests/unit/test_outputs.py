@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+
 import pytest
 
 from clipclique.errors import ClipcliqueError
@@ -51,3 +53,36 @@ def test_discard_also_removes_what_an_interrupted_writer_left_beside_its_partial
         partial.with_name(partial.name + ".partial").write_text("the writer's own temporary")
         raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum, raised", [(signal.SIGTERM, SystemExit), (signal.SIGINT, KeyboardInterrupt)])
+def test_a_signal_whose_exception_was_swallowed_still_stops_the_commit(tmp_path, signum, raised):
+    """Compiled code may catch the exception a signal raises where it lands (pyarrow's first `pa.array`
+    did, importing pandas): the run goes on, but its outputs must not appear."""
+    (tmp_path / "a.json").write_bytes(b"previous run")
+    before = signal.getsignal(signum)
+    with pytest.raises(raised) as stopped, Staging() as staging:
+        staging.path(tmp_path / "a.json").write_text("the interrupted run's")
+        try:
+            signal.raise_signal(signum)  # the handler runs here, in the main thread
+        except BaseException:
+            pass  # swallowed, as that library does
+        staging.commit()
+    if signum == signal.SIGTERM:
+        assert stopped.value.code == 128 + signal.SIGTERM
+    assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
+    assert (tmp_path / "a.json").read_bytes() == b"previous run"
+    assert signal.getsignal(signum) is before  # the caller's handler is back
+
+
+def test_an_ignored_ctrl_c_stays_ignored_while_staging(tmp_path):
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # a background job's
+    try:
+        with Staging() as staging:
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            signal.raise_signal(signal.SIGINT)
+            staging.path(tmp_path / "a.json").write_text("a")
+            staging.commit()
+        assert (tmp_path / "a.json").read_text() == "a"
+    finally:
+        signal.signal(signal.SIGINT, previous)

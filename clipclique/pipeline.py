@@ -43,7 +43,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.stack import Stack, same
+from clipclique.stack import Stack, alike
 from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
@@ -388,47 +388,20 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray,
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
     a cluttered desk: verification chooses between both."""
-    kept = _rests_kept(members, sizes, added, min_size)
-    pieces = np.repeat(kept, sizes)
-    rests = pieces & ~added[members]
-    return members[rests], np.bincount(np.repeat(np.arange(len(sizes)), sizes)[rests], minlength=len(sizes))[kept]
-
-
-@njit(cache=True)
-def _rests_kept(members, sizes, added, min_size):
-    """(C,) whether each clique's rest without added candidates is one `_without_added` keeps: each clique and
-    rest compared as sorted members, one after another (a frame's fifty cliques, a few thousand comparisons)."""
-    starts = np.cumsum(sizes) - sizes
-    ordered = np.empty_like(members)  # each clique's members ascending, then each kept rest's
-    for c in range(len(sizes)):
-        ordered[starts[c]: starts[c] + sizes[c]] = np.sort(members[starts[c]: starts[c] + sizes[c]])
-    kept = np.zeros(len(sizes), np.bool_)
-    rest = np.empty(sizes.max() if len(sizes) else 0, members.dtype)
-    rests = np.empty(len(members), members.dtype)  # the kept rests ascending, one after another
-    rest_starts, rest_sizes, count, used = np.empty(len(sizes), np.int64), np.empty(len(sizes), np.int64), 0, 0
-    for c in range(len(sizes)):
-        size = 0
-        for i in range(starts[c], starts[c] + sizes[c]):
-            if not added[ordered[i]]:
-                rest[size] = ordered[i]
-                size += 1
-        if size < min_size or size == sizes[c]:
-            continue
-        known = False
-        for d in range(len(sizes)):
-            if sizes[d] == size and same(ordered[starts[d]: starts[d] + size], rest[:size]):
-                known = True
-                break
-        for j in range(count):
-            if known:
-                break
-            known = rest_sizes[j] == size and same(rests[rest_starts[j]: rest_starts[j] + size], rest[:size])
-        if not known:
-            kept[c] = True
-            rests[used: used + size] = rest[:size]
-            rest_starts[count], rest_sizes[count] = used, size
-            count, used = count + 1, used + size
-    return kept
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    ordered = members[np.lexsort((members, owner))]  # each clique's members ascending, cliques in order
+    left = ~added[ordered]
+    rest_sizes = np.bincount(owner[left], minlength=len(sizes))
+    eligible = (rest_sizes >= min_size) & (rest_sizes < sizes)
+    # the cliques, then the eligible rests, as sorted sets: a rest is kept where no clique and no earlier rest
+    # holds the same set, i.e. where it comes first among its alike sets
+    counts = np.concatenate((sizes, rest_sizes[eligible]))
+    group, firsts = alike(np.zeros((len(counts), 0)), np.concatenate((ordered, ordered[left & eligible[owner]])),
+                          np.cumsum(counts) - counts, counts)
+    kept = np.zeros(len(sizes), bool)
+    kept[eligible] = firsts[group[len(sizes):]] == np.arange(len(sizes), len(counts))
+    rests = np.repeat(kept, sizes) & ~added[members]
+    return members[rests], np.bincount(owner[rests], minlength=len(sizes))[kept]
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:

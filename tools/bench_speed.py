@@ -1,15 +1,16 @@
 """Per-stage speed of a whole frame, the working tree beside a git revision and the literal reference, in one run.
 
     .venv/bin/python tools/bench_speed.py [SCENE ...] [--rev REV] [--max-frames 40] [--repeat 3]
-                                          [--clutter 47 4700 47000] [--clutter-frames 20]
+                                          [--clutter 47 4700 47000] [--clutter-frames 20] [--cpu CORE]
 
 Two worker processes, one importing the working tree and one a `git archive` of `--rev` (default:
 the merge base with main), measure the same frames in lock step (frame i in one, then in the
-other), so both see the same machine load. Each worker runs the sequence's own detector (once), the
-observation stage, the encoder and `localize` (fastest of `--repeat`, per stage) and, in the
-working tree's worker, the literal reference (`benchmark.literal_reference`, networkx) on the same
-observations. Printed per scene: median and 90th percentile ms per stage, before and now, the
-observation stage per detection, and the literal reference's whole query beside the project's.
+other), so both see the same machine load (`--cpu CORE`: both on one core, as a VM's cores can
+differ). Each worker runs the sequence's own detector (once), the observation stage, the encoder
+and `localize` (fastest of `--repeat`, per stage) and, in the working tree's worker, the literal
+reference (`benchmark.literal_reference`, networkx) on the same observations. Printed per scene:
+median and 90th percentile ms per stage, before and now, the observation stage per detection, and
+the literal reference's whole query beside the project's.
 
 `--recording FRAMES`: the Rerun recording of the first scene, ms of `log_frame` on the caller's
 thread per frame, the seconds `close` waits for what is still queued, the CPU seconds of the recorder's
@@ -49,12 +50,14 @@ LITERAL_UP_TO = 100  # landmarks: the literal reference's cliques explode on lar
 class Worker:
     """This script in `--worker` mode under another PYTHONPATH, answering one JSON line per request."""
 
-    def __init__(self, tree: Path, label: str) -> None:
+    def __init__(self, tree: Path, label: str, core: int | None = None) -> None:
         environment = dict(os.environ, PYTHONPATH=os.pathsep.join(dict.fromkeys((str(tree), str(ROOT)))))  # the
         # tree's clipclique and localization first; the benchmark package (literal reference) from this one
         self.label = label
         self.process = subprocess.Popen([sys.executable, __file__, "--worker"], cwd=ROOT, env=environment,
                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        if core is not None:  # both workers on one core: they take turns (lock step), and cores differ
+            os.sched_setaffinity(self.process.pid, {core})
 
     def ask(self, **request) -> dict:
         self.process.stdin.write(json.dumps(request) + "\n")
@@ -340,11 +343,16 @@ def main() -> None:
                         help="also time the recording of the first scene's first FRAMES frames")
     parser.add_argument("--whole-runs", type=int, default=0, metavar="N",
                         help="also time N whole `clipclique-loc run` processes of the first scene per tree")
+    parser.add_argument("--cpu", type=int, default=None, metavar="CORE",
+                        help="pin both workers to this core (a VM's cores can differ: this machine's core 1 ran "
+                             "the same query ~30%% slower than core 0); default: where the system puts them")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         serve()
         return
+    if args.cpu is not None and args.cpu not in os.sched_getaffinity(0):
+        parser.error(f"--cpu {args.cpu}: not one of this process's cores {sorted(os.sched_getaffinity(0))}")
     rev = args.rev or subprocess.run(["git", "merge-base", "HEAD", "main"], cwd=ROOT, capture_output=True,
                                      text=True).stdout.strip() or "HEAD"
     with tempfile.TemporaryDirectory() as directory:
@@ -354,10 +362,11 @@ def main() -> None:
             if archive.returncode:
                 parser.exit(2, f"bench_speed: error: --rev {rev}: {archive.stderr.decode().strip()}\n")
             subprocess.run(["tar", "-x", "-C", directory], input=archive.stdout, check=True)
-            workers.append(Worker(Path(directory), "before"))
-        workers.append(Worker(ROOT, "now"))
+            workers.append(Worker(Path(directory), "before", args.cpu))
+        workers.append(Worker(ROOT, "now", args.cpu))
+        pinned = f"both workers on core {args.cpu}" if args.cpu is not None else "workers not pinned"
         print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} (a shared machine gives noisy "
-              f"timings); before = {rev}, now = the working tree", flush=True)
+              f"timings), {pinned}; before = {rev}, now = the working tree", flush=True)
         try:
             for scene in args.scenes:
                 compare_scene(scene, workers, args.max_frames, args.repeat)

@@ -11,11 +11,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import get_cython_function_address, intrinsic
 
 from clipclique.config import PoseWeights
+from clipclique.confidence import _pairwise_sum
 from clipclique.types import Pose
 
 MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
@@ -92,7 +97,7 @@ def fit_rigid_batch(
     hold the identity so that callers can mask them without meeting NaN.
     """
     weights = np.ones(np.shape(source)[:2]) if weights is None else weights
-    rotation, translation, ok, _ = fit_rigid_conditioned(source, target, weights)
+    rotation, translation, ok, _ = _fit(source, target, weights, conditioned=False)
     return rotation, translation, ok
 
 
@@ -102,7 +107,34 @@ def fit_rigid_conditioned(
     """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
     same weighted covariances (a query's poses need both: measuring them apart doubled the work).
 
-    Compiled passes around LAPACK's SVD of the cross-covariances and one eigvalsh call for both sides'."""
+    One compiled pass per batch (`_fitted`: a query fits three or four batches, and the dozen numpy calls
+    between the decompositions cost as much as they), to the bit as the passes around numpy's LAPACK
+    gufuncs (`_fitted_by_gufuncs`), which still fit any set whose moments are not finite (LAPACK's answer
+    to NaN and inf is the gufuncs' own) or that LAPACK could not decompose."""
+    return _fit(source, target, weights, conditioned=True)
+
+
+def _fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray,
+         conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_conditioned`; `conditioned` False: the measure is not wanted (NaN where not measured), and a
+    set's spread is read off its covariances' eigenvalues only where `_surely_spread` cannot tell."""
+    source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
+    given = np.asarray(weights)
+    summed = given.dtype == np.float64 and given.flags.c_contiguous  # else numpy's sum of its own layout
+    weights = np.ascontiguousarray(given, np.float64)
+    total = np.zeros(0) if summed else np.asarray(given.sum(axis=1), np.float64)
+    rotation, translation, ok, measure, decomposed = _fitted(weights, total, source, target, _lapack(), conditioned)
+    if not decomposed.all():
+        rest = np.flatnonzero(~decomposed)
+        rotation[rest], translation[rest], ok[rest], measure[rest] = _fitted_by_gufuncs(
+            source[rest], target[rest], given[rest])
+    return rotation, translation, ok, measure
+
+
+def _fitted_by_gufuncs(source: np.ndarray, target: np.ndarray,
+                       weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_conditioned` by compiled passes around numpy's LAPACK gufuncs: the SVD of the
+    cross-covariances and one eigvalsh call for both sides'."""
     weights = np.asarray(weights)
     total = weights.sum(axis=1)  # numpy's pairwise sum: the kernels add in order, as einsum does
     source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
@@ -118,50 +150,216 @@ def fit_rigid_conditioned(
 
 
 @njit(cache=True)
+def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: np.ndarray,
+            lapack: tuple[int, int, int, int, int],
+            conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_fitted_by_gufuncs` in one pass, set by set, and (B,) whether each set was decomposed here (its moments
+    finite and LAPACK content; the others are left to the gufuncs). `total`: the weights' sums, empty: summed
+    here as numpy sums C-ordered rows (`_pairwise_sum`). `lapack`: `_lapack()`. `conditioned`: as `_fit`. u vt
+    as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum (`_translation_of`)."""
+    count, points = weights.shape
+    mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
+    cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
+    w = np.empty(points)
+    centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
+    rotation, translation = np.empty((count, 3, 3)), np.empty((count, 3))
+    ok, measure, decomposed = np.zeros(count, np.bool_), np.zeros(count), np.zeros(count, np.bool_)
+    flat = weights.reshape(-1)
+    scratch = _workspace(lapack)
+    for b in range(count):
+        summed = 0.0 + _pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
+        _moments_of(b, weights, summed, source, target, mean_source, mean_target, cross, spreads, w,
+                    centred_source, centred_target)
+        if not (np.isfinite(mean_source[b]).all() and np.isfinite(mean_target[b]).all()
+                and np.isfinite(cross[b]).all() and np.isfinite(spreads[:, b]).all()):
+            continue
+        u, vt, failed = _svd_of(lapack, scratch, cross[b])
+        if failed:
+            continue
+        _proper_of(u, vt)
+        _rotation_of(u, vt, rotation[b])
+        _translation_of(rotation[b], mean_source[b], mean_target[b], translation[b])
+        if not conditioned and _surely_spread(spreads[0, b]) and _surely_spread(spreads[1, b]):
+            decomposed[b], ok[b], measure[b] = True, _kept(rotation[b], translation[b], summed > 0), np.nan
+            continue
+        source_variances, source_failed = _eigvalsh_of(lapack, scratch, spreads[0, b])
+        target_variances, target_failed = _eigvalsh_of(lapack, scratch, spreads[1, b])
+        if not (source_failed or target_failed):
+            decomposed[b] = True
+            ok[b], measure[b] = _settle(rotation[b], translation[b], summed, source_variances, target_variances)
+    return rotation, translation, ok, measure, decomposed
+
+
+# LAPACK's dgesdd and dsyevd called from compiled code as numpy's gufuncs call them (np.linalg.svd: jobz "A";
+# eigvalsh: jobz "N", the lower triangle; each with its queried optimal workspace), through scipy's LAPACK
+# (numba's np.linalg uses the same, but queries and allocates the workspace on every 3 x 3 call: a third
+# more than the decomposition). Their addresses are arguments, not constants, so the kernels stay cached.
+_THREE, _SVD_WORK, _EIG_WORK, _EIG_INTS, _INFO = 0, 1, 2, 3, 4  # `_workspace`'s integers
+
+
+@intrinsic
+def _call(typingctx, address, pointers):
+    """`void f(void *, ...)` at `address` called with the addresses in the tuple `pointers`."""
+    count = len(pointers)
+
+    def codegen(context, builder, signature, args):
+        pointer = ir.IntType(8).as_pointer()
+        function = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [pointer] * count).as_pointer())
+        builder.call(function, [builder.inttoptr(value, pointer) for value in cgutils.unpack_tuple(builder, args[1])])
+        return context.get_dummy_value()
+
+    return types.void(address, pointers), codegen
+
+
+@cache
+def _lapack() -> tuple[int, int, int, int, int]:
+    """dgesdd's and dsyevd's addresses and their optimal workspaces for a 3 x 3 matrix (`_workspace`'s sizes),
+    asked once."""
+    gesdd = get_cython_function_address("scipy.linalg.cython_lapack", "dgesdd")
+    syevd = get_cython_function_address("scipy.linalg.cython_lapack", "dsyevd")
+    return (gesdd, syevd, *_work_sizes(gesdd, syevd))
+
+
+@njit(cache=True)
+def _work_sizes(gesdd: int, syevd: int) -> tuple[int, int, int]:
+    """LAPACK's optimal workspace sizes for a 3 x 3 matrix (its answer to a workspace of size -1): dgesdd's
+    doubles, dsyevd's doubles and integers."""
+    scratch = _workspace((gesdd, syevd, 1, 1, 1))
+    integers, svd_work, eig_work, eig_integers = scratch[0], scratch[6], scratch[8], scratch[9]
+    integers[_SVD_WORK:_INFO] = -1
+    _svd_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((3, 3)))
+    _eigvalsh_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((3, 3)))
+    return max(1, int(svd_work[0])), max(1, int(eig_work[0])), max(1, int(eig_integers[0]))
+
+
+@njit(cache=True)
+def _workspace(lapack):
+    """The scratch `_svd_of` and `_eigvalsh_of` pass LAPACK: (integers: 3 and the workspaces' sizes, characters
+    "ANL", a 3 x 3 matrix, u, vt and singular values, the SVD's work and integer work, eigvalsh's)."""
+    integers = np.array([3, lapack[2], lapack[3], lapack[4], 0], np.int32)
+    characters = np.array([ord("A"), ord("N"), ord("L")], np.uint8)
+    return (integers, characters, np.empty(9), np.empty(9), np.empty(9), np.empty(3), np.empty(lapack[2]),
+            np.empty(24, np.int32), np.empty(lapack[3]), np.empty(lapack[4], np.int32))  # dgesdd: 8 min(m, n) integers
+
+
+@njit(cache=True)
+def _svd_of(lapack, scratch, matrix):
+    """u and vt (views of the scratch, valid until the next call) of a finite 3 x 3 matrix by dgesdd, and whether
+    LAPACK failed."""
+    integers, characters, copy, u, vt, values, work, work_integers, _, _ = scratch
+    for i in range(3):
+        for j in range(3):
+            copy[i + 3 * j] = matrix[i, j]  # column-major
+    three = integers[_THREE:].ctypes.data
+    _call(lapack[0], (characters.ctypes.data, three, three, copy.ctypes.data, three, values.ctypes.data,
+                      u.ctypes.data, three, vt.ctypes.data, three, work.ctypes.data,
+                      integers[_SVD_WORK:].ctypes.data, work_integers.ctypes.data, integers[_INFO:].ctypes.data))
+    return u.reshape(3, 3).T, vt.reshape(3, 3).T, integers[_INFO] != 0
+
+
+@njit(cache=True)
+def _eigvalsh_of(lapack, scratch, matrix):
+    """The ascending eigenvalues of a finite symmetric 3 x 3 matrix (its lower triangle) by dsyevd, and whether
+    LAPACK failed."""
+    integers, characters, copy, _, _, _, _, _, work, work_integers = scratch
+    for i in range(3):
+        for j in range(3):
+            copy[i + 3 * j] = matrix[i, j]
+    values = np.empty(3)
+    three = integers[_THREE:].ctypes.data
+    _call(lapack[1], (characters[1:].ctypes.data, characters[2:].ctypes.data, three, copy.ctypes.data, three,
+                      values.ctypes.data, work.ctypes.data, integers[_EIG_WORK:].ctypes.data,
+                      work_integers.ctypes.data, integers[_EIG_INTS:].ctypes.data, integers[_INFO:].ctypes.data))
+    return values, integers[_INFO] != 0
+
+
+@njit(cache=True)
+def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
+    """u @ vt of 3 x 3 matrices into `out` as numpy's matmul computes it (a dgemm per matrix of a stack, in
+    OpenBLAS: from +0, one fused multiply-add per k in order)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = _fma(u[i, 2], vt[2, j], _fma(u[i, 1], vt[1, j], _fma(u[i, 0], vt[0, j], 0.0)))
+
+
+@njit(cache=True)
+def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: np.ndarray, out: np.ndarray) -> None:
+    """mean_target - rotation @ mean_source into `out` as `mean_target - np.einsum("bij,bj->bi", ...)` does:
+    einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1, added to its 0."""
+    for i in range(3):
+        product = (rotation[i, 0] * mean_source[0] + rotation[i, 2] * mean_source[2]) + rotation[i, 1] * mean_source[1]
+        out[i] = mean_target[i] - (0.0 + product)
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """a * b + c rounded once (LLVM's fma: the machine's instruction, as OpenBLAS's kernels use it)."""
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@njit(cache=True)
 def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
              target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per set b, with w = weights / total (1 where the total is not positive): the weighted means of
     source and target, the cross-covariance sum_p w_p t_p s_p^T and (2, B, 3, 3) either side's covariance
-    (source first), of the centred points. Each sum adds its terms in order from 0, each term
-    (w_p * x_i) * y_j, as `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one call instead of a dozen."""
+    (source first), of the centred points (`_moments_of`)."""
     count, points = weights.shape
     mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
     cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
     w = np.empty(points)
     centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
     for b in range(count):
-        safe = total[b] if total[b] > 0 else 1.0
-        for p in range(points):
-            w[p] = weights[b, p] / safe
-        for p in range(points):
-            for i in range(3):
-                mean_source[b, i] += w[p] * source[b, p, i]
-                mean_target[b, i] += w[p] * target[b, p, i]
-        for p in range(points):
-            for i in range(3):
-                centred_source[p, i] = source[b, p, i] - mean_source[b, i]
-                centred_target[p, i] = target[b, p, i] - mean_target[b, i]
-        for p in range(points):
-            for i in range(3):
-                for j in range(3):
-                    cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
-                    spreads[0, b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
-                    spreads[1, b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
+        _moments_of(b, weights, total[b], source, target, mean_source, mean_target, cross, spreads, w,
+                    centred_source, centred_target)
     return mean_source, mean_target, cross, spreads
 
 
 @njit(cache=True)
+def _moments_of(b, weights, total, source, target, mean_source, mean_target, cross, spreads, w, centred_source,
+                centred_target) -> None:
+    """`_moments` of set b into row b of the zeroed outputs (w, centred_*: scratch). Each sum adds its terms in
+    order from 0, each term (w_p * x_i) * y_j, as `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one
+    call instead of a dozen."""
+    points = weights.shape[1]
+    safe = total if total > 0 else 1.0
+    for p in range(points):
+        w[p] = weights[b, p] / safe
+    for p in range(points):
+        for i in range(3):
+            mean_source[b, i] += w[p] * source[b, p, i]
+            mean_target[b, i] += w[p] * target[b, p, i]
+    for p in range(points):
+        for i in range(3):
+            centred_source[p, i] = source[b, p, i] - mean_source[b, i]
+            centred_target[p, i] = target[b, p, i] - mean_target[b, i]
+    for p in range(points):
+        for i in range(3):
+            for j in range(3):
+                cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
+                spreads[0, b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
+                spreads[1, b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
+
+
+@njit(cache=True)
 def _proper(u: np.ndarray, vt: np.ndarray) -> None:
+    """`_proper_of` of each of a stack's u and vt, in place."""
+    for b in range(len(u)):
+        _proper_of(u[b], vt[b])
+
+
+@njit(cache=True)
+def _proper_of(u: np.ndarray, vt: np.ndarray) -> None:
     """In place, u's third column negated where u vt is a reflection, so that u vt is a rotation: what
     `u[:, :, 2] *= np.where(sign == 0, 1, sign)` with `sign = np.sign(np.linalg.det(u @ vt))` does, without the
     product and LAPACK's determinant. The SVD's u and vt are orthogonal, so det(u) det(vt) and det(u vt) are both
     +-1 to within round-off and never 0: the same sign, and NaN alike where the SVD gave NaN (then the sets'
     covariances are not finite either, and `_settled` replaces the rotation)."""
-    for b in range(len(u)):
-        sign = np.sign(_det3(u[b]) * _det3(vt[b]))
-        factor = 1.0 if sign == 0 else sign
-        for i in range(3):
-            u[b, i, 2] *= factor
+    sign = np.sign(_det3(u) * _det3(vt))
+    factor = 1.0 if sign == 0 else sign
+    for i in range(3):
+        u[i, 2] *= factor
 
 
 @njit(cache=True)
@@ -174,17 +372,50 @@ def _det3(m: np.ndarray) -> float:
 @njit(cache=True)
 def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, source_variances: np.ndarray,
              target_variances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B,) whether each set fixes a pose (positive weights, neither side collinear), and (B,) the smaller of
-    the two sides' `_ratio`, np.minimum's way; a set that fixes none gets the identity, in place."""
+    """(B,) `_settle` of each set."""
     ok, measure = np.empty(len(total), np.bool_), np.empty(len(total))
     for b in range(len(total)):
-        ok[b] = total[b] > 0 and _spread_ok(source_variances[b]) and _spread_ok(target_variances[b])
-        if not ok[b]:
-            rotation[b] = np.eye(3)
-            translation[b] = 0.0
-        source, target = _ratio_of(source_variances[b]), _ratio_of(target_variances[b])
-        measure[b] = source if source < target or np.isnan(source) else target
+        ok[b], measure[b] = _settle(rotation[b], translation[b], total[b], source_variances[b], target_variances[b])
     return ok, measure
+
+
+@njit(cache=True)
+def _settle(rotation: np.ndarray, translation: np.ndarray, total: float, source_variances: np.ndarray,
+            target_variances: np.ndarray) -> tuple[bool, float]:
+    """Whether a set fixes a pose (positive weights, neither side collinear), and the smaller of the two sides'
+    `_ratio`, np.minimum's way; a set that fixes none gets the identity, in place."""
+    ok = _kept(rotation, translation, total > 0 and _spread_ok(source_variances) and _spread_ok(target_variances))
+    source, target = _ratio_of(source_variances), _ratio_of(target_variances)
+    return ok, source if source < target or np.isnan(source) else target
+
+
+@njit(cache=True)
+def _kept(rotation: np.ndarray, translation: np.ndarray, ok: bool) -> bool:
+    """`ok`, the pose replaced by the identity, in place, where it is not."""
+    if not ok:
+        rotation[:] = np.eye(3)
+        translation[:] = 0.0
+    return ok
+
+
+@njit(cache=True)
+def _surely_spread(covariance: np.ndarray) -> bool:
+    """True only where `_spread_ok` of LAPACK's eigenvalues of the finite symmetric 3 x 3 `covariance` (its lower
+    triangle, as dsyevd reads it) is surely True, told without them: its middle eigenvalue is at least the
+    smaller one of each 2 x 2 principal submatrix (Cauchy's interlacing), computed here within 12 eps of its
+    Frobenius norm F, and dsyevd's eigenvalues lie within 1e-10 F of the exact ones (it is backward stable:
+    within a few hundred eps of F for a 3 x 3 matrix). So the middle eigenvalue LAPACK gives exceeds 0.8e-9 F,
+    above either of `_spread_ok`'s thresholds (1e-12 or 1e-12 of the largest, at most F + 1e-10 F). Where this
+    says False (a row of points, a set too small to tell), the eigenvalues decide."""
+    m = covariance
+    norm = np.sqrt(m[0, 0] * m[0, 0] + m[1, 1] * m[1, 1] + m[2, 2] * m[2, 2]
+                   + 2.0 * (m[1, 0] * m[1, 0] + m[2, 0] * m[2, 0] + m[2, 1] * m[2, 1]))
+    middle_at_least = -np.inf
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        a, d, b = m[i, i], m[j, j], m[j, i]
+        half = 0.5 * (a - d)
+        middle_at_least = max(middle_at_least, 0.5 * (a + d) - np.sqrt(half * half + b * b))
+    return middle_at_least > 1e-9 * norm + 2e-12
 
 
 @njit(cache=True)

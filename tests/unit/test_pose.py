@@ -269,3 +269,149 @@ def test_weighted_sets_are_the_padded_numpy_construction_to_the_bit(mode):
                                                 (landmark_centers, landmark_axes), mode)
         assert weights.tobytes() == expected.tobytes()
         assert source.tobytes() == observed_centers[obs].tobytes() and target.tobytes() == landmark_centers[lm].tobytes()
+
+
+def _sets(rng, count, width):
+    """`count` sets of `width` points: a noisy rigid copy each, weights with exact zeros."""
+    source = rng.normal(size=(count, width, 3)) * 10.0 ** rng.uniform(-2, 1)
+    target = source @ random_rotation(rng).T + rng.normal(size=(count, 1, 3)) + rng.normal(scale=0.05, size=source.shape)
+    return source, target, rng.random((count, width)) * (rng.random((count, width)) > 0.2)
+
+
+def _same_bits(got, want):
+    for a, b in zip(got, want):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+@pytest.mark.parametrize("count", [0, 1, 5])
+def test_the_compiled_batch_fit_is_the_numpy_formulation_at_every_width(count):
+    """Widths 1 to 40 (the weights' pairwise sum changes its order at 8, its padding zeros with it), random,
+    collinear, a plane, zero weights: fit_rigid_conditioned is `_numpy_fit` and fit_rigid_batch its first three."""
+    rng = np.random.default_rng(20 + count)
+    for width in range(1, 41):
+        source, target, weights = _sets(rng, count, width)
+        if count > 1:
+            source[0] = np.outer(rng.normal(size=width), (1.0, 2.0, -0.5))  # a row
+            source[1, :, 2] = 0.0  # a plane
+            weights[-1] = 0.0
+        weights[:, width // 2:] = 0.0  # padded
+        expected = _numpy_fit(source, target, weights)
+        _same_bits(fit_rigid_conditioned(source, target, weights), expected)
+        _same_bits(fit_rigid_batch(source, target, weights), expected[:3])
+
+
+def test_the_compiled_batch_fit_sums_other_layouts_as_numpy_does():
+    """Weights given transposed, as integers or float32: summed by numpy in their own layout and type, the
+    gufunc passes' bits (and `_numpy_fit`'s, for float64)."""
+    from clipclique.pose import _fitted_by_gufuncs
+
+    rng = np.random.default_rng(21)
+    for width in (3, 9, 17, 40):
+        source, target, weights = _sets(rng, 4, width)
+        transposed = np.asfortranarray(weights)
+        _same_bits(fit_rigid_conditioned(source, target, transposed), _numpy_fit(source, target, transposed))
+        for given in (transposed, (weights * 5).astype(np.int64), weights.astype(np.float32)):
+            _same_bits(fit_rigid_conditioned(source, target, given), _fitted_by_gufuncs(source, target, given))
+
+
+def test_sets_that_are_not_finite_fit_as_the_gufunc_passes_do():
+    """NaN and inf in points and weights, and moments that overflow: those sets by `_fitted_by_gufuncs`
+    (LAPACK's own answer to them), all four outputs to the bit, the finite ones beside them unchanged."""
+    from clipclique.pose import _fitted_by_gufuncs
+
+    rng = np.random.default_rng(22)
+    for width in (1, 4, 9, 33):
+        source, target, weights = _sets(rng, 6, width)
+        source[1, 0, 0], target[2, -1, 2], weights[3, 0] = np.nan, np.inf, np.inf
+        source[4] *= 1e160  # the covariances overflow
+        target[5, 0, 1] = -np.inf
+        with np.errstate(all="ignore"):
+            fitted, expected = fit_rigid_conditioned(source, target, weights), _fitted_by_gufuncs(source, target, weights)
+            _same_bits(fitted, expected)
+            _same_bits(fit_rigid_batch(source, target, weights), expected[:3])
+        assert not fitted[2][1:].any()
+        _same_bits([a[:1] for a in fitted], _numpy_fit(source[:1], target[:1], weights[:1]))
+
+
+def test_lapack_called_directly_gives_the_gufuncs_bits():
+    """dgesdd and dsyevd from compiled code (scipy's LAPACK) against numpy's gufuncs: random, covariance-like,
+    zero, rank 1 and 2, -0 entries, and a matrix whose triangles differ (the lower one is read)."""
+    from numba import njit
+
+    from clipclique.pose import _eigvalsh_of, _lapack, _svd_of, _workspace
+
+    @njit
+    def decomposed(lapack, matrices):
+        scratch = _workspace(lapack)
+        u, vt, values = np.empty_like(matrices), np.empty_like(matrices), np.empty((len(matrices), 3))
+        failures = 0
+        for b in range(len(matrices)):
+            left, right, failed = _svd_of(lapack, scratch, matrices[b])
+            u[b], vt[b] = left, right
+            eigenvalues, eig_failed = _eigvalsh_of(lapack, scratch, matrices[b])
+            values[b] = eigenvalues
+            failures += failed + eig_failed
+        return u, vt, values, failures
+
+    rng = np.random.default_rng(23)
+    points = rng.normal(size=(3000, 8, 3))
+    exact = [np.zeros((3, 3)), np.outer((1.0, 2.0, 3.0), (1.0, 2.0, 3.0)), np.diag((1.0, 0.0, -0.0)), np.eye(3),
+             np.diag((2.0, 2.0, 1.0)), np.array([[1.0, 5.0, -0.0], [0.0, 1.0, 7.0], [2.0, 3.0, 1.0]])]
+    matrices = np.concatenate((rng.normal(size=(3000, 3, 3)), np.einsum("bpi,bpj->bij", points, points) / 8,
+                               np.array(exact)))
+    u, vt, values, failures = decomposed(_lapack(), matrices)
+    assert failures == 0
+    expected_u, _, expected_vt = np.linalg.svd(matrices)
+    assert u.tobytes() == expected_u.tobytes() and vt.tobytes() == expected_vt.tobytes()
+    assert values.tobytes() == np.linalg.eigvalsh(matrices).tobytes()
+
+
+def test_the_rotation_and_translation_are_numpys_matmul_and_einsum_to_the_bit():
+    """u @ vt (OpenBLAS's dgemm: fused multiply-adds) and mean_target - einsum("bij,bj->bi", ...) of orthogonal,
+    general and exact matrices with 0, -0 and ties."""
+    from numba import njit
+
+    from clipclique.pose import _rotation_of, _translation_of
+
+    @njit
+    def composed(u, vt, mean_source, mean_target):
+        rotation, translation = np.empty_like(u), np.empty_like(mean_source)
+        for b in range(len(u)):
+            _rotation_of(u[b], vt[b], rotation[b])
+            _translation_of(rotation[b], mean_source[b], mean_target[b], translation[b])
+        return rotation, translation
+
+    rng = np.random.default_rng(24)
+    orthogonal = np.linalg.qr(rng.normal(size=(4000, 3, 3)))[0]
+    exact = rng.choice([0.0, -0.0, 1.0, -1.0, 0.5], size=(600, 3, 3))
+    u = np.concatenate((orthogonal[:2000], rng.normal(size=(1000, 3, 3)), exact[:300]))
+    vt = np.concatenate((orthogonal[2000:], rng.normal(size=(1000, 3, 3)), exact[300:]))
+    mean_source = np.concatenate((rng.normal(size=(3000, 3)), rng.choice([0.0, -0.0, 2.0, -1.0], size=(300, 3))))
+    mean_target = np.concatenate((rng.normal(size=(3000, 3)), rng.choice([0.0, -0.0, 1.0], size=(300, 3))))
+    rotation, translation = composed(u, vt, mean_source, mean_target)
+    assert rotation.tobytes() == (u @ vt).tobytes()
+    assert translation.tobytes() == (mean_target - np.einsum("bij,bj->bi", rotation, mean_source)).tobytes()
+
+
+def test_a_spread_told_without_eigenvalues_is_never_wrong_and_usually_told():
+    """`_surely_spread` says True only where LAPACK's eigenvalues pass `_spread_ok`: on sets thinned towards a
+    row and a point across 14 decades (the thresholds' neighbourhood); and it tells ordinary sets, whose
+    eigenvalues the batch fit then skips."""
+    from clipclique.pose import _spread_ok, _surely_spread
+
+    rng = np.random.default_rng(25)
+    told = untold = collinear = 0
+    for trial in range(6000):
+        points = rng.normal(size=(int(rng.integers(3, 12)), 3)) * 10.0 ** rng.uniform(-7, 3)
+        thin = 10.0 ** rng.uniform(-12, 0)
+        points[:, 1] = points[:, 0] * rng.normal() + points[:, 1] * thin
+        points[:, 2] = points[:, 0] * rng.normal() + points[:, 2] * thin * rng.uniform(0, 1)
+        centred = points - points.mean(axis=0)
+        covariance = centred.T @ centred / len(points)
+        covariance[0, 1] = np.nextafter(covariance[0, 1], np.inf)  # the upper triangle is not read
+        sure, spread = _surely_spread(covariance), _spread_ok(np.linalg.eigvalsh(covariance))
+        assert spread or not sure
+        told, untold, collinear = told + (sure and spread), untold + (spread and not sure), collinear + (not spread)
+    assert told > 1000 and untold > 100 and collinear > 1000  # (1363, 346, 4291)
+    ordinary = [_surely_spread(np.cov(rng.normal(size=(6, 3)).T)) for _ in range(500)]
+    assert all(ordinary)

@@ -247,9 +247,7 @@ def _svd_of(lapack, scratch, matrix):
     """u and vt (views of the scratch, valid until the next call) of a finite 3 x 3 matrix by dgesdd, and whether
     LAPACK failed."""
     integers, characters, copy, u, vt, values, work, work_integers, _, _ = scratch
-    for i in range(3):
-        for j in range(3):
-            copy[i + 3 * j] = matrix[i, j]  # column-major
+    _column_major(matrix, copy)
     three = integers[_THREE:].ctypes.data
     _call(lapack[0], (characters.ctypes.data, three, three, copy.ctypes.data, three, values.ctypes.data,
                       u.ctypes.data, three, vt.ctypes.data, three, work.ctypes.data,
@@ -262,15 +260,21 @@ def _eigvalsh_of(lapack, scratch, matrix):
     """The ascending eigenvalues of a finite symmetric 3 x 3 matrix (its lower triangle) by dsyevd, and whether
     LAPACK failed."""
     integers, characters, copy, _, _, _, _, _, work, work_integers = scratch
-    for i in range(3):
-        for j in range(3):
-            copy[i + 3 * j] = matrix[i, j]
+    _column_major(matrix, copy)
     values = np.empty(3)
     three = integers[_THREE:].ctypes.data
     _call(lapack[1], (characters[1:].ctypes.data, characters[2:].ctypes.data, three, copy.ctypes.data, three,
                       values.ctypes.data, work.ctypes.data, integers[_EIG_WORK:].ctypes.data,
                       work_integers.ctypes.data, integers[_EIG_INTS:].ctypes.data, integers[_INFO:].ctypes.data))
     return values, integers[_INFO] != 0
+
+
+@njit(cache=True)
+def _column_major(matrix: np.ndarray, out: np.ndarray) -> None:
+    """A 3 x 3 matrix into `out` (9,) column after column, as LAPACK reads it (the call overwrites it)."""
+    for i in range(3):
+        for j in range(3):
+            out[i + 3 * j] = matrix[i, j]
 
 
 @njit(cache=True)

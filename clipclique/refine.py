@@ -228,8 +228,7 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
             break
         pairs, counts = _stacked_nearby_pairs(rotations[active], translations[active], observations, map, similarity,
                                               radius, landmarks)
-        starts = np.cumsum(counts) - counts
-        refits = np.flatnonzero(counts >= np.maximum(3, sizes[active]))
+        starts, refits = _refitting(counts, sizes[active])
         if not len(refits):
             break
         # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
@@ -238,11 +237,8 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
         firsts = refits[firsts]
         rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
                                            weights)
-        kept = ok[fitted]
-        refits, fitted = refits[kept], fitted[kept]
-        active = active[refits]
-        rotations[active], translations[active], sizes[active] = rotation[fitted], translation[fitted], counts[refits]
-        origin[active], moved[active] = offset + starts[refits], True
+        active = _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations,
+                        translations, sizes, origin, moved)
         found.append(pairs)
         offset += len(pairs)
     if not moved.any():
@@ -256,9 +252,62 @@ def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observatio
            similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
     with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
-    chosen = pairs[np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())]
-    source, target, w = weighted_sets(chosen, similarity[chosen[:, 0], chosen[:, 1]], counts, (0, 0, similarity[0, 0]),
+    chosen, scores = _gathered(pairs, starts, counts, similarity)
+    source, target, w = weighted_sets(chosen, scores, counts, (0, 0, similarity[0, 0]),
                                       (observations.ellipsoids.centers, observations.ellipsoids.axes),
                                       (map.ellipsoids.centers, map.ellipsoids.axes), weights)
     rotation, translation, ok = fit_rigid_batch(source, target, w)
     return rotation, translation, ok & (np.count_nonzero(w, axis=1) >= 3)
+
+
+@njit(cache=True)
+def _refitting(counts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) where each pose's nearby pairs begin among all (`counts[b]` each), and the poses that refit: those
+    with at least 3 pairs and no fewer than they hold (`sizes`), in order. One pass for numpy's
+    `np.cumsum(counts) - counts` and `np.flatnonzero(counts >= np.maximum(3, sizes))` (a call costs more than
+    the work)."""
+    starts, refits = np.empty(len(counts), np.int64), np.empty(len(counts), np.int64)
+    start, found = 0, 0
+    for b in range(len(counts)):
+        starts[b] = start
+        start += counts[b]
+        if counts[b] >= max(3, sizes[b]):
+            refits[found] = b
+            found += 1
+    return starts, refits[:found].copy()
+
+
+@njit(cache=True)
+def _gathered(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray,
+              similarity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sets pairs[start: start + count] one after another (M, 2), and (M,) each pair's similarity: numpy's
+    `pairs[np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())]` and
+    `similarity[chosen[:, 0], chosen[:, 1]]` in one pass."""
+    chosen = np.empty((counts.sum(), 2), np.int64)
+    scores = np.empty(counts.sum(), similarity.dtype)
+    row = 0
+    for b in range(len(counts)):
+        for i in range(starts[b], starts[b] + counts[b]):
+            chosen[row, 0], chosen[row, 1] = pairs[i, 0], pairs[i, 1]
+            scores[row] = similarity[pairs[i, 0], pairs[i, 1]]
+            row += 1
+    return chosen, scores
+
+
+@njit(cache=True)
+def _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations, translations, sizes,
+           origin, moved):
+    """A round's refits taken where their set has a pose (`ok[fitted[r]]`): hypothesis `active[refits[r]]` gets the
+    pose of its set, `counts[refits[r]]` pairs from `offset + starts[refits[r]]` on and is marked moved, in place; the
+    hypotheses taken, in order (those still refining). numpy's masks and fancy assignments in one pass."""
+    taken = np.empty(len(refits), np.int64)
+    count = 0
+    for r in range(len(refits)):
+        f = fitted[r]
+        if ok[f]:
+            a = active[refits[r]]
+            rotations[a], translations[a] = rotation[f], translation[f]
+            sizes[a], origin[a], moved[a] = counts[refits[r]], offset + starts[refits[r]], True
+            taken[count] = a
+            count += 1
+    return taken[:count].copy()

@@ -274,7 +274,8 @@ def test_weighted_sets_are_the_padded_numpy_construction_to_the_bit(mode):
 def _sets(rng, count, width):
     """`count` sets of `width` points: a noisy rigid copy each, weights with exact zeros."""
     source = rng.normal(size=(count, width, 3)) * 10.0 ** rng.uniform(-2, 1)
-    target = source @ random_rotation(rng).T + rng.normal(size=(count, 1, 3)) + rng.normal(scale=0.05, size=source.shape)
+    target = source @ random_rotation(rng).T + rng.normal(size=(count, 1, 3))
+    target += rng.normal(scale=0.05, size=source.shape)
     return source, target, rng.random((count, width)) * (rng.random((count, width)) > 0.2)
 
 
@@ -326,7 +327,8 @@ def test_sets_that_are_not_finite_fit_as_the_gufunc_passes_do():
         source[4] *= 1e160  # the covariances overflow
         target[5, 0, 1] = -np.inf
         with np.errstate(all="ignore"):
-            fitted, expected = fit_rigid_conditioned(source, target, weights), _fitted_by_gufuncs(source, target, weights)
+            fitted = fit_rigid_conditioned(source, target, weights)
+            expected = _fitted_by_gufuncs(source, target, weights)
             _same_bits(fitted, expected)
             _same_bits(fit_rigid_batch(source, target, weights), expected[:3])
         assert not fitted[2][1:].any()

@@ -197,3 +197,41 @@ def test_the_compiled_move_is_numpys_einsum_to_the_bit():
         translations, centers = rng.normal(scale=3.0, size=(poses, 3)), rng.normal(scale=2.0, size=(points, 3))
         expected = (np.einsum("bij,kj->bki", rotations, centers) + translations[:, None]).reshape(-1, 3)
         assert refine_module._moved(rotations, translations, centers).tobytes() == expected.tobytes()
+
+
+def test_the_compiled_round_bookkeeping_is_numpys_to_the_bit():
+    """`_refitting`, `_gathered` and `_taken` against the numpy expressions they replace: no pose, one, fifty;
+    empty sets, sets under 3 and under the hypothesis's own size, ties of sizes, sets that found no pose."""
+    rng = np.random.default_rng(12)
+    for trial in range(300):
+        poses = int(rng.choice([0, 1, 2, 7, 50]))
+        counts, sizes = rng.integers(0, 9, poses), rng.integers(3, 7, poses)
+        starts, refits = refine_module._refitting(counts, sizes)
+        assert starts.tobytes() == (np.cumsum(counts) - counts).tobytes()
+        assert refits.tobytes() == np.flatnonzero(counts >= np.maximum(3, sizes)).tobytes()
+        similarity = rng.choice([-0.0, 0.0, 0.4, np.nan, 0.9], size=(6, 9)).astype(rng.choice([np.float64, np.float32]))
+        pairs = np.column_stack((rng.integers(0, 6, counts.sum()), rng.integers(0, 9, counts.sum())))
+        chosen, scores = refine_module._gathered(pairs, starts[refits], counts[refits], similarity)
+        expected = pairs[np.repeat(starts[refits] - np.cumsum(counts[refits]) + counts[refits], counts[refits])
+                         + np.arange(counts[refits].sum())]
+        assert chosen.tobytes() == expected.tobytes()
+        assert scores.tobytes() == similarity[expected[:, 0], expected[:, 1]].tobytes()
+        hypotheses = poses + int(rng.integers(0, 4))
+        active = np.sort(rng.choice(hypotheses, poses, replace=False)).astype(np.int64)
+        fitted = rng.integers(0, max(1, len(refits)), len(refits))
+        rotation, translation = rng.normal(size=(max(1, len(refits)), 3, 3)), rng.normal(size=(max(1, len(refits)), 3))
+        ok, offset = rng.random(max(1, len(refits))) < 0.7, int(rng.integers(0, 40))
+        state = [rng.normal(size=(hypotheses, 3, 3)), rng.normal(size=(hypotheses, 3)), rng.integers(0, 9, hypotheses),
+                 rng.integers(0, 99, hypotheses), rng.random(hypotheses) < 0.5]
+        expected_state = [a.copy() for a in state]
+        taken = refine_module._taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, *state)
+        kept = ok[fitted]
+        kept_refits, kept_fitted = refits[kept], fitted[kept]
+        expected_active = active[kept_refits]
+        expected_state[0][expected_active] = rotation[kept_fitted]
+        expected_state[1][expected_active] = translation[kept_fitted]
+        expected_state[2][expected_active] = counts[kept_refits]
+        expected_state[3][expected_active], expected_state[4][expected_active] = offset + starts[kept_refits], True
+        assert taken.tobytes() == expected_active.tobytes()
+        for got, want in zip(state, expected_state):
+            assert got.tobytes() == want.tobytes()

@@ -41,7 +41,7 @@ from clipclique import (cliquesearch, compatibility, confidence, consensus, grap
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
-from clipclique.pose import fit_rigid_conditioned, weighted_sets
+from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.projection import pair_iou
 from clipclique.stack import Stack, alike
 from clipclique.types import Hypothesis, Map, Observations
@@ -470,7 +470,7 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
         (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
         config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
-    ok &= (np.count_nonzero(weights, axis=1) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
+    ok &= (nonzero_counts(weights) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
 

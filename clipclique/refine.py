@@ -14,7 +14,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
-from clipclique.pose import fit_rigid_batch, weighted_sets
+from clipclique.pose import fit_rigid_batch, nonzero_counts, weighted_sets
 from clipclique.stack import Stack, alike
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
@@ -257,7 +257,7 @@ def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observatio
                                       (observations.ellipsoids.centers, observations.ellipsoids.axes),
                                       (map.ellipsoids.centers, map.ellipsoids.axes), weights)
     rotation, translation, ok = fit_rigid_batch(source, target, w)
-    return rotation, translation, ok & (np.count_nonzero(w, axis=1) >= 3)
+    return rotation, translation, ok & (nonzero_counts(w) >= 3)
 
 
 @njit(cache=True)

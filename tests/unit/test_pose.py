@@ -4,7 +4,8 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
 from clipclique.pose import (MIN_SPREAD_M, RELATIVE_SPREAD, DegeneratePoseError, correspondence_weights, fit_rigid,
-                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity, weighted_sets)
+                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity, nonzero_counts,
+                             weighted_sets)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -417,3 +418,11 @@ def test_a_spread_told_without_eigenvalues_is_never_wrong_and_usually_told():
     assert told > 1000 and untold > 100 and collinear > 1000  # (1363, 346, 4291)
     ordinary = [_surely_spread(np.cov(rng.normal(size=(6, 3)).T)) for _ in range(500)]
     assert all(ordinary)
+
+
+def test_nonzero_counts_are_numpys_count_nonzero():
+    """0 and -0 do not count, NaN and inf do; no rows, no columns, one of each."""
+    rng = np.random.default_rng(26)
+    for rows, width in [(0, 3), (3, 0), (1, 1), (5, 40), (70, 13)]:
+        weights = rng.choice([0.0, -0.0, 0.5, np.nan, np.inf, 1e-300], size=(rows, width))
+        assert nonzero_counts(weights).tobytes() == np.count_nonzero(weights, axis=1).astype(np.int64).tobytes()

@@ -120,6 +120,9 @@ def _fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray,
     set's spread is read off its covariances' eigenvalues only where `_surely_spread` cannot tell."""
     source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
     given = np.asarray(weights)
+    if source.ndim != 3 or source.shape[2] != 3 or target.shape != source.shape or given.shape != source.shape[:2]:
+        raise ValueError(f"source {source.shape}, target {target.shape} and weights {given.shape} must be (B, P, 3) "
+                         "twice and (B, P)")  # the compiled pass reads them unchecked
     summed = given.dtype == np.float64 and given.flags.c_contiguous  # else numpy's sum of its own layout
     weights = np.ascontiguousarray(given, np.float64)
     total = np.zeros(0) if summed else np.asarray(given.sum(axis=1), np.float64)

@@ -426,3 +426,14 @@ def test_nonzero_counts_are_numpys_count_nonzero():
     for rows, width in [(0, 3), (3, 0), (1, 1), (5, 40), (70, 13)]:
         weights = rng.choice([0.0, -0.0, 0.5, np.nan, np.inf, 1e-300], size=(rows, width))
         assert nonzero_counts(weights).tobytes() == np.count_nonzero(weights, axis=1).astype(np.int64).tobytes()
+
+
+def test_batch_shapes_that_disagree_are_refused():
+    """The compiled pass reads its arrays unchecked: shapes that disagree are a ValueError, not a stray read."""
+    source = np.zeros((2, 4, 3))
+    for target, weights in [(np.zeros((2, 5, 3)), np.ones((2, 4))), (source, np.ones((2, 5))), (source, np.ones(4)),
+                            (np.zeros((2, 4, 2)), np.ones((2, 4)))]:
+        with pytest.raises(ValueError, match="must be"):
+            fit_rigid_conditioned(source, target, weights)
+    with pytest.raises(ValueError, match="must be"):
+        fit_rigid_batch(np.zeros((4, 3)), np.zeros((4, 3)))

@@ -64,18 +64,25 @@ def fit_ellipsoid_depth(
 
 
 def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The PCA box of the points whose neighbour distance `spread` is not an outlier: numpy's `eigh` and
-    matrix product, the sums, bounds and ordering around them in compiled code (the same operations)."""
-    limit, kept, mean, scatter = _inliers(points, spread, params.outlier_std_ratio)
-    if kept < params.min_points:
+    """The PCA box of the points whose neighbour distance `spread` is not an outlier: `_box_parts` in compiled
+    code (LAPACK's `eigh` as numpy calls it), numpy's where the scatter is not finite (numba's `eigh` refuses it)."""
+    parts = _box_parts(points, spread, params.outlier_std_ratio, params.min_points, params.min_axis)
+    if parts[0] == Oriented.NOT_FINITE:
+        limit, _, mean, scatter = _inliers(points, spread, params.outlier_std_ratio)
+        _, eigenvectors = np.linalg.eigh(scatter)
+        middle, axes = _extents_halved(points, spread, limit, mean, eigenvectors)
+        parts = (*_oriented(axes, eigenvectors, params.min_axis), mean, middle, eigenvectors)
+    return finished_box(*parts)
+
+
+def finished_box(oriented: int, axes: np.ndarray, rotation: np.ndarray, mean: np.ndarray, middle: np.ndarray,
+                 eigenvectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(center, semi-axes, rotation) from `_box_parts`: the centre added up by numpy's matrix product (BLAS's
+    bits), the axes ordered by numpy's sort and determinant where `_oriented` was unsure; None for no box."""
+    if oriented == Oriented.DEGENERATE:
         return None
-    _, rotation = np.linalg.eigh(scatter)
-    middle, axes = _extents_halved(points, spread, limit, mean, rotation)
-    center = mean + rotation @ middle
-    ordered, axes, rotation = _oriented(axes, rotation, params.min_axis)
-    if ordered == Oriented.DEGENERATE:
-        return None
-    if ordered == Oriented.UNSURE:  # numpy's sort and determinant decide, as they always have
+    center = mean + eigenvectors @ middle
+    if oriented == Oriented.UNSURE:  # numpy's sort and determinant decide, as they always have
         order = np.argsort(-axes)  # largest axis first, a stable convention for viewers and tests
         rotation = rotation[:, order]
         if np.linalg.det(rotation) < 0:
@@ -84,12 +91,32 @@ def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.
     return center, axes, rotation
 
 
+@njit(cache=True)
+def _box_parts(points: np.ndarray, spread: np.ndarray, ratio: float, min_points: int,
+               min_axis: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_box` up to its centre, in one compiled call: (an `Oriented` value, `_oriented`'s axes and rotation, the
+    inliers' mean, the middle of their extents and the scatter's eigenvectors). DEGENERATE also for fewer than
+    `min_points` inliers, NOT_FINITE (and nothing else meaningful) for a scatter that is not finite. numba's
+    `eigh` calls LAPACK's dsyevd as numpy's does: the same bits (tests/unit/test_observations.py)."""
+    limit, kept, mean, scatter = _inliers(points, spread, ratio)
+    nothing = np.zeros(3)
+    if kept < min_points:
+        return Oriented.DEGENERATE.value, nothing, np.eye(3), mean, nothing, np.eye(3)
+    if not np.isfinite(scatter).all():
+        return Oriented.NOT_FINITE.value, nothing, np.eye(3), mean, nothing, np.eye(3)
+    eigenvectors = np.ascontiguousarray(np.linalg.eigh(scatter)[1])  # C-ordered as numpy's: the same product
+    middle, axes = _extents_halved(points, spread, limit, mean, eigenvectors)
+    oriented, axes, rotation = _oriented(axes, eigenvectors, min_axis)
+    return oriented, axes, rotation, mean, middle, eigenvectors
+
+
 class Oriented(enum.IntEnum):
     """What `_oriented` made of a box's axes."""
 
     DONE = 0  # axes largest first, the rotation's columns in their order, right-handed
     DEGENERATE = 1  # an axis not finite or below the minimum: no ellipsoid
     UNSURE = 2  # two axes equal (numpy's sort orders ties its own way) or not a rotation: left as they were
+    NOT_FINITE = 3  # (`_box_parts` only) a scatter that is not finite: numpy's `eigh` decides
 
 
 @njit(cache=True)

@@ -8,6 +8,8 @@ and counted by reason, so a run can say where objects were lost; nothing becomes
 
 from __future__ import annotations
 
+import enum
+import functools
 import math
 from collections import Counter
 from dataclasses import dataclass
@@ -18,7 +20,7 @@ from numba import njit
 
 from clipclique.config import ObservationParams
 from clipclique.encoders import Crop, Encoder
-from clipclique.geometry import fit_ellipsoid_depth, stack_ellipsoids
+from clipclique.geometry import Oriented, _box_parts, _depth_points, finished_box, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Camera, Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
@@ -34,26 +36,24 @@ class Extraction:
 
 
 def extract_observations(frame: Frame, detections: Detections, params: ObservationParams = ObservationParams()) -> Extraction:
-    """Fit one camera-frame ellipsoid per usable detection."""
+    """Fit one camera-frame ellipsoid per usable detection: the whole frame in one compiled pass (`_frame_pass`)
+    where its input is plain, a detection the pass leaves to numpy (`Oriented.NOT_FINITE`) and every detection
+    of an unusual input (`_plain`) one at a time (`_fit_detection`)."""
     height, width = frame.depth.shape
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated, areas = [], [], [], []
+    passed = _frame_pass(frame, detections, params) if _plain(frame, detections) else None
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
-        window = _masked_window(frame.depth, frame.intrinsics, mask, box, params)
-        pixels, in_band = ((window.pixels, window.in_band) if detections.masks_in_boxes
-                           else mask_pixels(mask, params.border_px))
-        if pixels < params.min_mask_pixels:
-            dropped["tiny mask"] += 1
-            continue
-        if in_band > params.max_border_fraction * pixels:
-            dropped["border sliver"] += 1
-            continue
-        if window.with_depth < params.fit.min_points:
-            dropped["invalid depth"] += 1
-            continue
-        fit = fit_ellipsoid_depth(window.depth, window.intrinsics, window.mask, params.fit)
-        if fit is None:
-            dropped["degenerate fit"] += 1
+        if passed is None or passed.outcomes[k] == _Outcome.LEFT:
+            reason, fit, pixels, in_band = _fit_detection(frame, mask, box, detections.masks_in_boxes, params)
+        else:
+            pixels, in_band, fit, outcome = int(passed.pixels[k]), int(passed.in_band[k]), None, passed.outcomes[k]
+            if outcome == _Outcome.BOXED:
+                fit = finished_box(int(passed.oriented[k]), passed.axes[k], passed.rotations[k], passed.means[k],
+                                   passed.middles[k], passed.eigenvectors[k])
+            reason = DROP_REASONS[outcome - 1] if outcome != _Outcome.BOXED else None if fit is not None else "degenerate fit"
+        if reason is not None:
+            dropped[reason] += 1
             continue
         fits.append(fit)
         kept.append(k)
@@ -68,6 +68,126 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
                   None if frame.instances is None else crop(frame.instances, detections.boxes[k]), cut)
              for k, cut in zip(kept, truncated)]
     return Extraction(observations, crops, dict(dropped))
+
+
+def _fit_detection(frame: Frame, mask: np.ndarray, box: np.ndarray, in_box: bool, params: ObservationParams
+                   ) -> tuple[str | None, tuple[np.ndarray, np.ndarray, np.ndarray] | None, int, int]:
+    """(the reason it is dropped or None, its fit, its mask's pixels, those in the border band) of one detection."""
+    window = _masked_window(frame.depth, frame.intrinsics, mask, box, params)
+    pixels, in_band = (window.pixels, window.in_band) if in_box else mask_pixels(mask, params.border_px)
+    if pixels < params.min_mask_pixels:
+        return "tiny mask", None, pixels, in_band
+    if in_band > params.max_border_fraction * pixels:
+        return "border sliver", None, pixels, in_band
+    if window.with_depth < params.fit.min_points:
+        return "invalid depth", None, pixels, in_band
+    fit = fit_ellipsoid_depth(window.depth, window.intrinsics, window.mask, params.fit)
+    return None if fit is not None else "degenerate fit", fit, pixels, in_band
+
+
+class _Outcome(enum.IntEnum):
+    """What `_frame_pass` made of a detection."""
+
+    BOXED = 0  # fitted up to its centre (`geometry._box_parts`): its `Oriented` value says the rest
+    TINY_MASK = 1  # dropped, for DROP_REASONS[value - 1]
+    BORDER_SLIVER = 2
+    INVALID_DEPTH = 3
+    DEGENERATE_FIT = 4  # too few points
+    LEFT = 5  # to `_fit_detection`: a scatter that is not finite, which numpy's `eigh` decides
+
+
+class _Passed(NamedTuple):
+    """`_frame_pass`'s answer, per detection (the box parts meaningful where the outcome is BOXED)."""
+
+    outcomes: np.ndarray  # (K,) `_Outcome` values
+    pixels: np.ndarray  # (K,) the mask's pixels
+    in_band: np.ndarray  # (K,) ... within the image's border band
+    oriented: np.ndarray  # (K,) `Oriented` values, then `_box_parts`' (K, 3) axes, (K, 3, 3) rotations, ...
+    axes: np.ndarray
+    rotations: np.ndarray
+    means: np.ndarray
+    middles: np.ndarray
+    eigenvectors: np.ndarray
+
+
+def _plain(frame: Frame, detections: Detections) -> bool:
+    """Whether `_frame_pass` takes the input: float64 intrinsics (the window's shifted in their own type),
+    masks the depth's size and boxes whose corners `math.floor` makes small integers (an unusual input goes
+    detection by detection, where it fails or not as it always has)."""
+    boxes = np.asarray(detections.boxes)
+    return (frame.intrinsics.dtype == np.float64 and frame.intrinsics.shape == (3, 3)
+            and detections.masks.ndim == 3 and detections.masks.shape[1:] == frame.depth.shape
+            and boxes.shape == (len(detections.masks), 4) and bool((np.abs(boxes) < 2.0**52).all()))
+
+
+def _frame_pass(frame: Frame, detections: Detections, params: ObservationParams) -> _Passed:
+    """`_fit_detection` of every detection, in one compiled call (`_compiled_frame_pass`)."""
+    fit = params.fit
+    radius = math.ceil((math.sqrt(fit.outlier_neighbors + 1) - 1) / 2)  # as `fit_ellipsoid_depth`'s
+    run = _compiled_frame_pass(fit.outlier_neighbors, radius)
+    return _Passed(*run(detections.masks, np.asarray(detections.boxes, np.float64), frame.depth, frame.intrinsics,
+                        not detections.masks_in_boxes, params.erode_px, params.min_mask_pixels, params.max_depth,
+                        params.border_px, params.max_border_fraction, fit.min_points, fit.max_points,
+                        fit.outlier_std_ratio, fit.min_axis))
+
+
+@functools.cache
+def _compiled_frame_pass(k: int, radius: int):
+    """The compiled frame pass for `k` neighbours within `radius` pixels (`geometry._depth_points`'s constants)."""
+    depth_points = _depth_points(k, radius)
+
+    @njit(cache=True)
+    def frame_pass(masks, boxes, depth, intrinsics, whole, erode_px, min_pixels, max_depth, border_px,
+                   max_border_fraction, min_points, max_points, ratio, min_axis):
+        """`_fit_detection` of each detection, step for step: `_masked_window`, the drops, `fit_ellipsoid_depth`
+        and `_box_parts`, the same compiled passes on the same arrays (numpy's centre product is left to
+        `finished_box`). `whole`: count the whole masks (`mask_pixels`), not their windows."""
+        count = len(boxes)
+        height, width = depth.shape
+        outcomes = np.full(count, _Outcome.LEFT.value, np.int64)
+        pixels_of, in_band_of, oriented = np.zeros(count, np.int64), np.zeros(count, np.int64), np.zeros(count, np.int64)
+        axes, means, middles = np.zeros((count, 3)), np.zeros((count, 3)), np.zeros((count, 3))
+        rotations, eigenvectors = np.zeros((count, 3, 3)), np.zeros((count, 3, 3))
+        pad = erode_px + 1
+        for j in range(count):
+            mask = masks[j]
+            x0, y0 = max(math.floor(boxes[j, 0]) - pad, 0), max(math.floor(boxes[j, 1]) - pad, 0)
+            x1, y1 = min(math.ceil(boxes[j, 2]) + pad, width), min(math.ceil(boxes[j, 3]) + pad, height)
+            window_mask, window_depth, with_depth, pixels, in_band = _window_pixels(
+                mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], erode_px, min_pixels, max_depth,
+                (y0, x0, height, width, border_px))
+            if whole:
+                pixels, in_band = np.count_nonzero(mask), _band_pixels(mask, border_px)
+            pixels_of[j], in_band_of[j] = pixels, in_band
+            if pixels < min_pixels:
+                outcomes[j] = _Outcome.TINY_MASK.value
+                continue
+            if in_band > max_border_fraction * pixels:
+                outcomes[j] = _Outcome.BORDER_SLIVER.value
+                continue
+            if with_depth < min_points:
+                outcomes[j] = _Outcome.INVALID_DEPTH.value
+                continue
+            shifted = intrinsics.copy()
+            shifted[0, 2] -= x0
+            shifted[1, 2] -= y0
+            stride = max(1, math.ceil(math.sqrt(np.count_nonzero(window_mask) / max_points)))
+            if stride > 1:
+                shifted[:2] /= stride
+                points, spread = depth_points(window_depth[::stride, ::stride], window_mask[::stride, ::stride], shifted)
+            else:
+                points, spread = depth_points(window_depth, window_mask, shifted)
+            if len(points) < min_points:
+                outcomes[j] = _Outcome.DEGENERATE_FIT.value
+                continue
+            parts = _box_parts(points, spread, ratio, min_points, min_axis)
+            if parts[0] == Oriented.NOT_FINITE.value:
+                continue  # LEFT
+            outcomes[j], oriented[j] = _Outcome.BOXED.value, parts[0]
+            axes[j], rotations[j], means[j], middles[j], eigenvectors[j] = parts[1], parts[2], parts[3], parts[4], parts[5]
+        return outcomes, pixels_of, in_band_of, oriented, axes, rotations, means, middles, eigenvectors
+
+    return frame_pass
 
 
 def mask_pixels(mask: np.ndarray, band: int) -> tuple[int, int]:

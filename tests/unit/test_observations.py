@@ -405,6 +405,14 @@ def numpy_box(points: np.ndarray, spread: np.ndarray, params: FitParams):
     return center, axes[order], rotation
 
 
+def or_refused(fit, *arguments):
+    """`fit(*arguments)`, or "raises" where numpy's eigh refuses the scatter."""
+    try:
+        return fit(*arguments)
+    except np.linalg.LinAlgError:
+        return "raises"
+
+
 def test_box_orders_its_axes_as_numpy_did_to_the_bit():
     """Random clouds of every elongation and orientation, axes exactly equal (a cube's corners: numpy's sort
     decides), flat and too small clouds, infinite spreads: the same boxes, or None, to the bit."""
@@ -422,14 +430,121 @@ def test_box_orders_its_axes_as_numpy_did_to_the_bit():
     corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
     for stretch in ([1, 1, 1], [2, 1, 1], [1, 3, 1], [1, 1, 0.5], [0.5, 0.5, 2]):
         cases.append((corners * stretch, np.zeros(8)))
-    outcomes = {"box": 0, "none": 0}
+    for bad in (np.inf, -np.inf, np.nan, 1e300):  # a scatter that is not finite: numpy's eigh, as before
+        points = rng.normal(0, 1, (40, 3))
+        points[3, 1] = bad
+        cases.append((points, np.zeros(40)))
+    cases.append((np.array([[0.0, -0.0, 1.0], [-0.0, 0.0, 2.0], [1.0, -0.0, 0.0], [-0.0, 1.0, 0.0]] * 3), np.zeros(12)))
+    outcomes = {"box": 0, "none": 0, "raises": 0}
     for points, spread in cases:
-        got, want = _box(points, spread, params), numpy_box(points, spread, params)
-        assert (got is None) == (want is None)
-        outcomes["none" if got is None else "box"] += 1
-        if got is not None:
+        got, want = or_refused(_box, points, spread, params), or_refused(numpy_box, points, spread, params)
+        assert (got is None) == (want is None) and (got == "raises") == (want == "raises")
+        outcomes["none" if got is None else "raises" if got == "raises" else "box"] += 1
+        if got is not None and got != "raises":
             assert all(a.tobytes() == b.tobytes() for a, b in zip(got, want))
             assert np.linalg.det(got[2]) > 0 and np.all(np.diff(got[1]) <= 0)
-    assert outcomes["box"] > 80 and outcomes["none"] > 80
+    assert outcomes["box"] > 80 and outcomes["none"] > 80 and outcomes["raises"] > 0
     assert _oriented(np.ones(3), np.eye(3), 0.01)[0] == Oriented.UNSURE  # the cube's ties took numpy's way
     assert _oriented(np.array([1.0, 2.0, 3.0]), np.eye(3)[:, [2, 1, 0]], 0.01)[0] == Oriented.DONE
+
+
+def test_box_parts_eigenvectors_are_numpys_to_the_bit():
+    """numba's `eigh` in `_box_parts` (LAPACK's dsyevd, as numpy's) gives numpy's eigenvectors of the inliers'
+    scatter byte for byte: random clouds, axis-aligned ones (a diagonal scatter), repeated and zero eigenvalues."""
+    from clipclique.geometry import Oriented, _box_parts, _inliers
+
+    rng = np.random.default_rng(5)
+    checked = 0
+    for trial in range(3000):
+        scale = rng.choice([0.0, 1e-3, 0.05, 0.3, 1.0, 1.0], 3)
+        turn = np.eye(3) if trial % 3 == 0 else np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        points = rng.normal(0, 1, (int(rng.integers(4, 200)), 3)) * scale @ turn + rng.normal(0, 3, 3)
+        if trial % 5 == 0:
+            points = np.round(points, 1)  # ties between coordinates
+        spread = rng.uniform(0, 1, len(points))
+        parts = _box_parts(points, spread, 2.0, 4, 0.0)
+        _, _, mean, scatter = _inliers(points, spread, 2.0)
+        if parts[0] == Oriented.DEGENERATE:
+            continue
+        assert parts[0] != Oriented.NOT_FINITE
+        want = np.linalg.eigh(scatter)[1]
+        assert parts[5].tobytes() == want.tobytes() and parts[5].flags.c_contiguous and parts[3].tobytes() == mean.tobytes()
+        checked += 1
+    assert checked > 2500
+
+
+def each_detection(frame: Frame, detections: Detections, params: ObservationParams) -> list[tuple]:
+    """Each detection fitted on its own, the path every detection took before the frame pass."""
+    from clipclique.observations import _fit_detection
+
+    return [_fit_detection(frame, mask, box, detections.masks_in_boxes, params)
+            for mask, box in zip(detections.masks, detections.boxes)]
+
+
+def test_frame_pass_gives_each_detection_its_own_fit_to_the_bit():
+    """The compiled frame pass: the same drops (every reason), areas, border counts and ellipsoids, byte for byte,
+    as each detection on its own, whether the masks are counted whole or in their windows, subsampled or not;
+    an input the pass does not take (float32 intrinsics) goes detection by detection."""
+    from clipclique.observations import _Outcome, _frame_pass, _plain
+
+    frame, sphere = sphere_frame()
+    rng = np.random.default_rng(8)
+    frame.depth += rng.normal(0, 0.004, frame.depth.shape).astype(np.float32)
+    frame.depth[rng.random(frame.depth.shape) < 0.05] = np.nan
+    frame.depth[:, 150:155] = 9.0  # beyond max_depth
+    frame.depth[:, 300] = -0.0
+    masks = {name: np.zeros_like(sphere) for name in ("tiny", "sliver", "no_depth", "flat", "cut", "sparse", "empty")}
+    masks["tiny"][10:15, 100:105] = True
+    masks["sliver"][0:6, 100:140] = True
+    masks["no_depth"][180:230, 200:260] = True
+    frame.depth[180:230, 200:260] = 0.0
+    masks["flat"][20:80, 240:300] = True  # the wall at 4 m: flat but for the noise
+    masks["cut"][150:230, 0:60] = True
+    masks["sparse"] = sphere & (rng.random(sphere.shape) < 0.3)
+    frame.depth[30:60, 30:60] = 2.0  # a flat square: noise alone gives it thickness
+    masks["square"] = np.zeros_like(sphere)
+    masks["square"][30:60, 30:60] = True
+    stack = [sphere, sphere & (rng.random(sphere.shape) < 0.9), *masks.values()]
+    boxes = mask_boxes(np.stack(stack))
+    boxes[-1] = (5.0, 5.0, 5.0, 5.0)  # the empty mask: a point of a box
+    detections = Detections(np.stack(stack), boxes, np.zeros(len(stack), int), np.ones(len(stack)), np.arange(len(stack)))
+    reasons = set()
+    for params in (ObservationParams(min_mask_pixels=50), ObservationParams(fit=FitParams(max_points=700, min_axis=0.002)),
+                   ObservationParams(erode_px=0, border_px=0, min_mask_pixels=1)):
+        for in_boxes in (False, True):
+            detections.masks_in_boxes = in_boxes
+            assert _plain(frame, detections)
+            passed, wanted = _frame_pass(frame, detections, params), each_detection(frame, detections, params)
+            got = extract_observations(frame, detections, params)
+            fits = iter(zip(got.observations.ellipsoids.centers, got.observations.ellipsoids.axes,
+                            got.observations.ellipsoids.rotations))
+            for k, (reason, fit, pixels, in_band) in enumerate(wanted):
+                assert (passed.pixels[k], passed.in_band[k]) == (pixels, in_band) and passed.outcomes[k] != _Outcome.LEFT
+                reasons.add(reason)
+                if fit is not None:
+                    assert all(a.tobytes() == b.tobytes() for a, b in zip(next(fits), fit))
+            assert got.observations.detection_index.tolist() == [k for k, want in enumerate(wanted) if want[1] is not None]
+            assert got.dropped == {r: sum(want[0] == r for want in wanted) for r in got.dropped}
+    assert reasons == {None, "tiny mask", "border sliver", "invalid depth", "degenerate fit"}
+    frame.intrinsics = frame.intrinsics.astype(np.float32)
+    assert not _plain(frame, detections)
+    assert len(extract_observations(frame, detections).observations) > 0
+
+
+def test_a_scatter_numba_refuses_is_left_to_numpy():
+    """Intrinsics that send back-projected points to infinity: the frame pass leaves the detection to the
+    detection-by-detection fit (numpy's eigh decides, as it always did)."""
+    from clipclique.observations import _Outcome, _frame_pass
+
+    frame, sphere = sphere_frame()
+    frame.intrinsics = frame.intrinsics.copy()
+    frame.intrinsics[0, 0] = 1e-200  # x = (u - cx) z / fx near 1e202: its squares overflow
+    detections = detections_of([sphere], [1])
+    params = ObservationParams()
+    assert _frame_pass(frame, detections, params).outcomes.tolist() == [_Outcome.LEFT]
+    ((reason, fit, pixels, _),) = each_detection(frame, detections, params)
+    got = extract_observations(frame, detections, params).observations
+    assert reason is None and got.mask_areas.tolist() == [pixels]
+    ellipsoids = got.ellipsoids
+    assert all(a[0].tobytes() == b.tobytes() for a, b in zip((ellipsoids.centers, ellipsoids.axes, ellipsoids.rotations), fit))
+    assert fit[1][0] > 1e200  # numpy's eigh took the infinite scatter

@@ -56,7 +56,10 @@ def test_instance_boxes_are_the_masks_ids_counts_and_boxes(largest):
     np.testing.assert_array_equal(boxes, mask_boxes(instances[None] == ids[:, None, None]))
     assert boxes[:, 0].min() == 20  # the empty columns are outside every box
     assert all(len(part) == 0 for part in instance_boxes(np.zeros((4, 5), np.int32))[:2])
-    for image in (instances, instances[:, 20:], np.abs(instances), np.zeros((0, 3), np.int32)):
+    images = (instances, instances[:, 20:], np.abs(instances), np.zeros((0, 3), np.int32), np.abs(instances)[::2, ::3],
+              np.abs(instances).astype(np.int64), np.abs(instances).astype(np.int16), np.abs(instances).ravel(),
+              np.abs(instances).astype(np.uint16), np.full((2, 2), 7, np.int8), np.array([[2000, 0]], np.int32))
+    for image in images:  # compiled (2-D signed), bincount (others) or numpy's unique (negative, large ids)
         got, expected = id_counts(image), np.unique(image, return_counts=True)
         assert all(np.array_equal(a, b) and a.dtype == b.dtype for a, b in zip(got, expected))
 

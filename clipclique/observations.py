@@ -154,8 +154,7 @@ def _compiled_frame_pass(k: int, radius: int):
             x0, y0 = max(math.floor(boxes[j, 0]) - pad, 0), max(math.floor(boxes[j, 1]) - pad, 0)
             x1, y1 = min(math.ceil(boxes[j, 2]) + pad, width), min(math.ceil(boxes[j, 3]) + pad, height)
             window_mask, window_depth, with_depth, pixels, in_band = _window_pixels(
-                mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], erode_px, min_pixels, max_depth,
-                (y0, x0, height, width, border_px))
+                mask, depth, (y0, y1, x0, x1), erode_px, min_pixels, max_depth, border_px)
             if whole:
                 pixels, in_band = np.count_nonzero(mask), _band_pixels(mask, border_px)
             pixels_of[j], in_band_of[j] = pixels, in_band
@@ -233,44 +232,57 @@ def _masked_window(depth: np.ndarray, intrinsics: np.ndarray, mask: np.ndarray, 
     x0, y0 = max(math.floor(box[0]) - pad, 0), max(math.floor(box[1]) - pad, 0)
     x1, y1 = min(math.ceil(box[2]) + pad, width), min(math.ceil(box[3]) + pad, height)
     window_mask, window_depth, with_depth, pixels, in_band = _window_pixels(
-        mask[y0:y1, x0:x1], depth[y0:y1, x0:x1], params.erode_px, params.min_mask_pixels, params.max_depth,
-        (y0, x0, height, width, params.border_px))
+        mask, depth, (y0, y1, x0, x1), params.erode_px, params.min_mask_pixels, params.max_depth, params.border_px)
     shifted = intrinsics.copy()
     shifted[:2, 2] -= (x0, y0)
     return Window(window_depth, shifted, window_mask, with_depth, pixels, in_band)
 
 
 @njit(cache=True)
-def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixels: int, max_depth: float,
-                   placed: tuple[int, int, int, int, int]) -> tuple[np.ndarray, np.ndarray, int, int, int]:
+def _window_pixels(mask: np.ndarray, depth: np.ndarray, bounds: tuple[int, int, int, int], erode_px: int,
+                   min_pixels: int, max_depth: float, band: int) -> tuple[np.ndarray, np.ndarray, int, int, int]:
     """A detection's window prepared in compiled code, without scipy's and numpy's per-call overhead.
 
-    Returns the mask eroded `erode_px` times by the 4-neighbour cross with pixels beyond the edge
+    Returns, for the window `bounds` = (top, bottom, left, right) of the image (`mask[top:bottom, left:right]`
+    and the same of `depth`), the mask eroded `erode_px` times by the 4-neighbour cross with pixels beyond the edge
     unset (`scipy.ndimage.binary_erosion`'s), or the mask itself where fewer than `min_pixels`
     survive; the depth with values beyond `max_depth` (and NaN) set to 0; how many pixels of
-    the returned mask have a positive depth; and the window's mask pixels, and those in the image's
-    border band, where `placed` = (window top, left, image height, width, band) (`mask_pixels` of
-    the whole mask where it lies in the window). The window is copied once into flat arrays indexed by
-    unsigned integers, so that the compiler vectorizes the erosion's rows.
+    the returned mask have a positive depth; and the window's mask pixels, and those within `band` pixels of
+    the image's border (`mask_pixels` of the whole mask where it lies in the window). The window is read from
+    the whole image's rows and copied once into flat arrays, all indexed by unsigned integers, so that the
+    compiler vectorizes the rows; the band is counted afterwards, over its rows and columns alone.
     """
-    top, left, image_height, image_width, band = placed
-    everywhere = 2 * band >= min(image_height, image_width)  # the band covers the image (`_band_pixels`)
-    height, width = mask.shape
+    image_height, image_width = depth.shape
+    top, left = bounds[0], bounds[2]
+    bottom = min(bounds[1], image_height, mask.shape[0])  # as slicing both clips the window
+    right = min(bounds[3], image_width, mask.shape[1])
+    height, width = max(bottom - top, 0), max(right - left, 0)
     size = height * width
     given = np.empty(size, np.bool_)
     cut = np.empty((height, width), depth.dtype)
     flat_cut = cut.reshape(size)
-    pixels, in_band = 0, 0
+    pixels = 0
+    for v in range(height):
+        row, mask_row, depth_row = np.uint64(v * width), mask[top + v], depth[top + v]
+        for u in range(width):
+            t, at = np.uint64(u), np.uint64(left + u)
+            inside = mask_row[at]
+            given[row + t] = inside
+            pixels += inside
+            value = depth_row[at]
+            flat_cut[row + t] = value if value <= max_depth else 0.0
+    in_band = 0
+    everywhere = 2 * band >= min(image_height, image_width)  # the band covers the image (`_band_pixels`)
     for v in range(height):
         row = np.uint64(v * width)
-        row_in_band = everywhere or top + v < band or top + v >= image_height - band
-        for u in range(width):
-            inside = mask[v, u]
-            given[row + np.uint64(u)] = inside
-            pixels += inside
-            in_band += inside and (row_in_band or left + u < band or left + u >= image_width - band)
-            value = depth[v, u]
-            flat_cut[row + np.uint64(u)] = value if value <= max_depth else 0.0
+        if everywhere or top + v < band or top + v >= image_height - band:
+            for u in range(width):
+                in_band += given[row + np.uint64(u)]
+        else:  # the columns left of `band` and from `image_width - band` on (apart: the band is narrow)
+            for u in range(min(width, band - left)):
+                in_band += given[row + np.uint64(u)]
+            for u in range(max(image_width - band - left, 0), width):
+                in_band += given[row + np.uint64(u)]
     eroded = given
     for _ in range(erode_px):
         previous, eroded = eroded, np.zeros(size, np.bool_)
@@ -288,7 +300,7 @@ def _window_pixels(mask: np.ndarray, depth: np.ndarray, erode_px: int, min_pixel
         eroded = given
     with_depth = 0
     for t in range(size):
-        with_depth += eroded[t] and flat_cut[t] > 0
+        with_depth += eroded[t] & (flat_cut[t] > 0)
     return eroded.reshape((height, width)), cut, with_depth, pixels, in_band
 
 

@@ -313,8 +313,7 @@ def test_window_pixels_erode_and_cut_as_scipy_and_numpy():
     mask = np.zeros(depth.shape, bool)
     mask[3:27, 5:40] = rng.random((24, 35)) < 0.95
     for erode_px, min_pixels in ((0, 1), (1, 1), (2, 1), (2, 10_000)):
-        eroded, cut, with_depth, _, _ = _window_pixels(mask[1:, 2:], depth[1:, 2:], erode_px, min_pixels, 4.0,
-                                                       (1, 2, 30, 44, 3))
+        eroded, cut, with_depth, _, _ = _window_pixels(mask, depth, (1, 30, 2, 44), erode_px, min_pixels, 4.0, 3)
         want = ndimage.binary_erosion(mask[1:, 2:], iterations=erode_px) if erode_px else mask[1:, 2:]
         want = want if want.sum() >= min_pixels else mask[1:, 2:]
         want_cut = np.where(depth[1:, 2:] <= 4.0, depth[1:, 2:], 0).astype(np.float32)
@@ -331,8 +330,7 @@ def test_window_counts_are_mask_pixels_of_a_mask_inside_it(band):
     for top, left, bottom, right in ((0, 0, 20, 25), (30, 41, 44, 60), (5, 9, 40, 52), (0, 0, 44, 60), (10, 0, 13, 60)):
         mask = np.zeros(depth.shape, bool)
         mask[top:bottom, left:right] = rng.random((bottom - top, right - left)) < 0.6
-        *_, pixels, in_band = _window_pixels(mask[top:bottom, left:right], depth[top:bottom, left:right], 1, 1, 8.0,
-                                             (top, left, 44, 60, band))
+        *_, pixels, in_band = _window_pixels(mask, depth, (top, bottom, left, right), 1, 1, 8.0, band)
         assert (pixels, in_band) == mask_pixels(mask, band)
 
 

@@ -260,15 +260,22 @@ def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.n
         x, y, z, valid = np.zeros(size), np.zeros(size), np.zeros(size), np.zeros(size, np.bool_)
         first, last = np.full(height, width), np.full(height, -1)  # each row's valid columns, for the row pass
         count = 0
-        for v in range(height):
+        for v in range(height):  # branch-free: an invalid pixel writes the zeros it had
+            at = np.uint64((v + radius) * pitch + radius)
+            row_first, row_last, row_count = width, -1, 0
             for u in range(width):
                 depth_vu = depth[v, u]
-                if mask[v, u] and math.isfinite(depth_vu) and depth_vu > 0:
-                    p = (v + radius) * pitch + u + radius
-                    x[p], y[p], z[p] = (u - cx) * depth_vu / fx, (v - cy) * depth_vu / fy, depth_vu
-                    valid[p] = True
-                    count += 1
-                    first[v], last[v] = min(first[v], u), u
+                usable = mask[v, u] and depth_vu > 0 and depth_vu < np.inf  # finite and positive
+                p = at + np.uint64(u)
+                x[p] = (u - cx) * depth_vu / fx if usable else 0.0
+                y[p] = (v - cy) * depth_vu / fy if usable else 0.0
+                z[p] = depth_vu if usable else 0.0
+                valid[p] = usable
+                row_count += usable
+                row_first = min(row_first, u if usable else width)
+                row_last = u if usable else row_last
+            count += row_count
+            first[v], last[v] = row_first, row_last
         points = np.empty((count, 3))
         spread = np.full(count, np.inf)
         distances = np.zeros((ahead, rows * pitch))  # per ahead offset, the last `rows` rows' distances, by column

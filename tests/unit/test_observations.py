@@ -270,13 +270,15 @@ def square(value: float) -> float:
 
 @pytest.mark.parametrize(("k", "radius"), [(20, 2), (3, 1), (8, 1), (30, 3), (48, 3), (5, 2)])
 def test_neighbour_pass_gives_the_sequential_bits(k, radius):
-    """Holes, NaN, a ragged mask, rows of a single pixel and pixels without neighbours: every point and
+    """Holes, NaN, infinite, -0 and negative depths, a ragged mask, rows of a single pixel and pixels without neighbours: every point and
     spread equals the plain pixel-by-pixel pass to the bit (the compiled pass computes each distance
     once for both of its pixels and runs the rows vectorized; neither may change a sum)."""
     rng = np.random.default_rng(k + radius)
     depth = (2.0 + rng.normal(0, 0.05, (23, 31))).astype(np.float32)
     depth[rng.random(depth.shape) < 0.1] = np.nan
     depth[rng.random(depth.shape) < 0.1] = 0.0
+    for unusable in (np.inf, -np.inf, -0.0, -1.5):  # none of them a point
+        depth[rng.random(depth.shape) < 0.02] = unusable
     mask = rng.random(depth.shape) < 0.7
     mask[5] = False
     mask[5, 17] = True  # a row with one pixel
@@ -288,7 +290,7 @@ def test_neighbour_pass_gives_the_sequential_bits(k, radius):
     intrinsics = np.array([[50.0, 0, 14.3], [0, 52.0, 11.1], [0, 0, 1]])
     ours = _depth_points(k, radius)(depth, mask, intrinsics)
     theirs = sequential_points(depth, mask, intrinsics, k, radius)
-    assert len(theirs[0]) > 200 and np.isinf(theirs[1]).any()
+    assert len(theirs[0]) > 150 and np.isinf(theirs[1]).any()
     assert np.array_equal(ours[0], theirs[0]) and np.array_equal(ours[1], theirs[1])
 
 

@@ -548,3 +548,13 @@ def test_a_scatter_numba_refuses_is_left_to_numpy():
     ellipsoids = got.ellipsoids
     assert all(a[0].tobytes() == b.tobytes() for a, b in zip((ellipsoids.centers, ellipsoids.axes, ellipsoids.rotations), fit))
     assert fit[1][0] > 1e200  # numpy's eigh took the infinite scatter
+
+
+def test_compiled_closures_capture_integers_alone():
+    """numba's cache keys a closure by its captured values, pickled: a captured dispatcher pickles with a per-process
+    id, so the frame pass would compile again in every process (seconds); integers key it the same each time."""
+    from clipclique.observations import _compiled_frame_pass
+
+    for compiled in (_compiled_frame_pass(20, 2), _depth_points(20, 2)):
+        captured = [cell.cell_contents for cell in compiled.py_func.__closure__]
+        assert captured and all(type(value) is int for value in captured)

@@ -59,17 +59,23 @@ def instance_boxes(instances: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nd
 def _instance_table(instances: np.ndarray, top: int) -> tuple[np.ndarray, np.ndarray]:
     """Per id 0..top: its pixel count and its xyxy box (inclusive min, exclusive max); id 0 and
     negative ids are not counted. A row is read as runs of one id (objects are contiguous), each run
-    counted and boxed once."""
+    counted and boxed once; a run is followed eight pixels a step (one comparison of eight, which the
+    compiler vectorizes), then pixel by pixel to its end."""
     height, width = instances.shape
     counts = np.zeros(top + 1, np.int64)
     boxes = np.empty((top + 1, 4), np.int64)
     boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3] = width, height, 0, 0
     for v in range(height):
+        row = instances[v]
         u = 0
         while u < width:
-            value, start = instances[v, u], u
+            value, start = row[u], u
             u += 1
-            while u < width and instances[v, u] == value:
+            while u + 8 <= width and ((row[u] == value) & (row[u + 1] == value) & (row[u + 2] == value)
+                                      & (row[u + 3] == value) & (row[u + 4] == value) & (row[u + 5] == value)
+                                      & (row[u + 6] == value) & (row[u + 7] == value)):
+                u += 8
+            while u < width and row[u] == value:
                 u += 1
             if value > 0:
                 counts[value] += u - start

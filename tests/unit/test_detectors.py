@@ -361,3 +361,23 @@ def test_yolo_random_weights_output_shapes_and_class_mapping(monkeypatch):
     assert detections.boxes.shape == (len(detections), 4)
     assert set(detections.class_ids.tolist()) <= {0, 1, 2}
     assert (detections.instance_ids == -1).all()
+
+
+def test_instance_table_runs_of_every_length_about_its_eight_pixel_steps():
+    """Runs of 1 to 26 pixels (below, at and past multiples of eight), ending at the image's edge or not, rows of
+    widths 1 to 29: the counts and boxes numpy gives per id."""
+    for width in range(1, 30):
+        rows = []
+        for length in range(1, 27):
+            row = np.zeros(width, np.int32)
+            row[: min(length, width)] = length % 5 + 1  # a run from the left edge
+            rows.append(row)
+            row = np.full(width, 9, np.int32)
+            row[width - min(length, width):] = length % 3 + 1  # a run to the right edge
+            rows.append(row)
+        instances = np.array(rows)
+        ids, counts, boxes = instance_boxes(instances)
+        expected_ids, expected_counts = np.unique(instances[instances > 0], return_counts=True)
+        np.testing.assert_array_equal(ids, expected_ids)
+        np.testing.assert_array_equal(counts, expected_counts)
+        np.testing.assert_array_equal(boxes, mask_boxes(instances[None] == expected_ids[:, None, None]))

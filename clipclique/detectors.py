@@ -122,16 +122,19 @@ def _id_table(ids: np.ndarray, largest: int) -> np.ndarray | None:
 def box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     """(K, H, W) masks of `ids` in an instance image, each compared inside its box (`instance_boxes`) only:
     the same masks as comparing the whole image per id, at the cost of the boxes' area (compiled: no
-    temporary per mask)."""
-    return _box_masks(np.ascontiguousarray(instances), np.asarray(ids), np.asarray(boxes).astype(np.int64).reshape(-1, 4))
+    temporary per mask). The masks are numpy's zeros (calloc: the pages outside every box are never
+    written), filled in place."""
+    instances = np.ascontiguousarray(instances)
+    masks = np.zeros((len(ids), *instances.shape), bool)
+    _fill_box_masks(masks.reshape(-1), instances, np.asarray(ids), np.asarray(boxes).astype(np.int64).reshape(-1, 4))
+    return masks
 
 
 @njit(cache=True)
-def _box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """`box_masks` with integer boxes (clipped to the image), on flat arrays indexed by unsigned integers
-    so that the compiler vectorizes each row's comparison."""
+def _fill_box_masks(masks: np.ndarray, instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> None:
+    """`box_masks` into the flat zeros `masks`, with integer boxes (clipped to the image), on flat arrays indexed
+    by unsigned integers so that the compiler vectorizes each row's comparison."""
     height, width = instances.shape
-    masks = np.zeros(len(ids) * height * width, np.bool_)
     image = instances.ravel()
     for k in range(len(ids)):
         object_id = ids[k]
@@ -143,7 +146,6 @@ def _box_masks(instances: np.ndarray, ids: np.ndarray, boxes: np.ndarray) -> np.
             for u in range(x0, x1):
                 t = np.uint64(u)
                 masks[out + t] = image[row + t] == object_id
-    return masks.reshape((len(ids), height, width))
 
 
 def vocabulary_index(class_names: list[str]) -> dict[str, int]:

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
@@ -152,6 +153,17 @@ def _l2_normalized(matrix: sp.csr_matrix) -> sp.csr_matrix:
 QUERY_BINS_LIMIT = 1 << 22  # widest walk prefix (C^(s-1) bins) the compiled query path accumulates densely
 
 
+class SparseRows(NamedTuple):
+    """CSR rows as the four arrays and shape a scipy CSR matrix holds, without one around them: constructing it
+    checks and converts its arrays (about 30 us, most of a frame's descriptor stage), and what reads a frame's
+    histograms (`similarity.histogram_similarity`) reads only these fields."""
+
+    indptr: np.ndarray  # (n + 1,) int
+    indices: np.ndarray  # (nnz,) int, the columns
+    data: np.ndarray  # (nnz,) float64
+    shape: tuple[int, int]
+
+
 def query_histograms(
     centers: np.ndarray,
     class_ids: np.ndarray,
@@ -160,7 +172,7 @@ def query_histograms(
     max_degree: int | None,
     walk_length: int = 3,
     kernel: sp.csr_matrix | None = None,
-) -> sp.csr_matrix:
+) -> SparseRows:
     """`semantic_histograms(semantic_graph(centers, d_adj, max_degree), ...)` of one frame's observations,
     to the bit (the same stored entries in the same order, so products with it sum alike), in one
     compiled pass instead of some thirty sparse-matrix constructions (most of a query's fixed cost).
@@ -171,15 +183,28 @@ def query_histograms(
     n = len(centers)
     if (n == 0 or walk_length < 1 or (max_degree is not None and n > max_degree + 1)
             or num_classes ** (walk_length - 1) > QUERY_BINS_LIMIT):
-        return semantic_histograms(semantic_graph(centers, d_adj, max_degree), class_ids, num_classes, walk_length, kernel)
+        histograms = semantic_histograms(semantic_graph(centers, d_adj, max_degree), class_ids, num_classes,
+                                         walk_length, kernel)
+        return SparseRows(histograms.indptr, histograms.indices, histograms.data, histograms.shape)
     if kernel is None:
         kernel = sp.identity(num_classes, format="csr")
-    centers = np.ascontiguousarray(centers, dtype=np.float64)
-    neighbour_pointers, neighbour_indices = _neighbours_within(centers, float(d_adj))
-    label_pointers, label_bins, label_values = _kernel_rows(np.asarray(class_ids, dtype=np.int64), kernel.indptr,
-                                                            kernel.indices, kernel.data.astype(np.float64))
-    return _normalized(*_walk_histograms(neighbour_pointers, neighbour_indices, label_pointers, label_bins, label_values,
-                                         num_classes, walk_length), num_classes**walk_length)
+    pointers, bins, values = _query_rows(np.ascontiguousarray(centers, dtype=np.float64), float(d_adj),
+                                         np.asarray(class_ids, dtype=np.int64), kernel.indptr, kernel.indices,
+                                         np.asarray(kernel.data, dtype=np.float64), num_classes, walk_length)
+    return SparseRows(pointers, bins, values, (n, num_classes**walk_length))
+
+
+@njit(cache=True)
+def _query_rows(centers: np.ndarray, d_adj: float, class_ids: np.ndarray, kernel_pointers: np.ndarray,
+                kernel_columns: np.ndarray, kernel_values: np.ndarray, num_classes: int,
+                walk_length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`query_histograms`' rows (pointers, bins, values): the graph, the soft labels, the walks and their
+    normalization in one compiled call (five calls' dispatch cost more than a frame's walks)."""
+    neighbour_pointers, neighbour_indices = _neighbours_within(centers, d_adj)
+    label_pointers, label_bins, label_values = _kernel_rows(class_ids, kernel_pointers, kernel_columns, kernel_values)
+    pointers, bins, values = _walk_histograms(neighbour_pointers, neighbour_indices, label_pointers, label_bins,
+                                              label_values, num_classes, walk_length)
+    return _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
 
 
 def landmark_histograms(

@@ -192,7 +192,7 @@ def _graph_descriptors(
 
 def _query_descriptors(
     observations: Observations, index: MapIndex, config: LocalizationConfig
-) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
+) -> tuple[graph.SparseRows | None, sp.csr_matrix | None]:
     """The query side's graph descriptors, its labels softened by the class kernel when
     `similarity.lookalike_weight` > 0; Semantic Histograms by the compiled `graph.query_histograms`."""
     soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
@@ -210,7 +210,7 @@ def _query_descriptors(
 def _similarity(
     observations: Observations,
     index: MapIndex,
-    histograms: sp.csr_matrix | None,
+    histograms: graph.SparseRows | None,
     walks: sp.csr_matrix | None,
     config: LocalizationConfig,
 ) -> tuple[np.ndarray, list[str]]:
@@ -232,7 +232,7 @@ def _similarity(
 
 
 def _histogram_similarity(
-    observations: Observations, index: MapIndex, histograms: sp.csr_matrix, config: LocalizationConfig
+    observations: Observations, index: MapIndex, histograms: graph.SparseRows, config: LocalizationConfig
 ) -> np.ndarray:
     """S_sh, with the class term when `similarity.class_weight` > 0."""
     sh = similarity.histogram_similarity(histograms, index.histograms_by_bin)

@@ -6,14 +6,17 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from clipclique.graph import SparseRows
+
 
 def clip_similarity(image_embeddings: np.ndarray, text_embeddings: np.ndarray) -> np.ndarray:
     """Cosine similarity of L2-normalized CLIP image (K, D) and text (N, D) embeddings."""
     return np.asarray(image_embeddings, np.float64) @ np.asarray(text_embeddings, np.float64).T
 
 
-def histogram_similarity(query: sp.csr_matrix, landmarks_by_bin: sp.csr_matrix) -> np.ndarray:
-    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1].
+def histogram_similarity(query: sp.csr_matrix | SparseRows, landmarks_by_bin: sp.csr_matrix) -> np.ndarray:
+    """Dot products of L2-normalized Semantic Histograms, i.e. their cosine similarity in [0, 1]; `query` (K, C^s)
+    a CSR matrix or its rows (`graph.query_histograms`).
 
     `landmarks_by_bin` is the map's (N, C^s) histograms transposed to a (C^s, N) CSR matrix
     (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query. The

@@ -111,8 +111,10 @@ def test_query_histograms_store_the_sparse_paths_entries_bit_for_bit():
         expected = semantic_histograms(semantic_graph(centers, 0.8, 64), ids, classes, length, kernel)
         got = query_histograms(centers, ids, classes, 0.8, 64, length, kernel)
         assert got.shape == expected.shape
-        for name in ("indptr", "indices", "data"):
+        for name in ("indptr", "indices"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+        assert got.data.dtype == np.float64
+        np.testing.assert_array_equal(got.data.view(np.int64), expected.data.view(np.int64))  # bits, -0 included
     assert query_histograms(np.zeros((0, 3)), np.zeros(0, int), 3, 0.8, 64).shape == (0, 27)
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import scipy.sparse as sp
 
-from clipclique.graph import semantic_graph, semantic_histograms
+from clipclique.graph import SparseRows, semantic_graph, semantic_histograms
 from clipclique.similarity import by_bin, clip_similarity, fuse, histogram_similarity, walk_similarity
 
 
@@ -40,7 +40,11 @@ def test_histogram_similarity_is_scipys_sparse_product_to_the_bit():
     kernel = sp.csr_matrix(np.eye(6) + 0.6 * (rng.random((6, 6)) < 0.2))
     histograms = semantic_histograms(semantic_graph(centers, 0.8), classes, 6, kernel=kernel)
     query = histograms[rng.permutation(200)[:20]]
-    np.testing.assert_array_equal(histogram_similarity(query, by_bin(histograms)), (query @ histograms.T).toarray())
+    expected = (query @ histograms.T).toarray()
+    np.testing.assert_array_equal(histogram_similarity(query, by_bin(histograms)), expected)
+    # a frame's rows without a scipy matrix around them (graph.query_histograms), int64 columns: the same bits
+    rows = SparseRows(query.indptr.astype(np.int64), query.indices.astype(np.int64), query.data, query.shape)
+    np.testing.assert_array_equal(histogram_similarity(rows, by_bin(histograms)).view(np.int64), expected.view(np.int64))
 
 
 def test_the_class_term_is_the_numpy_formula_to_the_bit_written_over_the_histogram():

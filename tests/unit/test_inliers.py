@@ -197,3 +197,20 @@ def test_the_grid_bound_never_counts_fewer_pairs_than_lie_within_reach():
         assert exact <= bound <= count * (count - 1) // 2
     rooms = rng.uniform(0, 3, (50, 3))[None] + 20.0 * np.arange(100)[:, None, None]  # 100 rooms of 50 within reach
     assert _pairs_bound(rooms.reshape(-1, 3), 4.0) <= 8 * _pairs_within(rooms.reshape(-1, 3), 4.0)
+
+
+def test_pair_distances_are_numpys_norm_to_the_bit():
+    """`compatibility.pair_distances` against np.linalg.norm of the differences, bit for bit, on hand-made centres
+    (-0, equal points, NaN, infinities, huge and tiny values) and random ones, and no centres."""
+    from clipclique.compatibility import pair_distances
+
+    hand = np.array([[0.0, -0.0, 0.0], [-0.0, 0.0, -0.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [np.nan, 0.0, 1.0],
+                     [np.inf, 1.0, 0.0], [-np.inf, 0.0, 0.0], [1e200, 1e-200, 3.0], [0.1, 0.2, 0.3], [5e-324, 0.0, 1.0]])
+    rng = np.random.default_rng(0)
+    for centers in (hand, rng.normal(size=(40, 3)) * 10.0 ** rng.integers(-3, 4, (40, 1)), np.zeros((0, 3)),
+                    np.asfortranarray(rng.normal(size=(7, 3)))):
+        with np.errstate(invalid="ignore", over="ignore"):
+            expected = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
+        got = pair_distances(centers)
+        assert got.shape == expected.shape and got.dtype == np.float64
+        np.testing.assert_array_equal(got.view(np.int64), expected.view(np.int64))

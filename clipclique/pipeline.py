@@ -37,7 +37,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
-                        refine, regions, similarity, verification)
+                        projection, refine, regions, similarity, verification)
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
@@ -63,6 +63,7 @@ class MapIndex:
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
     landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
     class_groups: matching.ClassGroups | None = None  # landmarks by class, look-alike classes (matching.lookalike_candidates)
+    spreads: np.ndarray | None = None  # (N, 9) the landmarks' spreads, verification's map side (projection.spreads)
 
 
 @dataclass(kw_only=True)
@@ -95,7 +96,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
                     kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
                     landmark_tree=cKDTree(map.ellipsoids.centers),
-                    class_groups=matching.class_groups(map.class_ids, kernel, map.ellipsoids.axes))
+                    class_groups=matching.class_groups(map.class_ids, kernel, map.ellipsoids.axes),
+                    spreads=projection.spreads(map.ellipsoids))
 
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
@@ -147,7 +149,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     if config.pose.refine_radius > 0 and len(pool):
         pool = refine.refined(pool, observations, index.map, scores, config.pose.refine_radius, config.pose.weights,
                               landmarks=index.landmark_tree)[0]
-    _verify(result, pool, observations, index.map, config)
+    _verify(result, pool, observations, index, config)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
@@ -478,7 +480,7 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
 _NONE = Stack.of([])  # no hypothesis
 
 
-def _verify(result: LocalizationResult, pool: Stack, observations: Observations, map: Map,
+def _verify(result: LocalizationResult, pool: Stack, observations: Observations, index: MapIndex,
             config: LocalizationConfig) -> None:
     """Verification score and confidence of every hypothesis of the pool, then `inliers.rerank` and
     `min_confidence`: `result.hypotheses`, the kept ones built from the stack.
@@ -496,7 +498,7 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
     if not len(pool):
         return
     seen, narrowed, similarity_seen = _with_boxes(observations, pool, result.similarity)
-    checked = verification.verify_stack(narrowed, seen, map, config.verification)
+    checked = verification.verify_stack(narrowed, seen, index.map, config.verification, index.spreads)
     model = confidence.load_model(config.confidence_model)
     probability = (None if model is None else
                    model.predict(confidence.Evidence(narrowed, checked, similarity_seen, len(seen))))

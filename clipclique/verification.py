@@ -33,6 +33,7 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
+from clipclique import projection
 from clipclique.projection import Projection, at_least_zero, box_iou, pair_iou, project
 from clipclique.stack import Stack, alike
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
@@ -66,28 +67,30 @@ def verify(hypotheses: list[Hypothesis], observations: Observations, map: Map,
 
 
 def verify_stack(stack: Stack, observations: Observations, map: Map,
-                 params: VerificationConfig = VerificationConfig()) -> Verification:
+                 params: VerificationConfig = VerificationConfig(), spreads: np.ndarray | None = None) -> Verification:
     """Verification of each hypothesis of the stack. Hypotheses alike (one pose, one set of pairs: refinement
     often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
-    depend on the others'."""
+    depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`)."""
     require_image(observations, "image verification")
     poses = np.concatenate((stack.rotations.reshape(-1, 9), stack.translations), axis=1)
     group, firsts = alike(poses, stack.pairs, stack.starts(), stack.counts)
     if len(firsts) == len(stack):
-        return _verify_all(stack, observations, map, params)
-    checked = _verify_all(stack.take(firsts), observations, map, params)
+        return _verify_all(stack, observations, map, params, spreads)
+    checked = _verify_all(stack.take(firsts), observations, map, params, spreads)
     return replace(checked, **{name: getattr(checked, name)[group] for name in _PER_HYPOTHESIS})
 
 
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
 
 
-def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig) -> Verification:
+def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig,
+                spreads: np.ndarray | None) -> Verification:
     """`verify_stack` of every hypothesis, alike or not."""
     camera = observations.camera
     rotations, translations = stack.rotations, stack.translations
     nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
-    seen = project(map.ellipsoids.subset(nearby), rotations, translations, camera)
+    spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
+    seen = projection.project_spreads(map.ellipsoids.centers[nearby], spread, rotations, translations, camera)
     slot = np.full(len(map), -1)  # landmark -> its column in `seen`, -1 out of range
     slot[nearby] = np.arange(len(nearby))
 

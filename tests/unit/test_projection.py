@@ -134,3 +134,69 @@ def numpy_dual_conics(ellipsoids: Ellipsoids, poses: list, camera: Camera) -> np
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
     centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
     return (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
+
+
+def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera):
+    """`project`'s arrays as its numpy passes computed them before the kron was compiled and the map's spreads kept."""
+    from clipclique.projection import _outline_boxes
+
+    shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
+    spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
+    view = camera.intrinsics @ rotations.transpose(0, 2, 1)
+    kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
+    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
+    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), centers, float(camera.width),
+                                                        float(camera.height), float(camera.max_depth))
+    return conics, boxes, visible, centers[..., 2], full_areas
+
+
+def test_the_compiled_kron_is_einsums_outer_product_to_the_bit():
+    """`_kron` against np.einsum("bij,blk->biljk") on hand-made views (-0, NaN, infinities, subnormals, huge values
+    whose products overflow) and random ones, and no views."""
+    from clipclique.projection import _kron
+
+    hand = np.array([[[0.0, -0.0, 1.0], [np.nan, np.inf, -np.inf], [5e-324, 1e300, -1e-300]],
+                     [[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]])
+    rng = np.random.default_rng(0)
+    for views in (hand, rng.normal(size=(50, 3, 3)) * 300.0, np.zeros((0, 3, 3))):
+        with np.errstate(invalid="ignore", over="ignore", under="ignore"):
+            expected = np.einsum("bij,blk->biljk", views, views)
+            got = _kron(views)
+        assert got.shape == expected.shape and got.flags.c_contiguous
+        assert got.tobytes() == expected.tobytes()
+
+
+def test_a_maps_spreads_are_each_ellipsoids_own_whatever_the_others():
+    """The spreads `index_map` keeps for the whole map, gathered for the landmarks in range, are the bits the
+    landmarks in range alone give (verification projects only those), single and empty subsets included."""
+    from clipclique.projection import spreads
+
+    rng = np.random.default_rng(2)
+    count = 60
+    ellipsoids = Ellipsoids(rng.normal(size=(count, 3)), rng.uniform(0.01, 2.0, (count, 3)),
+                            np.array([random_rotation(rng) for _ in range(count)]))
+    whole = spreads(ellipsoids)
+    assert whole.shape == (count, 9) and whole.flags.c_contiguous
+    for subset in (np.arange(count), rng.permutation(count)[:17], np.array([5]), np.zeros(0, np.int64),
+                   np.sort(rng.choice(count, 31, replace=False))):
+        assert whole[subset].tobytes() == spreads(ellipsoids.subset(subset)).tobytes()
+
+
+def test_project_is_its_numpy_passes_to_the_bit():
+    """The projection with the compiled kron and the spreads passed separately gives the arrays the numpy passes
+    gave, every pose and landmark, landmarks behind, around and beyond the camera among them."""
+    from clipclique.projection import project_spreads, spreads
+
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        count, poses = int(rng.integers(0, 30)), int(rng.integers(1, 8))
+        ellipsoids = Ellipsoids(rng.uniform(-4, 4, (count, 3)), rng.uniform(0.02, 1.5, (count, 3)),
+                                np.array([random_rotation(rng) for _ in range(count)]).reshape(-1, 3, 3))
+        cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(poses)]
+        rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
+        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA)
+        for seen in (project(ellipsoids, rotations, translations, CAMERA),
+                     project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)):
+            got = (seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas)
+            for ours, theirs in zip(got, expected):
+                assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()

@@ -55,11 +55,28 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit(
     map, truth, observations = room()
     poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
-    checked, every = verify(pool, observations, map), verification._verify_all(Stack.of(pool), observations, map, VerificationConfig())
+    checked, every = verify(pool, observations, map), verification._verify_all(Stack.of(pool), observations, map,
+                                                                               VerificationConfig(), None)
     for name in verification._PER_HYPOTHESIS:
         np.testing.assert_array_equal(getattr(checked, name), getattr(every, name))
     assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike
     assert len(np.unique(checked.score)) == 4
+
+
+def test_the_maps_kept_spreads_verify_to_the_bit_as_the_landmarks_in_range_alone():
+    """`verify_stack` with the whole map's spreads (what `index_map` keeps) gathered for the landmarks in range gives
+    the figures it gives projecting those landmarks alone, when some landmarks are out of range and when none is."""
+    map, truth, observations = room()
+    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
+    pool = Stack.of([hypothesis(pose, count) for pose, count in zip(poses, (6, 5, 4))])
+    spreads = index_map(map, make_config("clipclique")).spreads
+    for max_depth in (8.0, 3.0):  # every landmark in range; the far ones out
+        seen = dataclasses.replace(observations, camera=dataclasses.replace(observations.camera, max_depth=max_depth))
+        assert len(verification._within_range(map.ellipsoids, pool.translations, max_depth)) == (6 if max_depth > 4 else 3)
+        kept, alone = (verification.verify_stack(pool, seen, map, VerificationConfig(), spreads),
+                       verification.verify_stack(pool, seen, map, VerificationConfig()))
+        for name in verification._PER_HYPOTHESIS:
+            assert getattr(kept, name).tobytes() == getattr(alone, name).tobytes()
 
 
 def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():

@@ -214,3 +214,29 @@ def test_pair_distances_are_numpys_norm_to_the_bit():
         got = pair_distances(centers)
         assert got.shape == expected.shape and got.dtype == np.float64
         np.testing.assert_array_equal(got.view(np.int64), expected.view(np.int64))
+
+
+def test_partial_view_slack_is_the_numpy_passes_to_the_bit():
+    """The compiled slack against the numpy expression it replaced, on hand-made semi-axes (ties, -0, NaN in either
+    side, infinities, deficits exactly at min_deficit and slack exactly at the cap) and random ones, no candidates."""
+    from clipclique.compatibility import partial_view_slack
+
+    def numpy_slack(observed, mapped, fraction, cap, min_deficit):
+        deficit = (np.sort(mapped, axis=1) - np.sort(observed, axis=1)).max(axis=1)
+        return np.where(deficit >= min_deficit, np.minimum(fraction * deficit, cap), 0.0)
+
+    nan, inf = np.nan, np.inf
+    observed = np.array([[0.1, 0.2, 0.3], [0.3, 0.1, 0.2], [0.2, 0.2, 0.2], [-0.0, 0.0, 0.1], [nan, 0.1, 0.2],
+                         [0.1, 0.2, 0.3], [inf, 0.1, 0.1], [0.1, 0.1, 0.1], [0.05, 0.1, 0.1], [0.1, nan, nan]])
+    mapped = np.array([[0.3, 0.2, 0.1], [0.5, 0.1, 0.2], [0.2, 0.2, 0.2], [0.0, -0.0, 0.1], [0.1, 0.2, 0.3],
+                       [0.1, nan, 0.3], [0.1, inf, 0.1], [0.2, 0.1, 0.1], [0.45, 0.1, 0.1], [nan, 0.1, nan]])
+    rng = np.random.default_rng(5)
+    cases = [(observed, mapped), (np.round(rng.uniform(0, 0.5, (300, 3)), 2), np.round(rng.uniform(0, 0.5, (300, 3)), 2)),
+             (np.zeros((0, 3)), np.zeros((0, 3)))]
+    for observed, mapped in cases:
+        for fraction, cap, min_deficit in ((0.5, 0.05, 0.1), (1.0, 0.2, 0.0), (0.25, 0.0, 0.05), (0.0, 0.1, 0.1),
+                                           (0.5, 0.1, -inf)):
+            with np.errstate(invalid="ignore"):
+                expected = numpy_slack(observed, mapped, fraction, cap, min_deficit)
+                got = partial_view_slack(observed, mapped, fraction, cap, min_deficit)
+            assert got.tobytes() == expected.tobytes(), (fraction, cap, min_deficit, got, expected)

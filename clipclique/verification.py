@@ -34,7 +34,7 @@ from numba import njit
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique import projection
-from clipclique.projection import Projection, at_least_zero, box_iou, pair_iou, project
+from clipclique.projection import at_least_zero, box_iou, pair_iou, project
 from clipclique.stack import Stack, alike
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
@@ -91,21 +91,41 @@ def _verify_all(stack: Stack, observations: Observations, map: Map, params: Veri
     nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
     spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
     seen = projection.project_spreads(map.ellipsoids.centers[nearby], spread, rotations, translations, camera)
-    slot = np.full(len(map), -1)  # landmark -> its column in `seen`, -1 out of range
-    slot[nearby] = np.arange(len(nearby))
-
     owner = stack.owners()
     pairs = np.asarray(stack.pairs, np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
     landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
-    depth_gap = np.abs(observations.ellipsoids.centers[obs, 2] - landmark_depth)
-    overlap, mean_iou, depth_error = _pair_figures(
-        obs, lm, owner, slot, seen.visible, seen.boxes, np.ascontiguousarray(observations.boxes, np.float64),
-        depth_gap, float(params.depth_tolerance), stack.counts)
-    missed, evidence, expected = _missed(seen, map.class_ids[nearby], observations, params)
+    overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
+        obs, lm, owner, nearby, len(map), seen.visible, seen.boxes, seen.full_areas,
+        np.ascontiguousarray(observations.boxes, np.float64), observations.ellipsoids.centers[:, 2], landmark_depth,
+        np.asarray(map.class_ids, np.int64), np.asarray(observations.class_ids, np.int64), stack.counts,
+        float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
+        float(params.missed_full_area * camera.width * camera.height))
     return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
                         missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
                         missed_weight=params.missed_weight)
+
+
+@njit(cache=True)
+def _figures(obs, lm, owner, nearby, map_size, visible, projected, full_areas, boxes, observed_depths, landmark_depths,
+             class_ids, detected_classes, sizes, depth_tolerance, min_pixels, explained_iou, full):
+    """`_pair_figures` and `_missed_evidence` of the landmarks in range (`nearby`, projected in that order) in one
+    compiled call, with what they read: each landmark's column of the projection (-1 out of range) and each pair's
+    depth gap |observed depth - landmark depth| (numpy's subtraction and absolute value): (B,) overlap, mean IoU,
+    median depth gap, missed landmarks, missed and expected evidence."""
+    slot = np.full(map_size, -1, np.int64)
+    seen_classes = np.empty(len(nearby), np.int64)
+    for column in range(len(nearby)):
+        slot[nearby[column]] = column
+        seen_classes[column] = class_ids[nearby[column]]
+    depth_gap = np.empty(len(obs))
+    for m in range(len(obs)):
+        depth_gap[m] = abs(observed_depths[obs[m]] - landmark_depths[m])
+    overlap, mean_iou, depth_error = _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
+                                                   depth_tolerance, sizes)
+    missed, evidence, expected = _missed_evidence(projected, visible, full_areas, seen_classes, boxes, detected_classes,
+                                                  min_pixels, explained_iou, full)
+    return overlap, mean_iou, depth_error, missed, evidence, expected
 
 
 def missed_cost(missed_evidence: np.ndarray, expected_evidence: np.ndarray, params: VerificationConfig) -> np.ndarray:
@@ -179,18 +199,6 @@ def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks
     under each camera-to-map pose (B); 0 where the landmark is not visible."""
     seen = project(landmarks, rotations, translations, camera)
     return np.where(seen.visible, box_iou(boxes[None], seen.boxes), 0.0)
-
-
-def _missed(seen: Projection, class_ids: np.ndarray, observations: Observations,
-            params: VerificationConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(B,) landmarks (of `class_ids`) projected well into the image that no detection of their class overlaps,
-    (B,) the same counted by size: min(1, projected box area / (missed_full_area * image area)), and (B,) every
-    landmark projected well into the image, detected or not, counted by size alike (`_missed_evidence`)."""
-    camera = observations.camera
-    return _missed_evidence(seen.boxes, seen.visible, seen.full_areas, np.asarray(class_ids, np.int64),
-                            np.ascontiguousarray(observations.boxes, np.float64),
-                            np.asarray(observations.class_ids, np.int64), float(params.min_visible_pixels),
-                            float(params.explained_iou), float(params.missed_full_area * camera.width * camera.height))
 
 
 @njit(cache=True)

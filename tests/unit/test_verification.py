@@ -326,3 +326,42 @@ def test_landmarks_in_range_are_those_numpys_norm_puts_in_range():
         distance = np.linalg.norm(centers[None] - translations[:, None], axis=2) - axes.max(axis=1)
         expected = np.flatnonzero((distance <= max_depth).any(axis=0))
         np.testing.assert_array_equal(verification._within_range(ellipsoids, translations, max_depth), expected)
+
+
+def test_the_figures_in_one_call_are_the_numpy_passes_to_the_bit():
+    """`_figures` (the landmarks' columns, the depth gaps, then the pair figures and the missed landmarks in one
+    compiled call) against the numpy passes: landmarks out of range, depth gaps of 0, NaN and exactly at the
+    tolerance, boxes sharing edges or empty, hypotheses without a pair."""
+    rng = np.random.default_rng(15)
+    for trial in range(300):
+        count, landmarks, detections = int(rng.integers(1, 7)), int(rng.integers(1, 12)), int(rng.integers(0, 8))
+        sizes = rng.integers(0, 6, count)
+        owner = np.repeat(np.arange(count), sizes)
+        obs = rng.integers(0, max(detections, 1), len(owner))
+        lm = rng.integers(0, landmarks, len(owner))
+        nearby = np.sort(rng.choice(landmarks, int(rng.integers(1, landmarks + 1)), replace=False))
+        corners = np.round(rng.uniform(0, 60, (count * len(nearby) + max(detections, 1), 2, 2)))
+        corners[::6, 1] = corners[::6, 0]  # empty boxes
+        all_boxes = np.concatenate((corners.min(axis=1), corners.max(axis=1)), axis=1)
+        projected = all_boxes[: count * len(nearby)].reshape(count, len(nearby), 4)
+        boxes = all_boxes[count * len(nearby):]
+        visible = rng.random((count, len(nearby))) < 0.7
+        area = box_area(projected)
+        full_areas = np.where(rng.random(area.shape) < 0.3, 2 * area, area * rng.uniform(0.5, 3, area.shape))
+        observed_depths = np.round(rng.uniform(0, 3, (len(boxes), 3)), 1)[:, 2]  # a strided column, as the centres'
+        landmark_depths = np.round(rng.uniform(0, 3, len(owner)), 1)  # gaps of 0 and exactly at 0.5
+        if trial % 5 == 0 and len(owner):
+            landmark_depths[rng.integers(len(owner))] = np.nan
+        class_ids, detected_classes = rng.integers(0, 3, landmarks), rng.integers(0, 3, len(boxes))
+        min_pixels, full = float(rng.choice([0.0, 100.0])), float(rng.choice([0.0, 900.0]))
+        got = verification._figures(obs, lm, owner, nearby, landmarks, visible, projected, full_areas, boxes,
+                                    observed_depths, landmark_depths, class_ids, detected_classes, sizes, 0.5,
+                                    min_pixels, 0.1, full)
+        slot = np.full(landmarks, -1)
+        slot[nearby] = np.arange(len(nearby))
+        depth_gap = np.abs(observed_depths[obs] - landmark_depths)
+        expected = (*numpy_pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes),
+                    *numpy_missed(projected, visible, full_areas, class_ids[nearby], boxes, detected_classes, min_pixels,
+                                  0.1, full))
+        for ours, theirs in zip(got, expected, strict=True):
+            assert ours.tobytes() == theirs.tobytes()

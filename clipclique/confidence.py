@@ -134,8 +134,12 @@ FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
 
 
 def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES)) -> np.ndarray:
-    """(B, F) the named features of each hypothesis."""
-    return np.column_stack([FEATURES[name][0](evidence) for name in names]).astype(float)
+    """(B, F) the named features of each hypothesis, written column by column into one array (a column stack and
+    its float copy cost a frame a quarter of the features' own time)."""
+    matrix = np.empty((len(evidence.verification.score), len(names)))
+    for column, name in enumerate(names):
+        matrix[:, column] = FEATURES[name][0](evidence)
+    return matrix
 
 
 @dataclass(frozen=True)

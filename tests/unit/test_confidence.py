@@ -210,3 +210,18 @@ def test_fit_confidence_needs_two_scenes(tmp_path, repository):
     assert done.returncode == 2 and done.stderr.strip().splitlines() == [
         "fit_confidence: error: give two scenes or more: the model is measured on a scene it was not fitted on"]
     assert not (tmp_path / "m.json").exists()
+
+
+def test_the_feature_matrix_holds_each_features_own_numbers_to_the_bit():
+    """Written column by column, the matrix is the column stack of the features' arrays, bit for bit (the model's
+    logits read it), on a frame's pool with alike scores, missed counts and a NaN depth error."""
+    verification = verification_of([3.0, 2.5, 3.0, -0.5], [0, 1, 0, 4])
+    verification.depth_error[2] = np.nan
+    pool = Stack(rotations=np.tile(np.eye(3), (4, 1, 1)), translations=np.zeros((4, 3)),
+                 pairs=np.array([[0, 0], [1, 1], [2, 2], [0, 1], [1, 2], [0, 0], [2, 1], [1, 0], [0, 2]]),
+                 counts=np.array([3, 2, 3, 1]), scores=np.ones(4), conditioning=np.ones(4))
+    evidence = confidence.Evidence(pool, verification, np.arange(9.0).reshape(3, 3) / 7, 3)
+    names = tuple(confidence.FEATURES)
+    expected = np.column_stack([confidence.FEATURES[name][0](evidence) for name in names]).astype(float)
+    assert confidence.feature_matrix(evidence, names).tobytes() == expected.tobytes()
+    assert confidence.feature_matrix(evidence, names[2:4]).tobytes() == expected[:, 2:4].copy().tobytes()

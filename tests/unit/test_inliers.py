@@ -231,8 +231,8 @@ def test_partial_view_slack_is_the_numpy_passes_to_the_bit():
     mapped = np.array([[0.3, 0.2, 0.1], [0.5, 0.1, 0.2], [0.2, 0.2, 0.2], [0.0, -0.0, 0.1], [0.1, 0.2, 0.3],
                        [0.1, nan, 0.3], [0.1, inf, 0.1], [0.2, 0.1, 0.1], [0.45, 0.1, 0.1], [nan, 0.1, nan]])
     rng = np.random.default_rng(5)
-    cases = [(observed, mapped), (np.round(rng.uniform(0, 0.5, (300, 3)), 2), np.round(rng.uniform(0, 0.5, (300, 3)), 2)),
-             (np.zeros((0, 3)), np.zeros((0, 3)))]
+    random = np.round(rng.uniform(0, 0.5, (300, 3)), 2), np.round(rng.uniform(0, 0.5, (300, 3)), 2)
+    cases = [(observed, mapped), random, (np.zeros((0, 3)), np.zeros((0, 3)))]
     for observed, mapped in cases:
         for fraction, cap, min_deficit in ((0.5, 0.05, 0.1), (1.0, 0.2, 0.0), (0.25, 0.0, 0.05), (0.0, 0.1, 0.1),
                                            (0.5, 0.1, -inf)):

@@ -72,7 +72,8 @@ def test_the_maps_kept_spreads_verify_to_the_bit_as_the_landmarks_in_range_alone
     spreads = index_map(map, make_config("clipclique")).spreads
     for max_depth in (8.0, 3.0):  # every landmark in range; the far ones out
         seen = dataclasses.replace(observations, camera=dataclasses.replace(observations.camera, max_depth=max_depth))
-        assert len(verification._within_range(map.ellipsoids, pool.translations, max_depth)) == (6 if max_depth > 4 else 3)
+        in_range = verification._within_range(map.ellipsoids, pool.translations, max_depth)
+        assert len(in_range) == (6 if max_depth > 4 else 3)
         kept, alone = (verification.verify_stack(pool, seen, map, VerificationConfig(), spreads),
                        verification.verify_stack(pool, seen, map, VerificationConfig()))
         for name in verification._PER_HYPOTHESIS:

@@ -60,19 +60,25 @@ def test_a_signal_whose_exception_was_swallowed_still_stops_the_commit(tmp_path,
     """Compiled code may catch the exception a signal raises where it lands (pyarrow's first `pa.array`
     did, importing pandas): the run goes on, but its outputs must not appear."""
     (tmp_path / "a.json").write_bytes(b"previous run")
-    before = signal.getsignal(signum)
-    with pytest.raises(raised) as stopped, Staging() as staging:
-        staging.path(tmp_path / "a.json").write_text("the interrupted run's")
-        try:
-            signal.raise_signal(signum)  # the handler runs here, in the main thread
-        except BaseException:
-            pass  # swallowed, as that library does
-        staging.commit()
+    # Python's own handler, whatever this process inherited: a background job (`pytest ... &`) starts with
+    # Ctrl-C ignored, and an ignored Ctrl-C stays ignored while staging (the next test)
+    inherited = signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    try:
+        before = signal.getsignal(signum)
+        with pytest.raises(raised) as stopped, Staging() as staging:
+            staging.path(tmp_path / "a.json").write_text("the interrupted run's")
+            try:
+                signal.raise_signal(signum)  # the handler runs here, in the main thread
+            except BaseException:
+                pass  # swallowed, as that library does
+            staging.commit()
+        assert signal.getsignal(signum) is before  # the caller's handler is back
+    finally:
+        signal.signal(signum, inherited)
     if signum == signal.SIGTERM:
         assert stopped.value.code == 128 + signal.SIGTERM
     assert [p.name for p in tmp_path.iterdir()] == ["a.json"]
     assert (tmp_path / "a.json").read_bytes() == b"previous run"
-    assert signal.getsignal(signum) is before  # the caller's handler is back
 
 
 def test_an_ignored_ctrl_c_stays_ignored_while_staging(tmp_path):

@@ -132,8 +132,7 @@ def top_cliques(
         return TopCliques(cliques=[], totals=np.zeros(0), reached=0, cap=None)
     problem = Problem(weights, groups, min_size, max_cliques)
     deadline = time.perf_counter() + time_limit_s
-    arrays = _started(problem, edges, num_nodes, count)
-    state, best = arrays.state, arrays.best
+    state, best, arrays = _started(problem, edges, num_nodes, count)
     cap = None
     while True:
         if state[STATUS] == COUNT_CAP:
@@ -163,11 +162,12 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _started(problem, edges, num_nodes, count):
-    """`_prepare` and the search's first slice in one call (most searches end within it: one dispatch of the
-    arrays fewer)."""
+    """`_prepare` and the search's first slice in one call: the state, the top list, and the search's arrays only
+    while it runs on (None once it ended: most searches end within the first slice, and handing the graph and
+    scratch back to Python costs more than a small search)."""
     arrays = _prepare(edges, num_nodes, problem.weights, problem.groups, count)
     _search(problem, arrays, SLICE)
-    return arrays
+    return arrays.state, arrays.best, arrays if arrays.state[STATUS] == RUNNING else None
 
 
 @njit(cache=True)

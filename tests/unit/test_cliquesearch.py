@@ -78,6 +78,17 @@ def test_caps_are_reported():
     np.testing.assert_array_equal(found.cliques[0], [0, 3, 6, 9, 12, 15, 18])
 
 
+def test_a_search_longer_than_its_first_slice_goes_on_in_the_arrays_it_began():
+    """The first slice hands its arrays back only while the search runs on: the later slices must fill the same
+    state and top list the caller reads (all 3^10 cliques of equal weight counted: more than one slice)."""
+    big = np.arange(30) // 3
+    edges = np.argwhere(np.triu(big[:, None] != big[None, :], 1))
+    found = top_cliques(edges, 30, np.ones(30), 3, time_limit_s=60.0)
+    assert found.cap is None and found.reached == 3**10
+    np.testing.assert_array_equal(found.cliques[0], np.arange(0, 30, 3))
+    np.testing.assert_array_equal(found.totals, [10.0, 10.0, 10.0])
+
+
 def test_groups_must_be_independent():
     with pytest.raises(ValueError, match="one group"):
         top_cliques(np.array([[0, 1]]), 3, np.ones(3), 1, groups=np.array([0, 0, 1]))

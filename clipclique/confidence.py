@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
@@ -29,7 +30,9 @@ from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
 from clipclique.stack import Stack
-from clipclique.verification import Verification
+
+if TYPE_CHECKING:  # an annotation only: verification imports projection, which imports pose, which imports this
+    from clipclique.verification import Verification
 
 MODEL_FORMAT = "clipclique confidence model"
 MODEL_VERSION = 1

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from clipclique.pose import _fma
 from clipclique.types import Camera, Ellipsoids
 
 MIN_DEPTH = 0.05  # metres: an ellipsoid reaching nearer than this is not projected
@@ -56,13 +57,58 @@ def spreads(ellipsoids: Ellipsoids) -> np.ndarray:
 def project_spreads(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                     camera: Camera) -> Projection:
     """`project` of ellipsoids given by their centres (N, 3) and `spreads` (N, 9)."""
+    if len(centers) == 1:
+        return _project_one(centers, spread, rotations, translations, camera)
+    conics, boxes, visible, images, full_areas = _projected(centers, spread, rotations, translations, camera.intrinsics,
+                                                            float(camera.width), float(camera.height),
+                                                            float(camera.max_depth))
+    return Projection(conics, boxes, visible, images[..., 2], full_areas)
+
+
+def _project_one(center: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                 camera: Camera) -> Projection:
+    """`project_spreads` of one ellipsoid by numpy's products: its one-row products go through OpenBLAS's gemv,
+    whose sums are ordered otherwise than `_projected`'s (dgemm's), and the results stay those bits."""
     view = camera.intrinsics @ rotations.transpose(0, 2, 1)  # (B, 3, 3)
     kron = _kron(view).reshape(-1, 9, 9)
-    centers = (centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, N, 3)
+    image = (center[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, 1, 3)
     # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
-    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), centers, float(camera.width),
+    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), image, float(camera.width),
                                                         float(camera.height), float(camera.max_depth))
-    return Projection(conics, boxes, visible, centers[..., 2], full_areas)
+    return Projection(conics, boxes, visible, image[..., 2], full_areas)
+
+
+@njit(cache=True)
+def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+               intrinsics: np.ndarray, width: float, height: float,
+               max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_outline_boxes` of V = K R^T, vec(V M V^T) = spread (V kron V)^T and h = (c - t) V^T in one compiled call,
+    each product as numpy's matmul gets it from OpenBLAS's dgemm: from +0, one fused multiply-add per term in order
+    (`pose._fma`); three BLAS calls per pose cost more than the arithmetic. Returns the conics, boxes, visibility,
+    h (B, N, 3) (its third coordinate the depth) and the full areas."""
+    count, size = len(rotations), len(centers)
+    view = np.empty((count, 3, 3))
+    for b in range(count):
+        for i in range(3):
+            for j in range(3):
+                view[b, i, j] = _fma(intrinsics[i, 2], rotations[b, j, 2], _fma(
+                    intrinsics[i, 1], rotations[b, j, 1], _fma(intrinsics[i, 0], rotations[b, j, 0], 0.0)))
+    kron = _kron(view).reshape(count, 9, 9)
+    images, terms, offset = np.empty((count, size, 3)), np.empty((count, size, 9)), np.empty(3)
+    for b in range(count):
+        for n in range(size):
+            for j in range(3):
+                offset[j] = centers[n, j] - translations[b, j]
+            for i in range(3):
+                images[b, n, i] = _fma(offset[2], view[b, i, 2], _fma(offset[1], view[b, i, 1],
+                                                                      _fma(offset[0], view[b, i, 0], 0.0)))
+            for r in range(9):
+                total = 0.0
+                for k in range(9):
+                    total = _fma(spread[n, k], kron[b, r, k], total)
+                terms[b, n, r] = total
+    conics, boxes, visible, full_areas = _outline_boxes(terms, images, width, height, max_depth)
+    return conics, boxes, visible, images, full_areas
 
 
 @njit(cache=True)

@@ -200,3 +200,60 @@ def test_project_is_its_numpy_passes_to_the_bit():
             got = (seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas)
             for ours, theirs in zip(got, expected):
                 assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
+
+
+def numpy_products(centers, spread, rotations, translations, intrinsics):
+    """vec(V M V^T) and h by numpy's matmul (OpenBLAS's dgemm), as `project_spreads` computed them."""
+    view = intrinsics @ rotations.transpose(0, 2, 1)
+    kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
+    return spread @ kron.transpose(0, 2, 1), (centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
+
+
+@pytest.mark.parametrize("count", [0, 2, 3, 7, 40])
+def test_the_compiled_products_are_numpys_dgemm_to_the_bit(count):
+    """`_projected`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) (one fused multiply-add per term from +0) against
+    numpy's matmul, through `_outline_boxes`, on random poses and on hand-made entries: -0, NaN, infinities, centres
+    on the camera (a zero offset), equal landmarks (ties) and no landmarks."""
+    from clipclique.projection import _outline_boxes, _projected
+
+    rng = np.random.default_rng(count)
+    for trial in range(30):
+        poses = int(rng.integers(1, 8))
+        rotations = np.array([random_rotation(rng) for _ in range(poses)])
+        translations = rng.uniform(-5, 5, (poses, 3))
+        centers, spread = rng.uniform(-4, 4, (count, 3)), rng.normal(size=(count, 9))
+        if count and trial % 3 == 1:  # hand-made entries
+            rotations[0, 0] = [-0.0, 1.0, -0.0]
+            centers[0], spread[0] = translations[0], -0.0  # on the camera: offsets of 0, products of -0
+            centers[-1] = centers[0]  # a tie
+            spread[-1, 4] = np.nan
+            centers[count // 2, 1] = np.inf if trial % 2 else -np.inf
+        intrinsics = CAMERA.intrinsics
+        with np.errstate(invalid="ignore", over="ignore"):
+            terms, images = numpy_products(centers, spread, rotations, translations, intrinsics)
+            expected = (*_outline_boxes(terms, images, 640.0, 480.0, 8.0), images)
+            got = _projected(centers, spread, rotations, translations, intrinsics, 640.0, 480.0, 8.0)
+        for ours, theirs in zip((*got[:3], got[4], got[3]), expected):
+            assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
+
+
+def test_one_landmark_keeps_numpys_one_row_products():
+    """One landmark's products go through gemv in numpy, summed in another order than dgemm's: `project_spreads`
+    keeps those bits (the compiled products differ from them on many random poses, so this would catch a switch)."""
+    from clipclique.projection import _projected, project_spreads, spreads
+
+    rng = np.random.default_rng(5)
+    differs = 0
+    for trial in range(60):
+        ellipsoids = Ellipsoids(rng.uniform(-4, 4, (1, 3)), rng.uniform(0.02, 1.5, (1, 3)),
+                                np.array([random_rotation(rng)]))
+        cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(int(rng.integers(1, 8)))]
+        rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
+        seen = project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)
+        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA)
+        for ours, theirs in zip((seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas), expected):
+            assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
+        compiled = _projected(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA.intrinsics,
+                              640.0, 480.0, 8.0)
+        differs += compiled[0].tobytes() != seen.dual_conics.tobytes()
+    assert differs > 0

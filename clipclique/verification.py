@@ -94,7 +94,7 @@ def _verify_all(stack: Stack, observations: Observations, map: Map, params: Veri
     owner = stack.owners()
     pairs = np.asarray(stack.pairs, np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
-    landmark_depth = np.einsum("mi,mi->m", map.ellipsoids.centers[lm] - translations[owner], rotations[owner, :, 2])
+    landmark_depth = _depths_along(map.ellipsoids.centers, lm, translations, rotations, owner)
     overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
         obs, lm, owner, nearby, len(map), seen.visible, seen.boxes, seen.full_areas,
         np.ascontiguousarray(observations.boxes, np.float64), observations.ellipsoids.centers[:, 2], landmark_depth,
@@ -104,6 +104,20 @@ def _verify_all(stack: Stack, observations: Observations, map: Map, params: Veri
     return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
                         missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
                         missed_weight=params.missed_weight)
+
+
+@njit(cache=True)
+def _depths_along(centers: np.ndarray, lm: np.ndarray, translations: np.ndarray, rotations: np.ndarray,
+                  owner: np.ndarray) -> np.ndarray:
+    """(M,) each pair's landmark depth along its pose's optical axis, `np.einsum("mi,mi->m", centers[lm] -
+    translations[owner], rotations[owner, :, 2])` to the bit (einsum's sum of three products, (x0 y0 + x2 y2) +
+    x1 y1, added to its 0), without the two gathers and einsum's setup."""
+    depths = np.empty(len(lm))
+    for m in range(len(lm)):
+        center, translation, axis = centers[lm[m]], translations[owner[m]], rotations[owner[m], :, 2]
+        x0, x1, x2 = center[0] - translation[0], center[1] - translation[1], center[2] - translation[2]
+        depths[m] = 0.0 + ((x0 * axis[0] + x2 * axis[2]) + x1 * axis[1])
+    return depths
 
 
 @njit(cache=True)

@@ -366,3 +366,28 @@ def test_the_figures_in_one_call_are_the_numpy_passes_to_the_bit():
                                   0.1, full))
         for ours, theirs in zip(got, expected, strict=True):
             assert ours.tobytes() == theirs.tobytes()
+
+
+def test_the_compiled_landmark_depths_are_einsums_to_the_bit():
+    """`_depths_along` against the einsum of the gathered offsets and optical axes: random poses and hand-made
+    entries (-0, NaN, infinities, a landmark at the camera, pairs sharing a landmark or a pose) and no pairs."""
+    from clipclique.geometry import random_rotation
+    from clipclique.verification import _depths_along
+
+    rng = np.random.default_rng(9)
+    for pairs in (0, 1, 5, 200):
+        for trial in range(20):
+            poses, landmarks = int(rng.integers(1, 6)), int(rng.integers(1, 30))
+            rotations = np.array([random_rotation(rng) for _ in range(poses)])
+            translations, centers = rng.uniform(-5, 5, (poses, 3)), rng.uniform(-5, 5, (landmarks, 3))
+            lm, owner = rng.integers(0, landmarks, pairs), np.sort(rng.integers(0, poses, pairs))
+            if trial % 2:
+                rotations[0, :, 2] = [-0.0, 0.0, 1.0]
+                centers[0] = translations[0]  # offsets of 0: products of -0
+                centers[-1, 1] = np.nan
+                centers[landmarks // 2, 0] = np.inf
+                translations[-1, 2] = -np.inf if trial % 4 == 1 else 1e308
+            with np.errstate(invalid="ignore", over="ignore"):
+                expected = np.einsum("mi,mi->m", centers[lm] - translations[owner], rotations[owner, :, 2])
+                got = _depths_along(centers, lm, translations, rotations, owner)
+            assert got.shape == expected.shape and got.tobytes() == expected.tobytes()

@@ -43,7 +43,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.stack import Stack, alike
+from clipclique.stack import Stack, _alike
 from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
@@ -390,20 +390,48 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray,
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
     a cluttered desk: verification chooses between both."""
-    owner = np.repeat(np.arange(len(sizes)), sizes)
-    ordered = members[np.lexsort((members, owner))]  # each clique's members ascending, cliques in order
-    left = ~added[ordered]
-    rest_sizes = np.bincount(owner[left], minlength=len(sizes))
+    return _rests(np.asarray(members, np.int64), np.asarray(sizes, np.int64), np.asarray(added, np.bool_), min_size)
+
+
+@njit(cache=True)
+def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """`_without_added` in one compiled pass: each clique's members sorted, then the cliques and the eligible rests
+    as sorted sets through `stack._alike` (a rest is kept where it comes first among its alike sets), instead of a
+    dozen numpy passes (lexsort, bincounts, repeats) on a frame's few cliques."""
+    count = len(sizes)
+    starts = np.cumsum(sizes) - sizes
+    rest_sizes = np.zeros(count, np.int64)
+    for c in range(count):
+        for i in range(starts[c], starts[c] + sizes[c]):
+            rest_sizes[c] += not added[members[i]]
     eligible = (rest_sizes >= min_size) & (rest_sizes < sizes)
-    # the cliques, then the eligible rests, as sorted sets: a rest is kept where no clique and no earlier rest
-    # holds the same set, i.e. where it comes first among its alike sets
     counts = np.concatenate((sizes, rest_sizes[eligible]))
-    group, firsts = alike(np.zeros((len(counts), 0)), np.concatenate((ordered, ordered[left & eligible[owner]])),
-                          np.cumsum(counts) - counts, counts)
-    kept = np.zeros(len(sizes), bool)
-    kept[eligible] = firsts[group[len(sizes):]] == np.arange(len(sizes), len(counts))
-    rests = np.repeat(kept, sizes) & ~added[members]
-    return members[rests], np.bincount(owner[rests], minlength=len(sizes))[kept]
+    sets = np.empty(counts.sum(), np.int64)  # the cliques, then the eligible rests, each ascending
+    at = len(members)
+    for c in range(count):
+        ordered = np.sort(members[starts[c]: starts[c] + sizes[c]])
+        sets[starts[c]: starts[c] + sizes[c]] = ordered
+        if eligible[c]:
+            for member in ordered:
+                if not added[member]:
+                    sets[at] = member
+                    at += 1
+    group, firsts = _alike(np.zeros((len(counts), 0), np.int64), sets, np.cumsum(counts) - counts, counts)
+    kept = np.zeros(count, np.bool_)
+    rest = count
+    for c in range(count):
+        if eligible[c]:
+            kept[c] = firsts[group[rest]] == rest
+            rest += 1
+    kept_members = np.empty(rest_sizes[kept].sum(), np.int64)
+    at = 0
+    for c in range(count):
+        if kept[c]:
+            for i in range(starts[c], starts[c] + sizes[c]):
+                if not added[members[i]]:
+                    kept_members[at] = members[i]
+                    at += 1
+    return kept_members, rest_sizes[kept]
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:

@@ -251,3 +251,44 @@ def test_cliques_without_added_pairs_are_the_loop_s_in_its_order():
         assert [m.tolist() for m in got] == [m.tolist() for m in expected]
         found += len(expected)
     assert found > 100
+
+
+def numpy_without_added(members, sizes, added, min_size):
+    """`_without_added` as its numpy passes computed it before it was compiled."""
+    from clipclique.stack import alike
+
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    ordered = members[np.lexsort((members, owner))]
+    left = ~added[ordered]
+    rest_sizes = np.bincount(owner[left], minlength=len(sizes))
+    eligible = (rest_sizes >= min_size) & (rest_sizes < sizes)
+    counts = np.concatenate((sizes, rest_sizes[eligible]))
+    group, firsts = alike(np.zeros((len(counts), 0)), np.concatenate((ordered, ordered[left & eligible[owner]])),
+                          np.cumsum(counts) - counts, counts)
+    kept = np.zeros(len(sizes), bool)
+    kept[eligible] = firsts[group[len(sizes):]] == np.arange(len(sizes), len(counts))
+    rests = np.repeat(kept, sizes) & ~added[members]
+    return members[rests], np.bincount(owner[rests], minlength=len(sizes))[kept]
+
+
+def test_the_compiled_rests_are_the_numpy_passes_to_the_bit():
+    """`_without_added` against its numpy passes, arrays and dtypes: random cliques with repeats in other orders,
+    nothing or everything added, single and no cliques."""
+    rng = np.random.default_rng(13)
+    cases = [([], np.zeros(4, bool)), ([np.array([3, 1, 2])], np.ones(4, bool)),
+             ([np.array([3, 1, 2])], np.zeros(4, bool)), ([np.array([0, 1, 2, 3]), np.array([3, 2, 1, 0])],
+                                                          np.array([True, False, False, False]))]
+    for trial in range(300):
+        count = int(rng.integers(1, 14))
+        cliques = [rng.permutation(count)[: int(rng.integers(1, count + 1))] for _ in range(int(rng.integers(0, 12)))]
+        cliques += [rng.permutation(members) for members in cliques[:3]]
+        cases.append((cliques, rng.random(count) < rng.choice([0.0, 0.2, 0.5, 1.0])))
+    kept = 0
+    for cliques, added in cases:
+        for min_size in (1, 2, 3):
+            got = _without_added(*_stacked(cliques), added, min_size)
+            expected = numpy_without_added(*_stacked(cliques), added, min_size)
+            for ours, theirs in zip(got, expected):
+                assert ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
+            kept += len(expected[1])
+    assert kept > 200

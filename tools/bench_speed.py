@@ -344,8 +344,8 @@ def main() -> None:
     parser.add_argument("--whole-runs", type=int, default=0, metavar="N",
                         help="also time N whole `clipclique-loc run` processes of the first scene per tree")
     parser.add_argument("--cpu", type=int, default=None, metavar="CORE",
-                        help="pin both workers to this core (a VM's cores can differ: this machine's core 1 ran "
-                             "the same query ~30%% slower than core 0); default: where the system puts them")
+                        help="pin both workers to this core, so that before and now run on the same one (a VM's "
+                             "cores can differ, and by the minute); default: where the system puts them")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:

@@ -102,7 +102,7 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
 
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
     """Ranked camera-to-map poses for one frame's observations."""
-    _check_classes(observations, index.map)
+    _check_observations(observations, index.map)
     if index.built_for != index_key(config):
         raise ClipcliqueError(
             f"the map index was built for {index.built_for}, not {index_key(config)}: call index_map with this config"
@@ -271,12 +271,21 @@ def _missing_embeddings(observations: Observations, map: Map) -> str | None:
     return None
 
 
-def _check_classes(observations: Observations, map: Map) -> None:
+def _check_observations(observations: Observations, map: Map) -> None:
+    """Class ids the map has, and finite ellipsoids: one NaN centre made every pair distance's maximum NaN, so
+    that no pair of the frame passed compatibility (a silent failure), and a KD-tree refused it outright."""
     ids = observations.class_ids
     if len(ids) and (ids.min() < 0 or ids.max() >= len(map.class_names)):
         raise ClipcliqueError(
             f"observation class ids must index the map's {len(map.class_names)} classes; got {ids.min()}..{ids.max()}"
         )
+    shapes = observations.ellipsoids
+    if np.isfinite(shapes.centers).all() and np.isfinite(shapes.axes).all() and np.isfinite(shapes.rotations).all():
+        return
+    rows = {int(row) for part in (shapes.centers, shapes.axes, shapes.rotations)
+            for row in np.flatnonzero(~np.isfinite(part.reshape(len(part), -1)).all(axis=1))}
+    raise ClipcliqueError(f"observation {min(rows)} has a centre, axes or rotation that is not finite "
+                          f"({len(rows)} of {len(observations)} observations)")
 
 
 def _split(observations: Observations, map: Map, candidates: np.ndarray, scores: np.ndarray,

@@ -103,6 +103,12 @@ def test_bad_observation_classes_and_embedding_sizes_are_user_errors():
         localize(dataclasses.replace(observations, class_ids=observations.class_ids + 8), index, config)
     with pytest.raises(ClipcliqueError, match="dimensions"):
         localize(dataclasses.replace(observations, image_embeddings=observations.image_embeddings[:, :5]), index, config)
+    for part, row in (("centers", 2), ("axes", 0), ("rotations", 1)):  # one bad row failed the whole frame silently
+        shapes = dataclasses.replace(observations.ellipsoids, **{part: getattr(observations.ellipsoids, part).copy()})
+        getattr(shapes, part)[row] = np.nan if part != "axes" else np.inf
+        with pytest.raises(ClipcliqueError, match=rf"observation {row} has a centre, axes or rotation that is not finite "
+                                                  rf"\(1 of {len(observations)} observations\)"):
+            localize(dataclasses.replace(observations, ellipsoids=shapes), index, config)
 
 
 def test_the_pipeline_is_deterministic():

@@ -22,17 +22,15 @@ from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
+from clipclique.numpybits import pairwise_sum
 from clipclique.stack import Stack
-
-if TYPE_CHECKING:  # an annotation only: verification imports projection, which imports pose, which imports this
-    from clipclique.verification import Verification
+from clipclique.verification import Verification
 
 MODEL_FORMAT = "clipclique confidence model"
 MODEL_VERSION = 1
@@ -90,35 +88,9 @@ def _group_sums(values: np.ndarray, ends: np.ndarray, zero) -> np.ndarray:
     sums = np.empty(len(ends), values.dtype)
     start = 0
     for b in range(len(ends)):
-        sums[b] = zero + _pairwise_sum(values, start, ends[b], zero)
+        sums[b] = zero + pairwise_sum(values, start, ends[b], zero)
         start = ends[b]
     return sums
-
-
-@njit(cache=True)
-def _pairwise_sum(values: np.ndarray, start: int, stop: int, zero):
-    """values[start: stop].sum() as numpy adds a contiguous array, to the bit: in order below 8 values, else in
-    8 running sums combined pairwise then the rest in order, halves of a multiple of 8 above 128 values."""
-    count = stop - start
-    if count < 8:
-        total = zero
-        for i in range(start, stop):
-            total += values[i]
-        return total
-    if count <= 128:
-        partial = values[start: start + 8].copy()
-        end = stop - count % 8
-        for i in range(start + 8, end, 8):
-            for j in range(8):
-                partial[j] += values[i + j]
-        total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5])
-                                                                          + (partial[6] + partial[7]))
-        for i in range(end, stop):
-            total += values[i]
-        return total
-    half = count // 2
-    half -= half % 8
-    return _pairwise_sum(values, start, start + half, zero) + _pairwise_sum(values, start + half, stop, zero)
 
 
 FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {

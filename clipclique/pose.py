@@ -20,7 +20,7 @@ from numba.core import cgutils
 from numba.extending import get_cython_function_address, intrinsic
 
 from clipclique.config import PoseWeights
-from clipclique.confidence import _pairwise_sum
+from clipclique.numpybits import fma, pairwise_sum
 from clipclique.types import Pose
 
 MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
@@ -158,8 +158,9 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
             conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_fitted_by_gufuncs` in one pass, set by set, and (B,) whether each set was decomposed here (its moments
     finite and LAPACK content; the others are left to the gufuncs). `total`: the weights' sums, empty: summed
-    here as numpy sums C-ordered rows (`_pairwise_sum`). `lapack`: `_lapack()`. `conditioned`: as `_fit`. u vt
-    as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum (`_translation_of`)."""
+    here as numpy sums C-ordered rows (`numpybits.pairwise_sum`). `lapack`: `_lapack()`. `conditioned`: as
+    `_fit`. u vt as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum
+    (`_translation_of`)."""
     count, points = weights.shape
     mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
     cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
@@ -170,7 +171,7 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
     flat = weights.reshape(-1)
     scratch = _workspace(lapack)
     for b in range(count):
-        summed = 0.0 + _pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
+        summed = 0.0 + pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
         _moments_of(b, weights, summed, source, target, mean_source, mean_target, cross, spreads, w,
                     centred_source, centred_target)
         if not (np.isfinite(mean_source[b]).all() and np.isfinite(mean_target[b]).all()
@@ -286,7 +287,7 @@ def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
     OpenBLAS: from +0, one fused multiply-add per k in order)."""
     for i in range(3):
         for j in range(3):
-            out[i, j] = _fma(u[i, 2], vt[2, j], _fma(u[i, 1], vt[1, j], _fma(u[i, 0], vt[0, j], 0.0)))
+            out[i, j] = fma(u[i, 2], vt[2, j], fma(u[i, 1], vt[1, j], fma(u[i, 0], vt[0, j], 0.0)))
 
 
 @njit(cache=True)
@@ -296,14 +297,6 @@ def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: 
     for i in range(3):
         product = (rotation[i, 0] * mean_source[0] + rotation[i, 2] * mean_source[2]) + rotation[i, 1] * mean_source[1]
         out[i] = mean_target[i] - (0.0 + product)
-
-
-@intrinsic
-def _fma(typingctx, a, b, c):
-    """a * b + c rounded once (LLVM's fma: the machine's instruction, as OpenBLAS's kernels use it)."""
-    def codegen(context, builder, signature, args):
-        return builder.fma(*args)
-    return types.float64(types.float64, types.float64, types.float64), codegen
 
 
 @njit(cache=True)

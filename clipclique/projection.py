@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from clipclique.pose import _fma
+from clipclique.numpybits import fma
 from clipclique.types import Camera, Ellipsoids
 
 MIN_DEPTH = 0.05  # metres: an ellipsoid reaching nearer than this is not projected
@@ -84,15 +84,15 @@ def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, t
                max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_outline_boxes` of V = K R^T, vec(V M V^T) = spread (V kron V)^T and h = (c - t) V^T in one compiled call,
     each product as numpy's matmul gets it from OpenBLAS's dgemm: from +0, one fused multiply-add per term in order
-    (`pose._fma`); three BLAS calls per pose cost more than the arithmetic. Returns the conics, boxes, visibility,
+    (`numpybits.fma`); three BLAS calls per pose cost more than the arithmetic. Returns the conics, boxes, visibility,
     h (B, N, 3) (its third coordinate the depth) and the full areas."""
     count, size = len(rotations), len(centers)
     view = np.empty((count, 3, 3))
     for b in range(count):
         for i in range(3):
             for j in range(3):
-                view[b, i, j] = _fma(intrinsics[i, 2], rotations[b, j, 2], _fma(
-                    intrinsics[i, 1], rotations[b, j, 1], _fma(intrinsics[i, 0], rotations[b, j, 0], 0.0)))
+                view[b, i, j] = fma(intrinsics[i, 2], rotations[b, j, 2], fma(
+                    intrinsics[i, 1], rotations[b, j, 1], fma(intrinsics[i, 0], rotations[b, j, 0], 0.0)))
     kron = _kron(view).reshape(count, 9, 9)
     images, terms, offset = np.empty((count, size, 3)), np.empty((count, size, 9)), np.empty(3)
     for b in range(count):
@@ -100,12 +100,12 @@ def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, t
             for j in range(3):
                 offset[j] = centers[n, j] - translations[b, j]
             for i in range(3):
-                images[b, n, i] = _fma(offset[2], view[b, i, 2], _fma(offset[1], view[b, i, 1],
-                                                                      _fma(offset[0], view[b, i, 0], 0.0)))
+                images[b, n, i] = fma(offset[2], view[b, i, 2], fma(offset[1], view[b, i, 1],
+                                                                      fma(offset[0], view[b, i, 0], 0.0)))
             for r in range(9):
                 total = 0.0
                 for k in range(9):
-                    total = _fma(spread[n, k], kron[b, r, k], total)
+                    total = fma(spread[n, k], kron[b, r, k], total)
                 terms[b, n, r] = total
     conics, boxes, visible, full_areas = _outline_boxes(terms, images, width, height, max_depth)
     return conics, boxes, visible, images, full_areas

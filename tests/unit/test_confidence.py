@@ -12,6 +12,7 @@ from benchmark import calibration
 from clipclique import confidence
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
+from clipclique.numpybits import pairwise_sum
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind
@@ -70,7 +71,7 @@ def test_the_compiled_sum_adds_as_numpy_does(dtype):
     rng = np.random.default_rng(7)
     for count in [*range(0, 140), 255, 256, 257, 1000, 4099]:
         values = (rng.random(count) * rng.choice([1e-4, 1.0, 1e4], size=count)).astype(dtype)
-        assert dtype(confidence._pairwise_sum(values, 0, count, dtype(0))).tobytes() == values.sum().tobytes()
+        assert dtype(pairwise_sum(values, 0, count, dtype(0))).tobytes() == values.sum().tobytes()
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

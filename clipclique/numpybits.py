@@ -1,0 +1,45 @@
+"""numpy's and OpenBLAS's arithmetic written out for compiled code, to the bit: a kernel that replaces a numpy
+call must add in the order numpy adds, or results move in their last bits (and the results digest with them).
+
+One place for what several modules' kernels share: numpy's pairwise sum, and the fused multiply-add that
+OpenBLAS's dgemm chains for small matrices (from +0, one per term in order)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, types
+from numba.extending import intrinsic
+
+
+@njit(cache=True)
+def pairwise_sum(values: np.ndarray, start: int, stop: int, zero):
+    """values[start: stop].sum() as numpy adds a contiguous array, to the bit: in order below 8 values, else in
+    8 running sums combined pairwise then the rest in order, halves of a multiple of 8 above 128 values."""
+    count = stop - start
+    if count < 8:
+        total = zero
+        for i in range(start, stop):
+            total += values[i]
+        return total
+    if count <= 128:
+        partial = values[start: start + 8].copy()
+        end = stop - count % 8
+        for i in range(start + 8, end, 8):
+            for j in range(8):
+                partial[j] += values[i + j]
+        total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5])
+                                                                          + (partial[6] + partial[7]))
+        for i in range(end, stop):
+            total += values[i]
+        return total
+    half = count // 2
+    half -= half % 8
+    return pairwise_sum(values, start, start + half, zero) + pairwise_sum(values, start + half, stop, zero)
+
+
+@intrinsic
+def fma(typingctx, a, b, c):
+    """a * b + c rounded once (LLVM's fma: the machine's instruction, as OpenBLAS's kernels use it)."""
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+    return types.float64(types.float64, types.float64, types.float64), codegen

@@ -113,7 +113,11 @@ def _kept(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
 
 
 def _prepared(settings: RunSettings) -> Run:
-    return _kept(_RUNS, json.dumps(dataclasses.asdict(settings), default=str, sort_keys=True), lambda: prepare(settings))
+    return _kept(_RUNS, _run_key(settings), lambda: prepare(settings))
+
+
+def _run_key(settings: RunSettings) -> str:
+    return json.dumps(dataclasses.asdict(settings), default=str, sort_keys=True)
 
 
 def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path) -> int:
@@ -182,13 +186,20 @@ def finished(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
 
 
 def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dict[Path, dict[str, Any]]]:
-    """Prepare each run here (maps built for the demo); those not finished yet, and the documents of those that are."""
+    """Prepare each run here (maps built for the demo); those not finished yet, and the documents of those that are.
+
+    Tasks run in this process find each run prepared under their settings (`_prepared`), sharing its sequence,
+    map and models instead of loading them a second time (seconds for CLIP and YOLO)."""
     jobs, done = [], {}
     for settings in runs:
         ensure_map(settings.sequence, settings.data_root)
         worker_settings = dataclasses.replace(settings, data_root=resolve_data_root(settings.data_root).resolve(),
                                               map_path=settings.resolved_map_path().resolve(), out=None)
         run = prepare(settings)
+        _kept(_RUNS, _run_key(worker_settings),
+              lambda run=run, worker_settings=worker_settings: dataclasses.replace(run, settings=worker_settings,
+                                                                                   notes=list(run.notes), frames=[],
+                                                                                   unannotated=[]))
         document = finished(settings, run.sequence.name)
         if document is not None:
             done[settings.out_dir(run.sequence.name)] = document

@@ -8,6 +8,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+from collections import OrderedDict
 from pathlib import Path
 
 import pytest
@@ -17,7 +18,7 @@ from benchmark.engine import TaskFailure, run_jobs
 from benchmark.plan import Plan, runs
 from clipclique.pipeline import localize
 from localization.results import read_results
-from localization.run import RunSettings, run_and_save
+from localization.run import RunSettings, prepare, run_and_save
 
 pytestmark = pytest.mark.slow
 SCENES = ["demo", "demo_tum"]
@@ -69,7 +70,18 @@ def canonical(path: Path) -> list:
 
 @pytest.fixture(scope="module")
 def in_process(workspace):
-    result = run_jobs(plan_runs(workspace, "in-process"), workspace[0] / "cache-a", Recorder())
+    """The in-process run, and the settings `prepare` was called with (the runs kept emptied first)."""
+    prepared = []
+
+    def counted(settings):
+        prepared.append(settings)
+        return prepare(settings)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(engine, "_RUNS", OrderedDict())
+        patch.setattr(engine, "prepare", counted)
+        result = run_jobs(plan_runs(workspace, "in-process"), workspace[0] / "cache-a", Recorder())
+    result.prepared = prepared
     return result
 
 
@@ -85,6 +97,11 @@ def test_in_process_runs_are_those_of_clipclique_loc(workspace, in_process):
         run_and_save(RunSettings(settings.sequence, settings.method, data_root=data, out=reference, record=False))
         assert canonical(settings.out / "results.json") == canonical(reference / "results.json")
         assert (settings.out / "poses.tum").read_text() == (reference / "poses.tum").read_text()
+
+
+def test_in_process_tasks_share_the_runs_the_plan_prepared(workspace, in_process):
+    """Each run's sequence, map and models are loaded once, not again by its tasks (seconds for real models)."""
+    assert sorted(s.out for s in in_process.prepared) == sorted(s.out for s in plan_runs(workspace, "in-process"))
 
 
 def test_two_worker_processes_give_the_same_numbers(workspace, in_process):

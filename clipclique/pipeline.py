@@ -84,13 +84,12 @@ class LocalizationResult:
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
-    adjacency = graph.semantic_graph(map.ellipsoids.centers, config.graph.d_adj, config.graph.max_degree)
+    adjacency, capped = graph.capped_semantic_graph(map.ellipsoids.centers, config.graph.d_adj, config.graph.max_degree)
     soft = (sp.csr_matrix(map.class_distributions)
             if config.similarity.soft_classes and map.class_distributions is not None else None)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config, distributions=soft)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
-    capped = graph.capped_nodes(map.ellipsoids.centers, config.graph.d_adj, adjacency)
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
                     text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from scipy.spatial import cKDTree
 
-from clipclique.graph import capped_nodes, landmark_histograms, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
+from clipclique.graph import capped_semantic_graph, landmark_histograms, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
 
 A, B, C = 0, 1, 2
 # Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.
@@ -87,16 +88,80 @@ def test_degree_cap_keeps_real_graphs_and_bounds_degenerate_ones():
     rng = np.random.default_rng(2)
     desk = rng.normal(0, 0.5, size=(47, 3))  # a cluttered desk: degree up to ~30
     assert (semantic_graph(desk, 0.8, max_degree=64) != semantic_graph(desk, 0.8)).nnz == 0
-    assert capped_nodes(desk, 0.8, semantic_graph(desk, 0.8, max_degree=64)) == 0
+    assert capped_semantic_graph(desk, 0.8, max_degree=64).capped_nodes == 0
     pile = np.zeros((3000, 3))  # 3,000 landmarks in one spot: 4.5 million edges uncapped
     capped = semantic_graph(pile, 0.8, max_degree=16)
     degree = np.diff(capped.indptr)
     assert degree.max() <= 16 and (capped != capped.T).nnz == 0 and capped.diagonal().sum() == 0
-    assert capped_nodes(pile, 0.8, capped) == 3000
+    assert capped_semantic_graph(pile, 0.8, max_degree=16).capped_nodes == 3000
     near = semantic_graph(desk, 0.8, max_degree=3)
     for node in range(47):  # what a node keeps are among its 3 nearest
         nearest = set(np.argsort(np.linalg.norm(desk - desk[node], axis=1))[1:4].tolist())
         assert set(near[node].indices.tolist()) <= nearest
+
+
+def knn_capped_graph(centers, d_adj, max_degree):
+    """What `capped_semantic_graph` replaced: every node's k-nearest query, the mutual edges by scipy's
+    elementwise product, and the capped count from a second KD-tree's ball query."""
+    n = len(centers)
+    if n == 0:
+        return sp.csr_matrix((0, 0), dtype=bool), 0
+    k = min(max_degree + 1, n)
+    distances, neighbours = cKDTree(centers).query(centers, k=k, distance_upper_bound=d_adj)
+    distances, neighbours = distances.reshape(n, k), neighbours.reshape(n, k)
+    rows = np.repeat(np.arange(n), k)
+    keep = (distances.ravel() < d_adj) & (neighbours.ravel() != rows)
+    kept = sp.csr_matrix((np.ones(keep.sum(), dtype=bool), (rows[keep], neighbours.ravel()[keep])), shape=(n, n))
+    adjacency = kept.multiply(kept.T).tocsr().astype(bool)
+    within = cKDTree(centers).query_ball_point(centers, d_adj, return_length=True) - 1
+    return adjacency, int(np.count_nonzero(within > np.diff(adjacency.indptr)))
+
+
+def assert_same_csr(got, expected):
+    assert got.shape == expected.shape
+    for name in ("indptr", "indices", "data"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+        assert getattr(got, name).dtype == getattr(expected, name).dtype
+
+
+@pytest.mark.parametrize("centers, d_adj, max_degree, capped", [
+    (np.zeros((0, 3)), 0.8, 64, 0),  # empty map
+    (np.array([[0, 0, 0.0]]), 0.8, 64, 0),  # one isolated node
+    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [3, 0, 0.0]]), 1.0, 64, 3),  # distance exactly d_adj: no edge, capped
+    (np.array([[0, 0, 0], [0.5, 0, 0], [0.5, 0, 0], [9, 9, 9.0]]), 0.8, 1, 3),  # duplicates, cap of one, isolated
+    (np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0], [0.4, 0, 0], [0.45, 0, 0.0]]), 0.8, 2, 6),  # a line
+    (np.zeros((40, 3)), 0.8, 64, 0),  # a pile under the cap
+    (np.zeros((40, 3)), 0.8, 5, 40),  # a pile over it
+])
+def test_capped_graph_is_the_knn_graph_and_ball_count_on_hand_made_maps(centers, d_adj, max_degree, capped):
+    expected, expected_capped = knn_capped_graph(centers, d_adj, max_degree)
+    got = capped_semantic_graph(centers, d_adj, max_degree)
+    assert_same_csr(got.adjacency, expected)
+    assert_same_csr(semantic_graph(centers, d_adj, max_degree), expected)
+    assert got.capped_nodes == expected_capped == capped
+
+
+def test_capped_graph_is_the_knn_graph_and_ball_count_on_random_maps():
+    """Random maps, integer grids (exact distances, duplicates) and pairs a few ulps either side of d_adj, with
+    caps that bite and caps that do not: the very arrays and count the k-nearest and ball queries gave."""
+    rng = np.random.default_rng(3)
+    for trial in range(400):
+        n, kind = int(rng.integers(0, 90)), trial % 4
+        if kind == 0:
+            centers = rng.uniform(0, 3, (n, 3))
+        elif kind == 1:
+            centers = rng.integers(0, 4, (n, 3)).astype(float)
+        elif kind == 2:
+            centers = rng.integers(0, 3, (n, 3)) * 0.4
+        else:
+            base, ways = rng.uniform(0, 3, (n, 3)), rng.normal(size=(n, 3))
+            ways /= np.linalg.norm(ways, axis=1, keepdims=True)
+            centers = np.concatenate((base, base + ways * 0.8 * (1 + rng.integers(-4, 5, (n, 1)) * 2.0**-52)))
+        d_adj, max_degree = [1.0, 0.8, 0.4][trial % 3], int(rng.choice([1, 3, 8, 64]))
+        expected, expected_capped = knn_capped_graph(centers, d_adj, max_degree)
+        got = capped_semantic_graph(centers, d_adj, max_degree)
+        assert_same_csr(got.adjacency, expected)
+        assert got.capped_nodes == expected_capped
 
 
 def test_query_histograms_store_the_sparse_paths_entries_bit_for_bit():

@@ -337,17 +337,10 @@ def landmark_histograms(
         return semantic_histograms(adjacency, class_ids, num_classes, walk_length, None, distributions)
     labels = (sp.csr_matrix(distributions) if distributions is not None
               else _label_rows(np.asarray(class_ids, dtype=np.int64), num_classes, None))
-    return _normalized(*_walk_histograms(adjacency.indptr.astype(np.int64), adjacency.indices.astype(np.int64),
-                                         labels.indptr.astype(np.int64), labels.indices.astype(np.int64),
-                                         labels.data.astype(np.float64), num_classes, walk_length),
-                       num_classes**walk_length)
-
-
-def _normalized(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray, width: int) -> sp.csr_matrix:
-    """The compiled walks' rows L2-normalized and stored as `_l2_normalized` has scipy store them."""
-    n = len(pointers) - 1
-    pointers, bins, values = _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
-    return sp.csr_matrix((values, bins, pointers), shape=(n, width))
+    pointers, bins, values = _walk_histograms(adjacency.indptr.astype(np.int64), adjacency.indices.astype(np.int64),
+                                              labels.indptr.astype(np.int64), labels.indices.astype(np.int64),
+                                              labels.data.astype(np.float64), num_classes, walk_length, True)
+    return sp.csr_matrix((values, bins, pointers), shape=(adjacency.shape[0], num_classes**walk_length))
 
 
 @njit(cache=True)
@@ -358,12 +351,18 @@ def _inverse_norms(pointers: np.ndarray, values: np.ndarray) -> np.ndarray:
     n = len(pointers) - 1
     scale = np.zeros(n)
     for v in range(n):
-        start, end = pointers[v], pointers[v + 1]
-        if end > start:
-            norm = np.sqrt(values[start] * values[start] + _pairwise_squares(values, start + 1, end - start - 1))
-            if norm > 0:
-                scale[v] = 1.0 / (norm if norm > 1e-300 else 1e-300)
+        scale[v] = _inverse_norm(values, pointers[v], pointers[v + 1])
     return scale
+
+
+@njit(cache=True)
+def _inverse_norm(values: np.ndarray, start: int, end: int) -> float:
+    """1 / the L2 norm of values[start:end] as `_inverse_norms` computes a row's (0 for an empty row, norm 0 or NaN)."""
+    if end > start:
+        norm = np.sqrt(values[start] * values[start] + _pairwise_squares(values, start + 1, end - start - 1))
+        if norm > 0:
+            return 1.0 / (norm if norm > 1e-300 else 1e-300)
+    return 0.0
 
 
 @njit(cache=True)
@@ -463,11 +462,15 @@ def _kernel_rows(class_ids: np.ndarray, kernel_pointers: np.ndarray, kernel_colu
 
 @njit(cache=True)
 def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarray, label_pointers: np.ndarray,
-                     label_bins: np.ndarray, label_values: np.ndarray, num_classes: int,
-                     walk_length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     label_bins: np.ndarray, label_values: np.ndarray, num_classes: int, walk_length: int,
+                     normalized: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows (pointers, ascending bins, values) of the unnormalised Semantic Histograms of the graph with
     CSR rows (`neighbour_pointers`, `neighbour_indices`) and label rows (zeros left out): each sum adds
-    its terms in the order scipy's sparse products do (neighbours in stored order), from 0."""
+    its terms in the order scipy's sparse products do (neighbours in stored order), from 0.
+
+    `normalized`: the rows as `_scaled_reversed(..., _inverse_norms(...))` stores them (L2-normalized, last bin
+    first, zeros dropped), each written so while it is in cache and into arrays sized once by a bound, where a
+    second pass and doubling arrays cost a third of a 47,000-landmark map's histograms."""
     n = len(neighbour_pointers) - 1
     # walks of one node: each node's label row without its zeros
     pointers = np.zeros(n + 1, np.int64)
@@ -483,14 +486,21 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
             if label_values[e] != 0:
                 bins[at], values[at] = label_bins[e], label_values[e]
                 at += 1
+    if normalized and walk_length <= 1:
+        return _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
     label_pointers, label_bins, label_values = pointers, bins, values
     width = num_classes
-    for _ in range(walk_length - 1):
+    for step in range(walk_length - 1):
+        last = normalized and step == walk_length - 2
         total = np.zeros(width)
         seen = np.zeros(width, np.bool_)
         touched = np.empty(width, np.int64)
         next_pointers = np.zeros(n + 1, np.int64)
         next_bins, next_values = np.empty(0, np.int64), np.empty(0)
+        row_bins, row_values = np.empty(0, np.int64), np.empty(0)  # the last step's row before it is normalized
+        if last:
+            bound = _row_bound(neighbour_pointers, neighbour_indices, pointers, label_pointers, width)
+            next_bins, next_values = np.empty(bound, np.int64), np.empty(bound)
         for v in range(n):
             count = 0  # tails: the sum over v's neighbours of their walks
             for t in range(neighbour_pointers[v], neighbour_pointers[v + 1]):
@@ -505,21 +515,27 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                     total[b] += values[e]
             tails = np.sort(touched[:count])
             labels = label_pointers[v + 1] - label_pointers[v]
-            start = next_pointers[v]
+            start = 0 if last else next_pointers[v]
             need = start + labels * count
-            if need > len(next_bins):
+            if last and need > len(row_bins):
+                row_bins, row_values = np.empty(2 * need, np.int64), np.empty(2 * need)
+            elif not last and need > len(next_bins):
                 grown = max(need, 2 * len(next_bins))
                 more_bins, more_values = np.empty(grown, np.int64), np.empty(grown)
                 more_bins[:start], more_values[:start] = next_bins[:start], next_values[:start]
                 next_bins, next_values = more_bins, more_values
+            out_bins, out_values = (row_bins, row_values) if last else (next_bins, next_values)
             at = start
             for e in range(label_pointers[v], label_pointers[v + 1]):  # the row-wise Kronecker product
                 for b in tails:
-                    next_bins[at], next_values[at] = label_bins[e] * width + b, label_values[e] * total[b]
+                    out_bins[at], out_values[at] = label_bins[e] * width + b, label_values[e] * total[b]
                     at += 1
-            if not _ascending(next_bins[start:at]):  # it is when the label row is (a canonical kernel's rows are)
-                order = np.argsort(next_bins[start:at])  # bins are distinct: any sort gives scipy's canonical order
-                next_bins[start:at], next_values[start:at] = next_bins[start:at][order], next_values[start:at][order]
+            if not _ascending(out_bins[start:at]):  # it is when the label row is (a canonical kernel's rows are)
+                order = np.argsort(out_bins[start:at])  # bins are distinct: any sort gives scipy's canonical order
+                out_bins[start:at], out_values[start:at] = out_bins[start:at][order], out_values[start:at][order]
+            if last:
+                at = _append_scaled_reversed(next_bins, next_values, next_pointers[v], row_bins, row_values, 0, at,
+                                             _inverse_norm(row_values, 0, at))
             next_pointers[v + 1] = at
             for b in tails:
                 seen[b] = False
@@ -529,21 +545,42 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
 
 
 @njit(cache=True)
+def _row_bound(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarray, pointers: np.ndarray,
+               label_pointers: np.ndarray, width: int) -> int:
+    """At least the entries of a walk step's rows: per node its labels times its neighbours' entries (or `width`)."""
+    bound = 0
+    for v in range(len(neighbour_pointers) - 1):
+        tails = 0
+        for t in range(neighbour_pointers[v], neighbour_pointers[v + 1]):
+            u = neighbour_indices[t]
+            tails += pointers[u + 1] - pointers[u]
+        bound += (label_pointers[v + 1] - label_pointers[v]) * min(tails, width)
+    return bound
+
+
+@njit(cache=True)
 def _scaled_reversed(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
                      scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`diags(scale) @ rows` as scipy's sparse product stores it: each row's entries last bin first, zeros dropped."""
     n = len(scale)
     out_pointers = np.zeros(n + 1, np.int64)
     out_bins, out_values = np.empty(len(bins), np.int64), np.empty(len(values))
-    at = 0
     for v in range(n):
-        for e in range(pointers[v + 1] - 1, pointers[v] - 1, -1):
-            value = scale[v] * values[e]
-            if value != 0:
-                out_bins[at], out_values[at] = bins[e], value
-                at += 1
-        out_pointers[v + 1] = at
-    return out_pointers, out_bins[:at], out_values[:at]
+        out_pointers[v + 1] = _append_scaled_reversed(out_bins, out_values, out_pointers[v], bins, values, pointers[v],
+                                                      pointers[v + 1], scale[v])
+    return out_pointers, out_bins[:out_pointers[n]], out_values[:out_pointers[n]]
+
+
+@njit(cache=True)
+def _append_scaled_reversed(out_bins: np.ndarray, out_values: np.ndarray, at: int, bins: np.ndarray,
+                            values: np.ndarray, start: int, end: int, scale: float) -> int:
+    """Writes `scale` times entries[start:end] last first, zeros dropped, at out[at:]; returns where it stopped."""
+    for e in range(end - 1, start - 1, -1):
+        value = scale * values[e]
+        if value != 0:
+            out_bins[at], out_values[at] = bins[e], value
+            at += 1
+    return at
 
 
 @njit(cache=True)

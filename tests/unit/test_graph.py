@@ -226,3 +226,29 @@ def test_inverse_row_norms_are_numpys_formula_to_the_bit():
     got = _inverse_norms(pointers, values)
     assert np.array_equal(got.view(np.int64), expected.view(np.int64))
     assert _inverse_norms(np.zeros(1, np.int64), np.zeros(0)).shape == (0,)
+
+
+@pytest.mark.parametrize("length", [1, 2, 3, 4])
+def test_normalized_walks_are_the_two_pass_normalization_to_the_bit(length):
+    """The walks normalized row by row in their last step against what they replaced (the raw walks, then
+    `_scaled_reversed(..., _inverse_norms(...))`), bits compared: isolated nodes, a lone node's empty row, -0,
+    NaN, labels whose squares underflow (norm 0: all dropped) and entries the scaling rounds to 0 (dropped)."""
+    from clipclique.graph import _inverse_norms, _scaled_reversed, _walk_histograms
+
+    adjacency = semantic_graph(np.array([[0, 0, 0], [0.5, 0, 0], [0.25, 0.4, 0], [0.25, 1.1, 0], [5, 5, 5],
+                                         [9, 9, 9], [9.5, 9, 9], [20, 0, 0], [20.5, 0, 0.0]]), 0.8)
+    distributions = sp.csr_matrix(np.array([
+        [1.0, 0.0, 0.0], [0.0, 0.5, -0.0], [0.3, 0.3, 0.4], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0],
+        [np.nan, 1.0, 0.0], [0.0, 1.0, 0.0], [1e-170, 1e-170, 0.0], [1e200, 0.0, 1e-200]]))
+    distributions.data[1] = -0.0  # a stored -0 among the labels
+    arrays = (adjacency.indptr.astype(np.int64), adjacency.indices.astype(np.int64),
+              distributions.indptr.astype(np.int64), distributions.indices.astype(np.int64), distributions.data)
+    raw = _walk_histograms(*arrays, 3, length)
+    expected = _scaled_reversed(*raw, _inverse_norms(raw[0], raw[2]))
+    got = _walk_histograms(*arrays, 3, length, True)
+    for ours, theirs in zip(got, expected):
+        assert ours.dtype == theirs.dtype and np.array_equal(ours.view(np.int64), theirs.view(np.int64))
+    assert np.isnan(got[2]).any() and got[0][-1] < raw[0][-1]  # NaN kept, underflowed entries dropped
+    empty = _walk_histograms(np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(1, np.int64),
+                             np.zeros(0, np.int64), np.zeros(0), 3, length, True)
+    assert [len(part) for part in empty] == [1, 0, 0]

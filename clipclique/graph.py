@@ -513,7 +513,8 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                         touched[count] = b
                         count += 1
                     total[b] += values[e]
-            tails = np.sort(touched[:count])
+            tails = touched[:count]
+            tails.sort()
             labels = label_pointers[v + 1] - label_pointers[v]
             start = 0 if last else next_pointers[v]
             need = start + labels * count

@@ -513,8 +513,15 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                         touched[count] = b
                         count += 1
                     total[b] += values[e]
+            if count * 8 > width:  # many tails of few bins: the marks read in bin order, not a sort
+                count = 0
+                for b in range(width):
+                    if seen[b]:
+                        touched[count] = b
+                        count += 1
+            else:
+                touched[:count].sort()
             tails = touched[:count]
-            tails.sort()
             labels = label_pointers[v + 1] - label_pointers[v]
             start = 0 if last else next_pointers[v]
             need = start + labels * count

@@ -53,6 +53,7 @@ class CappedGraph(NamedTuple):
 
     adjacency: sp.csr_matrix  # (N, N) boolean
     capped_nodes: int  # nodes with more centres within d_adj (distance == d_adj included) than edges; 0: none
+    tree: cKDTree  # the centres' KD-tree it was built with, for whatever else asks which centres are near
 
 
 def capped_semantic_graph(centers: np.ndarray, d_adj: float, max_degree: int) -> CappedGraph:
@@ -68,10 +69,10 @@ def capped_semantic_graph(centers: np.ndarray, d_adj: float, max_degree: int) ->
     query (60 ms) is not needed at all.
     """
     n = len(centers)
-    if n == 0:
-        return CappedGraph(sp.csr_matrix((0, 0), dtype=bool), 0)
     centers = np.asarray(centers, dtype=np.float64)
     tree = cKDTree(centers)
+    if n == 0:
+        return CappedGraph(sp.csr_matrix((0, 0), dtype=bool), 0, tree)
     pairs = tree.query_pairs(d_adj, output_type="ndarray")
     within = np.bincount(pairs.ravel(), minlength=n)  # centres at distance <= d_adj, less the node itself
     k = min(max_degree + 1, n)  # + 1: the node itself comes back too
@@ -81,7 +82,7 @@ def capped_semantic_graph(centers: np.ndarray, d_adj: float, max_degree: int) ->
                                      full.astype(np.int64), distances.reshape(len(full), k),
                                      neighbours.reshape(len(full), k).astype(np.int64, copy=False))
     adjacency = sp.csr_matrix((np.ones(len(indices), dtype=bool), indices, pointers), shape=(n, n))
-    return CappedGraph(adjacency, int(np.count_nonzero(within > np.diff(pointers))))
+    return CappedGraph(adjacency, int(np.count_nonzero(within > np.diff(pointers))), tree)
 
 
 @njit(cache=True)

@@ -84,7 +84,8 @@ class LocalizationResult:
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
     """Semantic graph and the graph descriptors `config.similarity.descriptor` needs."""
-    adjacency, capped = graph.capped_semantic_graph(map.ellipsoids.centers, config.graph.d_adj, config.graph.max_degree)
+    adjacency, capped, tree = graph.capped_semantic_graph(map.ellipsoids.centers, config.graph.d_adj,
+                                                          config.graph.max_degree)
     soft = (sp.csr_matrix(map.class_distributions)
             if config.similarity.soft_classes and map.class_distributions is not None else None)
     histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config, distributions=soft)
@@ -94,7 +95,7 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
                     text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
                     kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
-                    landmark_tree=cKDTree(map.ellipsoids.centers),
+                    landmark_tree=tree,
                     class_groups=matching.class_groups(map.class_ids, kernel, map.ellipsoids.axes),
                     spreads=projection.spreads(map.ellipsoids))
 

@@ -139,6 +139,7 @@ def test_capped_graph_is_the_knn_graph_and_ball_count_on_hand_made_maps(centers,
     assert_same_csr(got.adjacency, expected)
     assert_same_csr(semantic_graph(centers, d_adj, max_degree), expected)
     assert got.capped_nodes == expected_capped == capped
+    assert got.tree.n == len(centers) and np.array_equal(got.tree.data, centers)  # index_map keeps it for localize
 
 
 def test_capped_graph_is_the_knn_graph_and_ball_count_on_random_maps():

@@ -87,28 +87,92 @@ def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, t
     (`numpybits.fma`); three BLAS calls per pose cost more than the arithmetic. Returns the conics, boxes, visibility,
     h (B, N, 3) (its third coordinate the depth) and the full areas."""
     count, size = len(rotations), len(centers)
-    view = np.empty((count, 3, 3))
+    view = _views(rotations, intrinsics)
+    kron = _kron(view).reshape(count, 9, 9)
+    images, terms = np.empty((count, size, 3)), np.empty((count, size, 9))
     for b in range(count):
+        for n in range(size):
+            _image_into(centers[n], translations[b], view[b], images[b, n])
+            for r in range(9):
+                terms[b, n, r] = _term(spread[n], kron[b, r])
+    conics, boxes, visible, full_areas = _outline_boxes(terms, images, width, height, max_depth)
+    return conics, boxes, visible, images, full_areas
+
+
+def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                  camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`project_spreads`'s boxes (B, N, 4), visibility (B, N) and full areas (B, N), the boxes and areas where visible
+    (0 elsewhere), to the bit: what image verification reads, without the conics it does not (`_visible_boxes`)."""
+    if len(centers) == 1:
+        seen = _project_one(centers, spread, rotations, translations, camera)
+        return np.where(seen.visible[..., None], seen.boxes, 0.0), seen.visible, np.where(seen.visible, seen.full_areas, 0.0)
+    return _visible_boxes(centers, spread, rotations, translations, camera.intrinsics, float(camera.width),
+                          float(camera.height), float(camera.max_depth))
+
+
+@njit(cache=True)
+def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                   intrinsics: np.ndarray, width: float, height: float,
+                   max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`visible_boxes` as `_projected` computes each (pose, landmark), but of V M V^T only the five entries a box
+    reads (C*11, C*13, C*22, C*23, C*33), their five chains of fused multiply-adds side by side (one chain after
+    another waits on each add), and the box only for a landmark in front within the depth range."""
+    count, size = len(rotations), len(centers)
+    view = _views(rotations, intrinsics)
+    kron = _kron(view).reshape(count, 9, 9)
+    boxes, visible, full_areas = np.zeros((count, size, 4)), np.zeros((count, size), np.bool_), np.zeros((count, size))
+    image, conic = np.empty(3), np.empty((3, 3))
+    for b in range(count):
+        rows = kron[b]
+        for n in range(size):
+            _image_into(centers[n], translations[b], view[b], image)
+            row = spread[n]
+            c00 = c02 = c11 = c12 = c22 = 0.0  # five independent chains side by side, each in dgemm's order
+            for k in range(9):
+                c00 = fma(row[k], rows[0, k], c00)
+                c02 = fma(row[k], rows[2, k], c02)
+                c11 = fma(row[k], rows[4, k], c11)
+                c12 = fma(row[k], rows[5, k], c12)
+                c22 = fma(row[k], rows[8, k], c22)
+            conic[0, 0], conic[0, 2] = c00 - image[0] * image[0], c02 - image[0] * image[2]
+            conic[1, 1], conic[1, 2] = c11 - image[1] * image[1], c12 - image[1] * image[2]
+            conic[2, 2] = c22 - image[2] * image[2]
+            depth = image[2]
+            if not (depth - np.sqrt(at_least_zero(conic[2, 2] + depth * depth)) > MIN_DEPTH and depth <= max_depth):
+                continue  # not visible (`_outline_box`): its box is never read
+            visible[b, n], full_areas[b, n] = _outline_box(conic, depth, width, height, max_depth, boxes[b, n])
+            if not visible[b, n]:
+                boxes[b, n], full_areas[b, n] = 0.0, 0.0
+    return boxes, visible, full_areas
+
+
+@njit(cache=True)
+def _views(rotations: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+    """(B, 3, 3) V = K R^T of each pose, as numpy's matmul gets it from dgemm (one fma per term from +0)."""
+    view = np.empty((len(rotations), 3, 3))
+    for b in range(len(rotations)):
         for i in range(3):
             for j in range(3):
                 view[b, i, j] = fma(intrinsics[i, 2], rotations[b, j, 2], fma(
                     intrinsics[i, 1], rotations[b, j, 1], fma(intrinsics[i, 0], rotations[b, j, 0], 0.0)))
-    kron = _kron(view).reshape(count, 9, 9)
-    images, terms, offset = np.empty((count, size, 3)), np.empty((count, size, 9)), np.empty(3)
-    for b in range(count):
-        for n in range(size):
-            for j in range(3):
-                offset[j] = centers[n, j] - translations[b, j]
-            for i in range(3):
-                images[b, n, i] = fma(offset[2], view[b, i, 2], fma(offset[1], view[b, i, 1],
-                                                                      fma(offset[0], view[b, i, 0], 0.0)))
-            for r in range(9):
-                total = 0.0
-                for k in range(9):
-                    total = fma(spread[n, k], kron[b, r, k], total)
-                terms[b, n, r] = total
-    conics, boxes, visible, full_areas = _outline_boxes(terms, images, width, height, max_depth)
-    return conics, boxes, visible, images, full_areas
+    return view
+
+
+@njit(cache=True)
+def _image_into(center: np.ndarray, translation: np.ndarray, view: np.ndarray, image: np.ndarray) -> None:
+    """image = (c - t) V^T, one pose and landmark, as dgemm gets it."""
+    x0, x1, x2 = center[0] - translation[0], center[1] - translation[1], center[2] - translation[2]
+    for i in range(3):
+        image[i] = fma(x2, view[i, 2], fma(x1, view[i, 1], fma(x0, view[i, 0], 0.0)))
+
+
+@njit(cache=True)
+def _term(spread: np.ndarray, kron_row: np.ndarray) -> float:
+    """One entry of vec(V M V^T): the landmark's spread (9,) against one row of V kron V, as dgemm adds it."""
+    total = 0.0
+    for k in range(9):
+        total = fma(spread[k], kron_row[k], total)
+    return total
 
 
 @njit(cache=True)
@@ -137,26 +201,32 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
     count, size = centers.shape[:2]
     conics = np.empty((count, size, 3, 3))
     boxes, visible, full_areas = np.empty((count, size, 4)), np.empty((count, size), np.bool_), np.empty((count, size))
-    limits = (width, height, width, height)
     for b in range(count):
         for n in range(size):
             conic, center = conics[b, n], centers[b, n]
             for i in range(3):
                 for j in range(3):
                     conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
-            depth = center[2]
-            reach = np.sqrt(at_least_zero(conic[2, 2] + depth * depth))
-            in_front = depth - reach > MIN_DEPTH
-            c33 = conic[2, 2] if in_front else -1.0
-            box = boxes[b, n]
-            for axis in range(2):  # u from (C*11, C*13), v from (C*22, C*23)
-                root = np.sqrt(at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
-                box[axis], box[axis + 2] = (conic[axis, 2] + root) / c33, (conic[axis, 2] - root) / c33
-            full_areas[b, n] = (at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])) if in_front else 0.0
-            for i in range(4):
-                box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
-            visible[b, n] = in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1]
+            visible[b, n], full_areas[b, n] = _outline_box(conic, center[2], width, height, max_depth, boxes[b, n])
     return conics, boxes, visible, full_areas
+
+
+@njit(cache=True)
+def _outline_box(conic: np.ndarray, depth: float, width: float, height: float, max_depth: float,
+                 box: np.ndarray) -> tuple[bool, float]:
+    """One (pose, ellipsoid) of `_outline_boxes`: its box into `box` (read: C*11, C*13, C*22, C*23, C*33), whether
+    it is visible and the unclipped box's area."""
+    reach = np.sqrt(at_least_zero(conic[2, 2] + depth * depth))
+    in_front = depth - reach > MIN_DEPTH
+    c33 = conic[2, 2] if in_front else -1.0
+    for axis in range(2):  # u from (C*11, C*13), v from (C*22, C*23)
+        root = np.sqrt(at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
+        box[axis], box[axis + 2] = (conic[axis, 2] + root) / c33, (conic[axis, 2] - root) / c33
+    full_area = (at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])) if in_front else 0.0
+    limits = (width, height, width, height)
+    for i in range(4):
+        box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
+    return in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1], full_area
 
 
 @njit(cache=True)

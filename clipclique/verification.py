@@ -90,13 +90,14 @@ def _verify_all(stack: Stack, observations: Observations, map: Map, params: Veri
     rotations, translations = stack.rotations, stack.translations
     nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
     spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
-    seen = projection.project_spreads(map.ellipsoids.centers[nearby], spread, rotations, translations, camera)
+    boxes, visible, full_areas = projection.visible_boxes(map.ellipsoids.centers[nearby], spread, rotations,
+                                                          translations, camera)
     owner = stack.owners()
     pairs = np.asarray(stack.pairs, np.int64)
     obs, lm = pairs[:, 0], pairs[:, 1]
     landmark_depth = _depths_along(map.ellipsoids.centers, lm, translations, rotations, owner)
     overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
-        obs, lm, owner, nearby, len(map), seen.visible, seen.boxes, seen.full_areas,
+        obs, lm, owner, nearby, len(map), visible, boxes, full_areas,
         np.ascontiguousarray(observations.boxes, np.float64), observations.ellipsoids.centers[:, 2], landmark_depth,
         np.asarray(map.class_ids, np.int64), np.asarray(observations.class_ids, np.int64), stack.counts,
         float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),

@@ -257,3 +257,38 @@ def test_one_landmark_keeps_numpys_one_row_products():
                               640.0, 480.0, 8.0)
         differs += compiled[0].tobytes() != seen.dual_conics.tobytes()
     assert differs > 0
+
+
+@pytest.mark.parametrize("count", [0, 1, 2, 7, 40])
+def test_visible_boxes_are_the_projections_where_visible_to_the_bit(count):
+    """`visible_boxes` (the five conic entries a box reads, and only for landmarks in front within range) against
+    `project_spreads`: the same visibility everywhere, the same boxes and full areas where visible and 0 elsewhere,
+    on random poses facing every way and hand-made entries: -0, NaN, infinities, a landmark on the camera, equal
+    landmarks (ties), beyond the depth range, one landmark (numpy's gemv bits) and none."""
+    from clipclique.projection import project_spreads, spreads, visible_boxes
+
+    rng = np.random.default_rng(11 + count)
+    visible_seen = hidden_seen = 0
+    for trial in range(30):
+        ellipsoids = Ellipsoids(rng.uniform(-4, 4, (count, 3)), rng.uniform(0.02, 1.5, (count, 3)),
+                                np.array([random_rotation(rng) for _ in range(count)]).reshape(-1, 3, 3))
+        cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(int(rng.integers(1, 8)))]
+        rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
+        centers, spread = ellipsoids.centers, spreads(ellipsoids)
+        if count > 1 and trial % 3 == 1:  # hand-made entries
+            rotations[0, 0] = [-0.0, 1.0, -0.0]
+            centers[0], spread[0] = translations[0], -0.0  # on the camera
+            centers[-1], spread[-1] = centers[1], spread[1]  # a tie
+            spread[count // 2, 4] = np.nan
+            centers[count // 2 - 1, 1] = np.inf if trial % 2 else -np.inf
+            centers[1] = translations[-1] + 30.0 * rotations[-1][:, 2]  # straight ahead, beyond the depth range
+        with np.errstate(invalid="ignore", over="ignore"):
+            seen = project_spreads(centers, spread, rotations, translations, CAMERA)
+            boxes, visible, full_areas = visible_boxes(centers, spread, rotations, translations, CAMERA)
+        assert visible.dtype == np.bool_ and visible.tobytes() == seen.visible.tobytes()
+        expected_boxes = np.where(seen.visible[..., None], seen.boxes, 0.0)
+        assert boxes.shape == expected_boxes.shape and boxes.tobytes() == expected_boxes.tobytes()
+        assert full_areas.tobytes() == np.where(seen.visible, seen.full_areas, 0.0).tobytes()
+        visible_seen += int(visible.sum())
+        hidden_seen += int((~visible).sum())
+    assert count == 0 or (visible_seen > 0 and hidden_seen > 0)

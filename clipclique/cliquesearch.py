@@ -78,8 +78,9 @@ class Scratch(NamedTuple):
     local_weight: np.ndarray  # (width,) weight of each local vertex
     local_group: np.ndarray  # (width,) group of each local vertex
     local_vertex: np.ndarray  # (width,) graph vertex of each local vertex
-    local_of: np.ndarray  # (V,) local index of each graph vertex, -1 outside the neighbourhood
-    adjacency: np.ndarray  # (width, words) local adjacency bitsets
+    local_of: np.ndarray  # (V,) local index of each graph vertex, 64 * words (the spare word's bit) outside
+    adjacency: np.ndarray  # (width, words + 1) local adjacency bitsets, a spare word last that nothing reads: a
+    # neighbour's neighbour outside the neighbourhood sets a bit there, without a branch the CPU cannot predict
     p_sets: np.ndarray  # (width + 1, words) candidates P per level
     x_sets: np.ndarray  # (width + 1, words) excluded X per level
     todo: np.ndarray  # (width + 1, words) P minus the pivot's neighbours: branches left per level
@@ -212,7 +213,7 @@ def _prepare(edges, num_nodes, weights, groups, count):
     state[LEVEL] = -1
     longest = max(1, min(width, groups.max() + 1))
     scratch = Scratch(np.zeros(width), np.zeros(width, np.int64), np.zeros(width, np.int64),
-                      np.full(num_nodes, -1, np.int64), np.zeros((width, words), np.uint64),
+                      np.full(num_nodes, 64 * words, np.int64), np.zeros((width, words + 1), np.uint64),
                       np.zeros((width + 1, words), np.uint64), np.zeros((width + 1, words), np.uint64),
                       np.zeros((width + 1, words), np.uint64), np.zeros(width + 1, np.int64), np.zeros(width + 1),
                       np.zeros(groups.max() + 1, np.int64), np.zeros(width, np.int64))
@@ -320,7 +321,7 @@ def _search(problem, arrays, budget):
     (local_weight, local_group, local_vertex, local_of, adjacency, p_sets, x_sets, todo, members, weight_so_far,
      group_stamp, rank) = arrays.scratch
     best_total, best_size, best_slot, best_members = arrays.best
-    words = adjacency.shape[1]
+    words = p_sets.shape[1]
     clique = np.zeros(members.shape[0], np.int64)
     while budget > 0:
         level = state[LEVEL]
@@ -379,15 +380,14 @@ def _search(problem, arrays, budget):
             for i in range(d):
                 u = local_vertex[i]
                 for k in range(indptr[u], indptr[u + 1]):
-                    j = local_of[indices[k]]
-                    if j >= 0:
-                        adjacency[i, j >> 6] |= np.uint64(1) << np.uint64(j & 63)
+                    j = local_of[indices[k]]  # outside the neighbourhood: the spare word's bit, never read
+                    adjacency[i, j >> 6] |= np.uint64(1) << np.uint64(j & 63)
                 if position[u] > position[v]:
                     p_sets[0, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
                 else:
                     x_sets[0, i >> 6] |= np.uint64(1) << np.uint64(i & 63)
             for i in range(d):
-                local_of[local_vertex[i]] = -1
+                local_of[local_vertex[i]] = 64 * words
             members[0] = v
             weight_so_far[0] = weights[v]
             state[LEVEL] = 0

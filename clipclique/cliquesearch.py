@@ -46,10 +46,30 @@ INSERTION_SORT_UP_TO = 24  # values `_rank_descending` sorts in place (quadratic
 class TopCliques:
     """The heaviest maximal cliques, best first, and how the search ended."""
 
-    cliques: list[np.ndarray]  # sorted vertex indices
-    totals: np.ndarray  # (len(cliques),) summed weight, by `clique_total`
+    members: np.ndarray  # int64, each clique's sorted vertex indices, clique after clique
+    sizes: np.ndarray  # (C,) int64, how many vertices each clique holds
+    totals: np.ndarray  # (C,) summed weight, by `clique_total`
     reached: int  # maximal cliques of at least `min_size` vertices the search reached (not cut)
     cap: CapHit | None  # MAX_CLIQUES, TIME_LIMIT or None
+
+    @property
+    def cliques(self) -> list[np.ndarray]:
+        """Each clique's sorted vertex indices (views of `members`)."""
+        ends = np.cumsum(self.sizes).tolist()
+        return [self.members[end - size: end] for end, size in zip(ends, self.sizes.tolist())]
+
+    def stacked(self, first: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """The members and sizes of the cliques from `first` on (the pose stage fits them as one stack, so the
+        cliques never travel as a list of arrays rejoined)."""
+        skipped = int(self.sizes[:first].sum())
+        return self.members[skipped:], self.sizes[first:]
+
+    @staticmethod
+    def of(cliques: list[np.ndarray], totals: np.ndarray, reached: int, cap: CapHit | None) -> TopCliques:
+        """The result of a list of cliques (each sorted), best first."""
+        members = np.concatenate(cliques).astype(np.int64) if cliques else np.zeros(0, np.int64)
+        return TopCliques(members=members, sizes=np.array([len(clique) for clique in cliques], np.int64),
+                          totals=np.asarray(totals, np.float64), reached=reached, cap=cap)
 
 
 class Problem(NamedTuple):
@@ -130,7 +150,7 @@ def top_cliques(
     if len(groups) and groups.min() < 0:
         raise ValueError("groups must be non-negative")
     if count < 1 or num_nodes < min_size:
-        return TopCliques(cliques=[], totals=np.zeros(0), reached=0, cap=None)
+        return TopCliques.of([], np.zeros(0), 0, None)
     problem = Problem(weights, groups, min_size, max_cliques)
     deadline = time.perf_counter() + time_limit_s
     state, best, arrays = _started(problem, edges, num_nodes, count)
@@ -145,9 +165,10 @@ def top_cliques(
             break
         _search(problem, arrays, SLICE)
     filled = int(state[FILLED])
-    members = best.members[best.slot[:filled]]  # one copy, each clique a view of its row
-    cliques = [row[:size] for row, size in zip(members, best.size[:filled].tolist())]
-    return TopCliques(cliques=cliques, totals=best.total[:filled].copy(), reached=int(state[REACHED]), cap=cap)
+    sizes = best.size[:filled].copy()
+    members = best.members[best.slot[:filled]][np.arange(best.members.shape[1]) < sizes[:, None]]  # row after row
+    return TopCliques(members=members, sizes=sizes, totals=best.total[:filled].copy(), reached=int(state[REACHED]),
+                      cap=cap)
 
 
 def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:

@@ -348,16 +348,16 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     while True:
         found = search(wanted)
         lap(Stage.INLIERS)
-        fit = _hypotheses(result, observations, map, config, *_stacked(found.cliques[tried:]), found.totals[tried:])
+        fit = _hypotheses(result, observations, map, config, *found.stacked(tried), found.totals[tried:])
         fits.append(fit if len(fit) <= pool - fitted else fit.take(np.arange(pool - fitted)))
         fitted += len(fits[-1])
         lap(Stage.POSE)
-        tried = len(found.cliques)
+        tried = len(found.sizes)
         if fitted == pool or tried < wanted or found.cap is not None:
             break
         wanted *= 2
     if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
-        members, sizes = _without_added(*_stacked(found.cliques), result.lookalike_added, settings.min_clique_size)
+        members, sizes = _without_added(*found.stacked(), result.lookalike_added, settings.min_clique_size)
         fits.append(_hypotheses(result, observations, map, config, members, sizes,
                                 confidence.group_sums(np.ascontiguousarray(scores[members]), np.cumsum(sizes))))
     result.num_cliques = found.reached
@@ -367,7 +367,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
         if result.region_split.ambiguous:
             result.notes.append(f"ambiguous: the best clique fits {result.region_split.tied_regions} identical map "
                                 f"regions equally well (of {result.region_split.regions} searched one by one)")
-    if not found.cliques:
+    if not len(found.sizes):
         result.failure = Failure(kind=FailureKind.NO_CLIQUE, count=settings.min_clique_size)
     return Stack.joined(fits)
 

@@ -247,13 +247,13 @@ def top_cliques(found: list[Layout], count: int, settings: InlierConfig) -> cliq
             ranked.extend((-float(total), tuple(image)) for image in images[first].tolist())
     ranked.sort()
     best = ranked[:count]
-    return cliquesearch.TopCliques(cliques=[np.array(members, np.int64) for _, members in best],
-                                   totals=np.array([-negated for negated, _ in best]), reached=reached, cap=cap)
+    return cliquesearch.TopCliques.of([np.array(members, np.int64) for _, members in best],
+                                      np.array([-negated for negated, _ in best]), reached, cap)
 
 
 def summary(regions: Regions, found: list[Layout], best: cliquesearch.TopCliques) -> RegionSplit:
     """The split's counts, and how many regions hold the heaviest clique (its region and that region's copies)."""
     tied = 0
-    if best.cliques:
-        tied = next(len(layout.vertices) for layout in found if np.any(layout.vertices == best.cliques[0][0]))
+    if len(best.sizes):
+        tied = next(len(layout.vertices) for layout in found if np.any(layout.vertices == best.members[0]))
     return RegionSplit(regions=len(regions.rows), layouts=len(regions.copies), tied_regions=tied)

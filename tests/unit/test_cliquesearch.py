@@ -23,6 +23,12 @@ def assert_same(found, ranked, totals):
     for got, want in zip(found.cliques, ranked):
         np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(found.totals, totals)
+    for first in range(len(ranked) + 1):  # the stacked cliques the pose stage reads are the list's, to the bit
+        members, sizes = found.stacked(first)
+        rest = ranked[first:]
+        expected = np.concatenate(rest).astype(np.int64) if rest else np.zeros(0, np.int64)
+        assert members.dtype == np.int64 and members.tobytes() == expected.tobytes()
+        assert sizes.dtype == np.int64 and sizes.tolist() == [len(clique) for clique in rest]
 
 
 @pytest.mark.parametrize("seed", range(6))

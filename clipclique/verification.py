@@ -76,7 +76,7 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
     group, firsts = alike(poses, stack.pairs, stack.starts(), stack.counts)
     if len(firsts) == len(stack):
         return _verify_all(stack, observations, map, params, spreads)
-    checked = _verify_all(stack.take(firsts), observations, map, params, spreads)
+    checked = _verify_all(stack, observations, map, params, spreads, firsts)
     return replace(checked, **{name: getattr(checked, name)[group] for name in _PER_HYPOTHESIS})
 
 
@@ -84,27 +84,49 @@ _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", 
 
 
 def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig,
-                spreads: np.ndarray | None) -> Verification:
-    """`verify_stack` of every hypothesis, alike or not."""
+                spreads: np.ndarray | None, rows: np.ndarray | None = None) -> Verification:
+    """`verify_stack` of every hypothesis, alike or not; of the hypotheses `rows` alone (int, in that order) where
+    given, as of `stack.take(rows)`."""
     camera = observations.camera
-    rotations, translations = stack.rotations, stack.translations
+    rows = np.arange(len(stack)) if rows is None else rows
+    rotations, translations = stack.rotations[rows], stack.translations[rows]
     nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
     spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
     boxes, visible, full_areas = projection.visible_boxes(map.ellipsoids.centers[nearby], spread, rotations,
                                                           translations, camera)
-    owner = stack.owners()
-    pairs = np.asarray(stack.pairs, np.int64)
-    obs, lm = pairs[:, 0], pairs[:, 1]
+    obs, lm, owner, counts = _rows_pairs(np.asarray(stack.pairs, np.int64), stack.counts, rows)
     landmark_depth = _depths_along(map.ellipsoids.centers, lm, translations, rotations, owner)
     overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
         obs, lm, owner, nearby, len(map), visible, boxes, full_areas,
         np.ascontiguousarray(observations.boxes, np.float64), observations.ellipsoids.centers[:, 2], landmark_depth,
-        np.asarray(map.class_ids, np.int64), np.asarray(observations.class_ids, np.int64), stack.counts,
+        np.asarray(map.class_ids, np.int64), np.asarray(observations.class_ids, np.int64), counts,
         float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
         float(params.missed_full_area * camera.width * camera.height))
     return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
                         missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
                         missed_weight=params.missed_weight)
+
+
+@njit(cache=True)
+def _rows_pairs(pairs: np.ndarray, counts: np.ndarray,
+                rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of the hypotheses `rows` (of pairs (M, 2), `counts` each, hypothesis after hypothesis) in one pass:
+    their observations, landmarks and owners (the position in `rows`) and their counts, as `Stack.take(rows)`'s
+    pairs[:, 0], pairs[:, 1], owners() and counts, without its six gathers."""
+    starts = np.empty(len(counts), np.int64)
+    total = 0
+    for b in range(len(counts)):
+        starts[b] = total
+        total += counts[b]
+    taken = counts[rows]
+    size = taken.sum()
+    obs, lm, owner = np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size, np.int64)
+    at = 0
+    for r in range(len(rows)):
+        for m in range(starts[rows[r]], starts[rows[r]] + taken[r]):
+            obs[at], lm[at], owner[at] = pairs[m, 0], pairs[m, 1], r
+            at += 1
+    return obs, lm, owner, taken
 
 
 @njit(cache=True)

@@ -58,7 +58,7 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit(
     checked, every = verify(pool, observations, map), verification._verify_all(Stack.of(pool), observations, map,
                                                                                VerificationConfig(), None)
     for name in verification._PER_HYPOTHESIS:
-        np.testing.assert_array_equal(getattr(checked, name), getattr(every, name))
+        assert getattr(checked, name).tobytes() == getattr(every, name).tobytes()
     assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike
     assert len(np.unique(checked.score)) == 4
 
@@ -391,3 +391,23 @@ def test_the_compiled_landmark_depths_are_einsums_to_the_bit():
                 expected = np.einsum("mi,mi->m", centers[lm] - translations[owner], rotations[owner, :, 2])
                 got = _depths_along(centers, lm, translations, rotations, owner)
             assert got.shape == expected.shape and got.tobytes() == expected.tobytes()
+
+
+def test_the_rows_pairs_are_the_taken_stacks_to_the_bit():
+    """`_rows_pairs` against `Stack.take(rows)`'s pairs, owners and counts: rows in any order, repeated, hypotheses
+    without pairs, no rows, and an empty stack."""
+    from clipclique.verification import _rows_pairs
+
+    rng = np.random.default_rng(4)
+    for trial in range(40):
+        count = int(rng.integers(0, 9))
+        counts = rng.integers(0, 6, count).astype(np.int64)
+        stack = Stack(rotations=np.zeros((count, 3, 3)), translations=np.zeros((count, 3)),
+                      pairs=rng.integers(0, 50, (int(counts.sum()), 2)).astype(np.int64), counts=counts,
+                      scores=np.zeros(count), conditioning=np.zeros(count))
+        rows = rng.integers(0, count, int(rng.integers(0, 2 * count + 1))) if count else np.zeros(0, np.int64)
+        taken = stack.take(rows)
+        obs, lm, owner, sizes = _rows_pairs(stack.pairs, stack.counts, rows)
+        for ours, theirs in ((obs, taken.pairs[:, 0]), (lm, taken.pairs[:, 1]), (owner, taken.owners()),
+                             (sizes, taken.counts)):
+            assert ours.dtype == np.int64 and ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()

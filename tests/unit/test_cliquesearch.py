@@ -180,3 +180,57 @@ def test_ranking_without_allocating_is_numbas_stable_argsort_of_the_negated_valu
     for values in cases:
         got, expected = both(values)
         assert got.tolist() == expected.tolist(), values
+
+
+def plain_offers(cliques: list[list[int]], weights: np.ndarray, capacity: int) -> list[tuple[float, list[int]]]:
+    """The ranked top list as `_offer` keeps it, in plain Python: each clique sorted, summed in that order from 0,
+    inserted after every entry it does not rank before (heavier, or as heavy and lexicographically smaller; a NaN
+    total ranks before nothing), the list cut at `capacity`."""
+    ranked: list[tuple[float, list[int]]] = []
+
+    def before(total, members, entry):
+        if total != entry[0]:
+            return total > entry[0]
+        for mine, theirs in zip(members, entry[1]):
+            if mine != theirs:
+                return mine < theirs
+        return len(members) < len(entry[1])
+
+    for clique in cliques:
+        members = sorted(clique)
+        total = 0.0
+        for member in members:
+            total += weights[member]
+        at = len(ranked)
+        while at > 0 and before(total, members, ranked[at - 1]):
+            at -= 1
+        ranked.insert(at, (total, members))
+        del ranked[capacity:]
+    return ranked
+
+
+def test_offer_keeps_the_plain_ranked_list_to_the_bit():
+    """`_offer` (its insertion sort and comparison written out) against the plain ranking: random cliques over few
+    distinct weights (ties decided by the members, one clique a prefix of another, the same clique twice), -0 and
+    NaN weights, capacities 1 to 6."""
+    from clipclique.cliquesearch import FILLED, _offer
+
+    rng = np.random.default_rng(8)
+    for trial in range(300):
+        weights = rng.choice([0.5, 1.0, -0.0, 0.25], 12)
+        if trial % 5 == 0:
+            weights[rng.integers(12)] = np.nan
+        capacity = int(rng.integers(1, 7))
+        cliques = [rng.choice(12, int(rng.integers(1, 6)), replace=False).tolist() for _ in range(int(rng.integers(0, 15)))]
+        cliques += [sorted(cliques[0])[:-1] or [0], cliques[0][::-1]] if cliques else []  # a prefix, the same again
+        state = np.zeros(7, np.int64)
+        total, size, slot, members = np.zeros(capacity), np.zeros(capacity, np.int64), np.arange(capacity), np.zeros(
+            (capacity, 6), np.int64)
+        for clique in cliques:
+            scratch = np.array(clique + [0] * (6 - len(clique)), np.int64)
+            _offer(scratch, len(clique), weights, state, total, size, slot, members)
+        expected = plain_offers(cliques, weights, capacity)
+        filled = int(state[FILLED])
+        assert filled == len(expected)
+        assert total[:filled].tobytes() == np.array([entry[0] for entry in expected]).tobytes()
+        assert [members[slot[i], :size[i]].tolist() for i in range(filled)] == [entry[1] for entry in expected]

@@ -121,28 +121,28 @@ def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarra
     view = _views(rotations, intrinsics)
     kron = _kron(view).reshape(count, 9, 9)
     boxes, visible, full_areas = np.zeros((count, size, 4)), np.zeros((count, size), np.bool_), np.zeros((count, size))
-    image, conic = np.empty(3), np.empty((3, 3))
     for b in range(count):
-        rows = kron[b]
-        for n in range(size):
-            _image_into(centers[n], translations[b], view[b], image)
-            row = spread[n]
+        for n in range(size):  # numbers only, no array view or array argument: each costs two atomic refcounts
+            x0, x1, x2 = centers[n, 0] - translations[b, 0], centers[n, 1] - translations[b, 1], \
+                centers[n, 2] - translations[b, 2]
+            h0 = fma(x2, view[b, 0, 2], fma(x1, view[b, 0, 1], fma(x0, view[b, 0, 0], 0.0)))  # h = (c - t) V^T
+            h1 = fma(x2, view[b, 1, 2], fma(x1, view[b, 1, 1], fma(x0, view[b, 1, 0], 0.0)))
+            depth = fma(x2, view[b, 2, 2], fma(x1, view[b, 2, 1], fma(x0, view[b, 2, 0], 0.0)))
             c00 = c02 = c11 = c12 = c22 = 0.0  # five independent chains side by side, each in dgemm's order
             for k in range(9):
-                c00 = fma(row[k], rows[0, k], c00)
-                c02 = fma(row[k], rows[2, k], c02)
-                c11 = fma(row[k], rows[4, k], c11)
-                c12 = fma(row[k], rows[5, k], c12)
-                c22 = fma(row[k], rows[8, k], c22)
-            conic[0, 0], conic[0, 2] = c00 - image[0] * image[0], c02 - image[0] * image[2]
-            conic[1, 1], conic[1, 2] = c11 - image[1] * image[1], c12 - image[1] * image[2]
-            conic[2, 2] = c22 - image[2] * image[2]
-            depth = image[2]
-            if not (depth - np.sqrt(at_least_zero(conic[2, 2] + depth * depth)) > MIN_DEPTH and depth <= max_depth):
+                c00 = fma(spread[n, k], kron[b, 0, k], c00)
+                c02 = fma(spread[n, k], kron[b, 2, k], c02)
+                c11 = fma(spread[n, k], kron[b, 4, k], c11)
+                c12 = fma(spread[n, k], kron[b, 5, k], c12)
+                c22 = fma(spread[n, k], kron[b, 8, k], c22)
+            c22 = c22 - depth * depth
+            if not (depth - np.sqrt(at_least_zero(c22 + depth * depth)) > MIN_DEPTH and depth <= max_depth):
                 continue  # not visible (`_outline_box`): its box is never read
-            visible[b, n], full_areas[b, n] = _outline_box(conic, depth, width, height, max_depth, boxes[b, n])
-            if not visible[b, n]:
-                boxes[b, n], full_areas[b, n] = 0.0, 0.0
+            u0, v0, u1, v1, seen, area = _outline_box(c00 - h0 * h0, c02 - h0 * depth, c11 - h1 * h1, c12 - h1 * depth,
+                                                      c22, depth, width, height, max_depth)
+            if seen:
+                boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3] = u0, v0, u1, v1
+                visible[b, n], full_areas[b, n] = True, area
     return boxes, visible, full_areas
 
 
@@ -207,26 +207,34 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
             for i in range(3):
                 for j in range(3):
                     conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
-            visible[b, n], full_areas[b, n] = _outline_box(conic, center[2], width, height, max_depth, boxes[b, n])
+            (boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3], visible[b, n],
+             full_areas[b, n]) = _outline_box(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2], center[2],
+                                              width, height, max_depth)
     return conics, boxes, visible, full_areas
 
 
 @njit(cache=True)
-def _outline_box(conic: np.ndarray, depth: float, width: float, height: float, max_depth: float,
-                 box: np.ndarray) -> tuple[bool, float]:
-    """One (pose, ellipsoid) of `_outline_boxes`: its box into `box` (read: C*11, C*13, C*22, C*23, C*33), whether
-    it is visible and the unclipped box's area."""
-    reach = np.sqrt(at_least_zero(conic[2, 2] + depth * depth))
+def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, depth: float, width: float, height: float,
+                 max_depth: float) -> tuple[float, float, float, float, bool, float]:
+    """One (pose, ellipsoid) of `_outline_boxes` from the conic entries a box reads (C*11, C*13, C*22, C*23, C*33)
+    and the depth: its box (u0, v0, u1, v1), whether it is visible, and the unclipped box's area."""
+    reach = np.sqrt(at_least_zero(c33 + depth * depth))
     in_front = depth - reach > MIN_DEPTH
-    c33 = conic[2, 2] if in_front else -1.0
-    for axis in range(2):  # u from (C*11, C*13), v from (C*22, C*23)
-        root = np.sqrt(at_least_zero(conic[axis, 2] * conic[axis, 2] - conic[axis, axis] * c33))
-        box[axis], box[axis + 2] = (conic[axis, 2] + root) / c33, (conic[axis, 2] - root) / c33
-    full_area = (at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])) if in_front else 0.0
-    limits = (width, height, width, height)
-    for i in range(4):
-        box[i] = 0.0 if box[i] < 0.0 else limits[i] if box[i] > limits[i] else box[i]
-    return in_front and depth <= max_depth and box[2] > box[0] and box[3] > box[1], full_area
+    c33 = c33 if in_front else -1.0
+    root = np.sqrt(at_least_zero(c13 * c13 - c11 * c33))
+    u0, u1 = (c13 + root) / c33, (c13 - root) / c33
+    root = np.sqrt(at_least_zero(c23 * c23 - c22 * c33))
+    v0, v1 = (c23 + root) / c33, (c23 - root) / c33
+    full_area = (at_least_zero(u1 - u0) * at_least_zero(v1 - v0)) if in_front else 0.0
+    u0, u1 = _clipped(u0, width), _clipped(u1, width)
+    v0, v1 = _clipped(v0, height), _clipped(v1, height)
+    return u0, v0, u1, v1, in_front and depth <= max_depth and u1 > u0 and v1 > v0, full_area
+
+
+@njit(cache=True)
+def _clipped(value: float, limit: float) -> float:
+    """np.clip(value, 0, limit): -0 and NaN kept."""
+    return 0.0 if value < 0.0 else limit if value > limit else value
 
 
 @njit(cache=True)
@@ -252,11 +260,19 @@ def box_area(boxes: np.ndarray) -> np.ndarray:
 def pair_iou(a: np.ndarray, b: np.ndarray) -> float:
     """`box_iou` of two boxes (4,), the same operations in the same order, for compiled loops over a
     frame's few box pairs (box_iou's dozen numpy calls cost more than the arithmetic)."""
-    width = np.maximum(np.minimum(a[2], b[2]) - np.maximum(a[0], b[0]), 0.0)
-    height = np.maximum(np.minimum(a[3], b[3]) - np.maximum(a[1], b[1]), 0.0)
+    return corners_iou(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3])
+
+
+@njit(cache=True)
+def corners_iou(ax0: float, ay0: float, ax1: float, ay1: float, bx0: float, by0: float, bx1: float,
+                by1: float) -> float:
+    """`pair_iou` of two boxes given by their corners: for a compiled loop's many pairs, which hands it numbers, not
+    array views (each view or array argument costs two atomic reference-count operations)."""
+    width = np.maximum(np.minimum(ax1, bx1) - np.maximum(ax0, bx0), 0.0)
+    height = np.maximum(np.minimum(ay1, by1) - np.maximum(ay0, by0), 0.0)
     inter = width * height
-    union = (np.maximum(a[2] - a[0], 0.0) * np.maximum(a[3] - a[1], 0.0)
-             + np.maximum(b[2] - b[0], 0.0) * np.maximum(b[3] - b[1], 0.0) - inter)
+    union = (np.maximum(ax1 - ax0, 0.0) * np.maximum(ay1 - ay0, 0.0)
+             + np.maximum(bx1 - bx0, 0.0) * np.maximum(by1 - by0, 0.0) - inter)
     return inter / union if union > 0 else 0.0
 
 

@@ -34,7 +34,7 @@ from numba import njit
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique import projection
-from clipclique.projection import at_least_zero, box_iou, pair_iou, project
+from clipclique.projection import at_least_zero, box_iou, corners_iou, project
 from clipclique.stack import Stack, alike
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
@@ -186,7 +186,9 @@ def _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, de
     overlap, iou_sums = np.zeros(len(sizes)), np.zeros(len(sizes))
     for m in range(len(obs)):
         b, at = owner[m], slot[lm[m]]
-        iou = pair_iou(boxes[obs[m]], projected[b, at]) if at >= 0 and visible[b, at] else 0.0
+        o = obs[m]
+        iou = corners_iou(boxes[o, 0], boxes[o, 1], boxes[o, 2], boxes[o, 3], projected[b, at, 0], projected[b, at, 1],
+                          projected[b, at, 2], projected[b, at, 3]) if at >= 0 and visible[b, at] else 0.0
         overlap[b] += iou * at_least_zero(1.0 - depth_gap[m] / depth_tolerance)
         iou_sums[b] += iou
     return overlap, iou_sums / np.maximum(sizes, 1), _group_medians(depth_gap, sizes)
@@ -195,13 +197,20 @@ def _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, de
 @njit(cache=True)
 def _group_medians(values, sizes):
     """np.median of each group of values (group b: the next sizes[b]; inf for an empty group), to the bit where
-    no NaN is in it, one stable sort per group (NaN last): a median is (lower + upper) / 2 of the middle pair,
-    as numpy computes it (the middle value twice when the count is odd)."""
+    no NaN is in it, each group sorted stably (NaN last) by an insertion sort into one scratch array (a group is a
+    hypothesis's dozen pairs; an argsort allocates twice a group): a median is (lower + upper) / 2 of the middle
+    pair, as numpy computes it (the middle value twice when the count is odd)."""
     medians = np.empty(len(sizes))
+    ordered = np.empty(len(values))
     start = 0
     for b in range(len(sizes)):
-        group = values[start: start + sizes[b]]
-        ordered = group[np.argsort(group, kind="mergesort")]
+        for i in range(sizes[b]):
+            value = values[start + i]
+            j = i
+            while j > 0 and (ordered[j - 1] > value or (np.isnan(ordered[j - 1]) and not np.isnan(value))):
+                ordered[j] = ordered[j - 1]
+                j -= 1
+            ordered[j] = value
         medians[b] = (ordered[(sizes[b] - 1) // 2] + ordered[sizes[b] // 2]) / 2 if sizes[b] else np.inf
         start += sizes[b]
     return medians
@@ -248,23 +257,20 @@ def _missed_evidence(boxes: np.ndarray, visible: np.ndarray, full_areas: np.ndar
     count, size = visible.shape
     missed, evidence, expected = np.zeros(count, np.int64), np.zeros(count), np.zeros(count)
     for b in range(count):
-        for n in range(size):
-            box = boxes[b, n]
-            area = at_least_zero(box[2] - box[0]) * at_least_zero(box[3] - box[1])
+        for n in range(size):  # numbers only, no array view or array argument: each costs two atomic refcounts
+            x0, y0, x1, y1 = boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3]
+            area = at_least_zero(x1 - x0) * at_least_zero(y1 - y0)
             if visible[b, n] and area >= min_pixels and area >= 0.5 * full_areas[b, n]:
                 weight = (1.0 if area / full >= 1.0 else area / full) if full > 0 else 1.0
                 expected[b] += weight
-                if not _explained(box, class_ids[n], detected, detected_classes, explained_iou):
+                explained = False  # a detection of its class overlaps it with IoU >= explained_iou
+                for k in range(len(detected)):
+                    if detected_classes[k] == class_ids[n] and corners_iou(
+                            x0, y0, x1, y1, detected[k, 0], detected[k, 1], detected[k, 2],
+                            detected[k, 3]) >= explained_iou:
+                        explained = True
+                        break
+                if not explained:
                     missed[b] += 1
                     evidence[b] += weight
     return missed, evidence, expected
-
-
-@njit(cache=True)
-def _explained(box: np.ndarray, wanted: int, detected: np.ndarray, detected_classes: np.ndarray,
-               explained_iou: float) -> bool:
-    """Whether a detection of class `wanted` overlaps the projected box with IoU >= explained_iou."""
-    for k in range(len(detected)):
-        if detected_classes[k] == wanted and pair_iou(box, detected[k]) >= explained_iou:
-            return True
-    return False

@@ -292,3 +292,22 @@ def test_visible_boxes_are_the_projections_where_visible_to_the_bit(count):
         visible_seen += int(visible.sum())
         hidden_seen += int((~visible).sum())
     assert count == 0 or (visible_seen > 0 and hidden_seen > 0)
+
+
+def test_corners_iou_is_box_iou_to_the_bit():
+    """`corners_iou` (the numbers of two boxes, as verification's loops hand them) against `box_iou`, byte for byte:
+    overlapping, nested, disjoint, touching and empty boxes, corners of -0, NaN and infinity."""
+    from clipclique.projection import corners_iou
+
+    rng = np.random.default_rng(2)
+    corners = np.round(rng.uniform(-5, 60, (600, 2, 2)), 0)
+    boxes = np.concatenate((corners.min(axis=1), corners.max(axis=1)), axis=1)
+    boxes[::17, 2] = boxes[::17, 0]  # zero width
+    special = rng.random(boxes.shape) < 0.05
+    boxes[special] = rng.choice([-0.0, np.nan, np.inf, -np.inf], int(special.sum()))
+    a, b = boxes[:300], boxes[300:]
+    with np.errstate(invalid="ignore"):
+        expected = box_iou(a, b)
+    got = np.array([corners_iou(*x, *y) for x, y in zip(a, b)])
+    assert got.tobytes() == expected.tobytes()
+    assert np.isnan(boxes).any() and (expected > 0).any() and (expected == 0).any()

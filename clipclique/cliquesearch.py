@@ -384,7 +384,8 @@ def _search(problem, arrays, budget):
                         local_group[count] = groups[u]
                         count += 1
                 _rank_descending(group_best, count, rank)  # any order of equal values adds the same
-                for k in rank[:count]:
+                for at in range(count):  # no view of rank (a view is reference-counted)
+                    k = rank[at]
                     if group_stamp[local_group[k]] != state[STAMP]:
                         group_stamp[local_group[k]] = state[STAMP]
                         bound += group_best[k]
@@ -392,12 +393,12 @@ def _search(problem, arrays, budget):
                     continue
             # v's neighbourhood as local vertices 0..d-1, heaviest first (ties by index).
             d = indptr[v + 1] - indptr[v]
-            neighbours = indices[indptr[v]:indptr[v + 1]]
+            first = indptr[v]  # v's neighbours: indices[first: first + d]
             for i in range(d):
-                local_weight[i] = weights[neighbours[i]]
+                local_weight[i] = weights[indices[first + i]]
             _rank_descending(local_weight, d, rank)
             for i in range(d):
-                u = neighbours[rank[i]]
+                u = indices[first + rank[i]]
                 local_vertex[i] = u
                 local_weight[i] = weights[u]
                 local_group[i] = groups[u]

@@ -418,12 +418,18 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: 
     sets = np.empty(counts.sum(), np.int64)  # the cliques, then the eligible rests, each ascending
     at = len(members)
     for c in range(count):
-        ordered = np.sort(members[starts[c]: starts[c] + sizes[c]])
-        sets[starts[c]: starts[c] + sizes[c]] = ordered
+        start = starts[c]
+        for i in range(sizes[c]):  # an insertion sort into place: a clique's dozen members, no view's sort
+            member = members[start + i]
+            j = start + i
+            while j > start and sets[j - 1] > member:
+                sets[j] = sets[j - 1]
+                j -= 1
+            sets[j] = member
         if eligible[c]:
-            for member in ordered:
-                if not added[member]:
-                    sets[at] = member
+            for i in range(start, start + sizes[c]):
+                if not added[sets[i]]:
+                    sets[at] = sets[i]
                     at += 1
     group, firsts = _alike(np.zeros((len(counts), 0), np.int64), sets, np.cumsum(counts) - counts, counts)
     kept = np.zeros(count, np.bool_)

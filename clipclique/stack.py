@@ -85,37 +85,41 @@ class Stack:
 
 def alike(poses: np.ndarray, pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which of R items are alike, bit for bit: item r is row r of `poses` (R, P) float (P = 0: pairs alone) and the
-    pairs[starts[r]: starts[r] + counts[r]] of `pairs` (M, 2) int. (R,) each item's group, numbered in order of
+    pairs[starts[r]: starts[r] + counts[r]] of `pairs` (M, 2) or (M,) int. (R,) each item's group, numbered in order of
     first appearance, and (G,) each group's first item: the work of each group done once (`_alike`)."""
     bits = np.ascontiguousarray(poses, np.float64).view(np.int64)
-    return _alike(bits, np.ascontiguousarray(pairs, np.int64), np.asarray(starts, np.int64),
-                  np.asarray(counts, np.int64))
+    values = np.ascontiguousarray(pairs, np.int64)
+    width = values.shape[1] if values.ndim == 2 else 1  # the pairs' numbers one after another
+    return _alike(bits, values.reshape(-1), width * np.asarray(starts, np.int64), width * np.asarray(counts, np.int64))
 
 
 @njit(cache=True)
-def _alike(bits, pairs, starts, counts):
-    """`alike` of poses as their bits (int64): each item against the first item of every group before it (a
-    frame's fifty hypotheses: a few thousand comparisons, most ended by the first number)."""
+def _alike(bits, values, starts, counts):
+    """`alike` of poses as their bits (int64) and spans of `values` (1-D int: item r's are values[starts[r]:
+    starts[r] + counts[r]]): each item against the first item of every group before it (a frame's fifty hypotheses:
+    a few thousand comparisons, most ended by the first number), number by number in place: a row or span handed to
+    a helper is a view, and each view costs two atomic reference-count operations."""
     group, firsts = np.empty(len(counts), np.int64), np.empty(len(counts), np.int64)
     found = 0
     for r in range(len(counts)):
         group[r] = -1
         for g in range(found):
             f = firsts[g]
-            if counts[f] == counts[r] and same(bits[f], bits[r]) and same(pairs[starts[f]: starts[f] + counts[f]],
-                                                                             pairs[starts[r]: starts[r] + counts[r]]):
+            if counts[f] != counts[r]:
+                continue
+            alike = True
+            for i in range(bits.shape[1]):
+                if bits[f, i] != bits[r, i]:
+                    alike = False
+                    break
+            for i in range(counts[r] if alike else 0):
+                if values[starts[f] + i] != values[starts[r] + i]:
+                    alike = False
+                    break
+            if alike:
                 group[r] = g
                 break
         if group[r] < 0:
             group[r], firsts[found] = found, r
             found += 1
     return group, firsts[:found].copy()
-
-
-@njit(cache=True)
-def same(a, b):
-    """Whether two int arrays of one shape hold the same numbers (compiled code only)."""
-    for i in range(a.size):
-        if a.flat[i] != b.flat[i]:
-            return False
-    return True

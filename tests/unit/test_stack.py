@@ -14,7 +14,8 @@ def alike_by_bytes(poses, pairs, starts, counts):
 
 
 def test_alike_items_are_those_with_the_same_bytes():
-    """Repeated items, poses differing only in the sign of a zero or holding NaN, pairs that begin alike, empty sets."""
+    """Repeated items, poses differing only in the sign of a zero or holding NaN, pairs that begin alike, empty sets,
+    pairs (M, 2) and single numbers (M,)."""
     rng = np.random.default_rng(0)
     for trial in range(300):
         count, width = int(rng.integers(0, 12)), int(rng.choice([0, 3, 12]))
@@ -27,10 +28,11 @@ def test_alike_items_are_those_with_the_same_bytes():
             if counts[source] == counts[target]:
                 poses[target] = poses[source]
                 pairs[starts[target]: starts[target] + counts[target]] = pairs[starts[source]: starts[source] + counts[source]]
-        group, firsts = alike(poses, pairs, starts, counts)
-        expected_group, expected_firsts = alike_by_bytes(poses, pairs, starts, counts)
-        np.testing.assert_array_equal(group, expected_group)
-        np.testing.assert_array_equal(firsts, expected_firsts)
+        for values in (pairs, pairs[:, 0]):  # pairs, and sets of single numbers (pipeline._rests' cliques)
+            group, firsts = alike(poses, values, starts, counts)
+            expected_group, expected_firsts = alike_by_bytes(poses, values, starts, counts)
+            assert group.tobytes() == expected_group.astype(np.int64).tobytes()
+            assert firsts.tobytes() == expected_firsts.astype(np.int64).tobytes()
 
 
 def test_a_stack_takes_rows_with_their_pairs_and_gives_back_its_hypotheses():

@@ -516,6 +516,9 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
         config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     ok &= (nonzero_counts(weights) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
+    if ok.all():  # as nearly always: the arrays as they are, not six gathers of every row
+        return Stack(rotations=rotation, translations=translation, pairs=pairs, counts=sizes.astype(np.int64, copy=False),
+                     scores=np.asarray(scores, np.float64), conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
 

@@ -298,3 +298,40 @@ def test_the_compiled_rests_are_the_numpy_passes_to_the_bit():
                 assert ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
             kept += len(expected[1])
     assert kept > 200
+
+
+def test_the_fitted_stack_is_the_masked_rows_to_the_bit():
+    """`_hypotheses` hands the fits' arrays on as they are when every set gives a pose, and drops the others when
+    not: both against the plain masked construction, byte for byte (a collinear set and one of two positive weights
+    among good ones; all good)."""
+    from clipclique.pipeline import LocalizationResult, _hypotheses
+    from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
+
+    config = make_config("clipclique")
+    rng = np.random.default_rng(3)
+    map = synthetic_map(rng, num_landmarks=40, num_classes=8)
+    observations, _ = synthetic_query(map, rng)
+    count = len(observations)
+    candidates = np.column_stack((np.arange(count), rng.integers(0, len(map), count))).astype(np.int64)
+    scores = rng.uniform(0.2, 1.0, count)
+    scores[4] = 0.0  # a zero weight: the set (3, 4, 5) has two positive weights
+    observations.ellipsoids.centers[[0, 1, 2]] = np.outer([0.0, 1.0, 2.0], [1.0, 0.5, 0.25])  # collinear: (0, 1, 2)
+    result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=scores, similarity=np.zeros(0),
+                                num_cliques=0, cap_hit=None, failure=None)
+    good = [np.array([5, 6, 7, 8]), np.array([6, 7, 9]), np.array([1, 5, 8, 9])]
+    for sets in (good, [np.array([0, 1, 2]), *good, np.array([3, 4, 5])]):
+        members, sizes = _stacked(sets)
+        totals = rng.random(len(sets))
+        got = _hypotheses(result, observations, map, config, members, sizes, totals)
+        pairs, first = candidates[members], candidates[0]
+        source, target, weights = weighted_sets(
+            pairs, scores[members], sizes, (first[0], first[1], scores[0]),
+            (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
+            config.pose.weights)
+        rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
+        ok &= (nonzero_counts(weights) >= 3) & (measure >= config.pose.min_conditioning)
+        assert ok.sum() == (len(sets) if sets is good else len(good))
+        expected = (rotation[ok], translation[ok], pairs[np.repeat(ok, sizes)], sizes[ok], totals[ok], measure[ok])
+        for ours, theirs in zip((got.rotations, got.translations, got.pairs, got.counts, got.scores, got.conditioning),
+                                expected):
+            assert ours.dtype == theirs.dtype and ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()

@@ -151,10 +151,10 @@ def top_cliques(
         raise ValueError("groups must be non-negative")
     if count < 1 or num_nodes < min_size:
         return TopCliques.of([], np.zeros(0), 0, None)
-    problem = Problem(weights, groups, min_size, max_cliques)
     deadline = time.perf_counter() + time_limit_s
-    state, best, arrays = _started(problem, edges, num_nodes, count)
+    state, members, sizes, totals, arrays = _started(weights, groups, min_size, max_cliques, edges, num_nodes, count)
     cap = None
+    problem = None if arrays is None else Problem(weights, groups, min_size, max_cliques)
     while True:
         if state[STATUS] == COUNT_CAP:
             cap = CapHit.MAX_CLIQUES
@@ -164,11 +164,9 @@ def top_cliques(
             cap = CapHit.TIME_LIMIT
             break
         _search(problem, arrays, SLICE)
-    filled = int(state[FILLED])
-    sizes = best.size[:filled].copy()
-    members = best.members[best.slot[:filled]][np.arange(best.members.shape[1]) < sizes[:, None]]  # row after row
-    return TopCliques(members=members, sizes=sizes, totals=best.total[:filled].copy(), reached=int(state[REACHED]),
-                      cap=cap)
+    if arrays is not None:  # the search ran past its first slice: its top list as it ended
+        members, sizes, totals = _stacked_best(arrays.best, state[FILLED])
+    return TopCliques(members=members, sizes=sizes, totals=totals, reached=int(state[REACHED]), cap=cap)
 
 
 def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
@@ -183,13 +181,29 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _started(problem, edges, num_nodes, count):
-    """`_prepare` and the search's first slice in one call: the state, the top list, and the search's arrays only
-    while it runs on (None once it ended: most searches end within the first slice, and handing the graph and
-    scratch back to Python costs more than a small search)."""
-    arrays = _prepare(edges, num_nodes, problem.weights, problem.groups, count)
+def _started(weights, groups, min_size, max_cliques, edges, num_nodes, count):
+    """`_prepare` and the search's first slice in one call, the `Problem` given as plain arguments (numba types a
+    named tuple argument in Python, slowly): the state, the top list stacked (`_stacked_best`), and the search's
+    arrays only while it runs on (None once it ended: most searches end within the first slice, and handing the graph
+    and scratch back to Python costs more than a small search)."""
+    problem = Problem(weights, groups, min_size, max_cliques)
+    arrays = _prepare(edges, num_nodes, weights, groups, count)
     _search(problem, arrays, SLICE)
-    return arrays.state, arrays.best, arrays if arrays.state[STATUS] == RUNNING else None
+    members, sizes, totals = _stacked_best(arrays.best, arrays.state[FILLED])
+    return arrays.state, members, sizes, totals, arrays if arrays.state[STATUS] == RUNNING else None
+
+
+@njit(cache=True)
+def _stacked_best(best, filled):
+    """The top list's first `filled` cliques as `TopCliques` holds them: members clique after clique, sizes, totals."""
+    sizes, totals = best.size[:filled].copy(), best.total[:filled].copy()
+    members = np.empty(sizes.sum(), np.int64)
+    at = 0
+    for i in range(filled):
+        for k in range(sizes[i]):
+            members[at] = best.members[best.slot[i], k]
+            at += 1
+    return members, sizes, totals
 
 
 @njit(cache=True)

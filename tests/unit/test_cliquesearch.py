@@ -234,3 +234,21 @@ def test_offer_keeps_the_plain_ranked_list_to_the_bit():
         assert filled == len(expected)
         assert total[:filled].tobytes() == np.array([entry[0] for entry in expected]).tobytes()
         assert [members[slot[i], :size[i]].tolist() for i in range(filled)] == [entry[1] for entry in expected]
+
+
+def test_the_stacked_top_list_is_the_rows_gathered_to_the_bit():
+    """`_stacked_best` against numpy's gather of the slot rows cut to their sizes: slots in any order, the list
+    filled in part, wholly and not at all, -0 and NaN totals."""
+    from clipclique.cliquesearch import Ranked, _stacked_best
+
+    rng = np.random.default_rng(6)
+    for trial in range(100):
+        capacity, longest = int(rng.integers(1, 8)), int(rng.integers(1, 6))
+        best = Ranked(rng.choice([1.5, -0.0, np.nan, 0.25], capacity), rng.integers(1, longest + 1, capacity),
+                      rng.permutation(capacity), rng.integers(0, 99, (capacity, longest)))
+        filled = int(rng.integers(0, capacity + 1))
+        members, sizes, totals = _stacked_best(best, filled)
+        rows = best.members[best.slot[:filled]]
+        expected = rows[np.arange(longest) < best.size[:filled, None]]
+        assert members.dtype == np.int64 and members.tobytes() == expected.tobytes()
+        assert sizes.tobytes() == best.size[:filled].tobytes() and totals.tobytes() == best.total[:filled].tobytes()

@@ -43,15 +43,21 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
     dropped: Counter[str] = Counter({reason: 0 for reason in DROP_REASONS})
     fits, kept, truncated, areas = [], [], [], []
     passed = _frame_pass(frame, detections, params) if _plain(frame, detections) else None
+    left, boxed = int(_Outcome.LEFT), int(_Outcome.BOXED)  # plain integers: an enum member's lookup is slow
+    # the pass's numbers as Python integers, read once (not a numpy scalar and an enum comparison per detection)
+    outcomes = [left] * len(detections.masks) if passed is None else passed.outcomes.tolist()
+    pixels_of, in_band_of, oriented = (None, None, None) if passed is None else (
+        passed.pixels.tolist(), passed.in_band.tolist(), passed.oriented.tolist())
     for k, (mask, box) in enumerate(zip(detections.masks, detections.boxes)):
-        if passed is None or passed.outcomes[k] == _Outcome.LEFT:
+        outcome = outcomes[k]
+        if outcome == left:
             reason, fit, pixels, in_band = _fit_detection(frame, mask, box, detections.masks_in_boxes, params)
         else:
-            pixels, in_band, fit, outcome = int(passed.pixels[k]), int(passed.in_band[k]), None, passed.outcomes[k]
-            if outcome == _Outcome.BOXED:
-                fit = finished_box(int(passed.oriented[k]), passed.axes[k], passed.rotations[k], passed.means[k],
+            pixels, in_band, fit = pixels_of[k], in_band_of[k], None
+            if outcome == boxed:
+                fit = finished_box(oriented[k], passed.axes[k], passed.rotations[k], passed.means[k],
                                    passed.middles[k], passed.eigenvectors[k])
-            reason = DROP_REASONS[outcome - 1] if outcome != _Outcome.BOXED else None if fit is not None else "degenerate fit"
+            reason = DROP_REASONS[outcome - 1] if outcome != boxed else None if fit is not None else "degenerate fit"
         if reason is not None:
             dropped[reason] += 1
             continue

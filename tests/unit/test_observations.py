@@ -524,6 +524,9 @@ def test_frame_pass_gives_each_detection_its_own_fit_to_the_bit():
                 if fit is not None:
                     assert all(a.tobytes() == b.tobytes() for a, b in zip(next(fits), fit))
             assert got.observations.detection_index.tolist() == [k for k, want in enumerate(wanted) if want[1] is not None]
+            kept = [want for want in wanted if want[1] is not None]  # their areas and border flags, as plain ints
+            assert got.observations.mask_areas.tolist() == [want[2] for want in kept]
+            assert [c.truncated for c in got.crops] == [want[3] > 0 for want in kept]
             assert got.dropped == {r: sum(want[0] == r for want in wanted) for r in got.dropped}
     assert reasons == {None, "tiny mask", "border sliver", "invalid depth", "degenerate fit"}
     frame.intrinsics = frame.intrinsics.astype(np.float32)

@@ -12,6 +12,7 @@ import enum
 import functools
 import math
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -70,8 +71,8 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
                                 detections.instance_ids[index], index, detections.boxes[index].astype(float),
                                 np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth),
                                 scores=detections.scores[index].astype(float))
-    crops = [Crop(crop(frame.rgb, detections.boxes[k]),
-                  None if frame.instances is None else crop(frame.instances, detections.boxes[k]), cut)
+    corners = np.asarray(detections.boxes).tolist()  # Python numbers: `crop`'s floor and ceil without numpy scalars
+    crops = [Crop(crop(frame.rgb, corners[k]), None if frame.instances is None else crop(frame.instances, corners[k]), cut)
              for k, cut in zip(kept, truncated)]
     return Extraction(observations, crops, dict(dropped))
 
@@ -309,8 +310,8 @@ def _window_pixels(mask: np.ndarray, depth: np.ndarray, bounds: tuple[int, int, 
     return eroded.reshape((height, width)), cut, with_depth, pixels, in_band
 
 
-def crop(image: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """The pixels of an xyxy box, clipped to the image, at least one pixel."""
+def crop(image: np.ndarray, box: Sequence[float] | np.ndarray) -> np.ndarray:
+    """The pixels of an xyxy box (numbers or an array), clipped to the image, at least one pixel."""
     height, width = image.shape[:2]
     x0, y0 = min(max(math.floor(box[0]), 0), width - 1), min(max(math.floor(box[1]), 0), height - 1)
     x1, y1 = min(max(math.ceil(box[2]), x0 + 1), width), min(max(math.ceil(box[3]), y0 + 1), height)

@@ -93,6 +93,13 @@ def test_crop_is_clipped_and_never_empty():
     rgb = np.zeros((10, 20, 3), np.uint8)
     assert crop(rgb, np.array([-5.0, 2.2, 7.5, 30.0])).shape == (8, 8, 3)
     assert crop(rgb, np.array([19.5, 9.5, 19.5, 9.5])).shape == (1, 1, 3)
+    rng = np.random.default_rng(3)  # the box's numbers as a list (extract_observations') crop the same pixels
+    image = rng.integers(0, 255, (10, 20, 3), np.uint8)
+    for boxes in (rng.uniform(-4, 24, (200, 4)).astype(np.float32), rng.uniform(-4, 24, (200, 4)),
+                  rng.integers(-4, 24, (200, 4)), np.array([[-0.0, -0.0, 0.0, 0.0], [3.0, 2.0, 3.0, 2.0]])):
+        for box in boxes:
+            assert np.shares_memory(crop(image, box.tolist()), image)
+            assert crop(image, box.tolist()).__array_interface__ == crop(image, box).__array_interface__
 
 
 def test_crops_carry_the_instance_image_in_their_box_and_the_simulated_encoder_reads_it():

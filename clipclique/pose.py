@@ -160,7 +160,8 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
     finite and LAPACK content; the others are left to the gufuncs). `total`: the weights' sums, empty: summed
     here as numpy sums C-ordered rows (`numpybits.pairwise_sum`). `lapack`: `_lapack()`. `conditioned`: as
     `_fit`. u vt as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum
-    (`_translation_of`)."""
+    (`_translation_of`). The per-set helpers are inlined here (`inline="always"`): an array handed to a compiled
+    call is counted in and out (two atomic operations), a few dozen a set."""
     count, points = weights.shape
     mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
     cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
@@ -174,8 +175,7 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
         summed = 0.0 + pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
         _moments_of(b, weights, summed, source, target, mean_source, mean_target, cross, spreads, w,
                     centred_source, centred_target)
-        if not (np.isfinite(mean_source[b]).all() and np.isfinite(mean_target[b]).all()
-                and np.isfinite(cross[b]).all() and np.isfinite(spreads[:, b]).all()):
+        if not _finite_at(b, mean_source, mean_target, cross, spreads):
             continue
         u, vt, failed = _svd_of(lapack, scratch, cross[b])
         if failed:
@@ -192,6 +192,20 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
             decomposed[b] = True
             ok[b], measure[b] = _settle(rotation[b], translation[b], summed, source_variances, target_variances)
     return rotation, translation, ok, measure, decomposed
+
+
+@njit(cache=True, inline="always")
+def _finite_at(b, mean_source, mean_target, cross, spreads) -> bool:
+    """Whether set b's means, cross-covariance and both covariances are all finite: numpy's
+    `np.isfinite(row).all()` of each, number by number (no row views or boolean arrays per set)."""
+    for i in range(3):
+        if not (np.isfinite(mean_source[b, i]) and np.isfinite(mean_target[b, i])):
+            return False
+        for j in range(3):
+            if not (np.isfinite(cross[b, i, j]) and np.isfinite(spreads[0, b, i, j])
+                    and np.isfinite(spreads[1, b, i, j])):
+                return False
+    return True
 
 
 # LAPACK's dgesdd and dsyevd called from compiled code as numpy's gufuncs call them (np.linalg.svd: jobz "A";
@@ -246,34 +260,36 @@ def _workspace(lapack):
             np.empty(24, np.int32), np.empty(lapack[3]), np.empty(lapack[4], np.int32))  # dgesdd: 8 min(m, n) integers
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _svd_of(lapack, scratch, matrix):
     """u and vt (views of the scratch, valid until the next call) of a finite 3 x 3 matrix by dgesdd, and whether
     LAPACK failed."""
     integers, characters, copy, u, vt, values, work, work_integers, _, _ = scratch
     _column_major(matrix, copy)
-    three = integers[_THREE:].ctypes.data
+    integer = integers.ctypes.data  # the int32s' addresses by offset, not by slices (a view each, counted in and out)
+    three = integer + 4 * _THREE
     _call(lapack[0], (characters.ctypes.data, three, three, copy.ctypes.data, three, values.ctypes.data,
                       u.ctypes.data, three, vt.ctypes.data, three, work.ctypes.data,
-                      integers[_SVD_WORK:].ctypes.data, work_integers.ctypes.data, integers[_INFO:].ctypes.data))
+                      integer + 4 * _SVD_WORK, work_integers.ctypes.data, integer + 4 * _INFO))
     return u.reshape(3, 3).T, vt.reshape(3, 3).T, integers[_INFO] != 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _eigvalsh_of(lapack, scratch, matrix):
     """The ascending eigenvalues of a finite symmetric 3 x 3 matrix (its lower triangle) by dsyevd, and whether
     LAPACK failed."""
     integers, characters, copy, _, _, _, _, _, work, work_integers = scratch
     _column_major(matrix, copy)
     values = np.empty(3)
-    three = integers[_THREE:].ctypes.data
-    _call(lapack[1], (characters[1:].ctypes.data, characters[2:].ctypes.data, three, copy.ctypes.data, three,
-                      values.ctypes.data, work.ctypes.data, integers[_EIG_WORK:].ctypes.data,
-                      work_integers.ctypes.data, integers[_EIG_INTS:].ctypes.data, integers[_INFO:].ctypes.data))
+    integer = integers.ctypes.data  # as `_svd_of`
+    three = integer + 4 * _THREE
+    _call(lapack[1], (characters.ctypes.data + 1, characters.ctypes.data + 2, three, copy.ctypes.data, three,
+                      values.ctypes.data, work.ctypes.data, integer + 4 * _EIG_WORK, work_integers.ctypes.data,
+                      integer + 4 * _EIG_INTS, integer + 4 * _INFO))
     return values, integers[_INFO] != 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _column_major(matrix: np.ndarray, out: np.ndarray) -> None:
     """A 3 x 3 matrix into `out` (9,) column after column, as LAPACK reads it (the call overwrites it)."""
     for i in range(3):
@@ -281,7 +297,7 @@ def _column_major(matrix: np.ndarray, out: np.ndarray) -> None:
             out[i + 3 * j] = matrix[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
     """u @ vt of 3 x 3 matrices into `out` as numpy's matmul computes it (a dgemm per matrix of a stack, in
     OpenBLAS: from +0, one fused multiply-add per k in order)."""
@@ -290,7 +306,7 @@ def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
             out[i, j] = fma(u[i, 2], vt[2, j], fma(u[i, 1], vt[1, j], fma(u[i, 0], vt[0, j], 0.0)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: np.ndarray, out: np.ndarray) -> None:
     """mean_target - rotation @ mean_source into `out` as `mean_target - np.einsum("bij,bj->bi", ...)` does:
     einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1, added to its 0."""
@@ -316,7 +332,7 @@ def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
     return mean_source, mean_target, cross, spreads
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _moments_of(b, weights, total, source, target, mean_source, mean_target, cross, spreads, w, centred_source,
                 centred_target) -> None:
     """`_moments` of set b into row b of the zeroed outputs (w, centred_*: scratch). Each sum adds its terms in
@@ -349,7 +365,7 @@ def _proper(u: np.ndarray, vt: np.ndarray) -> None:
         _proper_of(u[b], vt[b])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _proper_of(u: np.ndarray, vt: np.ndarray) -> None:
     """In place, u's third column negated where u vt is a reflection, so that u vt is a rotation: what
     `u[:, :, 2] *= np.where(sign == 0, 1, sign)` with `sign = np.sign(np.linalg.det(u @ vt))` does, without the
@@ -362,7 +378,7 @@ def _proper_of(u: np.ndarray, vt: np.ndarray) -> None:
         u[i, 2] *= factor
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _det3(m: np.ndarray) -> float:
     """A 3 x 3 determinant by cofactors (its sign is what `_proper` reads)."""
     return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
@@ -379,7 +395,7 @@ def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, s
     return ok, measure
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _settle(rotation: np.ndarray, translation: np.ndarray, total: float, source_variances: np.ndarray,
             target_variances: np.ndarray) -> tuple[bool, float]:
     """Whether a set fixes a pose (positive weights, neither side collinear), and the smaller of the two sides'
@@ -389,7 +405,7 @@ def _settle(rotation: np.ndarray, translation: np.ndarray, total: float, source_
     return ok, source if source < target or np.isnan(source) else target
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _kept(rotation: np.ndarray, translation: np.ndarray, ok: bool) -> bool:
     """`ok`, the pose replaced by the identity, in place, where it is not."""
     if not ok:
@@ -398,7 +414,7 @@ def _kept(rotation: np.ndarray, translation: np.ndarray, ok: bool) -> bool:
     return ok
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _surely_spread(covariance: np.ndarray) -> bool:
     """True only where `_spread_ok` of LAPACK's eigenvalues of the finite symmetric 3 x 3 `covariance` (its lower
     triangle, as dsyevd reads it) is surely True, told without them: its middle eigenvalue is at least the
@@ -418,7 +434,7 @@ def _surely_spread(covariance: np.ndarray) -> bool:
     return middle_at_least > 1e-9 * norm + 2e-12
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ratio_of(variances: np.ndarray) -> float:
     """`_ratio` of one set's (3,) variances with numpy's operations: np.maximum keeps NaN and, on a tie, its
     second operand (max(-0, +0) is +0)."""
@@ -464,7 +480,7 @@ def _ratios(variances: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _spread_ok(variances: np.ndarray) -> bool:
     """Whether a weighted point set is not collinear: its second principal variance (of 3, ascending) is not ~0."""
     relative = _RELATIVE_VARIANCE * variances[2]

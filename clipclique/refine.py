@@ -84,7 +84,7 @@ def _near_pairs(points: np.ndarray, centers: np.ndarray, similarity: np.ndarray,
     return _near_pairs_listed(points, centers, similarity, radius, num_obs, point[order], landmark[order])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _reach(radius):
     """A hair wider than `radius`: a pair beyond it is surely not nearer than `radius`, whatever the rounding."""
     return radius * (1 + 1e-9) + 1e-12
@@ -105,7 +105,7 @@ def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, land
     return distance[:count], pose[:count], obs[:count], lm[:count]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _near(points, p, centers, n, limit, radius):
     """The distance of points[p] and centers[n] where it is below `radius`, else -1: np.linalg.norm's,
     ((dx^2 + dy^2) + dz^2) ** 0.5 in that order, its square root taken only within `limit`, `_reach` squared
@@ -176,12 +176,13 @@ def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmar
     return pairs[:count].copy(), per_pose
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _take_nearest(distance, obs, lm, start, stop, pose, order, obs_used_by, landmark_used_by, pairs, count):
     """Pose `pose`'s near pairs [start, stop) of distance, obs, lm (by observation, then landmark) nearest first,
     ties in that order (a stable sort: insertion, a merge sort beyond SORTED_BY_INSERTION), each taken where
     neither side is used by that pose yet (`obs_used_by`, `landmark_used_by`: the last pose that used each),
-    written to `pairs` from row `count`; the rows written up to."""
+    written to `pairs` from row `count`; the rows written up to. Inlined into its callers, as `_near`: its eleven
+    arrays are not counted in and out per pose."""
     if stop - start <= SORTED_BY_INSERTION:
         for i in range(start, stop):
             j = i

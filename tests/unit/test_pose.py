@@ -437,3 +437,28 @@ def test_batch_shapes_that_disagree_are_refused():
             fit_rigid_conditioned(source, target, weights)
     with pytest.raises(ValueError, match="must be"):
         fit_rigid_batch(np.zeros((4, 3)), np.zeros((4, 3)))
+
+
+def test_a_sets_finiteness_is_numpys_isfinite_of_its_rows():
+    """`_finite_at` number by number against numpy's `np.isfinite(row).all()` of the set's means, cross-covariance
+    and both covariances: every entry of set 1 in turn NaN, inf or -inf (-0 and 0 are finite), set 0 and 2 left
+    finite beside it."""
+    from clipclique.pose import _finite_at
+
+    rng = np.random.default_rng(31)
+    arrays = [rng.normal(size=(3, 3)), rng.normal(size=(3, 3)), rng.normal(size=(3, 3, 3)), rng.normal(size=(2, 3, 3, 3))]
+    arrays[2][1, 0, 0], arrays[3][1, 1, 2, 2] = -0.0, 0.0
+
+    def expected(b):
+        return bool(np.isfinite(arrays[0][b]).all() and np.isfinite(arrays[1][b]).all()
+                    and np.isfinite(arrays[2][b]).all() and np.isfinite(arrays[3][:, b]).all())
+
+    assert [_finite_at(b, *arrays) for b in range(3)] == [True, True, True]
+    for array in arrays:
+        set_one = array[1] if array.ndim < 4 else array[:, 1]
+        for index in np.ndindex(set_one.shape):
+            for value in (np.nan, np.inf, -np.inf):
+                kept = set_one[index]
+                set_one[index] = value
+                assert [_finite_at(b, *arrays) for b in range(3)] == [expected(b) for b in range(3)] == [True, False, True]
+                set_one[index] = kept

@@ -171,26 +171,30 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
     ok, measure, decomposed = np.zeros(count, np.bool_), np.zeros(count), np.zeros(count, np.bool_)
     flat = weights.reshape(-1)
     scratch = _workspace(lapack)
+    u, vt = _svd_views(scratch)  # views made once, not per set: each is counted in and out
+    source_spreads, target_spreads = spreads[0], spreads[1]
+    turn, shift, source_variances, target_variances = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3)
     for b in range(count):
         summed = 0.0 + pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
         _moments_of(b, weights, summed, source, target, mean_source, mean_target, cross, spreads, w,
                     centred_source, centred_target)
         if not _finite_at(b, mean_source, mean_target, cross, spreads):
             continue
-        u, vt, failed = _svd_of(lapack, scratch, cross[b])
-        if failed:
+        if _svd_of(lapack, scratch, cross, b):
             continue
         _proper_of(u, vt)
-        _rotation_of(u, vt, rotation[b])
-        _translation_of(rotation[b], mean_source[b], mean_target[b], translation[b])
-        if not conditioned and _surely_spread(spreads[0, b]) and _surely_spread(spreads[1, b]):
-            decomposed[b], ok[b], measure[b] = True, _kept(rotation[b], translation[b], summed > 0), np.nan
-            continue
-        source_variances, source_failed = _eigvalsh_of(lapack, scratch, spreads[0, b])
-        target_variances, target_failed = _eigvalsh_of(lapack, scratch, spreads[1, b])
-        if not (source_failed or target_failed):
+        _rotation_of(u, vt, turn)
+        _translation_of(turn, mean_source, mean_target, b, shift)
+        if not conditioned and _surely_spread(source_spreads, b) and _surely_spread(target_spreads, b):
+            decomposed[b], ok[b], measure[b] = True, _kept(turn, shift, summed > 0), np.nan
+        elif not (_eigvalsh_of(lapack, scratch, source_spreads, b, source_variances)
+                  | _eigvalsh_of(lapack, scratch, target_spreads, b, target_variances)):
             decomposed[b] = True
-            ok[b], measure[b] = _settle(rotation[b], translation[b], summed, source_variances, target_variances)
+            ok[b], measure[b] = _settle(turn, shift, summed, source_variances, target_variances)
+        for i in range(3):  # kept where not decomposed too: the gufuncs' pose replaces it
+            translation[b, i] = shift[i]
+            for j in range(3):
+                rotation[b, i, j] = turn[i, j]
     return rotation, translation, ok, measure, decomposed
 
 
@@ -245,8 +249,8 @@ def _work_sizes(gesdd: int, syevd: int) -> tuple[int, int, int]:
     scratch = _workspace((gesdd, syevd, 1, 1, 1))
     integers, svd_work, eig_work, eig_integers = scratch[0], scratch[6], scratch[8], scratch[9]
     integers[_SVD_WORK:_INFO] = -1
-    _svd_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((3, 3)))
-    _eigvalsh_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((3, 3)))
+    _svd_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((1, 3, 3)), 0)
+    _eigvalsh_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((1, 3, 3)), 0, np.empty(3))
     return max(1, int(svd_work[0])), max(1, int(eig_work[0])), max(1, int(eig_integers[0]))
 
 
@@ -261,40 +265,45 @@ def _workspace(lapack):
 
 
 @njit(cache=True, inline="always")
-def _svd_of(lapack, scratch, matrix):
-    """u and vt (views of the scratch, valid until the next call) of a finite 3 x 3 matrix by dgesdd, and whether
-    LAPACK failed."""
+def _svd_of(lapack, scratch, matrices, b):
+    """Whether LAPACK's dgesdd failed on the finite 3 x 3 `matrices[b]`; u and vt in the scratch (`_svd_views`),
+    valid until the next call."""
     integers, characters, copy, u, vt, values, work, work_integers, _, _ = scratch
-    _column_major(matrix, copy)
+    _column_major(matrices, b, copy)
     integer = integers.ctypes.data  # the int32s' addresses by offset, not by slices (a view each, counted in and out)
     three = integer + 4 * _THREE
     _call(lapack[0], (characters.ctypes.data, three, three, copy.ctypes.data, three, values.ctypes.data,
                       u.ctypes.data, three, vt.ctypes.data, three, work.ctypes.data,
                       integer + 4 * _SVD_WORK, work_integers.ctypes.data, integer + 4 * _INFO))
-    return u.reshape(3, 3).T, vt.reshape(3, 3).T, integers[_INFO] != 0
+    return integers[_INFO] != 0
 
 
 @njit(cache=True, inline="always")
-def _eigvalsh_of(lapack, scratch, matrix):
-    """The ascending eigenvalues of a finite symmetric 3 x 3 matrix (its lower triangle) by dsyevd, and whether
-    LAPACK failed."""
+def _svd_views(scratch):
+    """u and vt of the scratch's last SVD (`_svd_of`) as 3 x 3 views: LAPACK writes them column after column."""
+    return scratch[3].reshape(3, 3).T, scratch[4].reshape(3, 3).T
+
+
+@njit(cache=True, inline="always")
+def _eigvalsh_of(lapack, scratch, matrices, b, values):
+    """The ascending eigenvalues of the finite symmetric 3 x 3 `matrices[b]` (its lower triangle) by dsyevd into
+    `values` (3,), and whether LAPACK failed."""
     integers, characters, copy, _, _, _, _, _, work, work_integers = scratch
-    _column_major(matrix, copy)
-    values = np.empty(3)
+    _column_major(matrices, b, copy)
     integer = integers.ctypes.data  # as `_svd_of`
     three = integer + 4 * _THREE
     _call(lapack[1], (characters.ctypes.data + 1, characters.ctypes.data + 2, three, copy.ctypes.data, three,
                       values.ctypes.data, work.ctypes.data, integer + 4 * _EIG_WORK, work_integers.ctypes.data,
                       integer + 4 * _EIG_INTS, integer + 4 * _INFO))
-    return values, integers[_INFO] != 0
+    return integers[_INFO] != 0
 
 
 @njit(cache=True, inline="always")
-def _column_major(matrix: np.ndarray, out: np.ndarray) -> None:
-    """A 3 x 3 matrix into `out` (9,) column after column, as LAPACK reads it (the call overwrites it)."""
+def _column_major(matrices: np.ndarray, b: int, out: np.ndarray) -> None:
+    """The 3 x 3 `matrices[b]` into `out` (9,) column after column, as LAPACK reads it (the call overwrites it)."""
     for i in range(3):
         for j in range(3):
-            out[i + 3 * j] = matrix[i, j]
+            out[i + 3 * j] = matrices[b, i, j]
 
 
 @njit(cache=True, inline="always")
@@ -307,12 +316,14 @@ def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, inline="always")
-def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: np.ndarray, out: np.ndarray) -> None:
-    """mean_target - rotation @ mean_source into `out` as `mean_target - np.einsum("bij,bj->bi", ...)` does:
+def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: np.ndarray, b: int,
+                    out: np.ndarray) -> None:
+    """mean_target[b] - rotation @ mean_source[b] into `out` as `mean_target - np.einsum("bij,bj->bi", ...)` does:
     einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1, added to its 0."""
     for i in range(3):
-        product = (rotation[i, 0] * mean_source[0] + rotation[i, 2] * mean_source[2]) + rotation[i, 1] * mean_source[1]
-        out[i] = mean_target[i] - (0.0 + product)
+        product = ((rotation[i, 0] * mean_source[b, 0] + rotation[i, 2] * mean_source[b, 2])
+                   + rotation[i, 1] * mean_source[b, 1])
+        out[i] = mean_target[b, i] - (0.0 + product)
 
 
 @njit(cache=True)
@@ -415,22 +426,22 @@ def _kept(rotation: np.ndarray, translation: np.ndarray, ok: bool) -> bool:
 
 
 @njit(cache=True, inline="always")
-def _surely_spread(covariance: np.ndarray) -> bool:
-    """True only where `_spread_ok` of LAPACK's eigenvalues of the finite symmetric 3 x 3 `covariance` (its lower
+def _surely_spread(covariances: np.ndarray, b: int) -> bool:
+    """True only where `_spread_ok` of LAPACK's eigenvalues of the finite symmetric 3 x 3 `covariances[b]` (its lower
     triangle, as dsyevd reads it) is surely True, told without them: its middle eigenvalue is at least the
     smaller one of each 2 x 2 principal submatrix (Cauchy's interlacing), computed here within 12 eps of its
     Frobenius norm F, and dsyevd's eigenvalues lie within 1e-10 F of the exact ones (it is backward stable:
     within a few hundred eps of F for a 3 x 3 matrix). So the middle eigenvalue LAPACK gives exceeds 0.8e-9 F,
     above either of `_spread_ok`'s thresholds (1e-12 or 1e-12 of the largest, at most F + 1e-10 F). Where this
     says False (a row of points, a set too small to tell), the eigenvalues decide."""
-    m = covariance
-    norm = np.sqrt(m[0, 0] * m[0, 0] + m[1, 1] * m[1, 1] + m[2, 2] * m[2, 2]
-                   + 2.0 * (m[1, 0] * m[1, 0] + m[2, 0] * m[2, 0] + m[2, 1] * m[2, 1]))
+    m = covariances
+    norm = np.sqrt(m[b, 0, 0] * m[b, 0, 0] + m[b, 1, 1] * m[b, 1, 1] + m[b, 2, 2] * m[b, 2, 2]
+                   + 2.0 * (m[b, 1, 0] * m[b, 1, 0] + m[b, 2, 0] * m[b, 2, 0] + m[b, 2, 1] * m[b, 2, 1]))
     middle_at_least = -np.inf
     for i, j in ((0, 1), (0, 2), (1, 2)):
-        a, d, b = m[i, i], m[j, j], m[j, i]
+        a, d, off = m[b, i, i], m[b, j, j], m[b, j, i]
         half = 0.5 * (a - d)
-        middle_at_least = max(middle_at_least, 0.5 * (a + d) - np.sqrt(half * half + b * b))
+        middle_at_least = max(middle_at_least, 0.5 * (a + d) - np.sqrt(half * half + off * off))
     return middle_at_least > 1e-9 * norm + 2e-12
 
 
@@ -544,7 +555,7 @@ def _weights(scores, observed_axes, landmark_axes, mode):
     """`correspondence_weights` with the mode as a number (`_WEIGHT_MODES`)."""
     weights = np.empty(len(scores))
     for i in range(len(scores)):
-        weights[i] = _weight(scores[i], observed_axes[i], landmark_axes[i], mode)
+        weights[i] = _weight(scores[i], observed_axes, i, landmark_axes, i, mode)
     return weights
 
 
@@ -587,23 +598,27 @@ def _weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_sco
             valid = p < counts[b]
             k, n, score = ((pairs[start + p, 0], pairs[start + p, 1], scores[start + p]) if valid
                            else (pad_observation, pad_landmark, pad_score))
-            source[b, p], target[b, p] = observed_centers[k], landmark_centers[n]
-            weights[b, p] = (1.0 if valid else 0.0) * _weight(score, observed_axes[k], landmark_axes[n], mode)
+            for i in range(3):  # number by number: a row is a view, counted in and out
+                source[b, p, i], target[b, p, i] = observed_centers[k, i], landmark_centers[n, i]
+            weights[b, p] = (1.0 if valid else 0.0) * _weight(score, observed_axes, k, landmark_axes, n, mode)
         start += counts[b]
     return source, target, weights
 
 
-@njit(cache=True)
-def _weight(score, observed_axes, landmark_axes, mode):
-    """One pair's `correspondence_weights`, numpy's operations in numpy's order: np.maximum and np.minimum
-    (NaN kept, +0 over -0) and einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1."""
+@njit(cache=True, inline="always")
+def _weight(score, observed_axes, k, landmark_axes, n, mode):
+    """One pair's `correspondence_weights` (observation k's axes, landmark n's: indices, not row views), numpy's
+    operations in numpy's order: np.maximum and np.minimum (NaN kept, +0 over -0) and einsum's sum of three
+    products, (x0 y0 + x2 y2) + x1 y1."""
     if mode == 0:
         return 1.0
     similarity = score if score > 0.0 or np.isnan(score) else 0.0
     if mode == 1:
         return similarity
-    observed = (observed_axes[0] * observed_axes[0] + observed_axes[2] * observed_axes[2]) + observed_axes[1] * observed_axes[1]
-    landmark = (landmark_axes[0] * landmark_axes[0] + landmark_axes[2] * landmark_axes[2]) + landmark_axes[1] * landmark_axes[1]
+    observed = ((observed_axes[k, 0] * observed_axes[k, 0] + observed_axes[k, 2] * observed_axes[k, 2])
+                + observed_axes[k, 1] * observed_axes[k, 1])
+    landmark = ((landmark_axes[n, 0] * landmark_axes[n, 0] + landmark_axes[n, 2] * landmark_axes[n, 2])
+                + landmark_axes[n, 1] * landmark_axes[n, 1])
     ratio = np.sqrt(observed / (landmark if landmark > 1e-12 or np.isnan(landmark) else 1e-12))
     completeness = ratio if ratio < 1.0 or np.isnan(ratio) else 1.0
     return completeness if mode == 2 else similarity * completeness

@@ -307,7 +307,10 @@ def _taken(rotation, translation, ok, fitted, refits, active, starts, offset, co
         f = fitted[r]
         if ok[f]:
             a = active[refits[r]]
-            rotations[a], translations[a] = rotation[f], translation[f]
+            for i in range(3):  # number by number: row views are counted in and out
+                translations[a, i] = translation[f, i]
+                for j in range(3):
+                    rotations[a, i, j] = rotation[f, i, j]
             sizes[a], origin[a], moved[a] = counts[refits[r]], offset + starts[refits[r]], True
             taken[count] = a
             count += 1

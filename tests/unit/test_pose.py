@@ -341,18 +341,18 @@ def test_lapack_called_directly_gives_the_gufuncs_bits():
     zero, rank 1 and 2, -0 entries, and a matrix whose triangles differ (the lower one is read)."""
     from numba import njit
 
-    from clipclique.pose import _eigvalsh_of, _lapack, _svd_of, _workspace
+    from clipclique.pose import _eigvalsh_of, _lapack, _svd_of, _svd_views, _workspace
 
     @njit
     def decomposed(lapack, matrices):
         scratch = _workspace(lapack)
+        left, right = _svd_views(scratch)
         u, vt, values = np.empty_like(matrices), np.empty_like(matrices), np.empty((len(matrices), 3))
         failures = 0
         for b in range(len(matrices)):
-            left, right, failed = _svd_of(lapack, scratch, matrices[b])
+            failed = _svd_of(lapack, scratch, matrices, b)
             u[b], vt[b] = left, right
-            eigenvalues, eig_failed = _eigvalsh_of(lapack, scratch, matrices[b])
-            values[b] = eigenvalues
+            eig_failed = _eigvalsh_of(lapack, scratch, matrices, b, values[b])
             failures += failed + eig_failed
         return u, vt, values, failures
 
@@ -381,7 +381,7 @@ def test_the_rotation_and_translation_are_numpys_matmul_and_einsum_to_the_bit():
         rotation, translation = np.empty_like(u), np.empty_like(mean_source)
         for b in range(len(u)):
             _rotation_of(u[b], vt[b], rotation[b])
-            _translation_of(rotation[b], mean_source[b], mean_target[b], translation[b])
+            _translation_of(rotation[b], mean_source, mean_target, b, translation[b])
         return rotation, translation
 
     rng = np.random.default_rng(24)
@@ -412,11 +412,11 @@ def test_a_spread_told_without_eigenvalues_is_never_wrong_and_usually_told():
         centred = points - points.mean(axis=0)
         covariance = centred.T @ centred / len(points)
         covariance[0, 1] = np.nextafter(covariance[0, 1], np.inf)  # the upper triangle is not read
-        sure, spread = _surely_spread(covariance), _spread_ok(np.linalg.eigvalsh(covariance))
+        sure, spread = _surely_spread(covariance[None], 0), _spread_ok(np.linalg.eigvalsh(covariance))
         assert spread or not sure
         told, untold, collinear = told + (sure and spread), untold + (spread and not sure), collinear + (not spread)
     assert told > 1000 and untold > 100 and collinear > 1000  # (1363, 346, 4291)
-    ordinary = [_surely_spread(np.cov(rng.normal(size=(6, 3)).T)) for _ in range(500)]
+    ordinary = [_surely_spread(np.cov(rng.normal(size=(6, 3)).T)[None], 0) for _ in range(500)]
     assert all(ordinary)
 
 

@@ -191,7 +191,7 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
                   | _eigvalsh_of(lapack, scratch, target_spreads, b, target_variances)):
             decomposed[b] = True
             ok[b], measure[b] = _settle(turn, shift, summed, source_variances, target_variances)
-        for i in range(3):  # kept where not decomposed too: the gufuncs' pose replaces it
+        for i in range(3):  # copied out decomposed or not: where not, `_fit` puts the gufuncs' pose over it
             translation[b, i] = shift[i]
             for j in range(3):
                 rotation[b, i, j] = turn[i, j]

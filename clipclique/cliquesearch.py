@@ -33,6 +33,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from clipclique.numpybits import sort_span
 from clipclique.outcomes import CapHit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
@@ -301,15 +302,10 @@ def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
 def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
            best_size: np.ndarray, best_slot: np.ndarray, best_members: np.ndarray) -> None:
     """Insert a maximal clique into the ranked top list if it ranks high enough. Written out without helper calls
-    or views: each array handed to a compiled call, or sliced, is reference-counted by two atomic operations, which
-    cost a desk search a quarter of its time when the comparison was a function and the sort a view's sort."""
-    for i in range(1, size):  # an insertion sort in place: a clique's dozen members (the same order as any sort)
-        member = clique[i]
-        j = i
-        while j > 0 and clique[j - 1] > member:
-            clique[j] = clique[j - 1]
-            j -= 1
-        clique[j] = member
+    or views (the sort, `numpybits.sort_span`, is inlined): each array handed to a compiled call, or sliced, is
+    reference-counted by two atomic operations, which cost a desk search a quarter of its time when the comparison
+    was a function and the sort a view's sort."""
+    sort_span(clique, 0, size)
     total = 0.0
     for k in range(size):
         total += weights[clique[k]]

@@ -1,8 +1,9 @@
 """numpy's and OpenBLAS's arithmetic written out for compiled code, to the bit: a kernel that replaces a numpy
 call must add in the order numpy adds, or results move in their last bits (and the results digest with them).
 
-One place for what several modules' kernels share: numpy's pairwise sum, and the fused multiply-add that
-OpenBLAS's dgemm chains for small matrices (from +0, one per term in order)."""
+One place for what several modules' kernels share: numpy's pairwise sum, the fused multiply-add that
+OpenBLAS's dgemm chains for small matrices (from +0, one per term in order), and a short span of integers sorted
+in place."""
 
 from __future__ import annotations
 
@@ -43,3 +44,17 @@ def fma(typingctx, a, b, c):
     def codegen(context, builder, signature, args):
         return builder.fma(*args)
     return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@njit(cache=True, inline="always")
+def sort_span(values: np.ndarray, start: int, stop: int) -> None:
+    """values[start: stop].sort() of integers (any sort orders them alike) by an insertion sort in place: a clique's
+    dozen members, where a view's sort costs its reference counts and numba's quicksort setup (inlined into its
+    callers, so the array is not counted in and out either)."""
+    for i in range(start + 1, stop):
+        value = values[i]
+        j = i
+        while j > start and values[j - 1] > value:
+            values[j] = values[j - 1]
+            j -= 1
+        values[j] = value

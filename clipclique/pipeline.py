@@ -43,7 +43,8 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.stack import Stack, _alike
+from clipclique.numpybits import sort_span
+from clipclique.stack import Stack, alike_spans
 from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
@@ -405,7 +406,7 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray,
 @njit(cache=True)
 def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: int) -> tuple[np.ndarray, np.ndarray]:
     """`_without_added` in one compiled pass: each clique's members sorted, then the cliques and the eligible rests
-    as sorted sets through `stack._alike` (a rest is kept where it comes first among its alike sets), instead of a
+    as sorted sets through `stack.alike_spans` (a rest is kept where it comes first among its alike sets), instead of a
     dozen numpy passes (lexsort, bincounts, repeats) on a frame's few cliques."""
     count = len(sizes)
     starts = np.cumsum(sizes) - sizes
@@ -419,19 +420,15 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: 
     at = len(members)
     for c in range(count):
         start = starts[c]
-        for i in range(sizes[c]):  # an insertion sort into place: a clique's dozen members, no view's sort
-            member = members[start + i]
-            j = start + i
-            while j > start and sets[j - 1] > member:
-                sets[j] = sets[j - 1]
-                j -= 1
-            sets[j] = member
+        for i in range(start, start + sizes[c]):
+            sets[i] = members[i]
+        sort_span(sets, start, start + sizes[c])
         if eligible[c]:
             for i in range(start, start + sizes[c]):
                 if not added[sets[i]]:
                     sets[at] = sets[i]
                     at += 1
-    group, firsts = _alike(np.zeros((len(counts), 0), np.int64), sets, np.cumsum(counts) - counts, counts)
+    group, firsts = alike_spans(np.zeros((len(counts), 0), np.int64), sets, np.cumsum(counts) - counts, counts)
     kept = np.zeros(count, np.bool_)
     rest = count
     for c in range(count):

@@ -136,7 +136,7 @@ def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarra
                 c12 = fma(spread[n, k], kron[b, 5, k], c12)
                 c22 = fma(spread[n, k], kron[b, 8, k], c22)
             c22 = c22 - depth * depth
-            if not (depth - np.sqrt(at_least_zero(c22 + depth * depth)) > MIN_DEPTH and depth <= max_depth):
+            if not (_in_front(c22, depth) and depth <= max_depth):
                 continue  # not visible (`_outline_box`): its box is never read
             u0, v0, u1, v1, seen, area = _outline_box(c00 - h0 * h0, c02 - h0 * depth, c11 - h1 * h1, c12 - h1 * depth,
                                                       c22, depth, width, height, max_depth)
@@ -218,8 +218,7 @@ def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, dep
                  max_depth: float) -> tuple[float, float, float, float, bool, float]:
     """One (pose, ellipsoid) of `_outline_boxes` from the conic entries a box reads (C*11, C*13, C*22, C*23, C*33)
     and the depth: its box (u0, v0, u1, v1), whether it is visible, and the unclipped box's area."""
-    reach = np.sqrt(at_least_zero(c33 + depth * depth))
-    in_front = depth - reach > MIN_DEPTH
+    in_front = _in_front(c33, depth)
     c33 = c33 if in_front else -1.0
     root = np.sqrt(at_least_zero(c13 * c13 - c11 * c33))
     u0, u1 = (c13 + root) / c33, (c13 - root) / c33
@@ -229,6 +228,13 @@ def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, dep
     u0, u1 = _clipped(u0, width), _clipped(u1, width)
     v0, v1 = _clipped(v0, height), _clipped(v1, height)
     return u0, v0, u1, v1, in_front and depth <= max_depth and u1 > u0 and v1 > v0, full_area
+
+
+@njit(cache=True, inline="always")
+def _in_front(c33: float, depth: float) -> bool:
+    """Whether the whole ellipsoid lies more than MIN_DEPTH in front of the camera: its centre's depth less its
+    half-extent along the optical axis, sqrt(C*33 + depth^2)."""
+    return depth - np.sqrt(at_least_zero(c33 + depth * depth)) > MIN_DEPTH
 
 
 @njit(cache=True)

@@ -86,15 +86,15 @@ class Stack:
 def alike(poses: np.ndarray, pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which of R items are alike, bit for bit: item r is row r of `poses` (R, P) float (P = 0: pairs alone) and the
     pairs[starts[r]: starts[r] + counts[r]] of `pairs` (M, 2) or (M,) int. (R,) each item's group, numbered in order of
-    first appearance, and (G,) each group's first item: the work of each group done once (`_alike`)."""
+    first appearance, and (G,) each group's first item: the work of each group done once (`alike_spans`)."""
     bits = np.ascontiguousarray(poses, np.float64).view(np.int64)
     values = np.ascontiguousarray(pairs, np.int64)
     width = values.shape[1] if values.ndim == 2 else 1  # the pairs' numbers one after another
-    return _alike(bits, values.reshape(-1), width * np.asarray(starts, np.int64), width * np.asarray(counts, np.int64))
+    return alike_spans(bits, values.reshape(-1), width * np.asarray(starts, np.int64), width * np.asarray(counts, np.int64))
 
 
 @njit(cache=True)
-def _alike(bits, values, starts, counts):
+def alike_spans(bits, values, starts, counts):
     """`alike` of poses as their bits (int64) and spans of `values` (1-D int: item r's are values[starts[r]:
     starts[r] + counts[r]]): each item against the first item of every group before it (a frame's fifty hypotheses:
     a few thousand comparisons, most ended by the first number), number by number in place: a row or span handed to

@@ -6,7 +6,6 @@ Heavy modules (dask, open3d, torch) are imported inside the command so `--help` 
 
 from __future__ import annotations
 
-import os
 import shlex
 import sys
 from contextlib import contextmanager
@@ -15,6 +14,7 @@ from typing import Annotated, Any, Iterator, Optional
 
 import typer
 
+from clipclique.arithmetic import pin_arithmetic
 from clipclique.exits import version_option
 from clipclique.outputs import BENCH_DIR, CACHE_DIR
 
@@ -154,7 +154,7 @@ class _Bar:
 
 
 def main() -> None:
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc: small matrices, shared cores
+    pin_arithmetic()  # as clipclique-loc (clipclique.arithmetic)
     app()
 
 

@@ -36,11 +36,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NamedTuple
 
-# Offline model hubs; and one OpenBLAS thread (set before numpy loads): a query's matrices are small,
-# and BLAS threads waiting for a busy core cost up to ~10 ms per product on a shared 2-core machine.
-for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("YOLO_AUTOINSTALL", "false"),
-                          ("OPENBLAS_NUM_THREADS", "1")):
+from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+
+# Offline model hubs, and the process's arithmetic pinned (one OpenBLAS thread, the same kernels on every
+# x86-64 machine: clipclique.arithmetic), before numpy loads.
+for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("YOLO_AUTOINSTALL", "false")):
     os.environ.setdefault(_variable, _value)
+pin_arithmetic()
 
 import numpy as np  # noqa: E402
 from rich.console import Console  # noqa: E402

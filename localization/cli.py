@@ -8,7 +8,6 @@ Heavy modules (open3d, torch, rerun) are imported inside the commands so `--help
 from __future__ import annotations
 
 import gc
-import os
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -17,6 +16,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from clipclique.arithmetic import pin_arithmetic
 from clipclique.exits import version_option
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
@@ -205,9 +205,7 @@ def align(
 
 
 def main() -> None:
-    # A query's matrices are tiny: BLAS threads only wait for busy cores (up to ~10 ms a query
-    # on 2 cores, tools/bench.py). numpy is not imported yet, so this takes effect.
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    pin_arithmetic()  # numpy is not imported yet, so this takes effect (clipclique.arithmetic)
     try:
         app()
     finally:  # the process ends here: its heap is left to the OS, not collected object by object (~0.5 s after a run)

@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from clipclique.arithmetic import pin_arithmetic
 from clipclique.exits import version_option
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
@@ -167,6 +168,7 @@ def annotate(
 
 
 def main() -> None:
+    pin_arithmetic()  # numpy is not imported yet, so this takes effect (clipclique.arithmetic)
     app()
 
 

@@ -8,24 +8,30 @@ Fixtures that hand out helpers return the function, so no test module imports an
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import re
-import subprocess
-from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
+from clipclique.arithmetic import pin_arithmetic
 
-import numpy as np
-import pytest
-from PIL import Image
-from scipy.spatial.transform import Rotation
+if not pin_arithmetic():  # the committed results digests and figures are those of the pinned arithmetic
+    raise RuntimeError("numpy was loaded before tests/conftest.py could pin the arithmetic (clipclique.arithmetic): "
+                       "run pytest in a fresh process")
 
-from clipclique.config import LocalizationConfig
-from clipclique.geometry import look_at
-from clipclique.metrics import FrameEvaluation, evaluate_frame
-from clipclique.pipeline import LocalizationResult
-from clipclique.types import Camera, Detections, Ellipsoids, Frame, Hypothesis, Map, Observations, Pose
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import re  # noqa: E402
+import subprocess  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from PIL import Image  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from clipclique.config import LocalizationConfig  # noqa: E402
+from clipclique.geometry import look_at  # noqa: E402
+from clipclique.metrics import FrameEvaluation, evaluate_frame  # noqa: E402
+from clipclique.pipeline import LocalizationResult  # noqa: E402
+from clipclique.types import Camera, Detections, Ellipsoids, Frame, Hypothesis, Map, Observations, Pose  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository
 SMALL_SIZE = (160, 120)  # width, height of the small demo scenes most tests read

@@ -18,7 +18,9 @@ import shutil
 import time
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+
+pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
 
 from benchmark.engine import ensure_map, run_jobs  # noqa: E402
 from benchmark.plan import Plan, runs  # noqa: E402

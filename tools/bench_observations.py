@@ -27,7 +27,9 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as clipclique-loc runs (localization/cli.py), before numpy loads
+from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+
+pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
 
 import numpy as np  # noqa: E402
 

@@ -9,13 +9,17 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from clipclique.commands import command
-from clipclique.exits import user_errors
-from clipclique.outputs import MAP_DIR
-from localization.run import RunSettings, run_and_save
-from localization.tables import make_console, print_documents
-from mapping import tables as map_tables
-from mapping.run import run_build
+from clipclique.arithmetic import pin_arithmetic
+
+pin_arithmetic()  # before numpy loads: the same arithmetic as the CLIs (clipclique.arithmetic)
+
+from clipclique.commands import command  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
+from clipclique.outputs import MAP_DIR  # noqa: E402
+from localization.run import RunSettings, run_and_save  # noqa: E402
+from localization.tables import make_console, print_documents  # noqa: E402
+from mapping import tables as map_tables  # noqa: E402
+from mapping.run import run_build  # noqa: E402
 
 SEQUENCES = ("demo", "demo_tum")
 METHODS = ("clipclique", "sh", "xview", "cliploc")

@@ -21,8 +21,11 @@ import os
 import sys
 from pathlib import Path
 
-for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("OPENBLAS_NUM_THREADS", "1")):
+from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+
+for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1")):
     os.environ.setdefault(_variable, _value)
+pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
 
 
 from benchmark import calibration  # noqa: E402

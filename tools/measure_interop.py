@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import tempfile
 from collections import Counter
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+
+pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
 
 import numpy as np  # noqa: E402
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numba import njit
 
 from clipclique.geometry import look_at, random_rotation
+from clipclique.numpybits import fma
 from clipclique.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
 
@@ -91,6 +93,30 @@ def test_pair_iou_is_box_iou_to_the_bit():
     assert box_iou(a, b).min() == 0.0 and 0.0 < box_iou(a, b).max() < 1.0
 
 
+def dgemm_chains(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b (stacks broadcast) as OpenBLAS's AVX-512 dgemm adds a small product and the compiled products must:
+    each entry from +0, one fused multiply-add per term in order. Written out here, not taken from numpy's matmul,
+    whose order is the machine's (its AVX2 kernels add a few rows otherwise; clipclique.arithmetic pins them)."""
+    shape = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
+    stacks = int(np.prod(shape))
+    left = np.ascontiguousarray(np.broadcast_to(a, shape + a.shape[-2:])).reshape(stacks, *a.shape[-2:])
+    right = np.ascontiguousarray(np.broadcast_to(b, shape + b.shape[-2:])).reshape(stacks, *b.shape[-2:])
+    return _chained(left, right).reshape(*shape, a.shape[-2], b.shape[-1])
+
+
+@njit
+def _chained(left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    out = np.empty((len(left), left.shape[1], right.shape[2]))
+    for s in range(len(left)):
+        for i in range(left.shape[1]):
+            for j in range(right.shape[2]):
+                total = 0.0
+                for k in range(left.shape[2]):
+                    total = fma(left[s, i, k], right[s, k, j], total)
+                out[s, i, j] = total
+    return out
+
+
 def numpy_outline_boxes(conics: np.ndarray, depths: np.ndarray, camera: Camera):
     """The boxes, visibility and full areas of `project` as written with numpy passes before they were compiled."""
     reach = np.sqrt(np.maximum(conics[..., 2, 2] + depths**2, 0.0))
@@ -126,26 +152,30 @@ def test_the_compiled_boxes_are_the_numpy_passes_to_the_bit():
 
 
 def numpy_dual_conics(ellipsoids: Ellipsoids, poses: list, camera: Camera) -> np.ndarray:
-    """`project`'s dual conics as written with numpy passes, V M V^T - h h^T, before the subtraction was compiled."""
+    """`project`'s dual conics as written with numpy passes, V M V^T - h h^T, before the subtraction was compiled
+    (the products as dgemm's chains)."""
     rotations, translations = np.array([p.rotation for p in poses]), np.array([p.translation for p in poses])
     shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
     spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
-    view = camera.intrinsics @ rotations.transpose(0, 2, 1)
+    view = dgemm_chains(camera.intrinsics, rotations.transpose(0, 2, 1))
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
-    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
-    return (spread @ kron.transpose(0, 2, 1)).reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
+    centers = dgemm_chains(ellipsoids.centers[None] - translations[:, None], view.transpose(0, 2, 1))
+    terms = dgemm_chains(spread, kron.transpose(0, 2, 1))
+    return terms.reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
 
 
-def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera):
-    """`project`'s arrays as its numpy passes computed them before the kron was compiled and the map's spreads kept."""
+def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera,
+                     product=dgemm_chains):
+    """`project`'s arrays as its numpy passes computed them before the kron was compiled and the map's spreads kept;
+    `product`: how V, h and vec(V M V^T) are multiplied (dgemm's chains, or numpy's matmul for one landmark)."""
     from clipclique.projection import _outline_boxes
 
     shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
     spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
-    view = camera.intrinsics @ rotations.transpose(0, 2, 1)
+    view = product(camera.intrinsics, rotations.transpose(0, 2, 1))
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
-    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
-    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), centers, float(camera.width),
+    centers = product(ellipsoids.centers[None] - translations[:, None], view.transpose(0, 2, 1))
+    conics, boxes, visible, full_areas = _outline_boxes(product(spread, kron.transpose(0, 2, 1)), centers, float(camera.width),
                                                         float(camera.height), float(camera.max_depth))
     return conics, boxes, visible, centers[..., 2], full_areas
 
@@ -194,7 +224,8 @@ def test_project_is_its_numpy_passes_to_the_bit():
                                 np.array([random_rotation(rng) for _ in range(count)]).reshape(-1, 3, 3))
         cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(poses)]
         rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
-        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA)
+        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA,  # one landmark: numpy's products
+                                    product=np.matmul if count == 1 else dgemm_chains)
         for seen in (project(ellipsoids, rotations, translations, CAMERA),
                      project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)):
             got = (seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas)
@@ -203,16 +234,18 @@ def test_project_is_its_numpy_passes_to_the_bit():
 
 
 def numpy_products(centers, spread, rotations, translations, intrinsics):
-    """vec(V M V^T) and h by numpy's matmul (OpenBLAS's dgemm), as `project_spreads` computed them."""
-    view = intrinsics @ rotations.transpose(0, 2, 1)
+    """vec(V M V^T) and h by dgemm's chains, as `project_spreads` computed them with numpy's matmul on the machine
+    whose OpenBLAS kernels the compiled products were written to."""
+    view = dgemm_chains(intrinsics, rotations.transpose(0, 2, 1))
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
-    return spread @ kron.transpose(0, 2, 1), (centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
+    return (dgemm_chains(spread, kron.transpose(0, 2, 1)),
+            dgemm_chains(centers[None] - translations[:, None], view.transpose(0, 2, 1)))
 
 
 @pytest.mark.parametrize("count", [0, 2, 3, 7, 40])
-def test_the_compiled_products_are_numpys_dgemm_to_the_bit(count):
+def test_the_compiled_products_are_dgemms_chains_to_the_bit(count):
     """`_projected`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) (one fused multiply-add per term from +0) against
-    numpy's matmul, through `_outline_boxes`, on random poses and on hand-made entries: -0, NaN, infinities, centres
+    dgemm's chains written out (`dgemm_chains`), through `_outline_boxes`, on random poses and on hand-made entries: -0, NaN, infinities, centres
     on the camera (a zero offset), equal landmarks (ties) and no landmarks."""
     from clipclique.projection import _outline_boxes, _projected
 
@@ -250,7 +283,7 @@ def test_one_landmark_keeps_numpys_one_row_products():
         cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(int(rng.integers(1, 8)))]
         rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
         seen = project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)
-        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA)
+        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA, product=np.matmul)
         for ours, theirs in zip((seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas), expected):
             assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
         compiled = _projected(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA.intrinsics,

@@ -10,14 +10,14 @@ misses many at the right pose) enter relative to the frame's other hypotheses.
 
 The model is a JSON file (never a pickle): the shipped one is `clipclique/data/confidence.json`,
 fitted by `tools/fit_confidence.py` (which also measures it on held-out scenes); `confidence_model`
-in the config points to a refitted one. A feature is one line of `FEATURES`: a name, how to compute
-it from a frame's `Evidence`, and the sign its coefficient is held to (0: free).
+in the config points to a refitted one. A feature is one entry of `FEATURES` (a name and the sign its
+coefficient is held to, 0: free) and one column of the compiled `_features`, which computes it from a frame's
+`Evidence`.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -47,35 +47,6 @@ class Evidence:
     num_observations: int
 
 
-def _margin(score: np.ndarray) -> np.ndarray:
-    """Each score minus the best other hypothesis's (the score itself when alone)."""
-    if len(score) < 2:
-        return score.copy()
-    top = np.sort(score)[::-1]
-    return score - np.where(score == top[0], top[1], top[0])
-
-
-def _missed_in_frame(evidence: Evidence) -> np.ndarray:
-    """Missed landmarks beyond the frame's least-missing hypothesis. How many landmarks a detector
-    misses at the right pose depends on the scene (clutter, small objects: ~14 on the desk, under 1
-    in a room), so the raw count and the score it lowers do not carry from one scene to another;
-    what a hypothesis misses on top of the frame's best does."""
-    missed = evidence.verification.missed.astype(float)
-    return missed - missed.min()
-
-
-def _summed_similarity(evidence: Evidence) -> np.ndarray:
-    """Each hypothesis's similarity summed over its correspondences, to the bit as
-    `similarity[tuple(correspondences.T)].sum()` adds them, one gather and one compiled pass for all (an index
-    and a sum per hypothesis cost more than a frame's whole arithmetic)."""
-    if not len(evidence.hypotheses):
-        return np.zeros(0)
-    pairs = evidence.hypotheses.pairs
-    values = np.ascontiguousarray(evidence.similarity[pairs[:, 0], pairs[:, 1]])
-    ends = np.cumsum(evidence.hypotheses.counts)
-    return group_sums(values, ends).astype(float)
-
-
 def group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
     """The sum of each group values[ends[b - 1]: ends[b]] of a contiguous array, in its type, to the bit as
     numpy's `.sum()` of each (a sum per group cost more than the arithmetic)."""
@@ -93,28 +64,100 @@ def _group_sums(values: np.ndarray, ends: np.ndarray, zero) -> np.ndarray:
     return sums
 
 
-FEATURES: dict[str, tuple[Callable[[Evidence], np.ndarray], int]] = {
-    # The verification score with its missed penalty counted beyond the frame's fewest (by count, as the
-    # model was fitted; with every missed landmark counted in full, verification.missed_full_area = 0, the
-    # score plus a constant per frame, so monotone in it and with the same margins).
-    "verification_in_frame": (lambda e: e.verification.overlap - e.verification.missed_weight * _missed_in_frame(e), +1),
-    "margin": (lambda e: _margin(e.verification.score), +1),
-    "mean_iou": (lambda e: e.verification.mean_iou, 0),
-    "missed_in_frame": (_missed_in_frame, 0),
-    "depth_error": (lambda e: np.minimum(e.verification.depth_error, 2.0), 0),
-    "size": (lambda e: e.hypotheses.counts.astype(float), 0),
-    "similarity": (lambda e: _summed_similarity(e), 0),
-    "observations": (lambda e: np.full(len(e.hypotheses), float(e.num_observations)), 0),
-}
+# Each feature: its name, its column number in `_features` (the order here) and the sign its coefficient is held
+# to (0: free). How each is computed from a frame's `Evidence`, as numpy computed it (`_features` to the bit):
+# - verification_in_frame: overlap - missed_weight * missed_in_frame: the verification score with its missed
+#   penalty counted beyond the frame's fewest (by count, as the model was fitted; with every missed landmark
+#   counted in full, verification.missed_full_area = 0, the score plus a constant per frame, so monotone in it
+#   and with the same margins);
+# - margin: each score minus the best other hypothesis's (the score itself when alone);
+# - mean_iou: the verification's;
+# - missed_in_frame: missed landmarks beyond the frame's least-missing hypothesis. How many landmarks a detector
+#   misses at the right pose depends on the scene (clutter, small objects: ~14 on the desk, under 1 in a room),
+#   so the raw count and the score it lowers do not carry from one scene to another; what a hypothesis misses on
+#   top of the frame's best does;
+# - depth_error: the verification's, at most 2 m;
+# - size: how many correspondences;
+# - similarity: the similarity summed over the correspondences, in the matrix's type, as numpy's `.sum()`;
+# - observations: the frame's observations.
+FEATURES: dict[str, int] = {"verification_in_frame": +1, "margin": +1, "mean_iou": 0, "missed_in_frame": 0,
+                            "depth_error": 0, "size": 0, "similarity": 0, "observations": 0}
+_COLUMN = {name: column for column, name in enumerate(FEATURES)}
 
 
 def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES)) -> np.ndarray:
-    """(B, F) the named features of each hypothesis, written column by column into one array (a column stack and
-    its float copy cost a frame a quarter of the features' own time)."""
-    matrix = np.empty((len(evidence.verification.score), len(names)))
-    for column, name in enumerate(names):
-        matrix[:, column] = FEATURES[name][0](evidence)
+    """(B, F) the named features of each hypothesis (`FEATURES`), in one compiled pass (`_features`): a numpy call
+    or two per feature cost a frame more than all their arithmetic."""
+    checked, hypotheses, similarity = evidence.verification, evidence.hypotheses, evidence.similarity
+    return _features(np.array([_COLUMN[name] for name in names], np.int64), checked.overlap, checked.score,
+                     checked.mean_iou, checked.missed, checked.depth_error, float(checked.missed_weight),
+                     hypotheses.counts, hypotheses.pairs, similarity, similarity.dtype.type(0),
+                     float(evidence.num_observations))
+
+
+@njit(cache=True)
+def _features(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity, zero,
+              observations):
+    """`feature_matrix` of the features numbered `columns` (their order in `FEATURES`), each written as numpy's
+    passes computed it: the missed count as a float less the frame's fewest, np.minimum's NaN, the margin against
+    the scores np.sort orders (`_top_two`), the similarity gathered and summed per hypothesis (`_group_sums`)."""
+    matrix = np.empty((len(score), len(columns)))
+    for j in range(len(columns)):
+        column = columns[j]
+        if column == 0 or column == 3:
+            fewest = float(missed.min()) if len(missed) else 0.0
+            for b in range(len(score)):
+                beyond = float(missed[b]) - fewest
+                matrix[b, j] = overlap[b] - missed_weight * beyond if column == 0 else beyond
+        elif column == 1:
+            _margins_into(score, matrix[:, j])
+        elif column == 2:
+            matrix[:, j] = mean_iou
+        elif column == 4:
+            for b in range(len(score)):
+                matrix[b, j] = depth_error[b] if depth_error[b] < 2.0 or np.isnan(depth_error[b]) else 2.0
+        elif column == 5:
+            for b in range(len(score)):
+                matrix[b, j] = counts[b]
+        elif column == 6:
+            values = np.empty(len(pairs), similarity.dtype)
+            for m in range(len(pairs)):
+                values[m] = similarity[pairs[m, 0], pairs[m, 1]]
+            matrix[:, j] = _group_sums(values, np.cumsum(counts), zero)
+        else:
+            matrix[:, j] = observations
     return matrix
+
+
+@njit(cache=True)
+def _margins_into(score: np.ndarray, margins: np.ndarray) -> None:
+    """Each score minus the best other hypothesis's (the score itself when alone), as numpy's
+    `score - np.where(score == top[0], top[1], top[0])` of `top = np.sort(score)[::-1]`."""
+    if len(score) < 2:
+        margins[:] = score
+        return
+    first, second = _top_two(score)
+    for b in range(len(score)):
+        margins[b] = score[b] - (second if score[b] == first else first)
+
+
+@njit(cache=True)
+def _top_two(values: np.ndarray) -> tuple[float, float]:
+    """The first two of `np.sort(values)[::-1]` (two values or more) in one pass: the largest two, NaN first (np.sort
+    puts NaN last). Where +0 and -0 tie for a place np.sort's order of them is its own: verification scores are never
+    -0 (overlap sums from +0, less a cost of +0 or more)."""
+    first = second = -np.inf
+    nans = 0
+    for value in values:
+        if np.isnan(value):
+            nans += 1
+        elif value > first:
+            first, second = value, first
+        elif value > second:
+            second = value
+    if nans:
+        return np.nan, (np.nan if nans > 1 else first)
+    return first, second
 
 
 @dataclass(frozen=True)
@@ -151,7 +194,7 @@ def fit(features: np.ndarray, labels: np.ndarray, groups: np.ndarray, names: tup
     with one group there is nothing held out and the Platt step is the identity)."""
     features, labels = np.asarray(features, float), np.asarray(labels, float)
     mean, scale = _standardization(features)
-    signs = np.array([FEATURES[name][1] for name in names])
+    signs = np.array([FEATURES[name] for name in names])
     weights, intercept = _logistic((features - mean) / scale, labels, signs)
     platt = (1.0, 0.0)
     scenes = np.unique(groups)

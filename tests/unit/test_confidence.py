@@ -95,7 +95,7 @@ def test_the_similarity_feature_sums_each_hypothesis_s_correspondences_as_numpy_
                              1.0) for size in [0, 1, 3, 7, 8, 9, 15, 16, 17, 40, 130, 3]]
     evidence = confidence.Evidence(Stack.of(hypotheses), verification_of([0.0] * 12, [0] * 12), similarity, 40)
     expected = np.array([similarity[tuple(h.correspondences.T)].sum() for h in hypotheses])
-    assert confidence.FEATURES["similarity"][0](evidence).tobytes() == expected.tobytes()
+    assert confidence.feature_matrix(evidence, ("similarity",))[:, 0].tobytes() == expected.tobytes()
 
 
 def test_fit_recovers_a_calibrated_model_and_holds_signs():
@@ -213,9 +213,31 @@ def test_fit_confidence_needs_two_scenes(tmp_path, repository):
     assert not (tmp_path / "m.json").exists()
 
 
+def numpy_features(evidence: confidence.Evidence) -> dict[str, np.ndarray]:
+    """Each feature as numpy's passes computed it before they were compiled into one."""
+    checked, hypotheses = evidence.verification, evidence.hypotheses
+    missed = checked.missed.astype(float) - checked.missed.min() if len(checked.missed) else np.zeros(0)
+    score = checked.score
+    if len(score) < 2:
+        margin = score.copy()
+    else:
+        top = np.sort(score)[::-1]
+        margin = score - np.where(score == top[0], top[1], top[0])
+    if len(hypotheses):
+        pairs = hypotheses.pairs
+        values = np.ascontiguousarray(evidence.similarity[pairs[:, 0], pairs[:, 1]])
+        similarity = confidence.group_sums(values, np.cumsum(hypotheses.counts)).astype(float)
+    else:
+        similarity = np.zeros(0)
+    return {"verification_in_frame": checked.overlap - checked.missed_weight * missed, "margin": margin,
+            "mean_iou": checked.mean_iou, "missed_in_frame": missed,
+            "depth_error": np.minimum(checked.depth_error, 2.0), "size": hypotheses.counts.astype(float),
+            "similarity": similarity, "observations": np.full(len(hypotheses), float(evidence.num_observations))}
+
+
 def test_the_feature_matrix_holds_each_features_own_numbers_to_the_bit():
-    """Written column by column, the matrix is the column stack of the features' arrays, bit for bit (the model's
-    logits read it), on a frame's pool with alike scores, missed counts and a NaN depth error."""
+    """The compiled features against numpy's passes, column by column into one C-ordered matrix (the model's logits
+    read it): a frame's pool with alike scores, missed counts and a NaN depth error, and the features in any order."""
     verification = verification_of([3.0, 2.5, 3.0, -0.5], [0, 1, 0, 4])
     verification.depth_error[2] = np.nan
     pool = Stack(rotations=np.tile(np.eye(3), (4, 1, 1)), translations=np.zeros((4, 3)),
@@ -223,6 +245,41 @@ def test_the_feature_matrix_holds_each_features_own_numbers_to_the_bit():
                  counts=np.array([3, 2, 3, 1]), scores=np.ones(4), conditioning=np.ones(4))
     evidence = confidence.Evidence(pool, verification, np.arange(9.0).reshape(3, 3) / 7, 3)
     names = tuple(confidence.FEATURES)
-    expected = np.column_stack([confidence.FEATURES[name][0](evidence) for name in names]).astype(float)
-    assert confidence.feature_matrix(evidence, names).tobytes() == expected.tobytes()
+    features = numpy_features(evidence)
+    expected = np.column_stack([features[name] for name in names]).astype(float)
+    matrix = confidence.feature_matrix(evidence, names)
+    assert matrix.flags.c_contiguous and matrix.tobytes() == expected.tobytes()
     assert confidence.feature_matrix(evidence, names[2:4]).tobytes() == expected[:, 2:4].copy().tobytes()
+    assert confidence.feature_matrix(evidence, names[::-3]).tobytes() == expected[:, ::-3].copy().tobytes()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_compiled_features_are_numpys_to_the_bit(dtype):
+    """Random frames against numpy's passes: scores tied (at the top too), NaN (one or several) and infinite, one
+    hypothesis or none, depth errors of NaN, infinity and exactly 2 m, hypotheses without pairs, a similarity of
+    either type with -0, NaN and infinities."""
+    rng = np.random.default_rng(21)
+    for trial in range(400):
+        count = int(rng.choice([0, 1, 2, 3, 5, 12, 40]))
+        scores = np.round(rng.normal(size=count), 1)  # ties
+        if count and trial % 3 == 0:
+            scores[rng.integers(count, size=int(rng.integers(1, 3)))] = rng.choice([np.nan, np.inf, -np.inf])
+        if count > 1 and trial % 5 == 0:
+            scores[:2] = scores.max() if not np.isnan(scores).any() else 1.0  # the top tied
+        depth = rng.choice([0.0, 0.3, 2.0, 2.5, np.inf, np.nan], size=count)
+        missed = rng.integers(0, 4, count)
+        checked = Verification(score=scores, overlap=np.round(rng.uniform(0, 4, count), 1), mean_iou=rng.random(count),
+                               missed=missed, missed_evidence=missed.astype(float), expected_evidence=missed + 1.0,
+                               depth_error=depth, missed_weight=float(rng.choice([0.0, 0.25, 1.5])))
+        counts = rng.integers(0, 6, count).astype(np.int64)
+        similarity = rng.choice([-0.0, 0.0, 0.5, 1e-3, 7.25, np.nan, np.inf], size=(6, 9)).astype(dtype)
+        pairs = np.column_stack((rng.integers(0, 6, counts.sum()), rng.integers(0, 9, counts.sum()))).astype(np.int64)
+        pool = Stack(rotations=np.zeros((count, 3, 3)), translations=np.zeros((count, 3)), pairs=pairs, counts=counts,
+                     scores=np.zeros(count), conditioning=np.zeros(count))
+        evidence = confidence.Evidence(pool, checked, similarity, int(rng.integers(0, 30)))
+        with np.errstate(invalid="ignore"):  # inf - inf
+            features = numpy_features(evidence)
+        names = tuple(rng.permutation(list(confidence.FEATURES))[: int(rng.integers(1, 9))])
+        expected = np.column_stack([features[name] for name in names] or [np.zeros((count, 0))]).astype(float)
+        got = confidence.feature_matrix(evidence, names)
+        assert got.shape == expected.shape and got.tobytes() == expected.tobytes(), names

@@ -26,7 +26,7 @@ RANSAC / PROSAC verify minimal-set poses by overlap alone (`candidate_overlap`),
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -35,7 +35,7 @@ from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique import projection
 from clipclique.projection import at_least_zero, box_iou, corners_iou, project
-from clipclique.stack import Stack, alike
+from clipclique.stack import Stack, alike_spans
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
 
 
@@ -70,41 +70,63 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
                  params: VerificationConfig = VerificationConfig(), spreads: np.ndarray | None = None) -> Verification:
     """Verification of each hypothesis of the stack. Hypotheses alike (one pose, one set of pairs: refinement
     often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
-    depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`)."""
+    depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`).
+    Three compiled calls (the distinct hypotheses and the landmarks in range, their projection, the figures): a
+    frame's numpy calls between them cost more than their arithmetic."""
     require_image(observations, "image verification")
-    poses = np.concatenate((stack.rotations.reshape(-1, 9), stack.translations), axis=1)
-    group, firsts = alike(poses, stack.pairs, stack.starts(), stack.counts)
-    if len(firsts) == len(stack):
-        return _verify_all(stack, observations, map, params, spreads)
-    checked = _verify_all(stack, observations, map, params, spreads, firsts)
-    return replace(checked, **{name: getattr(checked, name)[group] for name in _PER_HYPOTHESIS})
+    camera = observations.camera
+    centers = np.asarray(map.ellipsoids.centers, np.float64)
+    group, firsts, nearby, rotations, translations = _distinct_in_range(
+        stack.rotations, stack.translations, stack.pairs, stack.counts, centers, map.ellipsoids.axes,
+        float(camera.max_depth))
+    spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
+    boxes, visible, full_areas = projection.visible_boxes(centers[nearby], spread, rotations, translations, camera)
+    figures = _verified(group, firsts, stack.pairs, stack.counts, rotations, translations, centers, nearby, len(map),
+                        visible, boxes, full_areas, np.asarray(observations.boxes, np.float64),
+                        observations.ellipsoids.centers, map.class_ids, observations.class_ids,
+                        float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
+                        float(params.missed_full_area * camera.width * camera.height), float(params.missed_weight),
+                        float(params.missed_share_from))
+    return Verification(**dict(zip(_PER_HYPOTHESIS, figures)), missed_weight=params.missed_weight)
 
 
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")
 
 
-def _verify_all(stack: Stack, observations: Observations, map: Map, params: VerificationConfig,
-                spreads: np.ndarray | None, rows: np.ndarray | None = None) -> Verification:
-    """`verify_stack` of every hypothesis, alike or not; of the hypotheses `rows` alone (int, in that order) where
-    given, as of `stack.take(rows)`."""
-    camera = observations.camera
-    rows = np.arange(len(stack)) if rows is None else rows
-    rotations, translations = stack.rotations[rows], stack.translations[rows]
-    nearby = _within_range(map.ellipsoids, translations, camera.max_depth)
-    spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
-    boxes, visible, full_areas = projection.visible_boxes(map.ellipsoids.centers[nearby], spread, rotations,
-                                                          translations, camera)
-    obs, lm, owner, counts = _rows_pairs(np.asarray(stack.pairs, np.int64), stack.counts, rows)
-    landmark_depth = _depths_along(map.ellipsoids.centers, lm, translations, rotations, owner)
+@njit(cache=True)
+def _distinct_in_range(rotations, translations, pairs, counts, centers, axes, max_depth):
+    """The stack's hypotheses alike (`stack.alike` of each pose's twelve numbers and its pairs): (B,) each one's group
+    and (G,) each group's first; the landmarks some first's camera may see (`_in_range`, indices ascending); and the
+    firsts' rotations and translations."""
+    poses = np.empty((len(counts), 12))
+    for b in range(len(counts)):
+        for i in range(3):
+            poses[b, 9 + i] = translations[b, i]
+            for j in range(3):
+                poses[b, 3 * i + j] = rotations[b, i, j]
+    values = np.ascontiguousarray(pairs).reshape(-1)
+    group, firsts = alike_spans(poses.view(np.int64), values, 2 * (np.cumsum(counts) - counts), 2 * counts)
+    kept_rotations, kept_translations = rotations[firsts], translations[firsts]
+    return group, firsts, np.flatnonzero(_in_range(centers, axes, kept_translations, max_depth)), kept_rotations, \
+        kept_translations
+
+
+@njit(cache=True)
+def _verified(group, firsts, pairs, counts, rotations, translations, centers, nearby, map_size, visible, projected,
+              full_areas, boxes, observed_centers, class_ids, detected_classes, depth_tolerance, min_pixels,
+              explained_iou, full, missed_weight, share_from):
+    """`verify_stack`'s figures (in `_PER_HYPOTHESIS`'s order) of the hypotheses `firsts` (their poses `rotations`,
+    `translations`; the landmarks `nearby` projected under them), then given to each hypothesis of its `group`: the
+    pairs of the firsts (`_rows_pairs`), their landmarks' depths (`_depths_along`), `_figures`, the score less the
+    missed cost (`_missed_costs`)."""
+    obs, lm, owner, sizes = _rows_pairs(pairs, counts, firsts)
+    landmark_depths = _depths_along(centers, lm, translations, rotations, owner)
     overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
-        obs, lm, owner, nearby, len(map), visible, boxes, full_areas,
-        np.ascontiguousarray(observations.boxes, np.float64), observations.ellipsoids.centers[:, 2], landmark_depth,
-        np.asarray(map.class_ids, np.int64), np.asarray(observations.class_ids, np.int64), counts,
-        float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
-        float(params.missed_full_area * camera.width * camera.height))
-    return Verification(score=overlap - missed_cost(evidence, expected, params), overlap=overlap, mean_iou=mean_iou,
-                        missed=missed, missed_evidence=evidence, expected_evidence=expected, depth_error=depth_error,
-                        missed_weight=params.missed_weight)
+        obs, lm, owner, nearby, map_size, visible, projected, full_areas, boxes, observed_centers[:, 2],
+        landmark_depths, class_ids, detected_classes, sizes, depth_tolerance, min_pixels, explained_iou, full)
+    score = overlap - _missed_costs(evidence, expected, missed_weight, share_from)
+    return (score[group], overlap[group], mean_iou[group], missed[group], evidence[group], expected[group],
+            depth_error[group])
 
 
 @njit(cache=True)
@@ -171,11 +193,22 @@ def missed_cost(missed_evidence: np.ndarray, expected_evidence: np.ndarray, para
     A pose expecting few landmarks pays for each one missed; one expecting a crowd pays for the share missed,
     as if it expected missed_share_from: on a cluttered desk the right pose misses a dozen small objects
     and a wrong one looking past the desk a few, yet the share each misses tells them apart."""
-    cost = params.missed_weight * missed_evidence
-    share_from = params.missed_share_from
-    if share_from == 0:
-        return cost
-    return cost * (share_from / np.maximum(expected_evidence, share_from))
+    return _missed_costs(np.asarray(missed_evidence, np.float64), np.asarray(expected_evidence, np.float64),
+                         float(params.missed_weight), float(params.missed_share_from))
+
+
+@njit(cache=True)
+def _missed_costs(missed_evidence: np.ndarray, expected_evidence: np.ndarray, weight: float,
+                  share_from: float) -> np.ndarray:
+    """`missed_cost` as numpy computed it, weight * missed evidence, times share_from / np.maximum(expected evidence,
+    share_from) (NaN kept) unless share_from is 0."""
+    cost = np.empty(len(missed_evidence))
+    for b in range(len(cost)):
+        cost[b] = weight * missed_evidence[b]
+        if share_from != 0:
+            expected = expected_evidence[b]
+            cost[b] = cost[b] * (share_from / (expected if expected > share_from or np.isnan(expected) else share_from))
+    return cost
 
 
 @njit(cache=True)
@@ -216,27 +249,28 @@ def _group_medians(values, sizes):
     return medians
 
 
-def _within_range(ellipsoids: Ellipsoids, translations: np.ndarray, max_depth: float) -> np.ndarray:
-    """Indices of the landmarks some camera (B positions) may see: nearer than `max_depth` plus their size.
-    Of a large map only these are projected."""
-    return np.flatnonzero(_in_range(np.ascontiguousarray(ellipsoids.centers, np.float64), ellipsoids.axes.max(axis=1),
-                                    np.ascontiguousarray(translations, np.float64), max_depth))
-
-
 @njit(cache=True)
-def _in_range(centers: np.ndarray, sizes: np.ndarray, translations: np.ndarray, max_depth: float) -> np.ndarray:
-    """(N,) whether `np.linalg.norm(centers - translation) - sizes <= max_depth` for some translation: the
-    norm as numpy computes it, ((dx^2 + dy^2) + dz^2) ** 0.5, without a (B, N, 3) array of differences."""
+def _in_range(centers: np.ndarray, axes: np.ndarray, translations: np.ndarray, max_depth: float) -> np.ndarray:
+    """(N,) whether a landmark some camera (B positions) may see: `np.linalg.norm(centers - translation) -
+    axes.max(axis=1) <= max_depth` for some translation, the norm as numpy computes it, ((dx^2 + dy^2) + dz^2) ** 0.5,
+    the size NaN where an axis is, without a (B, N, 3) array of differences. Of a large map only these are projected."""
     near = np.zeros(len(centers), np.bool_)
     for n in range(len(centers)):
+        size = _larger(_larger(axes[n, 0], axes[n, 1]), axes[n, 2])
         for b in range(len(translations)):
             dx = centers[n, 0] - translations[b, 0]
             dy = centers[n, 1] - translations[b, 1]
             dz = centers[n, 2] - translations[b, 2]
-            if np.sqrt(dx * dx + dy * dy + dz * dz) - sizes[n] <= max_depth:
+            if np.sqrt(dx * dx + dy * dy + dz * dz) - size <= max_depth:
                 near[n] = True
                 break
     return near
+
+
+@njit(cache=True, inline="always")
+def _larger(a: float, b: float) -> float:
+    """np.maximum(a, b): NaN where either is."""
+    return a if a >= b or np.isnan(a) else b
 
 
 def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,

@@ -55,10 +55,10 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures_to_the_bit(
     map, truth, observations = room()
     poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
-    checked, every = verify(pool, observations, map), verification._verify_all(Stack.of(pool), observations, map,
-                                                                               VerificationConfig(), None)
+    group = np.array([0, 1, 0, 2, 1, 3])
+    checked, distinct = verify(pool, observations, map), verify([pool[i] for i in (0, 1, 3, 5)], observations, map)
     for name in verification._PER_HYPOTHESIS:
-        assert getattr(checked, name).tobytes() == getattr(every, name).tobytes()
+        assert getattr(checked, name).tobytes() == getattr(distinct, name)[group].tobytes()
     assert checked.score[0] == checked.score[2] != checked.score[5]  # one pose, fewer pairs: not alike
     assert len(np.unique(checked.score)) == 4
 
@@ -72,8 +72,8 @@ def test_the_maps_kept_spreads_verify_to_the_bit_as_the_landmarks_in_range_alone
     spreads = index_map(map, make_config("clipclique")).spreads
     for max_depth in (8.0, 3.0):  # every landmark in range; the far ones out
         seen = dataclasses.replace(observations, camera=dataclasses.replace(observations.camera, max_depth=max_depth))
-        in_range = verification._within_range(map.ellipsoids, pool.translations, max_depth)
-        assert len(in_range) == (6 if max_depth > 4 else 3)
+        in_range = verification._in_range(map.ellipsoids.centers, map.ellipsoids.axes, pool.translations, max_depth)
+        assert in_range.sum() == (6 if max_depth > 4 else 3)
         kept, alone = (verification.verify_stack(pool, seen, map, VerificationConfig(), spreads),
                        verification.verify_stack(pool, seen, map, VerificationConfig()))
         for name in verification._PER_HYPOTHESIS:
@@ -313,8 +313,15 @@ def test_the_compiled_missed_landmarks_are_the_numpy_passes_to_the_bit():
             assert ours.tobytes() == theirs.tobytes()
 
 
+def numpy_in_range(centers, axes, translations, max_depth):
+    """Whether some camera may see each landmark, as the numpy expression had it before it was compiled."""
+    distance = np.linalg.norm(centers[None] - translations[:, None], axis=2) - axes.max(axis=1)
+    return (distance <= max_depth).any(axis=0)
+
+
 def test_landmarks_in_range_are_those_numpys_norm_puts_in_range():
-    """The compiled range test against the numpy expression it replaces, with landmarks exactly at the range."""
+    """The compiled range test against the numpy expression it replaces, with landmarks exactly at the range, and
+    NaN and infinite centres and axes."""
     rng = np.random.default_rng(1)
     for trial in range(300):
         count, cameras = int(rng.integers(1, 40)), int(rng.integers(1, 8))
@@ -322,11 +329,98 @@ def test_landmarks_in_range_are_those_numpys_norm_puts_in_range():
         axes = rng.uniform(0.01, 0.5, (count, 3))
         if trial % 2:  # on a grid: distances exactly at max_depth plus the size
             centers, translations, axes = np.round(centers), np.round(translations), np.round(axes * 4) / 4
-        ellipsoids = Ellipsoids(centers, axes, np.tile(np.eye(3), (count, 1, 1)))
+        if trial % 3 == 0:
+            axes[rng.integers(count), rng.integers(3)] = rng.choice([np.nan, np.inf])
+            centers[rng.integers(count), rng.integers(3)] = rng.choice([np.nan, np.inf, -np.inf])
         max_depth = float(rng.choice([1.0, 2.0, 3.0]))
-        distance = np.linalg.norm(centers[None] - translations[:, None], axis=2) - axes.max(axis=1)
-        expected = np.flatnonzero((distance <= max_depth).any(axis=0))
-        np.testing.assert_array_equal(verification._within_range(ellipsoids, translations, max_depth), expected)
+        with np.errstate(invalid="ignore"):
+            expected = numpy_in_range(centers, axes, translations, max_depth)
+        assert verification._in_range(centers, axes, translations, max_depth).tobytes() == expected.tobytes()
+
+
+def test_the_distinct_hypotheses_and_landmarks_in_range_are_alikes_and_numpys():
+    """`_distinct_in_range` against `stack.alike` of the poses' numbers and pairs, the numpy range test of the
+    firsts' cameras, and their poses gathered: alike poses with other pairs, -0 against +0, NaN, no hypothesis."""
+    from clipclique.stack import alike
+
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        count, landmarks = int(rng.integers(0, 9)), int(rng.integers(1, 30))
+        rotations = rng.choice([-0.0, 0.0, 0.5, 1.0], size=(count, 3, 3))
+        translations = rng.choice([0.0, 1.5, -2.0, np.nan], size=(count, 3)) if trial % 4 == 0 else \
+            rng.choice([0.0, 1.5, -2.0], size=(count, 3))
+        counts = rng.integers(0, 3, count).astype(np.int64)
+        pairs = rng.integers(0, 2, (int(counts.sum()), 2)).astype(np.int64)
+        centers, axes = rng.normal(scale=3.0, size=(landmarks, 3)), rng.uniform(0.01, 0.5, (landmarks, 3))
+        group, firsts, nearby, kept_rotations, kept_translations = verification._distinct_in_range(
+            rotations, translations, pairs, counts, centers, axes, 2.0)
+        poses = np.concatenate((rotations.reshape(-1, 9), translations), axis=1)
+        expected_group, expected_firsts = alike(poses, pairs, np.cumsum(counts) - counts, counts)
+        assert group.tobytes() == expected_group.tobytes() and firsts.tobytes() == expected_firsts.tobytes()
+        with np.errstate(invalid="ignore"):
+            expected_nearby = np.flatnonzero(numpy_in_range(centers, axes, translations[firsts], 2.0))
+        assert nearby.tobytes() == expected_nearby.tobytes()
+        assert kept_rotations.tobytes() == rotations[firsts].tobytes()
+        assert kept_translations.tobytes() == translations[firsts].tobytes()
+
+
+def test_the_missed_costs_are_the_numpy_passes_to_the_bit():
+    """The compiled missed cost against numpy's: expected evidence below, at and above missed_share_from, 0, NaN and
+    infinite, share 0 (off), weights of 0."""
+    rng = np.random.default_rng(6)
+    for trial in range(200):
+        count = int(rng.integers(0, 12))
+        missed = rng.choice([0.0, 0.5, 1.0, 2.75, np.nan, np.inf], size=count)
+        expected = rng.choice([0.0, 1.0, 3.0, 4.5, 12.0, np.nan, np.inf], size=count)
+        weight, share_from = float(rng.choice([0.0, 0.25, 1.5])), float(rng.choice([0.0, 0.5, 3.0]))
+        with np.errstate(invalid="ignore"):
+            cost = weight * missed
+            numpy_cost = cost if share_from == 0 else cost * (share_from / np.maximum(expected, share_from))
+            got = verification.missed_cost(missed, expected, VerificationConfig(missed_weight=weight,
+                                                                                missed_share_from=share_from))
+        assert got.tobytes() == numpy_cost.tobytes()
+
+
+def test_the_verified_figures_are_the_kernels_passes_to_the_bit():
+    """`_verified` against its passes one by one (`_rows_pairs`, `_depths_along`, `_figures`, the numpy missed cost)
+    and each hypothesis given its group's figures: groups in any order, hypotheses without pairs, none."""
+    from clipclique.geometry import random_rotation
+
+    rng = np.random.default_rng(16)
+    for trial in range(150):
+        count, landmarks, detections = int(rng.integers(0, 7)), int(rng.integers(1, 12)), int(rng.integers(1, 8))
+        counts = rng.integers(0, 5, count).astype(np.int64)
+        pairs = np.column_stack((rng.integers(0, detections, counts.sum()),
+                                 rng.integers(0, landmarks, counts.sum()))).astype(np.int64)
+        group = np.array([int(rng.integers(0, b + 1)) for b in range(count)], np.int64)
+        group = np.unique(group, return_inverse=True)[1].astype(np.int64)  # each group numbered, some hypotheses alike
+        firsts = np.array([np.flatnonzero(group == g)[0] for g in range(group.max() + 1)] if count else [], np.int64)
+        rotations = np.array([random_rotation(rng) for _ in firsts]).reshape(-1, 3, 3)
+        translations = rng.uniform(-3, 3, (len(firsts), 3))
+        centers = rng.uniform(-3, 3, (landmarks, 3))
+        nearby = np.sort(rng.choice(landmarks, int(rng.integers(1, landmarks + 1)), replace=False))
+        corners = np.round(rng.uniform(0, 60, (len(firsts) * len(nearby) + detections, 2, 2)))
+        all_boxes = np.concatenate((corners.min(axis=1), corners.max(axis=1)), axis=1)
+        projected = all_boxes[: len(firsts) * len(nearby)].reshape(len(firsts), len(nearby), 4)
+        boxes = all_boxes[len(firsts) * len(nearby):]
+        visible = rng.random((len(firsts), len(nearby))) < 0.7
+        full_areas = box_area(projected) * rng.uniform(0.5, 3, visible.shape)
+        observed = np.round(rng.uniform(0, 3, (detections, 3)), 1)
+        class_ids, detected_classes = rng.integers(0, 3, landmarks), rng.integers(0, 3, detections)
+        weight, share_from = float(rng.choice([0.0, 0.25])), float(rng.choice([0.0, 3.0]))
+        settings = (0.5, float(rng.choice([0.0, 100.0])), 0.1, float(rng.choice([0.0, 900.0])))
+        got = verification._verified(group, firsts, pairs, counts, rotations, translations, centers, nearby, landmarks,
+                                     visible, projected, full_areas, boxes, observed, class_ids, detected_classes,
+                                     *settings, weight, share_from)
+        obs, lm, owner, sizes = verification._rows_pairs(pairs, counts, firsts)
+        depths = verification._depths_along(centers, lm, translations, rotations, owner)
+        overlap, mean_iou, depth_error, missed, evidence, expected = verification._figures(
+            obs, lm, owner, nearby, landmarks, visible, projected, full_areas, boxes, observed[:, 2], depths, class_ids,
+            detected_classes, sizes, *settings)
+        cost = weight * evidence
+        score = overlap - (cost if share_from == 0 else cost * (share_from / np.maximum(expected, share_from)))
+        for ours, theirs in zip(got, (score, overlap, mean_iou, missed, evidence, expected, depth_error), strict=True):
+            assert ours.dtype == theirs.dtype and ours.tobytes() == theirs[group].tobytes()
 
 
 def test_the_figures_in_one_call_are_the_numpy_passes_to_the_bit():

@@ -110,40 +110,84 @@ def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray
                           float(camera.height), float(camera.max_depth))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                    intrinsics: np.ndarray, width: float, height: float,
                    max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`visible_boxes` as `_projected` computes each (pose, landmark), but of V M V^T only the five entries a box
-    reads (C*11, C*13, C*22, C*23, C*33), their five chains of fused multiply-adds side by side (one chain after
-    another waits on each add), and the box only for a landmark in front within the depth range."""
+    reads (C*11, C*13, C*22, C*23, C*33). Pose by pose, each of those entries and of h for every landmark in a loop
+    of its own over the landmarks' numbers laid out landmark after landmark, which LLVM runs four landmarks at a time
+    (a loop computing all at once reads and writes too many arrays for it); then every box in one such pass
+    (`_boxes_where_visible`). numpy's error model: a division by zero would give inf, not raise, and none occurs."""
     count, size = len(rotations), len(centers)
     view = _views(rotations, intrinsics)
     kron = _kron(view).reshape(count, 9, 9)
-    boxes, visible, full_areas = np.zeros((count, size, 4)), np.zeros((count, size), np.bool_), np.zeros((count, size))
+    spread_t, centers_t = np.ascontiguousarray(spread.T), np.ascontiguousarray(centers.T)  # (9, N), (3, N)
+    entries = np.empty((6, count * size))  # C*11, C*13, C*22, C*23, C*33 and the depth of each (pose, landmark)
+    image, product = np.empty((3, size)), np.empty((5, size))
     for b in range(count):
-        for n in range(size):  # numbers only, no array view or array argument: each costs two atomic refcounts
-            x0, x1, x2 = centers[n, 0] - translations[b, 0], centers[n, 1] - translations[b, 1], \
-                centers[n, 2] - translations[b, 2]
-            h0 = fma(x2, view[b, 0, 2], fma(x1, view[b, 0, 1], fma(x0, view[b, 0, 0], 0.0)))  # h = (c - t) V^T
-            h1 = fma(x2, view[b, 1, 2], fma(x1, view[b, 1, 1], fma(x0, view[b, 1, 0], 0.0)))
-            depth = fma(x2, view[b, 2, 2], fma(x1, view[b, 2, 1], fma(x0, view[b, 2, 0], 0.0)))
-            c00 = c02 = c11 = c12 = c22 = 0.0  # five independent chains side by side, each in dgemm's order
-            for k in range(9):
-                c00 = fma(spread[n, k], kron[b, 0, k], c00)
-                c02 = fma(spread[n, k], kron[b, 2, k], c02)
-                c11 = fma(spread[n, k], kron[b, 4, k], c11)
-                c12 = fma(spread[n, k], kron[b, 5, k], c12)
-                c22 = fma(spread[n, k], kron[b, 8, k], c22)
-            c22 = c22 - depth * depth
-            if not (_in_front(c22, depth) and depth <= max_depth):
-                continue  # not visible (`_outline_box`): its box is never read
-            u0, v0, u1, v1, seen, area = _outline_box(c00 - h0 * h0, c02 - h0 * depth, c11 - h1 * h1, c12 - h1 * depth,
-                                                      c22, depth, width, height, max_depth)
-            if seen:
-                boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3] = u0, v0, u1, v1
-                visible[b, n], full_areas[b, n] = True, area
-    return boxes, visible, full_areas
+        for i in range(3):
+            _image_row_into(centers_t, translations, view, b, i, image[i])
+        for r, row in enumerate((0, 2, 4, 5, 8)):
+            _term_row_into(spread_t, kron, b, row, product[r])
+        _conic_entries_into(image, product, entries[:, b * size: (b + 1) * size])
+    return _boxes_where_visible(entries, width, height, max_depth, count, size)
+
+
+@njit(cache=True, inline="always")
+def _image_row_into(centers_t: np.ndarray, translations: np.ndarray, view: np.ndarray, b: int, i: int,
+                    out: np.ndarray) -> None:
+    """Coordinate i of h = (c - t) V^T of every landmark (centres (3, N)) under pose b, as dgemm gets it."""
+    t0, t1, t2 = translations[b, 0], translations[b, 1], translations[b, 2]
+    v0, v1, v2 = view[b, i, 0], view[b, i, 1], view[b, i, 2]
+    for n in range(centers_t.shape[1]):
+        out[n] = fma(centers_t[2, n] - t2, v2, fma(centers_t[1, n] - t1, v1, fma(centers_t[0, n] - t0, v0, 0.0)))
+
+
+@njit(cache=True, inline="always")
+def _term_row_into(spread_t: np.ndarray, kron: np.ndarray, b: int, row: int, out: np.ndarray) -> None:
+    """Entry `row` of vec(V M V^T) of every landmark (spreads (9, N)) under pose b: `_term`'s chain, nine fused
+    multiply-adds from +0 in order."""
+    k0, k1, k2, k3, k4 = kron[b, row, 0], kron[b, row, 1], kron[b, row, 2], kron[b, row, 3], kron[b, row, 4]
+    k5, k6, k7, k8 = kron[b, row, 5], kron[b, row, 6], kron[b, row, 7], kron[b, row, 8]
+    for n in range(spread_t.shape[1]):
+        total = fma(spread_t[3, n], k3, fma(spread_t[2, n], k2, fma(spread_t[1, n], k1, fma(spread_t[0, n], k0, 0.0))))
+        total = fma(spread_t[7, n], k7, fma(spread_t[6, n], k6, fma(spread_t[5, n], k5, fma(spread_t[4, n], k4, total))))
+        out[n] = fma(spread_t[8, n], k8, total)
+
+
+@njit(cache=True, inline="always")
+def _conic_entries_into(image: np.ndarray, product: np.ndarray, entries: np.ndarray) -> None:
+    """The dual conic's C*11, C*13, C*22, C*23, C*33 (V M V^T - h h^T) and the depth h3 of each landmark, from h
+    (3, N) and V M V^T's entries 11, 13, 22, 23, 33 (5, N)."""
+    for n in range(image.shape[1]):
+        h0, h1, depth = image[0, n], image[1, n], image[2, n]
+        entries[0, n], entries[1, n], entries[2, n] = product[0, n] - h0 * h0, product[1, n] - h0 * depth, \
+            product[2, n] - h1 * h1
+        entries[3, n], entries[4, n], entries[5, n] = product[3, n] - h1 * depth, product[4, n] - depth * depth, depth
+
+
+@njit(cache=True, error_model="numpy")
+def _boxes_where_visible(entries: np.ndarray, width: float, height: float, max_depth: float, count: int,
+                         size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`_outline_box` of each column of `entries` (C*11, C*13, C*22, C*23, C*33, depth; pose after pose of `size`
+    landmarks): (count, size, 4) boxes, visibility and full areas, the boxes and areas 0 where not visible. One pass
+    into flat arrays, which LLVM runs four columns at a time (numpy's error model: no branch to raise on a division
+    by zero), then the boxes laid out."""
+    total = entries.shape[1]
+    corners, visible, full_areas = np.empty((4, total)), np.empty(total, np.bool_), np.empty(total)
+    c11, c13, c22, c23, c33, depth = entries[0], entries[1], entries[2], entries[3], entries[4], entries[5]
+    u0, v0, u1, v1 = corners[0], corners[1], corners[2], corners[3]
+    for i in range(total):
+        u0[i], v0[i], u1[i], v1[i], visible[i], full_areas[i] = _outline_box(c11[i], c13[i], c22[i], c23[i], c33[i],
+                                                                             depth[i], width, height, max_depth)
+    boxes = np.zeros((total, 4))
+    for i in range(total):
+        if visible[i]:
+            boxes[i, 0], boxes[i, 1], boxes[i, 2], boxes[i, 3] = u0[i], v0[i], u1[i], v1[i]
+        else:
+            full_areas[i] = 0.0
+    return boxes.reshape(count, size, 4), visible.reshape(count, size), full_areas.reshape(count, size)
 
 
 @njit(cache=True)
@@ -213,11 +257,12 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
     return conics, boxes, visible, full_areas
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, depth: float, width: float, height: float,
                  max_depth: float) -> tuple[float, float, float, float, bool, float]:
     """One (pose, ellipsoid) of `_outline_boxes` from the conic entries a box reads (C*11, C*13, C*22, C*23, C*33)
-    and the depth: its box (u0, v0, u1, v1), whether it is visible, and the unclipped box's area."""
+    and the depth: its box (u0, v0, u1, v1), whether it is visible, and the unclipped box's area. Inlined, and without
+    a branch (`&`, not `and`): `_boxes_where_visible`'s loop runs four at a time."""
     in_front = _in_front(c33, depth)
     c33 = c33 if in_front else -1.0
     root = np.sqrt(at_least_zero(c13 * c13 - c11 * c33))
@@ -227,7 +272,7 @@ def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, dep
     full_area = (at_least_zero(u1 - u0) * at_least_zero(v1 - v0)) if in_front else 0.0
     u0, u1 = _clipped(u0, width), _clipped(u1, width)
     v0, v1 = _clipped(v0, height), _clipped(v1, height)
-    return u0, v0, u1, v1, in_front and depth <= max_depth and u1 > u0 and v1 > v0, full_area
+    return u0, v0, u1, v1, in_front & (depth <= max_depth) & (u1 > u0) & (v1 > v0), full_area
 
 
 @njit(cache=True, inline="always")

@@ -327,6 +327,37 @@ def test_visible_boxes_are_the_projections_where_visible_to_the_bit(count):
     assert count == 0 or (visible_seen > 0 and hidden_seen > 0)
 
 
+def test_the_boxes_of_flat_conic_entries_are_the_numpy_passes_to_the_bit():
+    """`_boxes_where_visible` (every box in one branch-free pass) against the numpy passes of the boxes, zeroed where
+    not visible: entries in front, behind, grazing the camera (C*33 + depth^2 = 0), at the depth limit, -0, NaN and
+    infinities, no landmark."""
+    from clipclique.projection import _boxes_where_visible
+
+    camera = Camera(CAMERA.intrinsics, 640, 480, 4.0)
+    rng = np.random.default_rng(23)
+    visible_seen = hidden_seen = 0
+    for trial in range(60):
+        count, size = int(rng.integers(1, 5)), int(rng.integers(0, 30))
+        depth = rng.choice([-1.0, 0.0, 0.05, 1.0, 2.5, 4.0, 6.0], size=(count, size))
+        conics = np.zeros((count, size, 3, 3))
+        conics[..., 2, 2] = -depth**2 + rng.choice([0.0, 0.01, 0.3, 2.0], size=(count, size))
+        for i, j in ((0, 0), (0, 2), (1, 1), (1, 2)):
+            conics[..., i, j] = rng.normal(scale=300.0, size=(count, size)) * depth + rng.normal(size=(count, size))
+        if trial % 3 == 0 and size:
+            conics[0, 0, 0, 2], conics[-1, -1, 2, 2] = rng.choice([np.nan, np.inf, -0.0]), rng.choice([np.nan, -np.inf])
+            depth[0, -1] = rng.choice([np.nan, np.inf, -0.0])
+        entries = np.stack([conics[..., 0, 0], conics[..., 0, 2], conics[..., 1, 1], conics[..., 1, 2], conics[..., 2, 2],
+                            depth]).reshape(6, -1)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            boxes, visible, full_areas = numpy_outline_boxes(conics, depth, camera)
+            got = _boxes_where_visible(entries, 640.0, 480.0, 4.0, count, size)
+        expected = (np.where(visible[..., None], boxes, 0.0), visible, np.where(visible, full_areas, 0.0))
+        for ours, theirs in zip(got, expected, strict=True):
+            assert ours.shape == theirs.shape and ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
+        visible_seen, hidden_seen = visible_seen + int(visible.sum()), hidden_seen + int((~visible).sum())
+    assert visible_seen > 100 and hidden_seen > 100
+
+
 def test_corners_iou_is_box_iou_to_the_bit():
     """`corners_iou` (the numbers of two boxes, as verification's loops hand them) against `box_iou`, byte for byte:
     overlapping, nested, disjoint, touching and empty boxes, corners of -0, NaN and infinity."""

@@ -89,10 +89,18 @@ def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES))
     """(B, F) the named features of each hypothesis (`FEATURES`), in one compiled pass (`_features`): a numpy call
     or two per feature cost a frame more than all their arithmetic."""
     checked, hypotheses, similarity = evidence.verification, evidence.hypotheses, evidence.similarity
-    return _features(np.array([_COLUMN[name] for name in names], np.int64), checked.overlap, checked.score,
+    return _features(_columns(tuple(names)), checked.overlap, checked.score,
                      checked.mean_iou, checked.missed, checked.depth_error, float(checked.missed_weight),
                      hypotheses.counts, hypotheses.pairs, similarity, similarity.dtype.type(0),
                      float(evidence.num_observations))
+
+
+@lru_cache(maxsize=16)
+def _columns(names: tuple[str, ...]) -> np.ndarray:
+    """The columns of `_features` of the named features, in order (read-only: shared by every frame of a model)."""
+    columns = np.array([_COLUMN[name] for name in names], np.int64)
+    columns.flags.writeable = False
+    return columns
 
 
 @njit(cache=True)

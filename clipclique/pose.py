@@ -126,12 +126,24 @@ def _fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray,
     summed = given.dtype == np.float64 and given.flags.c_contiguous  # else numpy's sum of its own layout
     weights = np.ascontiguousarray(given, np.float64)
     total = np.zeros(0) if summed else np.asarray(given.sum(axis=1), np.float64)
-    rotation, translation, ok, measure, decomposed = _fitted(weights, total, source, target, _lapack(), conditioned)
+    rotation, translation, ok, measure, decomposed = _fitted(weights, total, source, target, lapack_routines(),
+                                                             conditioned)
     if not decomposed.all():
         rest = np.flatnonzero(~decomposed)
         rotation[rest], translation[rest], ok[rest], measure[rest] = _fitted_by_gufuncs(
             source[rest], target[rest], given[rest])
     return rotation, translation, ok, measure
+
+
+@njit(cache=True)
+def fit_rigid_sets(weights: np.ndarray, source: np.ndarray, target: np.ndarray,
+                   lapack: tuple[int, int, int, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` of C-contiguous float64 (B, P) weights and (B, P, 3) points for compiled callers (a
+    refinement fits inside one compiled call, clipclique.refine), and (B,) whether each set was fitted here:
+    where one was not (its moments not finite, or LAPACK failed), only `fit_rigid_batch` has its bits (numpy's
+    gufuncs). `lapack`: `lapack_routines()`."""
+    rotation, translation, ok, _, decomposed = _fitted(weights, np.zeros(0), source, target, lapack, False)
+    return rotation, translation, ok, decomposed
 
 
 def _fitted_by_gufuncs(source: np.ndarray, target: np.ndarray,
@@ -158,7 +170,7 @@ def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: 
             conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_fitted_by_gufuncs` in one pass, set by set, and (B,) whether each set was decomposed here (its moments
     finite and LAPACK content; the others are left to the gufuncs). `total`: the weights' sums, empty: summed
-    here as numpy sums C-ordered rows (`numpybits.pairwise_sum`). `lapack`: `_lapack()`. `conditioned`: as
+    here as numpy sums C-ordered rows (`numpybits.pairwise_sum`). `lapack`: `lapack_routines()`. `conditioned`: as
     `_fit`. u vt as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum
     (`_translation_of`). The per-set helpers are inlined here (`inline="always"`): an array handed to a compiled
     call is counted in and out (two atomic operations), a few dozen a set."""
@@ -234,7 +246,7 @@ def _call(typingctx, address, pointers):
 
 
 @cache
-def _lapack() -> tuple[int, int, int, int, int]:
+def lapack_routines() -> tuple[int, int, int, int, int]:
     """dgesdd's and dsyevd's addresses and their optimal workspaces for a 3 x 3 matrix (`_workspace`'s sizes),
     asked once."""
     gesdd = get_cython_function_address("scipy.linalg.cython_lapack", "dgesdd")
@@ -547,19 +559,19 @@ def correspondence_weights(
     formula `weighted_sets` computes for the pipeline.
     """
     return _weights(np.ascontiguousarray(scores, np.float64), np.ascontiguousarray(observed_axes, np.float64),
-                    np.ascontiguousarray(landmark_axes, np.float64), _WEIGHT_MODES[mode])
+                    np.ascontiguousarray(landmark_axes, np.float64), WEIGHT_MODES[mode])
 
 
 @njit(cache=True)
 def _weights(scores, observed_axes, landmark_axes, mode):
-    """`correspondence_weights` with the mode as a number (`_WEIGHT_MODES`)."""
+    """`correspondence_weights` with the mode as a number (`WEIGHT_MODES`)."""
     weights = np.empty(len(scores))
     for i in range(len(scores)):
         weights[i] = _weight(scores[i], observed_axes, i, landmark_axes, i, mode)
     return weights
 
 
-_WEIGHT_MODES = {"none": 0, "sim": 1, "com": 2, "both": 3}
+WEIGHT_MODES = {"none": 0, "sim": 1, "com": 2, "both": 3}
 
 
 @njit(cache=True)
@@ -580,15 +592,15 @@ def weighted_sets(pairs: np.ndarray, scores: np.ndarray, counts: np.ndarray, pad
     centres and (B, P) `correspondence_weights` of B sets stacked one after another in `pairs` (M, 2) with
     their `scores` (M,), `counts[b]` pairs each, padded to the longest with the pair and score `pad` at weight
     0 (times its weight: numpy's `valid * weights`, the same bits). `observed`, `landmarks`: (centres, axes)."""
-    return _weighted_sets(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(scores, np.float64),
-                          np.asarray(counts, np.int64), pad[0], pad[1], float(pad[2]), *observed, *landmarks,
-                          _WEIGHT_MODES[mode])
+    return compiled_weighted_sets(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(scores, np.float64),
+                                  np.asarray(counts, np.int64), pad[0], pad[1], float(pad[2]), *observed, *landmarks,
+                                  WEIGHT_MODES[mode])
 
 
 @njit(cache=True)
-def _weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, observed_centers, observed_axes,
-                   landmark_centers, landmark_axes, mode):
-    """`weighted_sets` with the mode as a number (`_WEIGHT_MODES`)."""
+def compiled_weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, observed_centers,
+                           observed_axes, landmark_centers, landmark_axes, mode):
+    """`weighted_sets` with the mode as a number (`WEIGHT_MODES`), for compiled callers too (clipclique.refine)."""
     width = counts.max() if len(counts) else 0
     source, target = np.empty((len(counts), width, 3)), np.empty((len(counts), width, 3))
     weights = np.empty((len(counts), width))

@@ -14,8 +14,9 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
-from clipclique.pose import fit_rigid_batch, nonzero_counts, weighted_sets
-from clipclique.stack import Stack, alike
+from clipclique.pose import (WEIGHT_MODES, compiled_weighted_sets, fit_rigid_batch, fit_rigid_sets,
+                             lapack_routines, nonzero_counts, weighted_sets)
+from clipclique.stack import Stack, alike, alike_spans
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
@@ -217,8 +218,26 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
     """The stack with each hypothesis's pose and pairs replaced by the refit on its nearby pairs, as long as
     they are at least as many as it had (a refit never rests on fewer objects), `rounds` times; and (B,)
     which were replaced. The hypotheses still refining are refitted together, one batch per round (a
-    re-ranked frame has fifty). `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built
+    re-ranked frame has fifty). A room-sized map is refined in one compiled call (`_refined_densely`; a dozen
+    Python-level calls a round cost as much as the work), a larger one, or a set only numpy's gufuncs fit, round
+    by round (`_refined_by_rounds`). `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built
     only where a round needs it)."""
+    if len(stack) * len(observations) * len(map) <= DENSE_PAIRS:
+        rotations, translations, sizes, pairs, moved, fitted = _refined_densely(
+            stack.rotations, stack.translations, stack.counts, stack.pairs,
+            np.ascontiguousarray(observations.ellipsoids.centers, np.float64), observations.ellipsoids.axes,
+            np.ascontiguousarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes, similarity, radius,
+            WEIGHT_MODES[weights], rounds, lapack_routines())
+        if fitted:
+            return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes,
+                          scores=stack.scores, conditioning=stack.conditioning) if moved.any() else stack), moved
+    return _refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
+
+
+def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                       weights: PoseWeights, rounds: int, landmarks: cKDTree | None) -> tuple[Stack, np.ndarray]:
+    """`refined`, a round at a time: the nearby pairs of each by `_stacked_nearby_pairs` (a KD-tree join beyond a
+    room-sized map) and the fits by `fit_rigid_batch` (numpy's gufuncs where LAPACK cannot be called directly)."""
     rotations, translations, sizes = stack.rotations.copy(), stack.translations.copy(), stack.counts.copy()
     found = [stack.pairs]  # every round's pairs after the stack's own; `origin` indexes them all, joined
     origin, offset = stack.starts(), len(stack.pairs)
@@ -247,6 +266,52 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
     gather = np.repeat(origin - (np.cumsum(sizes) - sizes), sizes) + np.arange(sizes.sum())
     return Stack(rotations=rotations, translations=translations, pairs=np.concatenate(found)[gather], counts=sizes,
                  scores=stack.scores, conditioning=stack.conditioning), moved
+
+
+@njit(cache=True)
+def _refined_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
+                     similarity, radius, mode, rounds, lapack):
+    """`_refined_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
+    stack's arrays), which hypotheses moved, and whether every set was fitted here (False: a set's moments are
+    not finite, the whole refinement is left to `_refined_by_rounds`; nothing given is changed). Each round as
+    `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
+    `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and `_taken`."""
+    rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
+    num_obs, by_axis = len(centers), np.ascontiguousarray(landmark_centers.T)
+    found = np.empty((len(pairs) + rounds * len(sizes) * min(num_obs, len(landmark_centers)), 2), np.int64)
+    found[:len(pairs)] = pairs
+    origin, offset = np.cumsum(sizes) - sizes, len(pairs)
+    moved = np.zeros(len(sizes), np.bool_)
+    active = np.arange(len(sizes))
+    for _ in range(rounds):
+        if not len(active):
+            break
+        near, near_counts = _nearest_of_all(_moved(rotations[active], translations[active], centers), by_axis,
+                                            similarity, radius, len(active), num_obs)
+        starts, refits = _refitting(near_counts, sizes[active])
+        if not len(refits):
+            break
+        fitted, firsts = alike_spans(np.zeros((len(refits), 0), np.int64), near.reshape(-1), 2 * starts[refits],
+                                     2 * near_counts[refits])
+        firsts = refits[firsts]
+        chosen, scores = _gathered(near, starts[firsts], near_counts[firsts], similarity)
+        source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[firsts], 0, 0,
+                                                   np.float64(similarity[0, 0]), centers, axes, landmark_centers,
+                                                   landmark_axes, mode)
+        rotation, translation, ok, decomposed = fit_rigid_sets(w, source, target, lapack)
+        if not decomposed.all():
+            return rotations, translations, sizes, found[:0], moved, False
+        active = _taken(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts, offset,
+                        near_counts, rotations, translations, sizes, origin, moved)
+        found[offset: offset + len(near)] = near
+        offset += len(near)
+    joined = np.empty((sizes.sum(), 2), np.int64)
+    row = 0
+    for b in range(len(sizes)):
+        for i in range(origin[b], origin[b] + sizes[b]):
+            joined[row, 0], joined[row, 1] = found[i, 0], found[i, 1]
+            row += 1
+    return rotations, translations, sizes, joined, moved, True
 
 
 def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,

@@ -341,7 +341,7 @@ def test_lapack_called_directly_gives_the_gufuncs_bits():
     zero, rank 1 and 2, -0 entries, and a matrix whose triangles differ (the lower one is read)."""
     from numba import njit
 
-    from clipclique.pose import _eigvalsh_of, _lapack, _svd_of, _svd_views, _workspace
+    from clipclique.pose import _eigvalsh_of, _svd_of, _svd_views, _workspace, lapack_routines
 
     @njit
     def decomposed(lapack, matrices):
@@ -362,7 +362,7 @@ def test_lapack_called_directly_gives_the_gufuncs_bits():
              np.diag((2.0, 2.0, 1.0)), np.array([[1.0, 5.0, -0.0], [0.0, 1.0, 7.0], [2.0, 3.0, 1.0]])]
     matrices = np.concatenate((rng.normal(size=(3000, 3, 3)), np.einsum("bpi,bpj->bij", points, points) / 8,
                                np.array(exact)))
-    u, vt, values, failures = decomposed(_lapack(), matrices)
+    u, vt, values, failures = decomposed(lapack_routines(), matrices)
     assert failures == 0
     expected_u, _, expected_vt = np.linalg.svd(matrices)
     assert u.tobytes() == expected_u.tobytes() and vt.tobytes() == expected_vt.tobytes()

@@ -42,15 +42,15 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
                           similarity: np.ndarray, radius: float,
                           landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
     """The nearby pairs of B poses (rotations (B, 3, 3), translations (B, 3)) stacked pose after pose, and (B,)
-    how many each has: the observations moved by all of them; for a room-sized map one compiled pass tests every
-    pair and picks each pose's nearest one-to-one (`_nearest_of_all`: fifty poses of a frame against 47 landmarks,
-    35,000 pairs, tens of microseconds); beyond, a KD-tree join lists the pairs nearer than `radius`
-    (`_near_pairs`) and one compiled pass orders them and picks (a numpy pass each cost more than the work)."""
+    how many each has: the observations moved by all of them; for a room-sized map one compiled pass tests each
+    point against the landmarks within reach along one axis and picks each pose's nearest one-to-one
+    (`_nearest_of_all`: fifty poses of a frame against 47 landmarks); beyond, a KD-tree join lists the pairs nearer
+    than `radius` (`_near_pairs`) and one compiled pass picks (a numpy pass each cost more than the work)."""
     moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
     centers = map.ellipsoids.centers
     if len(moved) * len(centers) <= DENSE_PAIRS:
-        return _nearest_of_all(moved, np.ascontiguousarray(centers.T, np.float64), similarity, radius, len(rotations),
-                               len(observations))
+        return _nearest_of_all(moved, *_along_widest_axis(np.ascontiguousarray(centers, np.float64)), similarity,
+                               radius, len(rotations), len(observations))
     near = _near_pairs(moved, centers, similarity, radius, len(observations), landmarks)
     return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
 
@@ -123,83 +123,126 @@ def _near(points, p, centers, n, limit, radius):
 
 
 @njit(cache=True)
-def _nearest_of_all(points, by_axis, similarity, radius, num_poses, num_obs):
-    """`_nearest_one_to_one` of the near pairs of every point and every centre (by_axis: (3, N), the centres'
-    x, y and z), pose after pose: each point's squared distances to all centres in one branch-free loop
-    (vectorized), the near pairs listed by observation, then landmark, and taken nearest first
-    (`_take_nearest`), with no list of all poses' pairs in between. The distance as `_near` computes it."""
-    size = by_axis.shape[1]
-    distance, obs, lm = np.empty(num_obs * size), np.empty(num_obs * size, np.int64), np.empty(num_obs * size, np.int64)
-    order, squared = np.empty(num_obs * size, np.int64), np.empty(size)
+def _along_widest_axis(centers):
+    """The map's centres as `_nearest_of_all` reads them: (3, N') their x, y and z in order along the axis they spread
+    most on (finite ones), that axis, and (N',) the landmark of each column; a centre without a place along it (NaN)
+    is near nothing and left out."""
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for n in range(len(centers)):
+        for i in range(3):
+            if np.isfinite(centers[n, i]):
+                low[i], high[i] = min(low[i], centers[n, i]), max(high[i], centers[n, i])
+    axis = np.argmax(high - low)
+    placed = np.flatnonzero(~np.isnan(centers[:, axis]))
+    order = placed[np.argsort(centers[placed, axis])]
+    return np.ascontiguousarray(centers[order].T), axis, order
+
+
+@njit(cache=True)
+def _nearest_of_all(points, by_axis, axis, landmark_of, similarity, radius, num_poses, num_obs):
+    """`_nearest_one_to_one` of the near pairs of every point and every centre, pose after pose, with no list of all
+    poses' pairs in between. by_axis, axis, landmark_of: `_along_widest_axis`. Each point meets only the centres
+    whose coordinate along `axis` differs from its own by at most a hair beyond `_reach` (a fifth of a desk's,
+    found by bisection): that difference is the very one the distance squares, and one beyond it squares past
+    `_reach` squared whatever the rounding, so no near pair is missed. The distance as `_near` computes it."""
+    size = len(landmark_of)
+    distance, lm = np.empty(num_obs * size), np.empty(num_obs * size, np.int64)
+    firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
     pairs = np.empty((num_poses * min(num_obs, size), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
-    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(size, -1)
-    xs, ys, zs = by_axis[0], by_axis[1], by_axis[2]
-    count, limit = 0, _reach(radius) ** 2
+    landmark_used_by = np.full(similarity.shape[1], -1)
+    keys, limit = by_axis[axis], _reach(radius) ** 2
+    bound, count = _reach(_reach(radius)), 0  # a hair beyond reach: a difference past it squares past `limit`
     for b in range(num_poses):
         near = 0
         for k in range(num_obs):
             x, y, z = points[b * num_obs + k, 0], points[b * num_obs + k, 1], points[b * num_obs + k, 2]
-            for n in range(size):
-                dx = x - xs[n]
-                dy = y - ys[n]
-                dz = z - zs[n]
-                squared[n] = dx * dx + dy * dy + dz * dz
-            for n in range(size):
-                if squared[n] <= limit:
-                    d = np.sqrt(squared[n])
+            key = points[b * num_obs + k, axis]
+            low, high = 0, size  # the first centre not beyond `bound` below the point (NaN: none is)
+            while low < high:
+                middle = (low + high) >> 1
+                if key - keys[middle] > bound:
+                    low = middle + 1
+                else:
+                    high = middle
+            firsts[k] = near
+            for i in range(low, size):
+                if not key - keys[i] >= -bound:
+                    break
+                dx, dy, dz = x - by_axis[0, i], y - by_axis[1, i], z - by_axis[2, i]
+                squared = dx * dx + dy * dy + dz * dz
+                if squared <= limit:
+                    d, n = np.sqrt(squared), landmark_of[i]
                     if d < radius and similarity[k, n] > 0:
-                        distance[near], obs[near], lm[near] = d, k, n
+                        distance[near], lm[near] = d, n
                         near += 1
-        taken = _take_nearest(distance, obs, lm, 0, near, b, order, obs_used_by, landmark_used_by, pairs, count)
+            ends[k] = near
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
         per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose
 
 
-SORTED_BY_INSERTION = 64  # a pose's near pairs up to this many are ordered by insertion (a frame's: a few dozen)
-
-
 @njit(cache=True)
 def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks):
-    """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties kept in that order)
-    and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took
+    """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties by observation, then
+    landmark) and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took
     (`_take_nearest` per pose)."""
     first = np.searchsorted(pose, np.arange(num_poses + 1))
-    order = np.empty(len(pose), np.int64)
+    firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
     pairs = np.empty((len(pose), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
-    obs_used_by, landmark_used_by = np.full(num_obs, -1), np.full(num_landmarks, -1)
+    landmark_used_by = np.full(num_landmarks, -1)
     count = 0
     for b in range(num_poses):
-        taken = _take_nearest(distance, obs, lm, first[b], first[b + 1], b, order, obs_used_by, landmark_used_by,
-                              pairs, count)
+        firsts[:], ends[:] = 0, 0
+        for i in range(first[b], first[b + 1]):
+            if ends[obs[i]] == 0:
+                firsts[obs[i]] = i
+            ends[obs[i]] = i + 1
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
         per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose
 
 
 @njit(cache=True, inline="always")
-def _take_nearest(distance, obs, lm, start, stop, pose, order, obs_used_by, landmark_used_by, pairs, count):
-    """Pose `pose`'s near pairs [start, stop) of distance, obs, lm (by observation, then landmark) nearest first,
-    ties in that order (a stable sort: insertion, a merge sort beyond SORTED_BY_INSERTION), each taken where
-    neither side is used by that pose yet (`obs_used_by`, `landmark_used_by`: the last pose that used each),
-    written to `pairs` from row `count`; the rows written up to. Inlined into its callers, as `_near`: its eleven
-    arrays are not counted in and out per pose."""
-    if stop - start <= SORTED_BY_INSERTION:
-        for i in range(start, stop):
-            j = i
-            while j > start and distance[order[j - 1]] > distance[i]:
-                order[j] = order[j - 1]
-                j -= 1
-            order[j] = i
-    else:
-        order[start: stop] = start + np.argsort(distance[start: stop], kind="mergesort")
+def _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, pose, landmark_used_by, pairs, count):
+    """Pose `pose`'s near pairs taken nearest first, ties by observation, then landmark, each where neither side is
+    used yet, written to `pairs` from row `count`; the rows written up to. Observation k's near pairs are
+    distance[firsts[k]: ends[k]] and lm[...], in any order (`landmark_used_by`: the last pose that used each
+    landmark; nearest, nearest_landmark: scratch). The greedy over all pairs sorted, without the sort: it takes
+    the least pair whose sides are both free, which is the least of each free observation's nearest free
+    landmark; after a take only the observations whose nearest was that landmark look again. Inlined into its
+    callers, as `_near`: its arrays are not counted in and out per pose."""
+    for k in range(len(firsts)):
+        nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose, landmark_used_by)
+    while True:
+        best, least = -1, np.inf
+        for k in range(len(firsts)):
+            if nearest[k] < least:  # a tie keeps the first observation
+                best, least = k, nearest[k]
+        if best < 0:
+            return count
+        taken = nearest_landmark[best]
+        landmark_used_by[taken], nearest[best] = pose, np.inf
+        pairs[count, 0], pairs[count, 1] = best, taken
+        count += 1
+        for k in range(len(firsts)):
+            if nearest_landmark[k] == taken and nearest[k] < np.inf:
+                nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose,
+                                                                landmark_used_by)
+
+
+@njit(cache=True, inline="always")
+def _nearest_free(distance, lm, start, stop, pose, landmark_used_by):
+    """The least (distance, landmark) of distance[start: stop] and lm[...] whose landmark `pose` has not used;
+    (inf, -1) where none is (a near pair's distance is below the radius, finite)."""
+    least, landmark = np.inf, -1
     for i in range(start, stop):
-        k, n = obs[order[i]], lm[order[i]]
-        if obs_used_by[k] != pose and landmark_used_by[n] != pose:
-            obs_used_by[k], landmark_used_by[n] = pose, pose
-            pairs[count, 0], pairs[count, 1] = k, n
-            count += 1
-    return count
+        if (distance[i] < least or (distance[i] == least and lm[i] < landmark)) and landmark_used_by[lm[i]] != pose:
+            least, landmark = distance[i], lm[i]
+    return least, landmark
 
 
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
@@ -277,7 +320,7 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
     `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
     `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and `_taken`."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
-    num_obs, by_axis = len(centers), np.ascontiguousarray(landmark_centers.T)
+    num_obs, (by_axis, axis, landmark_of) = len(centers), _along_widest_axis(landmark_centers)
     found = np.empty((len(pairs) + rounds * len(sizes) * min(num_obs, len(landmark_centers)), 2), np.int64)
     found[:len(pairs)] = pairs
     origin, offset = np.cumsum(sizes) - sizes, len(pairs)
@@ -286,8 +329,8 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
     for _ in range(rounds):
         if not len(active):
             break
-        near, near_counts = _nearest_of_all(_moved(rotations[active], translations[active], centers), by_axis,
-                                            similarity, radius, len(active), num_obs)
+        near, near_counts = _nearest_of_all(_moved(rotations[active], translations[active], centers), by_axis, axis,
+                                            landmark_of, similarity, radius, len(active), num_obs)
         starts, refits = _refitting(near_counts, sizes[active])
         if not len(refits):
             break

@@ -4,8 +4,8 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
 from clipclique.pose import (MIN_SPREAD_M, RELATIVE_SPREAD, DegeneratePoseError, correspondence_weights, fit_rigid,
-                             fit_rigid_batch, fit_rigid_conditioned, fit_similarity, nonzero_counts,
-                             weighted_sets)
+                             fit_rigid_batch, fit_rigid_conditioned, fit_rigid_sets, fit_similarity, lapack_routines,
+                             nonzero_counts, weighted_sets)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -336,12 +336,35 @@ def test_sets_that_are_not_finite_fit_as_the_gufunc_passes_do():
         _same_bits([a[:1] for a in fitted], _numpy_fit(source[:1], target[:1], weights[:1]))
 
 
+def test_the_compiled_callers_fit_is_fit_rigid_batch_where_it_says_it_fitted():
+    """`fit_rigid_sets` (refinement's fit inside its compiled call) against `fit_rigid_batch`: every width, no set,
+    rows and zero weights to the bit; the sets that are not finite (NaN, inf, overflowing moments) flagged as not
+    fitted, the others beside them still `fit_rigid_batch`'s."""
+    rng = np.random.default_rng(23)
+    for count, width in [(0, 3), (1, 1), (3, 7), (5, 8), (4, 13), (2, 40)]:
+        source, target, weights = _sets(rng, count, width)
+        if count > 2:
+            source[0] = np.outer(rng.normal(size=width), (1.0, 2.0, -0.5))
+            weights[1] = 0.0
+        rotation, translation, ok, fitted = fit_rigid_sets(weights, source, target, lapack_routines())
+        assert fitted.all() and fitted.shape == (count,)
+        _same_bits((rotation, translation, ok), fit_rigid_batch(source, target, weights))
+    source, target, weights = _sets(rng, 5, 6)
+    source[1, 0, 0], target[2, -1, 2], weights[3, 0] = np.nan, np.inf, np.inf
+    source[4] *= 1e160
+    with np.errstate(all="ignore"):
+        rotation, translation, ok, fitted = fit_rigid_sets(weights, source, target, lapack_routines())
+        expected = fit_rigid_batch(source, target, weights)
+    assert fitted.tolist() == [True, False, False, False, False]
+    _same_bits((rotation[:1], translation[:1], ok[:1]), [a[:1] for a in expected])
+
+
 def test_lapack_called_directly_gives_the_gufuncs_bits():
     """dgesdd and dsyevd from compiled code (scipy's LAPACK) against numpy's gufuncs: random, covariance-like,
     zero, rank 1 and 2, -0 entries, and a matrix whose triangles differ (the lower one is read)."""
     from numba import njit
 
-    from clipclique.pose import _eigvalsh_of, _svd_of, _svd_views, _workspace, lapack_routines
+    from clipclique.pose import _eigvalsh_of, _svd_of, _svd_views, _workspace
 
     @njit
     def decomposed(lapack, matrices):

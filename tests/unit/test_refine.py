@@ -365,3 +365,11 @@ def test_the_bisected_pairs_are_every_pair_tested_to_the_bit():
                 assert pairs.tobytes() == dense_nearby_pairs(pose, observations, map, similarity, radius).tobytes()
                 found += len(pairs)
     assert found > 150
+
+
+def test_the_centres_are_ordered_along_their_widest_finite_spread_without_nan():
+    centers = np.array([[0.0, 5.0, 1.0], [0.2, -1.0, np.inf], [np.nan, 2.0, 0.5], [0.1, np.nan, 0.0], [0.3, 0.0, 4.0]])
+    by_axis, axis, landmark_of = refine_module._along_widest_axis(centers)
+    assert axis == 1 and landmark_of.tolist() == [1, 4, 2, 0]  # z's inf is no spread; landmark 3 has no y
+    assert by_axis.flags.c_contiguous and by_axis.tobytes() == centers[landmark_of].T.tobytes()
+    assert refine_module._along_widest_axis(np.zeros((0, 3)))[0].shape == (3, 0)

@@ -315,12 +315,12 @@ def _query_rows(centers: np.ndarray, d_adj: float, class_ids: np.ndarray, kernel
                 kernel_columns: np.ndarray, kernel_values: np.ndarray, num_classes: int,
                 walk_length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`query_histograms`' rows (pointers, bins, values): the graph, the soft labels, the walks and their
-    normalization in one compiled call (five calls' dispatch cost more than a frame's walks)."""
+    normalization in one compiled call (five calls' dispatch cost more than a frame's walks), each row normalized
+    as it is written (`_walk_histograms`' `normalized`)."""
     neighbour_pointers, neighbour_indices = _neighbours_within(centers, d_adj)
     label_pointers, label_bins, label_values = _kernel_rows(class_ids, kernel_pointers, kernel_columns, kernel_values)
-    pointers, bins, values = _walk_histograms(neighbour_pointers, neighbour_indices, label_pointers, label_bins,
-                                              label_values, num_classes, walk_length)
-    return _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
+    return _walk_histograms(neighbour_pointers, neighbour_indices, label_pointers, label_bins, label_values,
+                            num_classes, walk_length, True)
 
 
 def landmark_histograms(

@@ -19,6 +19,7 @@ from clipclique.config import MatchingConfig
 
 FLAT = 1e-12  # a row whose largest gap is at most this has no gap at all
 PARTIAL_SORT_FROM = 1024  # landmarks: from here a row's best are picked by partition before sorting
+SELECTED_UP_TO = 64  # m: up to here a row's best are picked by insertion into a sorted list (compiled), not argsort
 
 
 def match(similarity: np.ndarray, config: MatchingConfig,
@@ -39,9 +40,26 @@ def match(similarity: np.ndarray, config: MatchingConfig,
     else:
         candidates = mutual_best_matches(similarity)
     added = np.zeros(len(candidates), bool) if added is None else added
-    scores = similarity[candidates[:, 0], candidates[:, 1]]
-    keep = scores > config.min_similarity
-    return candidates[keep], scores[keep], added[keep]
+    return _above(similarity, candidates, added, float(config.min_similarity))
+
+
+@njit(cache=True)
+def _above(similarity: np.ndarray, candidates: np.ndarray, added: np.ndarray,
+           floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The `candidates` (C, 2) whose similarity is above `floor` (NaN is not), their scores, and their `added`
+    flags: one compiled pass where the gather, the comparison and three selections were seven numpy calls."""
+    keep = np.empty(len(candidates), np.bool_)
+    for c in range(len(candidates)):
+        keep[c] = similarity[candidates[c, 0], candidates[c, 1]] > floor
+    count = keep.sum()
+    kept, scores, flags = np.empty((count, 2), np.int64), np.empty(count, similarity.dtype), np.empty(count, np.bool_)
+    at = 0
+    for c in range(len(candidates)):
+        if keep[c]:
+            kept[at, 0], kept[at, 1] = candidates[c, 0], candidates[c, 1]
+            scores[at], flags[at] = similarity[candidates[c, 0], candidates[c, 1]], added[c]
+            at += 1
+    return kept, scores, flags
 
 
 def cap(candidates: np.ndarray, scores: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -80,6 +98,8 @@ def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
     m = min(m, num_landmarks)
     if num_obs == 0 or m == 0:
         return np.zeros((0, 2), dtype=np.int64)
+    if m <= SELECTED_UP_TO:
+        return _adaptive_few(similarity, m)
     return _before_largest_gap(similarity, np.ascontiguousarray(_best_first(similarity, m)))  # one compiled layout: one cache load
 
 
@@ -230,6 +250,36 @@ def _before_largest_gap(similarity: np.ndarray, order: np.ndarray) -> np.ndarray
             pairs[at, 0], pairs[at, 1] = i, order[i, j]
             at += 1
     return pairs
+
+
+@njit(cache=True)
+def _adaptive_few(similarity: np.ndarray, m: int) -> np.ndarray:
+    """`adaptive_matches` for 1 <= m <= SELECTED_UP_TO in one compiled call: numpy's stable argsort of a
+    frame's (K, N) took most of the matching stage."""
+    return _before_largest_gap(similarity, _best_few(similarity, m))
+
+
+@njit(cache=True)
+def _best_few(similarity: np.ndarray, m: int) -> np.ndarray:
+    """`_best_first(similarity, m)` (1 <= m <= N) by inserting each landmark, in index order, into its row's sorted
+    list of the m best so far: `_ranks_before` is a total order (value, NaN last, then index), so this is the
+    stable argsort's order, at most m comparisons a landmark."""
+    num_obs, num_landmarks = similarity.shape
+    order = np.empty((num_obs, m), np.int64)
+    for i in range(num_obs):
+        row, best = similarity[i], order[i]
+        count = 0
+        for landmark in range(num_landmarks):
+            value = row[landmark]
+            if count == m and not _ranks_before(value, landmark, row[best[m - 1]], best[m - 1]):
+                continue
+            place = min(count, m - 1)  # a full list drops its last
+            while place > 0 and _ranks_before(value, landmark, row[best[place - 1]], best[place - 1]):
+                best[place] = best[place - 1]
+                place -= 1
+            best[place] = landmark
+            count = min(count + 1, m)
+    return order
 
 
 def _starts(values: np.ndarray, count: int) -> np.ndarray:

@@ -92,6 +92,17 @@ def _with_class_term_into(histogram: np.ndarray, classes: np.ndarray, rows: np.n
 
 
 def fuse(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> np.ndarray:
-    """S = alpha * S_clip + (1 - alpha) * S_sh."""
-    return alpha * clip + (1.0 - alpha) * histogram
+    """S = alpha * S_clip + (1 - alpha) * S_sh, written over `clip` (K, N) and returned: numpy's operations in
+    numpy's order, (alpha * clip) + ((1 - alpha) * histogram), in one compiled pass instead of three (K, N)
+    temporaries."""
+    _fuse_into(clip, np.asarray(histogram, np.float64), float(alpha))
+    return clip
+
+
+@njit(cache=True)
+def _fuse_into(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> None:
+    rest = 1.0 - alpha
+    for i in range(clip.shape[0]):
+        for j in range(clip.shape[1]):
+            clip[i, j] = alpha * clip[i, j] + rest * histogram[i, j]
 

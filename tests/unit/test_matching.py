@@ -3,8 +3,8 @@ import pytest
 import scipy.sparse as sp
 
 from clipclique.config import MatchingConfig
-from clipclique.matching import (FLAT, Lookalikes, adaptive_matches, best_rows, cap, class_groups, knn_matches, match,
-                                 mutual_best_matches, top_m, with_lookalikes)
+from clipclique.matching import (FLAT, SELECTED_UP_TO, Lookalikes, adaptive_matches, best_rows, cap, class_groups,
+                                 knn_matches, match, mutual_best_matches, top_m, with_lookalikes)
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -126,6 +126,52 @@ def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
         count = np.where(gaps.max(axis=1, initial=-np.inf) > FLAT, gaps.argmax(axis=1) + 1, m) if m > 1 else np.ones(len(order), int)
         expected = [(i, order[i, j]) for i in range(len(order)) for j in range(count[i])]
         np.testing.assert_array_equal(adaptive_matches(similarity, m), np.array(expected).reshape(-1, 2))
+
+
+def test_adaptive_selection_of_few_is_the_stable_argsorts_order_on_special_values():
+    """Up to SELECTED_UP_TO best per row are picked by a compiled insertion: the same pairs in the same order as the
+    gap rule on numpy's stable argsort, with 0 and -0 tied, infinities, NaN (last) and every m from 1 to the row."""
+    rng = np.random.default_rng(5)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, 0.5, 0.25, -1.0])
+    for trial in range(200):
+        shape = (int(rng.integers(1, 9)), int(rng.integers(1, 90)))
+        similarity = rng.choice(special, shape) if trial % 2 else np.round(rng.random(shape), 1)
+        most = min(shape[1], SELECTED_UP_TO)
+        for m in {1, min(2, most), most, int(rng.integers(1, most + 1))}:
+            order = np.argsort(-similarity, axis=1, kind="stable")[:, :m]
+            with np.errstate(invalid="ignore"):
+                gaps = -np.diff(np.take_along_axis(similarity, order, axis=1), axis=1)
+            undefined = np.isnan(gaps).any(axis=1)
+            count = (np.where((gaps.max(axis=1, initial=-np.inf) > FLAT) & ~undefined, gaps.argmax(axis=1) + 1, m)
+                     if m > 1 else np.ones(len(order), int))
+            expected = [(i, order[i, j]) for i in range(len(order)) for j in range(count[i])]
+            got = adaptive_matches(similarity, m)
+            np.testing.assert_array_equal(got, np.array(expected).reshape(-1, 2))
+            assert got.dtype == np.int64
+
+
+def test_the_similarity_floor_is_numpys_gather_and_selection():
+    """`match`'s floor (one compiled pass) against the numpy gather, comparison and selections: NaN, -0 and
+    floors at a value, every strategy, and no candidates at all."""
+    rng = np.random.default_rng(6)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 0.5, 0.25, -0.5])
+    for trial in range(100):
+        similarity = rng.choice(special, (int(rng.integers(0, 6)), int(rng.integers(1, 12))))
+        for strategy, floor in (("adaptive", 0.0), ("knn", 0.25), ("one_to_one", -1.0), ("knn", -0.0)):
+            config = MatchingConfig(strategy=strategy, min_similarity=floor, k=3, top_m_fraction=0.5)
+            with np.errstate(invalid="ignore"):
+                candidates = {"adaptive": adaptive_matches(similarity, top_m(similarity.shape[1], 0.5)),
+                              "knn": knn_matches(similarity, 3),
+                              "one_to_one": mutual_best_matches(similarity)}[strategy]
+            scores = similarity[candidates[:, 0], candidates[:, 1]]
+            with np.errstate(invalid="ignore"):
+                keep = scores > floor
+            got = match(similarity, config)
+            np.testing.assert_array_equal(got[0], candidates[keep])
+            assert got[0].dtype == np.int64 and got[0].shape == (keep.sum(), 2)
+            assert np.array_equal(got[1].view(np.int64), scores[keep].view(np.int64))
+            np.testing.assert_array_equal(got[2], np.zeros(keep.sum(), bool))
+            assert got[2].dtype == np.bool_
 
 
 def _reference_with_lookalikes(candidates, similarity, kernel, landmark_classes, observed_classes, observed_axes,

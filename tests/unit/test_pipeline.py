@@ -8,7 +8,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
-from clipclique.pipeline import _objects, _stacked, _without_added, index_map, localize
+from clipclique.pipeline import _objects, _stacked, _valid, _without_added, index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations
 
@@ -109,6 +109,25 @@ def test_bad_observation_classes_and_embedding_sizes_are_user_errors():
         with pytest.raises(ClipcliqueError, match=rf"observation {row} has a centre, axes or rotation that is not finite "
                                                   rf"\(1 of {len(observations)} observations\)"):
             localize(dataclasses.replace(observations, ellipsoids=shapes), index, config)
+
+
+def test_the_compiled_observation_check_is_the_numpy_one():
+    """`_valid` (the check's fast path) against the numpy tests it replaced: ids below 0 or past the classes, NaN and
+    infinities in any part, huge finite values, no observations, and a strided (non-contiguous) part."""
+    rng = np.random.default_rng(4)
+    special = np.array([np.nan, np.inf, -np.inf, 1e308, -0.0])
+    for trial in range(300):
+        k, classes = int(rng.integers(0, 6)), int(rng.integers(1, 9))
+        ids = rng.integers(-1 if trial % 3 == 0 else 0, classes + (trial % 5 == 0), k)
+        parts = [rng.random((k, 3)), rng.random((k, 3)), rng.random((k, 3, 3))]
+        if k and trial % 2:
+            part = parts[trial % 3]
+            part.reshape(-1)[rng.integers(0, part.size)] = rng.choice(special)
+        if trial % 7 == 0:
+            parts[0] = np.asfortranarray(parts[0])
+        expected = ((not len(ids) or (ids.min() >= 0 and ids.max() < classes))
+                    and all(np.isfinite(part).all() for part in parts))
+        assert _valid(ids, classes, *parts) == expected
 
 
 def test_the_pipeline_is_deterministic():

@@ -68,3 +68,21 @@ def test_the_class_term_is_the_numpy_formula_to_the_bit_written_over_the_histogr
             expected = weight * term + (1.0 - weight) * histogram
             got = with_class_term(histogram, term, np.arange(observations), weight)
             assert np.array_equal(got.view(np.int64), expected.view(np.int64))
+
+
+def test_fuse_is_the_numpy_formula_to_the_bit_written_over_clip():
+    """The compiled `fuse` against `alpha * clip + (1 - alpha) * histogram` on hand-made values (0, -0, NaN,
+    infinities) and random ones, alphas 0, 1 and between, and no observations or no landmarks: the same bits but
+    for which of two NaN a sum keeps (numpy's own loops differ there, by array length)."""
+    rng = np.random.default_rng(3)
+    special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, 0.5, 1e-300, -1.0])
+    for alpha in (0.0, 1.0, 0.7, 1 / 3):
+        for shape in ((6, 9), (0, 9), (4, 0), (30, 200)):
+            pick = (lambda: rng.choice(special, shape)) if shape[1] < 100 else (lambda: rng.random(shape))
+            clip, histogram = pick(), pick()
+            with np.errstate(invalid="ignore"):
+                expected = alpha * clip + (1.0 - alpha) * histogram
+            got = fuse(clip, histogram, alpha)
+            both = np.isnan(got) & np.isnan(expected)
+            assert got is clip and np.array_equal(got.view(np.int64)[~both], expected.view(np.int64)[~both])
+            np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))

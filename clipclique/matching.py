@@ -306,7 +306,7 @@ def _apart(observed: np.ndarray, mapped: np.ndarray, ratio: float) -> bool:
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _best_of(similarity_row, landmarks, observed_axes, landmark_axes, ratio, best):
     """How many of `landmarks` are of a size with the observation's, their best (at most len(best)) put into
     `best` in rank order: an insertion into a short sorted list."""
@@ -320,7 +320,8 @@ def _best_of(similarity_row, landmarks, observed_axes, landmark_axes, ratio, bes
                                           similarity_row[best[place - 1]], best[place - 1]):
             place -= 1
         if place < len(best):
-            best[place + 1:min(count + 1, len(best))] = best[place:min(count, len(best) - 1)].copy()
+            for j in range(min(count, len(best) - 1), place, -1):  # shifted in place: a copy was an allocation
+                best[j] = best[j - 1]
             best[place] = landmark
             count = min(count + 1, len(best))
     return count, found
@@ -350,12 +351,13 @@ def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, l
     merged = np.empty((capacity.sum(), 2), np.int64)
     flags = np.empty(capacity.sum(), np.bool_)
     best = np.empty(per_class, np.int64)
+    widest = capacity.max() if num_obs else 0  # one row's scratch, made once: a row's three were most of the time
+    columns, added, order = np.empty(widest, np.int64), np.empty(widest, np.bool_), np.empty(widest, np.int64)
     size = found = 0
     for i in range(num_obs):
-        columns = np.empty(capacity[i], np.int64)
-        added = np.zeros(capacity[i], np.bool_)
         count = row_starts[i + 1] - row_starts[i]
-        columns[:count] = by_row[row_starts[i]:row_starts[i + 1]]
+        for j in range(count):
+            columns[j], added[j] = by_row[row_starts[i] + j], False
         own = observed_classes[i]
         for group in lookalikes[lookalike_starts[own]:lookalike_starts[own + 1]]:
             kept, eligible = _best_of(similarity[i], landmarks[starts[group]:starts[group + 1]], observed_axes[i],
@@ -364,8 +366,7 @@ def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, l
             added[count:count + kept] = True
             count += kept
             found += eligible
-        order = np.empty(count, np.int64)  # an insertion sort by rank: stable, and a row is short
-        for j in range(count):
+        for j in range(count):  # an insertion sort by rank: stable, and a row is short
             place = j
             while place > 0 and _ranks_before(similarity[i, columns[j]], columns[j],
                                               similarity[i, columns[order[place - 1]]], columns[order[place - 1]]):
@@ -373,7 +374,7 @@ def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, l
                 place -= 1
             order[place] = j
         first = size
-        for j in order:
+        for j in order[:count]:
             if size > first and merged[size - 1, 1] == columns[j]:  # the same pair twice: added only if both were
                 flags[size - 1] &= added[j]
                 continue

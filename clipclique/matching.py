@@ -168,7 +168,8 @@ def knn_matches(similarity: np.ndarray, k: int) -> np.ndarray:
     k = min(k, similarity.shape[1])
     if similarity.shape[0] == 0 or k == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    order = _best_first(similarity, k)
+    few = k <= SELECTED_UP_TO and not _partial(similarity.shape[1], k)  # by insertion, as adaptive matching's
+    order = _best_few(similarity, k) if few else _best_first(similarity, k)
     return _pairs(order, np.ones(order.shape, dtype=bool))
 
 

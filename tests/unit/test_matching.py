@@ -130,7 +130,7 @@ def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
 
 def test_adaptive_selection_of_few_is_the_stable_argsorts_order_on_special_values():
     """Up to SELECTED_UP_TO best per row are picked by a compiled insertion: the same pairs in the same order as the
-    gap rule on numpy's stable argsort, with 0 and -0 tied, infinities, NaN (last) and every m from 1 to the row."""
+    gap rule (and kNN) on numpy's stable argsort, with 0 and -0 tied, infinities, NaN (last) and every m from 1 to the row."""
     rng = np.random.default_rng(5)
     special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, 0.5, 0.25, -1.0])
     for trial in range(200):
@@ -148,6 +148,9 @@ def test_adaptive_selection_of_few_is_the_stable_argsorts_order_on_special_value
             got = adaptive_matches(similarity, m)
             np.testing.assert_array_equal(got, np.array(expected).reshape(-1, 2))
             assert got.dtype == np.int64
+            nearest = knn_matches(similarity, m)
+            np.testing.assert_array_equal(nearest, np.column_stack((np.repeat(np.arange(len(order)), m), order.ravel())))
+            assert nearest.dtype == np.int64
 
 
 def test_the_similarity_floor_is_numpys_gather_and_selection():

@@ -352,7 +352,7 @@ def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, l
     merged = np.empty((capacity.sum(), 2), np.int64)
     flags = np.empty(capacity.sum(), np.bool_)
     best = np.empty(per_class, np.int64)
-    widest = capacity.max() if num_obs else 0  # one row's scratch, made once: a row's three were most of the time
+    widest = capacity.max() if num_obs else 0  # one row's scratch, made once (three allocations a row before)
     columns, added, order = np.empty(widest, np.int64), np.empty(widest, np.bool_), np.empty(widest, np.int64)
     size = found = 0
     for i in range(num_obs):

@@ -294,7 +294,7 @@ def _check_observations(observations: Observations, map: Map) -> None:
 @njit(cache=True)
 def _valid(class_ids: np.ndarray, num_classes: int, centers: np.ndarray, axes: np.ndarray, rotations: np.ndarray) -> bool:
     """Whether `_check_observations` passes: one compiled pass where its min, max and three finite tests were
-    some ten numpy calls a query; it explains a failure."""
+    some ten numpy calls a query (its numpy code then only explains a failure)."""
     for class_id in class_ids:
         if class_id < 0 or class_id >= num_classes:
             return False

@@ -92,7 +92,7 @@ def _with_class_term_into(histogram: np.ndarray, classes: np.ndarray, rows: np.n
 
 
 def fuse(clip: np.ndarray, histogram: np.ndarray, alpha: float) -> np.ndarray:
-    """S = alpha * S_clip + (1 - alpha) * S_sh, written over `clip` (K, N) and returned: numpy's operations in
+    """S = alpha * S_clip + (1 - alpha) * S_sh, written over `clip` (K, N) float64 and returned: numpy's operations in
     numpy's order, (alpha * clip) + ((1 - alpha) * histogram), in one compiled pass instead of three (K, N)
     temporaries."""
     _fuse_into(clip, np.asarray(histogram, np.float64), float(alpha))

@@ -319,6 +319,39 @@ def test_match_adds_lookalikes_only_when_asked_and_only_to_adaptive_matching():
     np.testing.assert_array_equal(match(similarity, knn, lookalikes)[0], [[0, 0]])
 
 
+def test_adaptive_matching_with_lookalikes_in_one_call_is_the_three_steps():
+    """`match`'s compiled path for short rows and few best (the gap rule, the look-alikes, the floor) against
+    `adaptive_matches`, `with_lookalikes` and numpy's floor one after another: ties, NaN, floors, classes without
+    look-alikes (candidates as they came) and every m the path takes."""
+    generator = np.random.default_rng(8)
+    for trial in range(300):
+        num_obs, num_landmarks, num_classes = generator.integers(1, 8), generator.integers(1, 60), generator.integers(1, 6)
+        similarity = generator.integers(-1, 5, (num_obs, num_landmarks)) / 4.0
+        if trial % 5 == 0:
+            similarity[generator.random(similarity.shape) < 0.1] = np.nan
+        landmark_classes = generator.integers(0, num_classes, num_landmarks)
+        pairs = [(a, b) for a in range(num_classes) for b in range(a + 1, num_classes) if generator.random() < 0.5]
+        axes = generator.uniform(0.5, 1.5, (num_landmarks, 3))
+        lookalikes = Lookalikes(groups=class_groups(landmark_classes, _kernel(num_classes, pairs), axes),
+                                classes=generator.integers(0, num_classes, num_obs),
+                                axes=np.sort(generator.uniform(0.5, 1.5, (num_obs, 3)), axis=1))
+        config = MatchingConfig(top_m_fraction=float(generator.choice([0.05, 0.25, 1.0])),
+                                lookalike_candidates=int(generator.integers(1, 4)),
+                                lookalike_size_ratio=float(generator.uniform(1.0, 2.0)),
+                                min_similarity=float(generator.choice([0.0, -1.0, 0.25])))
+        candidates, added = with_lookalikes(adaptive_matches(similarity, top_m(num_landmarks, config.top_m_fraction)),
+                                            similarity, lookalikes, config.lookalike_candidates,
+                                            config.lookalike_size_ratio)
+        scores = similarity[candidates[:, 0], candidates[:, 1]]
+        with np.errstate(invalid="ignore"):
+            keep = scores > config.min_similarity
+        got = match(similarity, config, lookalikes)
+        np.testing.assert_array_equal(got[0], candidates[keep])
+        assert np.array_equal(got[1].view(np.int64), scores[keep].view(np.int64))
+        np.testing.assert_array_equal(got[2], added[keep])
+        assert got[0].dtype == np.int64 and got[2].dtype == np.bool_
+
+
 def test_class_groups_group_landmarks_by_class_and_leave_a_class_out_of_its_own_lookalikes():
     groups = class_groups(np.array([2, 0, 2, 1]), _kernel(3, [(0, 2)]), np.array([[3.0, 1, 2]] * 4))
     np.testing.assert_array_equal(groups.landmarks, [1, 3, 0, 2])

@@ -21,6 +21,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
+KD_LEAF_SIZE = 16  # cKDTree's default leafsize: up to this many points, its tree is a single leaf
+
 
 def compatibility_graph(
     observed_centers: np.ndarray,
@@ -46,9 +48,47 @@ def compatibility_graph(
     obs, lm = candidates[:, 0], candidates[:, 1]
     shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = pair_distances(observed_centers)
-    points = landmark_centers[lm]
-    pairs = cKDTree(points).query_pairs(pair_reach(observed, d_comp, slack), output_type="ndarray").astype(np.int64, copy=False)
-    return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
+    points = np.asarray(landmark_centers).take(lm, axis=0)  # take: a row gather, quicker than fancy indexing
+    return _compatible(_pairs_in_reach(points, pair_reach(observed, d_comp, slack)), points, obs, shown, lm, observed,
+                       d_comp, slack)
+
+
+def _pairs_in_reach(points: np.ndarray, reach: float) -> np.ndarray:
+    """(P, 2) int64 pairs i < j of `points` (C, 3) at most `reach` apart, as `cKDTree.query_pairs` lists them (in
+    its order: the clique search's order of equal candidates follows it). Up to the tree's leaf size the tree is one
+    leaf that it reads pair by pair, in order: `_leaf_pairs` does the same without building it (the tree's
+    construction and query were a third of a sparse frame's compatibility graph)."""
+    if len(points) <= KD_LEAF_SIZE:
+        return _leaf_pairs(np.asarray(points, np.float64), float(reach))
+    return cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64, copy=False)
+
+
+@njit(cache=True)
+def _leaf_pairs(points: np.ndarray, reach: float) -> np.ndarray:
+    """`cKDTree(points).query_pairs(reach)` of at most KD_LEAF_SIZE points (C, 3), one leaf: every pair i < j in
+    order whose squared distance (`_squared_distance`, summed as the tree sums it) is at most reach * reach, as the
+    tree compares (a negative reach squared too, NaN none); the tree's ValueError on a point that is not finite."""
+    for i in range(len(points)):
+        for k in range(3):
+            if not np.isfinite(points[i, k]):
+                raise ValueError("data must be finite, check for nan or inf values")
+    bound = reach * reach
+    pairs = np.empty((len(points) * (len(points) - 1) // 2, 2), np.int64)
+    count = 0
+    for i in range(len(points)):
+        for j in range(i + 1, len(points)):
+            if _squared_distance(points, i, j) <= bound:
+                pairs[count, 0], pairs[count, 1] = i, j
+                count += 1
+    return pairs[:count]
+
+
+@njit(cache=True, inline="always")
+def _squared_distance(points: np.ndarray, a: int, b: int) -> float:
+    """|points[a] - points[b]|^2 as (dx^2 + dy^2) + dz^2, rows read by index (no views); the KD-tree's sum from 0
+    is the same bits, a square never being -0."""
+    dx, dy, dz = points[a, 0] - points[b, 0], points[a, 1] - points[b, 1], points[a, 2] - points[b, 2]
+    return (dx * dx + dy * dy) + dz * dz
 
 
 def pair_distances(centers: np.ndarray) -> np.ndarray:
@@ -78,8 +118,7 @@ def _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack):
         a, b = pairs[p, 0], pairs[p, 1]
         if shown[a] == shown[b] or lm[a] == lm[b]:
             continue
-        mapped = math.sqrt((points[a, 0] - points[b, 0]) ** 2 + (points[a, 1] - points[b, 1]) ** 2
-                           + (points[a, 2] - points[b, 2]) ** 2)
+        mapped = math.sqrt(_squared_distance(points, a, b))
         keep[p] = abs(observed[obs[a], obs[b]] - mapped) < d_comp + slack[a] + slack[b]
     return pairs[keep]
 
@@ -142,9 +181,35 @@ def _pairs_bound(points: np.ndarray, reach: float) -> int:
 
 
 def pair_reach(observed: np.ndarray, d_comp: float, slack: np.ndarray | None) -> float:
-    """Farthest landmark pair that can pass the test: the widest observation pair plus the widest tolerance."""
-    widest = 0.0 if slack is None or len(slack) == 0 else 2.0 * float(slack.max())
-    return float(observed.max()) + d_comp + widest
+    """Farthest landmark pair that can pass the test: the widest observation pair plus the widest tolerance,
+    `float(observed.max()) + d_comp + 2.0 * float(slack.max())` (no slack: + 0.0) in one compiled pass (the two
+    numpy reductions cost more than the graph's test of a sparse frame's pairs)."""
+    return _reach(observed.reshape(-1), float(d_comp), _NO_SLACK if slack is None else slack.reshape(-1))
+
+
+_NO_SLACK = np.zeros(0)
+
+
+@njit(cache=True)
+def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray) -> float:
+    """`pair_reach` of the distances and slack flattened: numpy's maximum of each (NaN wins; ValueError on no
+    distances, as numpy's reduction; of +0 and -0 either, as the reach is only compared), then the sum in its order."""
+    if len(observed) == 0:
+        raise ValueError("zero-size array to reduction operation maximum which has no identity")
+    widest = 0.0 if len(slack) == 0 else 2.0 * _largest(slack)
+    return _largest(observed) + d_comp + widest
+
+
+@njit(cache=True, inline="always")
+def _largest(values: np.ndarray) -> float:
+    """values.max() of a non-empty 1-D array: NaN where any value is NaN."""
+    largest = values[0]
+    for i in range(1, len(values)):
+        if np.isnan(largest):
+            break
+        if values[i] > largest or np.isnan(values[i]):
+            largest = values[i]
+    return largest
 
 
 def partial_view_slack(

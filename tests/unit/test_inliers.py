@@ -240,3 +240,91 @@ def test_partial_view_slack_is_the_numpy_passes_to_the_bit():
                 expected = numpy_slack(observed, mapped, fraction, cap, min_deficit)
                 got = partial_view_slack(observed, mapped, fraction, cap, min_deficit)
             assert got.tobytes() == expected.tobytes(), (fraction, cap, min_deficit, got, expected)
+
+
+def test_pairs_in_reach_are_the_kd_trees_in_its_order():
+    """`compatibility._pairs_in_reach` (one leaf's pairs listed by a compiled pass up to the tree's leaf size, the tree
+    beyond) against `cKDTree.query_pairs`, array for array: random, rounded and repeated points of 0 to 20 (the
+    leaf size and past it), reaches exactly at a pair's distance and one step either side of it, 0, negative, NaN
+    and infinite; and the tree's ValueError for a point that is not finite."""
+    from scipy.spatial import cKDTree
+
+    from clipclique.compatibility import KD_LEAF_SIZE, _pairs_in_reach
+
+    rng = np.random.default_rng(21)
+    at_boundary = 0
+    for trial in range(3000):
+        count = int(rng.integers(0, KD_LEAF_SIZE + 5))
+        points = rng.normal(size=(count, 3)) * 10.0 ** rng.integers(-3, 4)
+        if trial % 3 == 0:
+            points = np.round(points, 1)  # equal distances
+        if count > 1 and trial % 5 == 0:
+            points[1] = points[0]  # one point twice
+        reaches = [0.0, -1.0, np.nan, np.inf, float(rng.uniform(0, 3))]
+        if count > 1:
+            i, j = rng.choice(count, 2, replace=False)
+            dx, dy, dz = points[i] - points[j]
+            exact = float(np.sqrt((dx * dx + dy * dy) + dz * dz))
+            reaches += [exact, float(np.nextafter(exact, 0.0)), float(np.nextafter(exact, np.inf))]
+        for reach in reaches:
+            expected = cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64)
+            got = _pairs_in_reach(points, reach)
+            assert got.dtype == np.int64 and got.shape == expected.shape and got.tobytes() == expected.tobytes()
+        at_boundary += count > 1
+    assert at_boundary > 2000
+    for bad in (np.nan, np.inf, -np.inf):
+        for count in (3, KD_LEAF_SIZE + 2):
+            points = rng.normal(size=(count, 3))
+            points[count // 2, 1] = bad
+            with pytest.raises(ValueError) as ours:
+                _pairs_in_reach(points, 1.0)
+            with pytest.raises(ValueError) as trees:
+                cKDTree(points)
+            assert str(ours.value) == str(trees.value)
+
+
+def test_compatibility_graph_lists_the_kd_trees_pairs_in_its_order():
+    """`compatibility_graph` against the graph of every pair the tree lists, filtered by the rigid test in that order
+    (the clique search orders equal candidates by it), on frames of 2 to 30 candidates with slack and objects."""
+    from scipy.spatial import cKDTree
+
+    from clipclique.compatibility import _compatible, pair_distances, pair_reach
+
+    rng = np.random.default_rng(22)
+    for trial in range(400):
+        count, observations = int(rng.integers(2, 31)), int(rng.integers(2, 9))
+        observed, landmarks = rng.uniform(0, 3, (observations, 3)), np.round(rng.uniform(0, 3, (12, 3)), 1)
+        candidates = np.column_stack((rng.integers(0, observations, count), rng.integers(0, 12, count)))
+        slack = np.where(rng.random(count) < 0.3, rng.uniform(0, 0.2, count), 0.0)
+        objects = np.minimum(np.arange(observations), rng.integers(0, observations, observations))
+        objects = objects[objects]  # an observation's object shows its own
+        distances, points = pair_distances(observed), landmarks[candidates[:, 1]]
+        pairs = cKDTree(points).query_pairs(pair_reach(distances, 0.3, slack), output_type="ndarray").astype(np.int64)
+        expected = _compatible(pairs, points, candidates[:, 0], objects[candidates[:, 0]], candidates[:, 1], distances,
+                               0.3, slack)
+        got = compatibility_graph(observed, landmarks, candidates, 0.3, slack, objects)
+        assert got.dtype == expected.dtype and got.shape == expected.shape and got.tobytes() == expected.tobytes()
+
+
+def test_pair_reach_is_the_numpy_expression_to_the_bit():
+    """`compatibility.pair_reach` against the numpy expression it replaced: NaN and infinities in either array,
+    no or empty slack, a single distance, float32 distances, and numpy's ValueError for no distances."""
+    from clipclique.compatibility import pair_reach
+
+    def numpy_reach(observed, d_comp, slack):
+        widest = 0.0 if slack is None or len(slack) == 0 else 2.0 * float(slack.max())
+        return float(observed.max()) + d_comp + widest
+
+    rng = np.random.default_rng(23)
+    distances = [rng.uniform(0, 5, (6, 6)), np.zeros((1, 1)), rng.uniform(0, 5, (4, 4)).astype(np.float32),
+                 np.array([[0.0, np.nan], [np.nan, 0.0]]), np.array([[0.0, np.inf], [np.inf, 0.0]]),
+                 np.array([[0.0, 1.0, np.nan], [1.0, 0.0, 7.0], [np.nan, 7.0, 0.0]])]
+    slacks = [None, np.zeros(0), np.zeros(5), rng.uniform(0, 0.2, 5), np.array([0.1, np.nan, 0.2]),
+              np.array([np.nan, 0.3]), np.array([np.inf, 0.1]), np.array([-np.inf])]
+    for observed in distances:
+        for slack in slacks:
+            for d_comp in (0.3, 0.0, 1):
+                got, expected = pair_reach(observed, d_comp, slack), numpy_reach(observed, d_comp, slack)
+                assert type(got) is float and np.float64(got).tobytes() == np.float64(expected).tobytes()
+    with pytest.raises(ValueError, match="zero-size array"):
+        pair_reach(np.zeros((0, 0)), 0.3, None)

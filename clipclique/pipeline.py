@@ -43,7 +43,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
 from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.projection import pair_iou
-from clipclique.numpybits import sort_span
+from clipclique.numpybits import pairwise_sum, sort_span
 from clipclique.stack import Stack, alike_spans
 from clipclique.types import Hypothesis, Map, Observations
 
@@ -340,8 +340,9 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
     objects = _objects(observations, settings.duplicate_iou)
     if split is None:
-        slack = compatibility.partial_view_slack(
-            observations.ellipsoids.axes[candidates[:, 0]], map.ellipsoids.axes[candidates[:, 1]],
+        slack = compatibility.partial_view_slack(  # take: a row gather, quicker than fancy indexing
+            observations.ellipsoids.axes.take(candidates[:, 0], axis=0),
+            map.ellipsoids.axes.take(candidates[:, 1], axis=0),
             settings.partial_slack, settings.max_slack, settings.slack_min_deficit,
         )
         kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
@@ -378,9 +379,10 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
             break
         wanted *= 2
     if _reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
-        members, sizes = _without_added(*found.stacked(), result.lookalike_added, settings.min_clique_size)
-        fits.append(_hypotheses(result, observations, map, config, members, sizes,
-                                confidence.group_sums(np.ascontiguousarray(scores[members]), np.cumsum(sizes))))
+        members, sizes, totals = _without_added(*found.stacked(), result.lookalike_added, scores,
+                                                settings.min_clique_size)
+        if len(sizes):  # else no stack to join: the pool as it is
+            fits.append(_hypotheses(result, observations, map, config, members, sizes, totals))
     result.num_cliques = found.reached
     result.cap_hit = result.cap_hit or found.cap
     if split is not None:
@@ -410,24 +412,27 @@ def _stacked(sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
             np.array([len(members) for members in sets], np.int64))
 
 
-def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray,
-                   min_size: int) -> tuple[np.ndarray, np.ndarray]:
+def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np.ndarray,
+                   min_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each clique (of `members`, clique after clique, `sizes[c]` each) holding candidates only
     `matching.lookalike_candidates` added, without them, where at least `min_size` remain and neither a clique nor
-    an earlier such set is that set already, in the cliques' order: their members (in each clique's order) and
-    sizes, stacked alike.
+    an earlier such set is that set already, in the cliques' order: their members (in each clique's order), sizes,
+    stacked alike, and totals (the sum of each one's float64 `scores`, as numpy sums its gathered scores).
 
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
     a cluttered desk: verification chooses between both."""
-    return _rests(np.asarray(members, np.int64), np.asarray(sizes, np.int64), np.asarray(added, np.bool_), min_size)
+    return _rests(np.asarray(members, np.int64), np.asarray(sizes, np.int64), np.asarray(added, np.bool_),
+                  np.asarray(scores, np.float64), min_size)
 
 
 @njit(cache=True)
-def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: int) -> tuple[np.ndarray, np.ndarray]:
+def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np.ndarray,
+           min_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`_without_added` in one compiled pass: each clique's members sorted, then the cliques and the eligible rests
     as sorted sets through `stack.alike_spans` (a rest is kept where it comes first among its alike sets), instead of a
-    dozen numpy passes (lexsort, bincounts, repeats) on a frame's few cliques."""
+    dozen numpy passes (lexsort, bincounts, repeats) on a frame's few cliques; the totals summed here too (the
+    numpy gather and sum per rest, or a call of its own, cost more than the passes)."""
     count = len(sizes)
     starts = np.cumsum(sizes) - sizes
     rest_sizes = np.zeros(count, np.int64)
@@ -455,15 +460,17 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: 
         if eligible[c]:
             kept[c] = firsts[group[rest]] == rest
             rest += 1
-    kept_members = np.empty(rest_sizes[kept].sum(), np.int64)
+    kept_members, kept_scores = np.empty(rest_sizes[kept].sum(), np.int64), np.empty(rest_sizes[kept].sum())
+    totals = np.empty(kept.sum())
     at = 0
-    for c in range(count):
-        if kept[c]:
-            for i in range(starts[c], starts[c] + sizes[c]):
-                if not added[members[i]]:
-                    kept_members[at] = members[i]
-                    at += 1
-    return kept_members, rest_sizes[kept]
+    for b, c in enumerate(np.flatnonzero(kept)):
+        start = at
+        for i in range(starts[c], starts[c] + sizes[c]):
+            if not added[members[i]]:
+                kept_members[at], kept_scores[at] = members[i], scores[members[i]]
+                at += 1
+        totals[b] = 0.0 + pairwise_sum(kept_scores, start, at, 0.0)  # numpy's sum: 0 + the scores
+    return kept_members, rest_sizes[kept], totals
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
@@ -525,15 +532,16 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
     positive weights) or one too poorly conditioned to fix the rotation (config.pose.min_conditioning) gives none."""
     if not len(sizes):
         return _NONE
-    pairs = result.candidates[members]
-    first = result.candidates[0]  # shorter sets are padded with the first candidate at weight 0
+    pairs = result.candidates.take(members, axis=0)  # take: a row gather, a fifth of fancy indexing's time
+    # Shorter sets are padded with the first candidate at weight 0, its numbers as Python's (numba's dispatch reads
+    # a numpy scalar argument microseconds slower).
+    first = result.candidates[0].tolist()
     source, target, weights = weighted_sets(
         pairs, result.candidate_scores[members], sizes, (first[0], first[1], result.candidate_scores[0]),
         (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
         config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
-    ok &= (nonzero_counts(weights) >= 3) & (measure >= config.pose.min_conditioning)  # else a near-row of objects
-    if ok.all():  # as nearly always: the arrays as they are, not six gathers of every row
+    if _usable(ok, weights, measure, float(config.pose.min_conditioning)):  # nearly always: the arrays as they are
         return Stack(rotations=rotation, translations=translation, pairs=pairs, counts=sizes.astype(np.int64, copy=False),
                      scores=np.asarray(scores, np.float64), conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
@@ -541,6 +549,18 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
 
 
 _NONE = Stack.of([])  # no hypothesis
+
+
+@njit(cache=True)
+def _usable(ok: np.ndarray, weights: np.ndarray, measure: np.ndarray, min_conditioning: float) -> bool:
+    """`ok &= (nonzero_counts(weights) >= 3) & (measure >= min_conditioning)` in place (else too few weighted
+    pairs, or a near-row of objects), and whether all are: one call for numpy's five passes over a batch's rows."""
+    counts = nonzero_counts(weights)
+    usable = True
+    for b in range(len(ok)):
+        ok[b] = ok[b] and counts[b] >= 3 and measure[b] >= min_conditioning
+        usable &= ok[b]
+    return usable
 
 
 def _verify(result: LocalizationResult, pool: Stack, observations: Observations, index: MapIndex,

@@ -3,6 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from clipclique import confidence
 from clipclique.config import ConfigError, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
@@ -247,7 +248,7 @@ def test_cliques_holding_added_lookalike_pairs_are_also_tried_without_them():
 
 def without_added(cliques, added, min_size):
     """`_without_added` of a list of cliques, as a list."""
-    members, sizes = _without_added(*_stacked(cliques), added, min_size)
+    members, sizes, _ = _without_added(*_stacked(cliques), added, np.zeros(len(added)), min_size)
     return np.split(members, np.cumsum(sizes)[:-1]) if len(sizes) else []
 
 
@@ -278,8 +279,9 @@ def test_cliques_without_added_pairs_are_the_loop_s_in_its_order():
     assert found > 100
 
 
-def numpy_without_added(members, sizes, added, min_size):
-    """`_without_added` as its numpy passes computed it before it was compiled."""
+def numpy_without_added(members, sizes, added, scores, min_size):
+    """`_without_added` as its numpy passes computed it before it was compiled, the totals as the pipeline summed them
+    (`confidence.group_sums` of the gathered scores)."""
     from clipclique.stack import alike
 
     owner = np.repeat(np.arange(len(sizes)), sizes)
@@ -293,30 +295,55 @@ def numpy_without_added(members, sizes, added, min_size):
     kept = np.zeros(len(sizes), bool)
     kept[eligible] = firsts[group[len(sizes):]] == np.arange(len(sizes), len(counts))
     rests = np.repeat(kept, sizes) & ~added[members]
-    return members[rests], np.bincount(owner[rests], minlength=len(sizes))[kept]
+    rest_sizes = np.bincount(owner[rests], minlength=len(sizes))[kept]
+    return members[rests], rest_sizes, confidence.group_sums(np.ascontiguousarray(scores[members[rests]]),
+                                                             np.cumsum(rest_sizes))
 
 
 def test_the_compiled_rests_are_the_numpy_passes_to_the_bit():
     """`_without_added` against its numpy passes, arrays and dtypes: random cliques with repeats in other orders,
-    nothing or everything added, single and no cliques."""
+    nothing or everything added, single and no cliques; scores with ties, -0, NaN and inf, rests of 8 or more."""
     rng = np.random.default_rng(13)
     cases = [([], np.zeros(4, bool)), ([np.array([3, 1, 2])], np.ones(4, bool)),
              ([np.array([3, 1, 2])], np.zeros(4, bool)), ([np.array([0, 1, 2, 3]), np.array([3, 2, 1, 0])],
                                                           np.array([True, False, False, False]))]
     for trial in range(300):
-        count = int(rng.integers(1, 14))
+        count = int(rng.integers(1, 24))
         cliques = [rng.permutation(count)[: int(rng.integers(1, count + 1))] for _ in range(int(rng.integers(0, 12)))]
         cliques += [rng.permutation(members) for members in cliques[:3]]
         cases.append((cliques, rng.random(count) < rng.choice([0.0, 0.2, 0.5, 1.0])))
     kept = 0
-    for cliques, added in cases:
+    for trial, (cliques, added) in enumerate(cases):
+        scores = rng.random(len(added)) if trial % 2 else np.round(rng.normal(size=len(added)), 1)  # ties
+        if trial % 7 == 0:
+            scores[rng.integers(len(added))] = rng.choice([-0.0, np.nan, np.inf, -np.inf])
         for min_size in (1, 2, 3):
-            got = _without_added(*_stacked(cliques), added, min_size)
-            expected = numpy_without_added(*_stacked(cliques), added, min_size)
+            got = _without_added(*_stacked(cliques), added, scores, min_size)
+            expected = numpy_without_added(*_stacked(cliques), added, scores, min_size)
             for ours, theirs in zip(got, expected):
                 assert ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
             kept += len(expected[1])
     assert kept > 200
+
+
+def test_usable_fits_are_the_numpy_mask_to_the_bit():
+    """`pipeline._usable` against the numpy expression it replaced, `ok & (nonzero_counts(weights) >= 3) &
+    (measure >= floor)` and its `.all()`: weights of 0, -0 and NaN (a NaN counts), NaN and infinite measures, a
+    measure exactly at the floor, sets already not ok, and an empty batch."""
+    from clipclique.pipeline import _usable
+    from clipclique.pose import nonzero_counts
+
+    rng = np.random.default_rng(31)
+    for trial in range(500):
+        count, width = int(rng.integers(0, 6)), int(rng.integers(0, 6))
+        weights = rng.choice([0.0, -0.0, np.nan, 0.5, 1.0], size=(count, width))
+        measure = rng.choice([0.0, 0.01, 0.2, np.nan, np.inf, -np.inf], size=count)
+        ok = rng.random(count) < 0.8
+        floor = float(rng.choice([0.0, 0.01, 0.2, -np.inf]))
+        expected = ok & (nonzero_counts(weights) >= 3) & (measure >= floor)
+        got = ok.copy()
+        assert _usable(got, weights, measure, floor) == expected.all()
+        assert got.tobytes() == expected.tobytes()
 
 
 def test_the_fitted_stack_is_the_masked_rows_to_the_bit():

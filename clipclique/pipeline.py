@@ -44,7 +44,7 @@ from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, R
 from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.projection import pair_iou
 from clipclique.numpybits import pairwise_sum, sort_span
-from clipclique.stack import Stack, alike_spans
+from clipclique.stack import Stack
 from clipclique.types import Hypothesis, Map, Observations
 
 @dataclass(kw_only=True)
@@ -429,10 +429,11 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, sc
 @njit(cache=True)
 def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np.ndarray,
            min_size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`_without_added` in one compiled pass: each clique's members sorted, then the cliques and the eligible rests
-    as sorted sets through `stack.alike_spans` (a rest is kept where it comes first among its alike sets), instead of a
-    dozen numpy passes (lexsort, bincounts, repeats) on a frame's few cliques; the totals summed here too (the
-    numpy gather and sum per rest, or a call of its own, cost more than the passes)."""
+    """`_without_added` in one compiled pass, instead of a dozen numpy passes (lexsort, bincounts, repeats) on a
+    frame's few cliques: each clique's members sorted, each eligible rest (sorted) kept unless a clique of its size or
+    an eligible rest before it holds the same numbers (only the rests compared: grouping every set with every other,
+    a desk frame's fifty overlapping cliques among them, took most of the pass), and the kept rests' totals summed
+    as numpy sums their gathered scores."""
     count = len(sizes)
     starts = np.cumsum(sizes) - sizes
     rest_sizes = np.zeros(count, np.int64)
@@ -440,26 +441,27 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np
         for i in range(starts[c], starts[c] + sizes[c]):
             rest_sizes[c] += not added[members[i]]
     eligible = (rest_sizes >= min_size) & (rest_sizes < sizes)
-    counts = np.concatenate((sizes, rest_sizes[eligible]))
-    sets = np.empty(counts.sum(), np.int64)  # the cliques, then the eligible rests, each ascending
+    sets = np.empty(len(members) + rest_sizes[eligible].sum(), np.int64)  # the cliques, then the rests, ascending
+    rest_starts = np.empty(count, np.int64)
     at = len(members)
     for c in range(count):
         start = starts[c]
         for i in range(start, start + sizes[c]):
             sets[i] = members[i]
         sort_span(sets, start, start + sizes[c])
-        if eligible[c]:
-            for i in range(start, start + sizes[c]):
-                if not added[sets[i]]:
-                    sets[at] = sets[i]
-                    at += 1
-    group, firsts = alike_spans(np.zeros((len(counts), 0), np.int64), sets, np.cumsum(counts) - counts, counts)
-    kept = np.zeros(count, np.bool_)
-    rest = count
-    for c in range(count):
-        if eligible[c]:
-            kept[c] = firsts[group[rest]] == rest
-            rest += 1
+        rest_starts[c] = at
+        for i in range(start, start + sizes[c] if eligible[c] else start):
+            if not added[sets[i]]:
+                sets[at] = sets[i]
+                at += 1
+    kept = eligible.copy()
+    for c in np.flatnonzero(eligible):
+        for d in range(count):
+            if (sizes[d] == rest_sizes[c] and _same_span(sets, starts[d], rest_starts[c], rest_sizes[c])) or (
+                    d < c and eligible[d] and rest_sizes[d] == rest_sizes[c]
+                    and _same_span(sets, rest_starts[d], rest_starts[c], rest_sizes[c])):
+                kept[c] = False
+                break
     kept_members, kept_scores = np.empty(rest_sizes[kept].sum(), np.int64), np.empty(rest_sizes[kept].sum())
     totals = np.empty(kept.sum())
     at = 0
@@ -471,6 +473,16 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np
                 at += 1
         totals[b] = 0.0 + pairwise_sum(kept_scores, start, at, 0.0)  # numpy's sum: 0 + the scores
     return kept_members, rest_sizes[kept], totals
+
+
+@njit(cache=True, inline="always")
+def _same_span(values: np.ndarray, first: int, second: int, size: int) -> bool:
+    """Whether values[first: first + size] and values[second: second + size] hold the same numbers in order, read
+    by index (a view is reference-counted)."""
+    for i in range(size):
+        if values[first + i] != values[second + i]:
+            return False
+    return True
 
 
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:

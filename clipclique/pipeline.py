@@ -441,7 +441,7 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np
         for i in range(starts[c], starts[c] + sizes[c]):
             rest_sizes[c] += not added[members[i]]
     eligible = (rest_sizes >= min_size) & (rest_sizes < sizes)
-    sets = np.empty(len(members) + rest_sizes[eligible].sum(), np.int64)  # the cliques, then the rests, ascending
+    sets = np.empty(len(members) + rest_sizes[eligible].sum(), np.int64)  # the cliques, then the rests, each sorted
     rest_starts = np.empty(count, np.int64)
     at = len(members)
     for c in range(count):

@@ -15,27 +15,55 @@ from numba.extending import intrinsic
 @njit(cache=True)
 def pairwise_sum(values: np.ndarray, start: int, stop: int, zero):
     """values[start: stop].sum() as numpy adds a contiguous array, to the bit: in order below 8 values, else in
-    8 running sums combined pairwise then the rest in order, halves of a multiple of 8 above 128 values."""
+    8 running sums combined pairwise then the rest in order, halves of a multiple of 8 above 128 values (numpy's
+    recursion walked with a stack of its own: a recursive kernel's numba cache fails to link into a caller compiled
+    later, "Symbol not found")."""
+    if stop - start <= 128:
+        return _block_sum(values, start, stop, zero)
+    starts, stops, halves_done = np.empty(64, np.int64), np.empty(64, np.int64), np.zeros(64, np.int64)
+    sums = np.full(64, np.zeros(1, values.dtype)[0] + zero)  # the type numpy's recursion returns: both unified
+    starts[0], stops[0] = start, stop
+    top, found = 0, 0
+    while top >= 0:
+        first, last = starts[top], stops[top]
+        if last - first <= 128:
+            sums[found] = _block_sum(values, first, last, zero)
+            found += 1
+            top -= 1
+            continue
+        half = (last - first) // 2
+        half -= half % 8
+        if halves_done[top] == 2:  # both halves summed: left + right, as numpy's recursion returns
+            found -= 1
+            sums[found - 1] = sums[found - 1] + sums[found]
+            top -= 1
+            continue
+        halves_done[top] += 1
+        starts[top + 1], stops[top + 1], halves_done[top + 1] = ((first, first + half, 0) if halves_done[top] == 1
+                                                                  else (first + half, last, 0))
+        top += 1
+    return sums[0]
+
+
+@njit(cache=True, inline="always")
+def _block_sum(values: np.ndarray, start: int, stop: int, zero):
+    """numpy's pairwise sum of at most 128 values."""
     count = stop - start
     if count < 8:
         total = zero
         for i in range(start, stop):
             total += values[i]
         return total
-    if count <= 128:
-        partial = values[start: start + 8].copy()
-        end = stop - count % 8
-        for i in range(start + 8, end, 8):
-            for j in range(8):
-                partial[j] += values[i + j]
-        total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5])
-                                                                          + (partial[6] + partial[7]))
-        for i in range(end, stop):
-            total += values[i]
-        return total
-    half = count // 2
-    half -= half % 8
-    return pairwise_sum(values, start, start + half, zero) + pairwise_sum(values, start + half, stop, zero)
+    partial = values[start: start + 8].copy()
+    end = stop - count % 8
+    for i in range(start + 8, end, 8):
+        for j in range(8):
+            partial[j] += values[i + j]
+    total = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5])
+                                                                      + (partial[6] + partial[7]))
+    for i in range(end, stop):
+        total += values[i]
+    return total
 
 
 @intrinsic

@@ -72,6 +72,8 @@ def test_the_compiled_sum_adds_as_numpy_does(dtype):
     for count in [*range(0, 140), 255, 256, 257, 1000, 4099]:
         values = (rng.random(count) * rng.choice([1e-4, 1.0, 1e4], size=count)).astype(dtype)
         assert dtype(pairwise_sum(values, 0, count, dtype(0))).tobytes() == values.sum().tobytes()
+        within = np.concatenate((rng.random(5).astype(dtype), values, rng.random(3).astype(dtype)))  # a span of a row
+        assert dtype(pairwise_sum(within, 5, 5 + count, dtype(0))).tobytes() == values.sum().tobytes()
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

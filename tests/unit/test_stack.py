@@ -28,7 +28,7 @@ def test_alike_items_are_those_with_the_same_bytes():
             if counts[source] == counts[target]:
                 poses[target] = poses[source]
                 pairs[starts[target]: starts[target] + counts[target]] = pairs[starts[source]: starts[source] + counts[source]]
-        for values in (pairs, pairs[:, 0]):  # pairs, and sets of single numbers (pipeline._rests' cliques)
+        for values in (pairs, pairs[:, 0]):  # pairs, and sets of single numbers
             group, firsts = alike(poses, values, starts, counts)
             expected_group, expected_firsts = alike_by_bytes(poses, values, starts, counts)
             assert group.tobytes() == expected_group.astype(np.int64).tobytes()

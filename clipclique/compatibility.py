@@ -21,6 +21,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
+from clipclique.numpybits import largest
+
 KD_LEAF_SIZE = 16  # cKDTree's default leafsize: up to this many points, its tree is a single leaf
 
 
@@ -196,20 +198,8 @@ def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray) -> float:
     distances, as numpy's reduction; of +0 and -0 either, as the reach is only compared), then the sum in its order."""
     if len(observed) == 0:
         raise ValueError("zero-size array to reduction operation maximum which has no identity")
-    widest = 0.0 if len(slack) == 0 else 2.0 * _largest(slack)
-    return _largest(observed) + d_comp + widest
-
-
-@njit(cache=True, inline="always")
-def _largest(values: np.ndarray) -> float:
-    """values.max() of a non-empty 1-D array: NaN where any value is NaN."""
-    largest = values[0]
-    for i in range(1, len(values)):
-        if np.isnan(largest):
-            break
-        if values[i] > largest or np.isnan(values[i]):
-            largest = values[i]
-    return largest
+    widest = 0.0 if len(slack) == 0 else 2.0 * largest(slack)
+    return largest(observed) + d_comp + widest
 
 
 def partial_view_slack(

@@ -1,9 +1,9 @@
 """numpy's and OpenBLAS's arithmetic written out for compiled code, to the bit: a kernel that replaces a numpy
 call must add in the order numpy adds, or results move in their last bits (and the results digest with them).
 
-One place for what several modules' kernels share: numpy's pairwise sum, the fused multiply-add that
-OpenBLAS's dgemm chains for small matrices (from +0, one per term in order), and a short span of integers sorted
-in place."""
+One place for what several modules' kernels share: numpy's pairwise sum, np.maximum's rule and the maximum of an
+array by it, the fused multiply-add that OpenBLAS's dgemm chains for small matrices (from +0, one per term in
+order), and a short span of integers sorted in place."""
 
 from __future__ import annotations
 
@@ -64,6 +64,21 @@ def _block_sum(values: np.ndarray, start: int, stop: int, zero):
     for i in range(end, stop):
         total += values[i]
     return total
+
+
+@njit(cache=True, inline="always")
+def maximum(a: float, b: float) -> float:
+    """np.maximum(a, b) of two numbers: NaN where either is, else the larger (`a` where they tie)."""
+    return a if a >= b or np.isnan(a) else b
+
+
+@njit(cache=True, inline="always")
+def largest(values: np.ndarray) -> float:
+    """values.max() of a non-empty 1-D array: `maximum` folded over it in order (NaN where any value is NaN)."""
+    result = values[0]
+    for i in range(1, len(values)):
+        result = maximum(result, values[i])
+    return result
 
 
 @intrinsic

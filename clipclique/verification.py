@@ -33,6 +33,7 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
+from clipclique.numpybits import maximum
 from clipclique import projection
 from clipclique.projection import at_least_zero, box_iou, corners_iou, project
 from clipclique.stack import Stack, alike_spans
@@ -256,7 +257,7 @@ def _in_range(centers: np.ndarray, axes: np.ndarray, translations: np.ndarray, m
     the size NaN where an axis is, without a (B, N, 3) array of differences. Of a large map only these are projected."""
     near = np.zeros(len(centers), np.bool_)
     for n in range(len(centers)):
-        size = _larger(_larger(axes[n, 0], axes[n, 1]), axes[n, 2])
+        size = maximum(maximum(axes[n, 0], axes[n, 1]), axes[n, 2])
         for b in range(len(translations)):
             dx = centers[n, 0] - translations[b, 0]
             dy = centers[n, 1] - translations[b, 1]
@@ -265,12 +266,6 @@ def _in_range(centers: np.ndarray, axes: np.ndarray, translations: np.ndarray, m
                 near[n] = True
                 break
     return near
-
-
-@njit(cache=True, inline="always")
-def _larger(a: float, b: float) -> float:
-    """np.maximum(a, b): NaN where either is."""
-    return a if a >= b or np.isnan(a) else b
 
 
 def candidate_overlap(rotations: np.ndarray, translations: np.ndarray, landmarks: Ellipsoids, boxes: np.ndarray,

@@ -1,0 +1,104 @@
+"""The weighted pose fits a query cannot skip, and their share of its time: the floor under issue 20's 1 ms.
+
+    .venv/bin/python tools/bench_fits.py [SCENE ...] [--max-frames 30] [--repeat 3]
+
+Every pose a query computes is a weighted fit of a correspondence set: LAPACK's 3 x 3 SVD (dgesdd) for
+each, and for the clique poses also the eigenvalues of both sides' covariances (two dsyevd) for the
+conditioning. "The same results to the bit" pins these to LAPACK's own calls, in the same number.
+Each query runs once with its fits recorded (the refinement round by round, which computes the same
+as its one compiled call: tests/unit/test_refine.py), then, fastest of `--repeat`, the whole `localize`
+and the recorded batches fitted again alone, the same calls (`fit_rigid_conditioned` for the clique
+poses, `fit_rigid_batch` for the refinement's, each a Python call that the refinement's own compiled
+call does without). Printed per scene, medians over frames: the sets fitted per query, ms of the fits
+and of the whole query, and the fits' share of it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+from clipclique.arithmetic import pin_arithmetic
+
+pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+
+import numpy as np  # noqa: E402
+
+import clipclique.pipeline as pipeline  # noqa: E402
+import clipclique.refine as refine  # noqa: E402
+from clipclique.pose import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
+from localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
+
+Batch = tuple[Callable, np.ndarray, np.ndarray, np.ndarray]  # the fit called, source, target, weights
+
+
+def recorded_fits(query: Callable[[], object]) -> list[Batch]:
+    """The fit batches one call of `query` makes, in order, with their inputs copied."""
+    batches: list[Batch] = []
+
+    def recording(fit: Callable) -> Callable:
+        def recorded(source, target, weights):
+            batches.append((fit, np.array(source), np.array(target), np.array(weights)))
+            return fit(source, target, weights)
+        return recorded
+
+    saved = pipeline.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined
+    pipeline.fit_rigid_conditioned = recording(fit_rigid_conditioned)
+    refine.fit_rigid_batch = recording(fit_rigid_batch)
+    refine.refined = lambda stack, observations, map, similarity, radius, weights, rounds=2, landmarks=None: (
+        refine._refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks))
+    try:
+        query()
+    finally:
+        pipeline.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined = saved
+    return batches
+
+
+def fastest(call: Callable[[], object], repeat: int) -> float:
+    """Seconds of the fastest of `repeat` calls."""
+    best = np.inf
+    for _ in range(repeat):
+        start = time.perf_counter()
+        call()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def measure(scene: str, max_frames: int, repeat: int) -> None:
+    run = prepare(RunSettings(scene, max_frames=max_frames, record=False))
+    index = pipeline.index_map(run.map, run.config)
+    queries = [observe(run, run.sequence[i]).observations for i in selected_frames(run)]
+    clique_sets, refined_sets, fits, whole = [], [], [], []
+    for observations in queries:
+        def query(observations=observations) -> object:
+            return pipeline.localize(observations, index, run.config)
+        query()  # compiled and warm
+        batches = recorded_fits(query)
+        clique_sets.append(sum(len(b[3]) for b in batches if b[0] is fit_rigid_conditioned))
+        refined_sets.append(sum(len(b[3]) for b in batches if b[0] is fit_rigid_batch))
+
+        def refit(batches=batches) -> None:
+            for fit, source, target, weights in batches:
+                fit(source, target, weights)
+        fits.append(fastest(refit, repeat))
+        whole.append(fastest(query, repeat))
+    fit_ms, whole_ms = 1e3 * np.median(fits), 1e3 * np.median(whole)
+    share = np.median(np.array(fits) / np.array(whole))
+    print(f"{scene}: {len(queries)} frames; sets fitted per query, median: {np.median(clique_sets):.0f} clique poses "
+          f"(SVD + 2 eigenvalue calls each), {np.median(refined_sets):.0f} refinement (SVD each); fits alone "
+          f"{fit_ms:.2f} ms, whole localize {whole_ms:.2f} ms, the fits' share {100 * share:.0f}%")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scenes", nargs="*", default=["demo", "demo_desk", "demo_apartment"])
+    parser.add_argument("--max-frames", type=int, default=30)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    for scene in args.scenes:
+        measure(scene, args.max_frames, args.repeat)
+
+
+if __name__ == "__main__":
+    main()

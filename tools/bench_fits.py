@@ -16,7 +16,6 @@ and of the whole query, and the fits' share of it.
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Callable
 
 from clipclique.arithmetic import pin_arithmetic
@@ -29,6 +28,8 @@ import clipclique.pipeline as pipeline  # noqa: E402
 import clipclique.refine as refine  # noqa: E402
 from clipclique.pose import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
 from localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
+
+from bench_speed import fastest  # noqa: E402  (this directory's: ms of the fastest of `repeat` calls)
 
 Batch = tuple[Callable, np.ndarray, np.ndarray, np.ndarray]  # the fit called, source, target, weights
 
@@ -55,16 +56,6 @@ def recorded_fits(query: Callable[[], object]) -> list[Batch]:
     return batches
 
 
-def fastest(call: Callable[[], object], repeat: int) -> float:
-    """Seconds of the fastest of `repeat` calls."""
-    best = np.inf
-    for _ in range(repeat):
-        start = time.perf_counter()
-        call()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def measure(scene: str, max_frames: int, repeat: int) -> None:
     run = prepare(RunSettings(scene, max_frames=max_frames, record=False))
     index = pipeline.index_map(run.map, run.config)
@@ -83,7 +74,7 @@ def measure(scene: str, max_frames: int, repeat: int) -> None:
                 fit(source, target, weights)
         fits.append(fastest(refit, repeat))
         whole.append(fastest(query, repeat))
-    fit_ms, whole_ms = 1e3 * np.median(fits), 1e3 * np.median(whole)
+    fit_ms, whole_ms = np.median(fits), np.median(whole)
     share = np.median(np.array(fits) / np.array(whole))
     print(f"{scene}: {len(queries)} frames; sets fitted per query, median: {np.median(clique_sets):.0f} clique poses "
           f"(SVD + 2 eigenvalue calls each), {np.median(refined_sets):.0f} refinement (SVD each); fits alone "

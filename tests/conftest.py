@@ -8,11 +8,9 @@ Fixtures that hand out helpers return the function, so no test module imports an
 
 from __future__ import annotations
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 
-if not pin_arithmetic():  # the committed results digests and figures are those of the pinned arithmetic
-    raise RuntimeError("numpy was loaded before tests/conftest.py could pin the arithmetic (clipclique.arithmetic): "
-                       "run pytest in a fresh process")
+one_blas_thread_by_default()  # as the CLIs run (a speed setting; where a plugin loaded numpy first it does nothing)
 
 import dataclasses  # noqa: E402
 import json  # noqa: E402
@@ -38,8 +36,8 @@ SMALL_SIZE = (160, 120)  # width, height of the small demo scenes most tests rea
 
 
 def pytest_addoption(parser) -> None:
-    parser.addoption("--digests", action="store_true", default=False,
-                     help="print the results digests of tests/e2e/test_results_digest.py (to re-baseline them)")
+    parser.addoption("--force-regen", action="store_true", default=False,
+                     help="rewrite tests/golden/ from this tree's results and print what moved (tests/e2e/test_golden.py)")
 
 
 @pytest.fixture(scope="session")
@@ -72,6 +70,31 @@ def demo_data(tmp_path_factory) -> DemoData:
             changes = ({"num_frames": frames} if frames else {}) | ({"width": size[0], "height": size[1]} if size else {})
             generate(folder, name, dataclasses.replace(DEMO_SCENES[name], **changes))
         return root
+
+    return make
+
+
+FullSizeMaps = Callable[[str], Path]
+
+
+@pytest.fixture(scope="session")
+def full_size_maps(tmp_path_factory) -> FullSizeMaps:
+    """`full_size_maps("demo_desk")`: the map of a whole generated scene under the repository's data/ (generated
+    there on first use, as `make demo` does), built with the simulated encoder once per session."""
+    from clipclique.backends import load_encoder
+    from clipclique.mapfile import save_map
+    from clipclique.resolve import open_scene
+    from mapping.build import build_map
+
+    folder = tmp_path_factory.mktemp("full-size-maps")
+    built: dict[str, Path] = {}
+
+    def make(scene: str) -> Path:
+        if scene not in built:
+            map, _ = build_map(open_scene(scene, ROOT / "data"), load_encoder("simulated"))
+            built[scene] = folder / f"{scene}.map.npz"
+            save_map(map, built[scene])
+        return built[scene]
 
     return make
 

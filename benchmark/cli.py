@@ -14,7 +14,7 @@ from typing import Annotated, Any, Iterator, Optional
 
 import typer
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 from clipclique.outputs import BENCH_DIR, CACHE_DIR
 
@@ -154,7 +154,7 @@ class _Bar:
 
 
 def main() -> None:
-    pin_arithmetic()  # as clipclique-loc (clipclique.arithmetic)
+    one_blas_thread_by_default()  # as clipclique-loc (clipclique.blas)
     app()
 
 

@@ -36,36 +36,29 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-# Offline model hubs, and the process's arithmetic pinned (one OpenBLAS thread, the same kernels on every
-# x86-64 machine: clipclique.arithmetic), before numpy loads.
-for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1"), ("YOLO_AUTOINSTALL", "false")):
-    os.environ.setdefault(_variable, _value)
-pin_arithmetic()
-
-import numpy as np  # noqa: E402
-from rich.console import Console  # noqa: E402
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
-
-from benchmark import calibration, literal_reference, perception, report  # noqa: E402
-from benchmark.engine import ensure_map, perceive_chunk  # noqa: E402
-from benchmark.core import growth_exponent, scalability  # noqa: E402
-from benchmark.report import PAPER_LANDMARKS_AT_1S  # noqa: E402
-from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config  # noqa: E402
-from clipclique.datasets import resolve_data_root  # noqa: E402
-from clipclique.exits import user_errors  # noqa: E402
-from clipclique.metrics import evaluate_frame, summarize  # noqa: E402
-from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage  # noqa: E402
-from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize  # noqa: E402
-from clipclique.sim import DEMO_SCENES  # noqa: E402
-from clipclique.sim.synthetic import duplicate_rooms  # noqa: E402
-from clipclique.types import Map, Observations, Pose  # noqa: E402
-from clipclique.outputs import BENCH_DIR, CACHE_DIR, map_file  # noqa: E402
-from localization.run import Run, RunSettings, prepare, selected_frames  # noqa: E402
+from benchmark import calibration, literal_reference, perception, report
+from benchmark.engine import ensure_map, perceive_chunk
+from benchmark.core import growth_exponent, scalability
+from benchmark.report import PAPER_LANDMARKS_AT_1S
+from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config
+from clipclique.datasets import resolve_data_root
+from clipclique.exits import user_errors
+from clipclique.metrics import evaluate_frame, summarize
+from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage
+from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize
+from clipclique.sim import DEMO_SCENES
+from clipclique.sim.synthetic import duplicate_rooms
+from clipclique.types import Map, Observations, Pose
+from clipclique.outputs import BENCH_DIR, CACHE_DIR, map_file
+from localization.run import Run, RunSettings, prepare, selected_frames
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"
+OFFLINE_HUBS = {"HF_HUB_OFFLINE": "1", "YOLO_OFFLINE": "1", "YOLO_AUTOINSTALL": "false"}  # no weights downloaded
 SEEDS = (0, 1, 2)  # stochastic configurations: best of three, as the paper
 LITERAL_REFERENCE = report.LITERAL
 BASELINES_SAMPLING = ("xview", "sh", "cliploc")  # the RANSAC / PROSAC baselines
@@ -448,6 +441,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> None:
     """Run the suite; a user mistake (unknown sequence, missing map) is one line on stderr and exit 2."""
     args = parse_args(argv)
+    for variable, value in OFFLINE_HUBS.items():  # the suite's own process only: importing it sets nothing
+        os.environ.setdefault(variable, value)
     with user_errors("bench"):
         run_suite(args)
 

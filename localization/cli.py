@@ -16,7 +16,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
@@ -205,7 +205,7 @@ def align(
 
 
 def main() -> None:
-    pin_arithmetic()  # numpy is not imported yet, so this takes effect (clipclique.arithmetic)
+    one_blas_thread_by_default()  # numpy is not imported yet, so this takes effect (clipclique.blas)
     try:
         app()
     finally:  # the process ends here: its heap is left to the OS, not collected object by object (~0.5 s after a run)

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode="rich",
@@ -168,7 +168,7 @@ def annotate(
 
 
 def main() -> None:
-    pin_arithmetic()  # numpy is not imported yet, so this takes effect (clipclique.arithmetic)
+    one_blas_thread_by_default()  # numpy is not imported yet, so this takes effect (clipclique.blas)
     app()
 
 

@@ -1,8 +1,8 @@
 """`python tools/bench.py ...`: the benchmark suite (benchmark.suite), the command `make bench` and `make docs` run; see its docstring for the options."""
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 
-pin_arithmetic()  # before numpy loads: the same arithmetic as the CLIs (clipclique.arithmetic)
+one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 from benchmark.suite import main  # noqa: E402
 

@@ -18,9 +18,9 @@ import shutil
 import time
 from pathlib import Path
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+from clipclique.blas import one_blas_thread_by_default  # noqa: E402
 
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clipclique.blas)
 
 from benchmark.engine import ensure_map, run_jobs  # noqa: E402
 from benchmark.plan import Plan, runs  # noqa: E402

@@ -18,9 +18,9 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clipclique.blas)
 
 import numpy as np  # noqa: E402
 

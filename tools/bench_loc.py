@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 import os
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+from clipclique.blas import one_blas_thread_by_default  # noqa: E402
 
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clipclique.blas)
 
 import numpy as np  # noqa: E402
 

@@ -27,9 +27,8 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
-
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+# one BLAS thread, as clipclique-loc runs (clipclique.blas), set here: the --rev worker imports another tree
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 

@@ -39,9 +39,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
-
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+# one BLAS thread, as clipclique-loc runs (clipclique.blas), set here: the --rev worker imports another tree
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 

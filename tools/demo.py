@@ -9,9 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 
-pin_arithmetic()  # before numpy loads: the same arithmetic as the CLIs (clipclique.arithmetic)
+one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 from clipclique.commands import command  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402

@@ -21,11 +21,11 @@ import os
 import sys
 from pathlib import Path
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+from clipclique.blas import one_blas_thread_by_default  # noqa: E402
 
 for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1")):
     os.environ.setdefault(_variable, _value)
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 
 from benchmark import calibration  # noqa: E402

@@ -23,9 +23,9 @@ import tempfile
 from collections import Counter
 from pathlib import Path
 
-from clipclique.arithmetic import pin_arithmetic  # noqa: E402
+from clipclique.blas import one_blas_thread_by_default  # noqa: E402
 
-pin_arithmetic()  # as clipclique-loc runs, before numpy loads (clipclique.arithmetic)
+one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 import numpy as np  # noqa: E402
 

@@ -1,8 +1,8 @@
 """`python tools/scene_stats.py ...`: how much a scene looks like real data (benchmark.scene_stats); see its docstring for the options."""
 
-from clipclique.arithmetic import pin_arithmetic
+from clipclique.blas import one_blas_thread_by_default
 
-pin_arithmetic()  # before numpy loads: the same arithmetic as the CLIs (clipclique.arithmetic)
+one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 from benchmark.scene_stats import main  # noqa: E402
 

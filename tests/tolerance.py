@@ -1,4 +1,4 @@
-"""Results held within stated tolerances, not to the bit: a run's decisions frame by frame (golden files in
+"""Results held within stated tolerances, not bit for bit: a run's decisions frame by frame (golden files in
 tests/golden/, and any two runs that should agree, such as one sequence read two ways).
 
 Numbers move in their last bits between machines and library versions (BLAS kernels, numpy's SIMD loops);

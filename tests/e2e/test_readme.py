@@ -40,6 +40,8 @@ SKIPPED = {
     "rerun outputs/loc/demo/clipclique/recording.rrd": "opens the viewer's window",
     "make docs": "reruns the demo and the benchmark (minutes); tests/e2e/test_bench.py checks what it wrote",
     "make test": "runs this test suite",
+    "python -m pytest tests/e2e/test_golden.py --force-regen": "rewrites the golden results (tests/e2e/test_golden.py "
+                                                               "runs the same runs and compares them)",
     "pip install dask-jobqueue": "starts a SLURM cluster (none here); the local cluster is tested in tests/integration/test_bench_engine.py",
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
     "mkdir -p data/tum && curl -L https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":

@@ -1,26 +1,20 @@
 """Weighted closed-form rigid alignment (Kabsch/Umeyama without scale), Umeyama with scale, and the weights.
 
 Given camera-frame observation centres `p_i`, map landmark centres `q_i` and weights `w_i >= 0`,
-the pose minimizes `sum_i w_i |R p_i + t - q_i|^2`: weighted centroids, the SVD of the weighted
-cross-covariance, and a sign fix so that `det R = +1` (never a reflection). Inputs that cannot fix
-a 6-DoF pose (fewer than 3 points, collinear points, zero weights) raise `DegeneratePoseError`
+the pose minimizes `sum_i w_i |R p_i + t - q_i|^2`: weighted centroids, and the rotation of the
+weighted cross-covariance by Horn's unit quaternion (`det R = +1`, never a reflection). Inputs that cannot
+fix a 6-DoF pose (fewer than 3 points, collinear points, zero weights) raise `DegeneratePoseError`
 with the reason; the solver never returns NaN.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import get_cython_function_address, intrinsic
+from numba import njit
 
 from clipclique.config import PoseWeights
-from clipclique.numpybits import fma, pairwise_sum
 from clipclique.types import Pose
 
 MIN_SPREAD_M = 1e-6  # metres: a point set thinner than this across its second axis is collinear
@@ -93,378 +87,270 @@ def fit_rigid_batch(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """B independent fits at once: (B, P, 3) points, (B, P) weights -> R (B, 3, 3), t (B, 3), ok (B,).
 
-    `ok` is False where a set is degenerate (collinear, or weights summing to zero); those rows
+    `ok` is False where a set is degenerate (collinear, weights summing to zero, not finite); those rows
     hold the identity so that callers can mask them without meeting NaN.
     """
     weights = np.ones(np.shape(source)[:2]) if weights is None else weights
-    rotation, translation, ok, _ = _fit(source, target, weights, conditioned=False)
-    return rotation, translation, ok
+    return fit_rigid_conditioned(source, target, weights)[:3]
 
 
 def fit_rigid_conditioned(
     source: np.ndarray, target: np.ndarray, weights: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning`, both read off the
-    same weighted covariances (a query's poses need both: measuring them apart doubled the work).
-
-    One compiled pass per batch (`_fitted`: a query fits three or four batches, and the dozen numpy calls
-    between the decompositions cost as much as they), to the bit as the passes around numpy's LAPACK
-    gufuncs (`_fitted_by_gufuncs`), which still fit any set whose moments are not finite (LAPACK's answer
-    to NaN and inf is the gufuncs' own) or that LAPACK could not decompose."""
-    return _fit(source, target, weights, conditioned=True)
-
-
-def _fit(source: np.ndarray, target: np.ndarray, weights: np.ndarray,
-         conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_rigid_conditioned`; `conditioned` False: the measure is not wanted (NaN where not measured), and a
-    set's spread is read off its covariances' eigenvalues only where `_surely_spread` cannot tell."""
+    """`fit_rigid_batch` and, per set, the smaller of the two sides' `conditioning` (0 where a set is not
+    finite or its weights do not sum to a positive number), both from one compiled pass over the batch."""
     source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
-    given = np.asarray(weights)
-    if source.ndim != 3 or source.shape[2] != 3 or target.shape != source.shape or given.shape != source.shape[:2]:
-        raise ValueError(f"source {source.shape}, target {target.shape} and weights {given.shape} must be (B, P, 3) "
-                         "twice and (B, P)")  # the compiled pass reads them unchecked
-    summed = given.dtype == np.float64 and given.flags.c_contiguous  # else numpy's sum of its own layout
-    weights = np.ascontiguousarray(given, np.float64)
-    total = np.zeros(0) if summed else np.asarray(given.sum(axis=1), np.float64)
-    rotation, translation, ok, measure, decomposed = _fitted(weights, total, source, target, lapack_routines(),
-                                                             conditioned)
-    if not decomposed.all():
-        rest = np.flatnonzero(~decomposed)
-        rotation[rest], translation[rest], ok[rest], measure[rest] = _fitted_by_gufuncs(
-            source[rest], target[rest], given[rest])
-    return rotation, translation, ok, measure
-
-
-@njit(cache=True)
-def fit_rigid_sets(weights: np.ndarray, source: np.ndarray, target: np.ndarray,
-                   lapack: tuple[int, int, int, int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_rigid_batch` of C-contiguous float64 (B, P) weights and (B, P, 3) points for compiled callers (a
-    refinement fits inside one compiled call, clipclique.refine), and (B,) whether each set was fitted here:
-    where one was not (its moments not finite, or LAPACK failed), only `fit_rigid_batch` has its bits (numpy's
-    gufuncs). `lapack`: `lapack_routines()`."""
-    rotation, translation, ok, _, decomposed = _fitted(weights, np.zeros(0), source, target, lapack, False)
-    return rotation, translation, ok, decomposed
-
-
-def _fitted_by_gufuncs(source: np.ndarray, target: np.ndarray,
-                       weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`fit_rigid_conditioned` by compiled passes around numpy's LAPACK gufuncs: the SVD of the
-    cross-covariances and one eigvalsh call for both sides'."""
     weights = np.asarray(weights)
-    total = weights.sum(axis=1)  # numpy's pairwise sum: the kernels add in order, as einsum does
-    source, target = np.ascontiguousarray(source, np.float64), np.ascontiguousarray(target, np.float64)
-    mean_source, mean_target, cross, spreads = _moments(np.ascontiguousarray(weights, np.float64), total, source,
-                                                        target)
-    u, _, vt = _svd(cross)
-    _proper(u, vt)
-    rotation = u @ vt
-    variances = _eigvalsh(spreads)  # (2, B, 3)
-    translation = mean_target - np.einsum("bij,bj->bi", rotation, mean_source)
-    ok, measure = _settled(rotation, translation, total, variances[0], variances[1])
-    return rotation, translation, ok, measure
+    if source.ndim != 3 or source.shape[2] != 3 or target.shape != source.shape or weights.shape != source.shape[:2]:
+        raise ValueError(f"source {source.shape}, target {target.shape} and weights {weights.shape} must be "
+                         "(B, P, 3) twice and (B, P)")  # the compiled pass reads them unchecked
+    return _fitted(np.ascontiguousarray(weights, np.float64), source, target)
 
 
 @njit(cache=True)
-def _fitted(weights: np.ndarray, total: np.ndarray, source: np.ndarray, target: np.ndarray,
-            lapack: tuple[int, int, int, int, int],
-            conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`_fitted_by_gufuncs` in one pass, set by set, and (B,) whether each set was decomposed here (its moments
-    finite and LAPACK content; the others are left to the gufuncs). `total`: the weights' sums, empty: summed
-    here as numpy sums C-ordered rows (`numpybits.pairwise_sum`). `lapack`: `lapack_routines()`. `conditioned`: as
-    `_fit`. u vt as numpy's matmul computes it (`_rotation_of`) and the translation as its einsum
-    (`_translation_of`). The per-set helpers are inlined here (`inline="always"`): an array handed to a compiled
-    call is counted in and out (two atomic operations), a few dozen a set."""
-    count, points = weights.shape
-    mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
-    cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
-    w = np.empty(points)
-    centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
+def fit_rigid_sets(weights: np.ndarray, source: np.ndarray,
+                   target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_batch` of C-contiguous float64 (B, P) weights and (B, P, 3) points for compiled callers (a
+    refinement fits inside one compiled call, clipclique.refine)."""
+    rotation, translation, ok, _ = _fitted(weights, source, target)
+    return rotation, translation, ok
+
+
+@njit(cache=True)
+def _fitted(weights: np.ndarray, source: np.ndarray,
+            target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`fit_rigid_conditioned` of checked, C-contiguous float64 arrays, set by set (`_fit_set`): a query fits a
+    few batches of a few dozen sets each, so one compiled call per batch rather than a dozen numpy calls."""
+    count = len(weights)
     rotation, translation = np.empty((count, 3, 3)), np.empty((count, 3))
-    ok, measure, decomposed = np.zeros(count, np.bool_), np.zeros(count), np.zeros(count, np.bool_)
-    flat = weights.reshape(-1)
-    scratch = _workspace(lapack)
-    u, vt = _svd_views(scratch)  # views made once, not per set: each is counted in and out
-    source_spreads, target_spreads = spreads[0], spreads[1]
-    turn, shift, source_variances, target_variances = np.empty((3, 3)), np.empty(3), np.empty(3), np.empty(3)
+    ok, measure = np.zeros(count, np.bool_), np.zeros(count)
+    moments, scratch = np.empty((3, 3, 3)), np.empty((2, 4, 4))
     for b in range(count):
-        summed = 0.0 + pairwise_sum(flat, b * points, (b + 1) * points, 0.0) if len(total) == 0 else total[b]
-        _moments_of(b, weights, summed, source, target, mean_source, mean_target, cross, spreads, w,
-                    centred_source, centred_target)
-        if not _finite_at(b, mean_source, mean_target, cross, spreads):
-            continue
-        if _svd_of(lapack, scratch, cross, b):
-            continue
-        _proper_of(u, vt)
-        _rotation_of(u, vt, turn)
-        _translation_of(turn, mean_source, mean_target, b, shift)
-        if not conditioned and _surely_spread(source_spreads, b) and _surely_spread(target_spreads, b):
-            decomposed[b], ok[b], measure[b] = True, _kept(turn, shift, summed > 0), np.nan
-        elif not (_eigvalsh_of(lapack, scratch, source_spreads, b, source_variances)
-                  | _eigvalsh_of(lapack, scratch, target_spreads, b, target_variances)):
-            decomposed[b] = True
-            ok[b], measure[b] = _settle(turn, shift, summed, source_variances, target_variances)
-        for i in range(3):  # copied out decomposed or not: where not, `_fit` puts the gufuncs' pose over it
-            translation[b, i] = shift[i]
-            for j in range(3):
-                rotation[b, i, j] = turn[i, j]
-    return rotation, translation, ok, measure, decomposed
+        ok[b], measure[b] = _fit_set(weights, source, target, b, moments, scratch, rotation, translation)
+    return rotation, translation, ok, measure
 
 
 @njit(cache=True, inline="always")
-def _finite_at(b, mean_source, mean_target, cross, spreads) -> bool:
-    """Whether set b's means, cross-covariance and both covariances are all finite: numpy's
-    `np.isfinite(row).all()` of each, number by number (no row views or boolean arrays per set)."""
+def _fit_set(weights, source, target, b, moments, scratch, rotation, translation) -> tuple[bool, float]:
+    """Set b's pose into rotation[b] and translation[b], whether it fixes one, and its conditioning.
+
+    The weighted means, the cross-covariance and both sides' covariances (`moments`: cross, source, target),
+    the covariances' eigenvalues (`_eigenvalues`) for the spread test and the conditioning, and the rotation
+    by Horn's quaternion (`_rotation`). A set that fixes no pose gets the identity.
+    Inlined: an array passed to a compiled call is reference-counted, a few dozen times a set."""
+    total, means = _moments(weights, source, target, b, moments)
+    fitted, conditioned = False, 0.0
+    if total > 0 and _finite(means, moments):
+        source_variances = _eigenvalues(moments[1], scratch[0])
+        target_variances = _eigenvalues(moments[2], scratch[0])
+        fitted = _spread_ok(source_variances) and _spread_ok(target_variances)
+        conditioned = min(_ratio_of(source_variances), _ratio_of(target_variances))
+    if fitted:
+        _rotation(moments[0], scratch, rotation, b)
+        for i in range(3):
+            translation[b, i] = means[1][i] - (rotation[b, i, 0] * means[0][0] + rotation[b, i, 1] * means[0][1]
+                                               + rotation[b, i, 2] * means[0][2])
+    else:
+        for i in range(3):
+            translation[b, i] = 0.0
+            for j in range(3):
+                rotation[b, i, j] = 1.0 if i == j else 0.0
+    return fitted, conditioned
+
+
+@njit(cache=True, inline="always")
+def _moments(weights, source, target, b, moments):
+    """Set b's total weight, its weighted means ((3,) source, (3,) target) and, into `moments` (3, 3, 3), the
+    cross-covariance sum_p w_p s_p t_p^T (source index first) and both sides' covariances, w = weights / total.
+    The covariances are of the centred points (two passes): one pass of raw sums would lose their digits to
+    cancellation where the points lie far from the origin."""
+    points = weights.shape[1]
+    total = 0.0
+    for p in range(points):
+        total += weights[b, p]
+    scale = 1.0 / total if total > 0 else 0.0
+    ms, mt = np.zeros(3), np.zeros(3)
+    for p in range(points):
+        for i in range(3):
+            ms[i] += weights[b, p] * source[b, p, i]
+            mt[i] += weights[b, p] * target[b, p, i]
     for i in range(3):
-        if not (np.isfinite(mean_source[b, i]) and np.isfinite(mean_target[b, i])):
+        ms[i] *= scale
+        mt[i] *= scale
+    moments[:] = 0.0
+    for p in range(points):
+        w = weights[b, p] * scale
+        s0, s1, s2 = source[b, p, 0] - ms[0], source[b, p, 1] - ms[1], source[b, p, 2] - ms[2]
+        t0, t1, t2 = target[b, p, 0] - mt[0], target[b, p, 1] - mt[1], target[b, p, 2] - mt[2]
+        ws0, ws1, ws2, wt0, wt1, wt2 = w * s0, w * s1, w * s2, w * t0, w * t1, w * t2
+        moments[0, 0, 0] += ws0 * t0
+        moments[0, 0, 1] += ws0 * t1
+        moments[0, 0, 2] += ws0 * t2
+        moments[0, 1, 0] += ws1 * t0
+        moments[0, 1, 1] += ws1 * t1
+        moments[0, 1, 2] += ws1 * t2
+        moments[0, 2, 0] += ws2 * t0
+        moments[0, 2, 1] += ws2 * t1
+        moments[0, 2, 2] += ws2 * t2
+        moments[1, 0, 0] += ws0 * s0
+        moments[1, 0, 1] += ws0 * s1
+        moments[1, 0, 2] += ws0 * s2
+        moments[1, 1, 1] += ws1 * s1
+        moments[1, 1, 2] += ws1 * s2
+        moments[1, 2, 2] += ws2 * s2
+        moments[2, 0, 0] += wt0 * t0
+        moments[2, 0, 1] += wt0 * t1
+        moments[2, 0, 2] += wt0 * t2
+        moments[2, 1, 1] += wt1 * t1
+        moments[2, 1, 2] += wt1 * t2
+        moments[2, 2, 2] += wt2 * t2
+    for k in (1, 2):  # the covariances' lower triangles mirror the upper
+        moments[k, 1, 0], moments[k, 2, 0], moments[k, 2, 1] = moments[k, 0, 1], moments[k, 0, 2], moments[k, 1, 2]
+    return total, (ms, mt)
+
+
+@njit(cache=True, inline="always")
+def _finite(means, moments) -> bool:
+    """Whether the means and every moment are finite (NaN or inf in a set, or moments that overflow)."""
+    for i in range(3):
+        if not (np.isfinite(means[0][i]) and np.isfinite(means[1][i])):
             return False
-        for j in range(3):
-            if not (np.isfinite(cross[b, i, j]) and np.isfinite(spreads[0, b, i, j])
-                    and np.isfinite(spreads[1, b, i, j])):
-                return False
+    for k in range(3):
+        for i in range(3):
+            for j in range(3):
+                if not np.isfinite(moments[k, i, j]):
+                    return False
     return True
 
 
-# LAPACK's dgesdd and dsyevd called from compiled code as numpy's gufuncs call them (np.linalg.svd: jobz "A";
-# eigvalsh: jobz "N", the lower triangle; each with its queried optimal workspace), through scipy's LAPACK
-# (numba's np.linalg uses the same, but queries and allocates the workspace on every 3 x 3 call: a third
-# more than the decomposition). Their addresses are arguments, not constants, so the kernels stay cached.
-_THREE, _SVD_WORK, _EIG_WORK, _EIG_INTS, _INFO = 0, 1, 2, 3, 4  # `_workspace`'s integers
-
-
-@intrinsic
-def _call(typingctx, address, pointers):
-    """`void f(void *, ...)` at `address` called with the addresses in the tuple `pointers`."""
-    count = len(pointers)
-
-    def codegen(context, builder, signature, args):
-        pointer = ir.IntType(8).as_pointer()
-        function = builder.inttoptr(args[0], ir.FunctionType(ir.VoidType(), [pointer] * count).as_pointer())
-        builder.call(function, [builder.inttoptr(value, pointer) for value in cgutils.unpack_tuple(builder, args[1])])
-        return context.get_dummy_value()
-
-    return types.void(address, pointers), codegen
-
-
-@cache
-def lapack_routines() -> tuple[int, int, int, int, int]:
-    """dgesdd's and dsyevd's addresses and their optimal workspaces for a 3 x 3 matrix (`_workspace`'s sizes),
-    asked once."""
-    gesdd = get_cython_function_address("scipy.linalg.cython_lapack", "dgesdd")
-    syevd = get_cython_function_address("scipy.linalg.cython_lapack", "dsyevd")
-    return (gesdd, syevd, *_work_sizes(gesdd, syevd))
-
-
-@njit(cache=True)
-def _work_sizes(gesdd: int, syevd: int) -> tuple[int, int, int]:
-    """LAPACK's optimal workspace sizes for a 3 x 3 matrix (its answer to a workspace of size -1): dgesdd's
-    doubles, dsyevd's doubles and integers."""
-    scratch = _workspace((gesdd, syevd, 1, 1, 1))
-    integers, svd_work, eig_work, eig_integers = scratch[0], scratch[6], scratch[8], scratch[9]
-    integers[_SVD_WORK:_INFO] = -1
-    _svd_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((1, 3, 3)), 0)
-    _eigvalsh_of((gesdd, syevd, 1, 1, 1), scratch, np.zeros((1, 3, 3)), 0, np.empty(3))
-    return max(1, int(svd_work[0])), max(1, int(eig_work[0])), max(1, int(eig_integers[0]))
-
-
-@njit(cache=True)
-def _workspace(lapack):
-    """The scratch `_svd_of` and `_eigvalsh_of` pass LAPACK: (integers: 3 and the workspaces' sizes, characters
-    "ANL", a 3 x 3 matrix, u, vt and singular values, the SVD's work and integer work, eigvalsh's)."""
-    integers = np.array([3, lapack[2], lapack[3], lapack[4], 0], np.int32)
-    characters = np.array([ord("A"), ord("N"), ord("L")], np.uint8)
-    return (integers, characters, np.empty(9), np.empty(9), np.empty(9), np.empty(3), np.empty(lapack[2]),
-            np.empty(24, np.int32), np.empty(lapack[3]), np.empty(lapack[4], np.int32))  # dgesdd: 8 min(m, n) integers
-
-
 @njit(cache=True, inline="always")
-def _svd_of(lapack, scratch, matrices, b):
-    """Whether LAPACK's dgesdd failed on the finite 3 x 3 `matrices[b]`; u and vt in the scratch (`_svd_views`),
-    valid until the next call."""
-    integers, characters, copy, u, vt, values, work, work_integers, _, _ = scratch
-    _column_major(matrices, b, copy)
-    integer = integers.ctypes.data  # the int32s' addresses by offset, not by slices (a view each, counted in and out)
-    three = integer + 4 * _THREE
-    _call(lapack[0], (characters.ctypes.data, three, three, copy.ctypes.data, three, values.ctypes.data,
-                      u.ctypes.data, three, vt.ctypes.data, three, work.ctypes.data,
-                      integer + 4 * _SVD_WORK, work_integers.ctypes.data, integer + 4 * _INFO))
-    return integers[_INFO] != 0
-
-
-@njit(cache=True, inline="always")
-def _svd_views(scratch):
-    """u and vt of the scratch's last SVD (`_svd_of`) as 3 x 3 views: LAPACK writes them column after column."""
-    return scratch[3].reshape(3, 3).T, scratch[4].reshape(3, 3).T
-
-
-@njit(cache=True, inline="always")
-def _eigvalsh_of(lapack, scratch, matrices, b, values):
-    """The ascending eigenvalues of the finite symmetric 3 x 3 `matrices[b]` (its lower triangle) by dsyevd into
-    `values` (3,), and whether LAPACK failed."""
-    integers, characters, copy, _, _, _, _, _, work, work_integers = scratch
-    _column_major(matrices, b, copy)
-    integer = integers.ctypes.data  # as `_svd_of`
-    three = integer + 4 * _THREE
-    _call(lapack[1], (characters.ctypes.data + 1, characters.ctypes.data + 2, three, copy.ctypes.data, three,
-                      values.ctypes.data, work.ctypes.data, integer + 4 * _EIG_WORK, work_integers.ctypes.data,
-                      integer + 4 * _EIG_INTS, integer + 4 * _INFO))
-    return integers[_INFO] != 0
-
-
-@njit(cache=True, inline="always")
-def _column_major(matrices: np.ndarray, b: int, out: np.ndarray) -> None:
-    """The 3 x 3 `matrices[b]` into `out` (9,) column after column, as LAPACK reads it (the call overwrites it)."""
+def _eigenvalues(m: np.ndarray, a: np.ndarray) -> tuple[float, float, float]:
+    """The ascending eigenvalues of the finite symmetric 3 x 3 `m` (`_diagonalize`; `a` (4, 4): scratch). Not
+    Smith's closed form: there the two eigenvalues of a tie split by sqrt(eps) |m|, so that a row of points
+    (two zero variances) would seem spread a hundred-millionth of its length across, ten thousand times the
+    spread test's threshold."""
     for i in range(3):
         for j in range(3):
-            out[i + 3 * j] = matrices[b, i, j]
+            a[i, j] = m[i, j]
+    _diagonalize(a, a, 3, False)
+    low, middle, high = a[0, 0], a[1, 1], a[2, 2]
+    low, middle = min(low, middle), max(low, middle)
+    middle, high = min(middle, high), max(middle, high)
+    return min(low, middle), max(low, middle), high
 
 
 @njit(cache=True, inline="always")
-def _rotation_of(u: np.ndarray, vt: np.ndarray, out: np.ndarray) -> None:
-    """u @ vt of 3 x 3 matrices into `out` as numpy's matmul computes it (a dgemm per matrix of a stack, in
-    OpenBLAS: from +0, one fused multiply-add per k in order)."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = fma(u[i, 2], vt[2, j], fma(u[i, 1], vt[1, j], fma(u[i, 0], vt[0, j], 0.0)))
+def _rotation(cross: np.ndarray, scratch: np.ndarray, rotation: np.ndarray, b: int) -> None:
+    """The rotation R maximizing trace(R `cross`) (cross: sum_p w_p s_p t_p^T), into rotation[b], by Horn's
+    quaternion (1987): the unit eigenvector q of the largest eigenvalue of a symmetric 4 x 4 matrix N of `cross`
+    (`_top_eigenvector`), and R = R(q), a rotation whatever the data (never a reflection). N's two largest
+    eigenvalues differ by twice the sum of cross's two smaller singular values (their sum with the sign of its
+    determinant): small for a thin set, and then only an eigen-solver accurate to eps |N| tells them apart (the
+    largest root of N's characteristic polynomial, as Theobald's QCP finds it, is only accurate to eps |N| over
+    that difference, and a set a thousandth as wide as long rotated wrongly by up to half a turn)."""
+    m = cross
+    sxx, sxy, sxz, syx, syy, syz, szx, szy, szz = (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0],
+                                                   m[2, 1], m[2, 2])
+    n = scratch[0]
+    n[0, 0], n[1, 1], n[2, 2], n[3, 3] = sxx + syy + szz, sxx - syy - szz, syy - sxx - szz, szz - sxx - syy
+    n[0, 1] = n[1, 0] = syz - szy
+    n[0, 2] = n[2, 0] = szx - sxz
+    n[0, 3] = n[3, 0] = sxy - syx
+    n[1, 2] = n[2, 1] = sxy + syx
+    n[1, 3] = n[3, 1] = szx + sxz
+    n[2, 3] = n[3, 2] = syz + szy
+    _quaternion_rotation(_top_eigenvector(n, scratch[1]), rotation, b)
 
 
 @njit(cache=True, inline="always")
-def _translation_of(rotation: np.ndarray, mean_source: np.ndarray, mean_target: np.ndarray, b: int,
-                    out: np.ndarray) -> None:
-    """mean_target[b] - rotation @ mean_source[b] into `out` as `mean_target - np.einsum("bij,bj->bi", ...)` does:
-    einsum's sum of three products, (x0 y0 + x2 y2) + x1 y1, added to its 0."""
-    for i in range(3):
-        product = ((rotation[i, 0] * mean_source[b, 0] + rotation[i, 2] * mean_source[b, 2])
-                   + rotation[i, 1] * mean_source[b, 1])
-        out[i] = mean_target[b, i] - (0.0 + product)
-
-
-@njit(cache=True)
-def _moments(weights: np.ndarray, total: np.ndarray, source: np.ndarray,
-             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per set b, with w = weights / total (1 where the total is not positive): the weighted means of
-    source and target, the cross-covariance sum_p w_p t_p s_p^T and (2, B, 3, 3) either side's covariance
-    (source first), of the centred points (`_moments_of`)."""
-    count, points = weights.shape
-    mean_source, mean_target = np.zeros((count, 3)), np.zeros((count, 3))
-    cross, spreads = np.zeros((count, 3, 3)), np.zeros((2, count, 3, 3))
-    w = np.empty(points)
-    centred_source, centred_target = np.empty((points, 3)), np.empty((points, 3))
-    for b in range(count):
-        _moments_of(b, weights, total[b], source, target, mean_source, mean_target, cross, spreads, w,
-                    centred_source, centred_target)
-    return mean_source, mean_target, cross, spreads
+def _top_eigenvector(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The unit eigenvector of the largest eigenvalue of the symmetric 4 x 4 `a` (overwritten; `v` (4, 4):
+    scratch) by `_diagonalize`; of a tie of the largest (the rotation is not unique) the first, as good as any."""
+    _diagonalize(a, v, 4, True)
+    best = 0
+    for i in range(1, 4):
+        if a[i, i] > a[best, best]:
+            best = i
+    return v[:, best]
 
 
 @njit(cache=True, inline="always")
-def _moments_of(b, weights, total, source, target, mean_source, mean_target, cross, spreads, w, centred_source,
-                centred_target) -> None:
-    """`_moments` of set b into row b of the zeroed outputs (w, centred_*: scratch). Each sum adds its terms in
-    order from 0, each term (w_p * x_i) * y_j, as `np.einsum("bp,bpi,bpj->bij", ...)` does: the same bits in one
-    call instead of a dozen."""
-    points = weights.shape[1]
-    safe = total if total > 0 else 1.0
-    for p in range(points):
-        w[p] = weights[b, p] / safe
-    for p in range(points):
-        for i in range(3):
-            mean_source[b, i] += w[p] * source[b, p, i]
-            mean_target[b, i] += w[p] * target[b, p, i]
-    for p in range(points):
-        for i in range(3):
-            centred_source[p, i] = source[b, p, i] - mean_source[b, i]
-            centred_target[p, i] = target[b, p, i] - mean_target[b, i]
-    for p in range(points):
-        for i in range(3):
-            for j in range(3):
-                cross[b, i, j] += w[p] * centred_target[p, i] * centred_source[p, j]
-                spreads[0, b, i, j] += w[p] * centred_source[p, i] * centred_source[p, j]
-                spreads[1, b, i, j] += w[p] * centred_target[p, i] * centred_target[p, j]
-
-
-@njit(cache=True)
-def _proper(u: np.ndarray, vt: np.ndarray) -> None:
-    """`_proper_of` of each of a stack's u and vt, in place."""
-    for b in range(len(u)):
-        _proper_of(u[b], vt[b])
+def _diagonalize(a: np.ndarray, v: np.ndarray, size: int, vectors: bool) -> None:
+    """The symmetric `size` x `size` top left of `a` diagonalized in place by cyclic Jacobi rotations and, where
+    `vectors`, their product into `v` (its columns the eigenvectors). Backward stable: each eigenvalue within a
+    few eps of |a| and each eigenvector within that over its gap to the others, whatever their multiplicity.
+    Three or four sweeps of size (size - 1) / 2 rotations."""
+    total = 0.0
+    for i in range(size):
+        for j in range(size):
+            total += a[i, j] * a[i, j]
+            if vectors:
+                v[i, j] = 1.0 if i == j else 0.0
+    for _ in range(30):
+        off = 0.0
+        for i in range(size - 1):
+            for j in range(i + 1, size):
+                off += a[i, j] * a[i, j]
+        if not off > 1e-34 * total:
+            return
+        for p in range(size - 1):
+            for q in range(p + 1, size):
+                if a[p, q] != 0.0:
+                    _jacobi_rotation(a, v, p, q, size, vectors)
 
 
 @njit(cache=True, inline="always")
-def _proper_of(u: np.ndarray, vt: np.ndarray) -> None:
-    """In place, u's third column negated where u vt is a reflection, so that u vt is a rotation: what
-    `u[:, :, 2] *= np.where(sign == 0, 1, sign)` with `sign = np.sign(np.linalg.det(u @ vt))` does, without the
-    product and LAPACK's determinant. The SVD's u and vt are orthogonal, so det(u) det(vt) and det(u vt) are both
-    +-1 to within round-off and never 0: the same sign, and NaN alike where the SVD gave NaN (then the sets'
-    covariances are not finite either, and `_settled` replaces the rotation)."""
-    sign = np.sign(_det3(u) * _det3(vt))
-    factor = 1.0 if sign == 0 else sign
-    for i in range(3):
-        u[i, 2] *= factor
+def _jacobi_rotation(a: np.ndarray, v: np.ndarray, p: int, q: int, size: int, vectors: bool) -> None:
+    """The plane rotation that zeroes a[p, q] applied to both sides of the symmetric `a` (its top left `size`),
+    and to `v`'s columns where `vectors`: t = tan of the angle, the smaller root of t^2 + 2 theta t - 1 = 0."""
+    theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+    t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0)) if abs(theta) < 1e150 else 0.5 / abs(theta)
+    t = -t if theta < 0.0 else t
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    s = t * c
+    apq = a[p, q]
+    a[p, p] -= t * apq
+    a[q, q] += t * apq
+    a[p, q] = a[q, p] = 0.0
+    for r in range(size):
+        if r != p and r != q:
+            g, h = a[r, p], a[r, q]
+            a[r, p] = a[p, r] = c * g - s * h
+            a[r, q] = a[q, r] = s * g + c * h
+    if vectors:
+        for r in range(size):
+            g, h = v[r, p], v[r, q]
+            v[r, p] = c * g - s * h
+            v[r, q] = s * g + c * h
 
 
 @njit(cache=True, inline="always")
-def _det3(m: np.ndarray) -> float:
-    """A 3 x 3 determinant by cofactors (its sign is what `_proper` reads)."""
-    return (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1]) - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-            + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
-
-
-@njit(cache=True)
-def _settled(rotation: np.ndarray, translation: np.ndarray, total: np.ndarray, source_variances: np.ndarray,
-             target_variances: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(B,) `_settle` of each set."""
-    ok, measure = np.empty(len(total), np.bool_), np.empty(len(total))
-    for b in range(len(total)):
-        ok[b], measure[b] = _settle(rotation[b], translation[b], total[b], source_variances[b], target_variances[b])
-    return ok, measure
-
-
-@njit(cache=True, inline="always")
-def _settle(rotation: np.ndarray, translation: np.ndarray, total: float, source_variances: np.ndarray,
-            target_variances: np.ndarray) -> tuple[bool, float]:
-    """Whether a set fixes a pose (positive weights, neither side collinear), and the smaller of the two sides'
-    `_ratio`, np.minimum's way; a set that fixes none gets the identity, in place."""
-    ok = _kept(rotation, translation, total > 0 and _spread_ok(source_variances) and _spread_ok(target_variances))
-    source, target = _ratio_of(source_variances), _ratio_of(target_variances)
-    return ok, source if source < target or np.isnan(source) else target
+def _quaternion_rotation(q: np.ndarray, rotation: np.ndarray, b: int) -> None:
+    """The rotation matrix of the unit quaternion q = (w, x, y, z) into rotation[b]."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    rotation[b, 0, 0] = w * w + x * x - y * y - z * z
+    rotation[b, 0, 1] = 2.0 * (x * y - w * z)
+    rotation[b, 0, 2] = 2.0 * (x * z + w * y)
+    rotation[b, 1, 0] = 2.0 * (x * y + w * z)
+    rotation[b, 1, 1] = w * w - x * x + y * y - z * z
+    rotation[b, 1, 2] = 2.0 * (y * z - w * x)
+    rotation[b, 2, 0] = 2.0 * (x * z - w * y)
+    rotation[b, 2, 1] = 2.0 * (y * z + w * x)
+    rotation[b, 2, 2] = w * w - x * x - y * y + z * z
 
 
 @njit(cache=True, inline="always")
-def _kept(rotation: np.ndarray, translation: np.ndarray, ok: bool) -> bool:
-    """`ok`, the pose replaced by the identity, in place, where it is not."""
-    if not ok:
-        rotation[:] = np.eye(3)
-        translation[:] = 0.0
-    return ok
+def _spread_ok(variances: tuple[float, float, float]) -> bool:
+    """Whether a weighted point set is not collinear: its second principal variance (of 3, ascending) is not ~0."""
+    return variances[1] > max(_RELATIVE_VARIANCE * variances[2], _MIN_VARIANCE)
 
 
 @njit(cache=True, inline="always")
-def _surely_spread(covariances: np.ndarray, b: int) -> bool:
-    """True only where `_spread_ok` of LAPACK's eigenvalues of the finite symmetric 3 x 3 `covariances[b]` (its lower
-    triangle, as dsyevd reads it) is surely True, told without them: its middle eigenvalue is at least the
-    smaller one of each 2 x 2 principal submatrix (Cauchy's interlacing), computed here within 12 eps of its
-    Frobenius norm F, and dsyevd's eigenvalues lie within 1e-10 F of the exact ones (it is backward stable:
-    within a few hundred eps of F for a 3 x 3 matrix). So the middle eigenvalue LAPACK gives exceeds 0.8e-9 F,
-    above either of `_spread_ok`'s thresholds (1e-12 or 1e-12 of the largest, at most F + 1e-10 F). Where this
-    says False (a row of points, a set too small to tell), the eigenvalues decide."""
-    m = covariances
-    norm = np.sqrt(m[b, 0, 0] * m[b, 0, 0] + m[b, 1, 1] * m[b, 1, 1] + m[b, 2, 2] * m[b, 2, 2]
-                   + 2.0 * (m[b, 1, 0] * m[b, 1, 0] + m[b, 2, 0] * m[b, 2, 0] + m[b, 2, 1] * m[b, 2, 1]))
-    middle_at_least = -np.inf
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        a, d, off = m[b, i, i], m[b, j, j], m[b, j, i]
-        half = 0.5 * (a - d)
-        middle_at_least = max(middle_at_least, 0.5 * (a + d) - np.sqrt(half * half + off * off))
-    return middle_at_least > 1e-9 * norm + 2e-12
-
-
-@njit(cache=True, inline="always")
-def _ratio_of(variances: np.ndarray) -> float:
-    """`_ratio` of one set's (3,) variances with numpy's operations: np.maximum keeps NaN and, on a tie, its
-    second operand (max(-0, +0) is +0)."""
-    if not variances[2] > 0:
+def _ratio_of(variances: tuple[float, float, float]) -> float:
+    """sqrt(second / largest principal variance) of ascending variances; 0 where they do not spread at all."""
+    if not variances[2] > 0.0:
         return 0.0
-    second = variances[1] if variances[1] > 0.0 or np.isnan(variances[1]) else 0.0
-    return np.sqrt(second / variances[2])
+    return np.sqrt(max(variances[1], 0.0) / variances[2])
 
 
 def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray | float:
@@ -479,73 +365,19 @@ def conditioning(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     total = weights.sum(axis=-1, keepdims=True)
     w = weights / np.where(total > 0, total, 1.0)
     centred = points - np.einsum("...p,...pi->...i", w, points)[..., None, :]
-    ratio = _ratio(_variances(centred, w))
+    covariances = np.einsum("...p,...pi,...pj->...ij", w, centred, centred)
+    ratio = _ratios(np.ascontiguousarray(covariances.reshape(-1, 3, 3))).reshape(covariances.shape[:-2])
     return float(ratio) if ratio.ndim == 0 else ratio
 
 
-def _variances(centred: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(..., 3) ascending principal variances of weighted, centred points (..., P, 3)."""
-    return _eigvalsh(np.einsum("...p,...pi,...pj->...ij", w, centred, centred))
-
-
-def _ratio(variances: np.ndarray) -> np.ndarray:
-    """sqrt(second / largest principal variance) of (..., 3) variances; 0 where the points do not spread at all."""
-    flat = np.ascontiguousarray(variances, np.float64).reshape(-1, 3)
-    return _ratios(flat).reshape(variances.shape[:-1])
-
-
 @njit(cache=True)
-def _ratios(variances: np.ndarray) -> np.ndarray:
-    """`_ratio_of` of each row of (M, 3) variances."""
-    out = np.empty(len(variances))
-    for m in range(len(variances)):
-        out[m] = _ratio_of(variances[m])
+def _ratios(covariances: np.ndarray) -> np.ndarray:
+    """`_ratio_of` of the eigenvalues of each of (M, 3, 3) covariances (0 where one is not finite)."""
+    out, scratch = np.zeros(len(covariances)), np.empty((4, 4))
+    for k in range(len(covariances)):
+        if np.isfinite(covariances[k]).all():
+            out[k] = _ratio_of(_eigenvalues(covariances[k], scratch))
     return out
-
-
-@njit(cache=True, inline="always")
-def _spread_ok(variances: np.ndarray) -> bool:
-    """Whether a weighted point set is not collinear: its second principal variance (of 3, ascending) is not ~0."""
-    relative = _RELATIVE_VARIANCE * variances[2]
-    return variances[1] > (relative if relative > _MIN_VARIANCE or np.isnan(relative) else _MIN_VARIANCE)
-
-
-# The LAPACK gufuncs np.linalg.svd and eigvalsh call, the same results without the wrappers' checks
-# and error-state context (for a 3 x 3 matrix those cost twice the decomposition; a query fits a dozen
-# poses). A set that LAPACK cannot decompose (NaN input) gives NaN here rather than LinAlgError, and
-# NaN variances fail `_spread_ok`: the set is flagged degenerate. The gufuncs are numpy's private API;
-# where a numpy version has moved them, the public wrappers stand in (`_public_linalg`).
-LinearAlgebra = tuple[Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]], Callable[[np.ndarray], np.ndarray]]
-
-
-def _private_linalg() -> LinearAlgebra | None:
-    """svd and eigvalsh (lower triangle) of stacked square matrices by numpy's own gufuncs; None
-    where this numpy has none under these names (numpy 2's and numpy 1's)."""
-    try:
-        from numpy.linalg import _umath_linalg as gufuncs
-
-        square_svd = getattr(gufuncs, "svd_f", None) or gufuncs.svd_n_f
-        eigvalsh = gufuncs.eigvalsh_lo
-    except (ImportError, AttributeError):
-        return None
-    return lambda m: square_svd(m, signature="d->ddd"), lambda m: eigvalsh(m, signature="d->d")
-
-
-def _public_linalg() -> LinearAlgebra:
-    """The same two by np.linalg's public functions, NaN for a matrix holding NaN or inf (where the
-    wrappers would raise for the whole stack)."""
-
-    def decomposed(function: Callable, matrices: np.ndarray):
-        finite = np.isfinite(matrices).all(axis=(-2, -1))
-        out = function(np.where(finite[..., None, None], matrices, 0.0))
-        for part in out if isinstance(out, tuple) else (out,):
-            part[~finite] = np.nan
-        return out
-
-    return lambda m: tuple(decomposed(np.linalg.svd, m)), lambda m: decomposed(np.linalg.eigvalsh, m)
-
-
-_svd, _eigvalsh = _private_linalg() or _public_linalg()
 
 
 def correspondence_weights(
@@ -576,8 +408,8 @@ WEIGHT_MODES = {"none": 0, "sim": 1, "com": 2, "both": 3}
 
 @njit(cache=True)
 def nonzero_counts(weights: np.ndarray) -> np.ndarray:
-    """(B,) how many of each row of (B, P) weights are not 0 (NaN counts): `np.count_nonzero(weights, axis=1)`,
-    which with an axis converts the whole array to bool and sums it (ten times the work of a batch's count)."""
+    """(B,) how many of each row of (B, P) weights are not 0 (NaN counts): `np.count_nonzero(weights, axis=1)`
+    without converting the whole array to bool first (ten times the work of a batch's count)."""
     counts = np.zeros(len(weights), np.int64)
     for b in range(len(weights)):
         for p in range(weights.shape[1]):
@@ -591,7 +423,7 @@ def weighted_sets(pairs: np.ndarray, scores: np.ndarray, counts: np.ndarray, pad
     """What a batch fit of correspondence sets reads, in one compiled pass: (B, P, 3) observed and landmark
     centres and (B, P) `correspondence_weights` of B sets stacked one after another in `pairs` (M, 2) with
     their `scores` (M,), `counts[b]` pairs each, padded to the longest with the pair and score `pad` at weight
-    0 (times its weight: numpy's `valid * weights`, the same bits). `observed`, `landmarks`: (centres, axes)."""
+    0. `observed`, `landmarks`: (centres, axes)."""
     return compiled_weighted_sets(np.ascontiguousarray(pairs, np.int64), np.ascontiguousarray(scores, np.float64),
                                   np.asarray(counts, np.int64), pad[0], pad[1], float(pad[2]), *observed, *landmarks,
                                   WEIGHT_MODES[mode])
@@ -612,25 +444,24 @@ def compiled_weighted_sets(pairs, scores, counts, pad_observation, pad_landmark,
                            else (pad_observation, pad_landmark, pad_score))
             for i in range(3):  # number by number: a row is a view, counted in and out
                 source[b, p, i], target[b, p, i] = observed_centers[k, i], landmark_centers[n, i]
-            weights[b, p] = (1.0 if valid else 0.0) * _weight(score, observed_axes, k, landmark_axes, n, mode)
+            weights[b, p] = _weight(score, observed_axes, k, landmark_axes, n, mode) if valid else 0.0
         start += counts[b]
     return source, target, weights
 
 
 @njit(cache=True, inline="always")
 def _weight(score, observed_axes, k, landmark_axes, n, mode):
-    """One pair's `correspondence_weights` (observation k's axes, landmark n's: indices, not row views), numpy's
-    operations in numpy's order: np.maximum and np.minimum (NaN kept, +0 over -0) and einsum's sum of three
-    products, (x0 y0 + x2 y2) + x1 y1."""
+    """One pair's `correspondence_weights` (observation k's axes, landmark n's: indices, not row views); a NaN
+    score stays NaN (a bad score is not silently a zero weight)."""
     if mode == 0:
         return 1.0
     similarity = score if score > 0.0 or np.isnan(score) else 0.0
     if mode == 1:
         return similarity
-    observed = ((observed_axes[k, 0] * observed_axes[k, 0] + observed_axes[k, 2] * observed_axes[k, 2])
-                + observed_axes[k, 1] * observed_axes[k, 1])
-    landmark = ((landmark_axes[n, 0] * landmark_axes[n, 0] + landmark_axes[n, 2] * landmark_axes[n, 2])
-                + landmark_axes[n, 1] * landmark_axes[n, 1])
+    observed = (observed_axes[k, 0] * observed_axes[k, 0] + observed_axes[k, 1] * observed_axes[k, 1]
+                + observed_axes[k, 2] * observed_axes[k, 2])
+    landmark = (landmark_axes[n, 0] * landmark_axes[n, 0] + landmark_axes[n, 1] * landmark_axes[n, 1]
+                + landmark_axes[n, 2] * landmark_axes[n, 2])
     ratio = np.sqrt(observed / (landmark if landmark > 1e-12 or np.isnan(landmark) else 1e-12))
     completeness = ratio if ratio < 1.0 or np.isnan(ratio) else 1.0
     return completeness if mode == 2 else similarity * completeness

@@ -14,8 +14,8 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
-from clipclique.pose import (WEIGHT_MODES, compiled_weighted_sets, fit_rigid_batch, fit_rigid_sets,
-                             lapack_routines, nonzero_counts, weighted_sets)
+from clipclique.pose import (WEIGHT_MODES, compiled_weighted_sets, fit_rigid_batch, fit_rigid_sets, nonzero_counts,
+                             weighted_sets)
 from clipclique.stack import Stack, alike, alike_spans
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
@@ -57,15 +57,14 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
 
 @njit(cache=True)
 def _moved(rotations, translations, points):
-    """(B * K, 3) the K points moved by each of B poses, to the bit as
-    `np.einsum("bij,kj->bki", rotations, points) + translations[:, None]`: each coordinate einsum's sum of three
-    products, (r0 x0 + r2 x2) + r1 x1, then the translation (two numpy passes cost more than the arithmetic)."""
+    """(B * K, 3) the K points moved by each of B poses, `np.einsum("bij,kj->bki", rotations, points) +
+    translations[:, None]` in one pass (two numpy passes cost more than the arithmetic)."""
     moved = np.empty((len(rotations) * len(points), 3))
     for b in range(len(rotations)):
         for k in range(len(points)):
             for i in range(3):
-                moved[b * len(points) + k, i] = ((rotations[b, i, 0] * points[k, 0] + rotations[b, i, 2] * points[k, 2])
-                                                 + rotations[b, i, 1] * points[k, 1]) + translations[b, i]
+                moved[b * len(points) + k, i] = (rotations[b, i, 0] * points[k, 0] + rotations[b, i, 1] * points[k, 1]
+                                                 + rotations[b, i, 2] * points[k, 2] + translations[b, i])
     return moved
 
 
@@ -108,9 +107,9 @@ def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, land
 
 @njit(cache=True, inline="always")
 def _near(points, p, centers, n, limit, radius):
-    """The distance of points[p] and centers[n] where it is below `radius`, else -1: np.linalg.norm's,
-    ((dx^2 + dy^2) + dz^2) ** 0.5 in that order, its square root taken only within `limit`, `_reach` squared
-    (most pairs of a map are far). Indices, not rows: a row is an array view, counted in and out per pair."""
+    """The distance of points[p] and centers[n] where it is below `radius`, else -1, its square root taken only
+    within `limit`, `_reach` squared (most pairs of a map are far). Indices, not rows: a row is an array view,
+    counted in and out per pair."""
     dx = points[p, 0] - centers[n, 0]
     dy = points[p, 1] - centers[n, 1]
     dz = points[p, 2] - centers[n, 2]
@@ -262,25 +261,23 @@ def refined(stack: Stack, observations: Observations, map: Map, similarity: np.n
     they are at least as many as it had (a refit never rests on fewer objects), `rounds` times; and (B,)
     which were replaced. The hypotheses still refining are refitted together, one batch per round (a
     re-ranked frame has fifty). A room-sized map is refined in one compiled call (`_refined_densely`; a dozen
-    Python-level calls a round cost as much as the work), a larger one, or a set only numpy's gufuncs fit, round
-    by round (`_refined_by_rounds`). `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built
-    only where a round needs it)."""
+    Python-level calls a round cost as much as the work), a larger one round by round (`_refined_by_rounds`).
+    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
     if len(stack) * len(observations) * len(map) <= DENSE_PAIRS:
-        rotations, translations, sizes, pairs, moved, fitted = _refined_densely(
+        rotations, translations, sizes, pairs, moved = _refined_densely(
             stack.rotations, stack.translations, stack.counts, stack.pairs,
             np.ascontiguousarray(observations.ellipsoids.centers, np.float64), observations.ellipsoids.axes,
             np.ascontiguousarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes, similarity, radius,
-            WEIGHT_MODES[weights], rounds, lapack_routines())
-        if fitted:
-            return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes,
-                          scores=stack.scores, conditioning=stack.conditioning) if moved.any() else stack), moved
+            WEIGHT_MODES[weights], rounds)
+        return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes, scores=stack.scores,
+                      conditioning=stack.conditioning) if moved.any() else stack), moved
     return _refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
 
 
 def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
                        weights: PoseWeights, rounds: int, landmarks: cKDTree | None) -> tuple[Stack, np.ndarray]:
     """`refined`, a round at a time: the nearby pairs of each by `_stacked_nearby_pairs` (a KD-tree join beyond a
-    room-sized map) and the fits by `fit_rigid_batch` (numpy's gufuncs where LAPACK cannot be called directly)."""
+    room-sized map) and the fits by `fit_rigid_batch`."""
     rotations, translations, sizes = stack.rotations.copy(), stack.translations.copy(), stack.counts.copy()
     found = [stack.pairs]  # every round's pairs after the stack's own; `origin` indexes them all, joined
     origin, offset = stack.starts(), len(stack.pairs)
@@ -313,10 +310,9 @@ def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, simil
 
 @njit(cache=True)
 def _refined_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
-                     similarity, radius, mode, rounds, lapack):
+                     similarity, radius, mode, rounds):
     """`_refined_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
-    stack's arrays), which hypotheses moved, and whether every set was fitted here (False: a set's moments are
-    not finite, the whole refinement is left to `_refined_by_rounds`; nothing given is changed). Each round as
+    stack's arrays) and which hypotheses moved. Each round as
     `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
     `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and `_taken`."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
@@ -341,9 +337,7 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
         source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[firsts], 0, 0,
                                                    np.float64(similarity[0, 0]), centers, axes, landmark_centers,
                                                    landmark_axes, mode)
-        rotation, translation, ok, decomposed = fit_rigid_sets(w, source, target, lapack)
-        if not decomposed.all():
-            return rotations, translations, sizes, found[:0], moved, False
+        rotation, translation, ok = fit_rigid_sets(w, source, target)
         active = _taken(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts, offset,
                         near_counts, rotations, translations, sizes, origin, moved)
         found[offset: offset + len(near)] = near
@@ -354,7 +348,7 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
         for i in range(origin[b], origin[b] + sizes[b]):
             joined[row, 0], joined[row, 1] = found[i, 0], found[i, 1]
             row += 1
-    return rotations, translations, sizes, joined, moved, True
+    return rotations, translations, sizes, joined, moved
 
 
 def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,

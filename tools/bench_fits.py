@@ -2,11 +2,10 @@
 
     .venv/bin/python tools/bench_fits.py [SCENE ...] [--max-frames 30] [--repeat 3]
 
-Every pose a query computes is a weighted fit of a correspondence set: LAPACK's 3 x 3 SVD (dgesdd) for
-each, and for the clique poses also the eigenvalues of both sides' covariances (two dsyevd) for the
-conditioning. "The same results to the bit" pins these to LAPACK's own calls, in the same number.
-Each query runs once with its fits recorded (the refinement round by round, which computes the same
-as its one compiled call: tests/unit/test_refine.py), then, fastest of `--repeat`, the whole `localize`
+Every pose a query computes is a weighted fit of a correspondence set, one compiled pass per batch
+(clipclique.pose: the moments, both covariances' eigenvalues and Horn's quaternion). Each query runs
+once with its fits recorded (the refinement round by round, which computes the same as its one compiled
+call: tests/unit/test_refine.py), then, fastest of `--repeat`, the whole `localize`
 and the recorded batches fitted again alone, the same calls (`fit_rigid_conditioned` for the clique
 poses, `fit_rigid_batch` for the refinement's, each a Python call that the refinement's own compiled
 call does without). Printed per scene, medians over frames: the sets fitted per query, ms of the fits
@@ -77,7 +76,7 @@ def measure(scene: str, max_frames: int, repeat: int) -> None:
     fit_ms, whole_ms = np.median(fits), np.median(whole)
     share = np.median(np.array(fits) / np.array(whole))
     print(f"{scene}: {len(queries)} frames; sets fitted per query, median: {np.median(clique_sets):.0f} clique poses "
-          f"(SVD + 2 eigenvalue calls each), {np.median(refined_sets):.0f} refinement (SVD each); fits alone "
+          f"(with their conditioning), {np.median(refined_sets):.0f} refinement; fits alone "
           f"{fit_ms:.2f} ms, whole localize {whole_ms:.2f} ms, the fits' share {100 * share:.0f}%")
 
 

@@ -561,6 +561,9 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
 
 
 _NONE = Stack.of([])  # no hypothesis
+# Re-ranking keys equal to this many decimals tie, and ties keep the pool's order (the clique score's): the same
+# correspondences in another order fit a pose that differs in its last bits, and so does its verification score.
+RANK_DECIMALS = 9
 
 
 @njit(cache=True)
@@ -602,7 +605,7 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
         if config.inliers.rerank == "confidence" and probability is None:
             raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
-        kept = np.argsort(-key, kind="stable")[: config.top_n]
+        kept = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[: config.top_n]
     result.hypotheses = pool.hypotheses(kept, checked.score, probability)
     if config.min_confidence > 0:
         if probability is None:

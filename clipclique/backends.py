@@ -1,7 +1,7 @@
 """The registries that pick a back-end by name: detectors (`--detector`) and encoders (`--encoder`).
 
-They sit above both the real back-ends (`clipclique.detectors`, `clipclique.yolo`,
-`clipclique.encoders`) and the simulated ones (`clipclique.sim`), so that neither imports the other.
+They sit above both the real back-ends (`clipclique.perception.detectors`, `clipclique.perception.yolo`,
+`clipclique.perception.encoders`) and the simulated ones (`clipclique.sim`), so that neither imports the other.
 """
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from clipclique.detectors import Detector, InstanceDetector
-from clipclique.encoders import CHECKPOINT_SUFFIXES, DEFAULT_MODEL, ClipEncoder, Encoder
+from clipclique.perception.detectors import Detector, InstanceDetector
+from clipclique.perception.encoders import CHECKPOINT_SUFFIXES, DEFAULT_MODEL, ClipEncoder, Encoder
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector
 from clipclique.sim.encoder import SIMULATED_NAME, SimulatedClipEncoder
-from clipclique.yolo import YoloDetector
+from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.datasets import Sequence as DatasetSequence

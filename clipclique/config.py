@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Literal, NamedTuple, get_args, get_origin, get_type_hints
 
 from clipclique.errors import ClipcliqueError
-from clipclique.safeio import read_json, read_text
+from clipclique.io.safeio import read_json, read_text
 from clipclique.types import MAX_DEPTH_M
 
 Descriptor = Literal["fused", "clip", "sh", "xview"]
@@ -56,7 +56,7 @@ class SimilarityConfig:
     # Beyond the paper (0 = the paper's literal SH): S_sh <- w * S_class + (1 - w) * S_sh, so an
     # object with no neighbour within d_adj (an empty histogram) still matches by its class.
     class_weight: float = ranged(0.3, 0.0, 1.0)
-    # Beyond the paper (0 = exact labels): weight of a look-alike class (clipclique.lookalikes) in the
+    # Beyond the paper (0 = exact labels): weight of a look-alike class (clipclique.descriptors.lookalikes) in the
     # class term and the query's Semantic Histograms, so a cup detected as "bottle" still finds cups.
     lookalike_weight: float = ranged(0.6, 0.0, 1.0)
     # Beyond the paper (off = hard map classes): where the map holds class distributions (an imported
@@ -75,7 +75,7 @@ class MatchingConfig:
     # most similar landmarks of each look-alike class of its own (similarity.lookalike_weight > 0) whose size
     # agrees with the observation's (lookalike_size_ratio; matching.with_lookalikes), so a cup detected as
     # "bottle" keeps its cups as candidates; with re-ranking, each clique holding such a pair is also fitted
-    # without it (README "Beyond the paper", benchmark/accuracy_levers.py).
+    # without it (README "Beyond the paper", clipclique/benchmark/accuracy_levers.py).
     lookalike_candidates: int = ranged(2, 0, 1000)
     # ... only landmarks whose sorted semi-axes are each within this factor of the observation's (1000: any size)
     lookalike_size_ratio: float = ranged(1.5, 1.0, 1000.0)
@@ -100,7 +100,7 @@ class InlierConfig:
     max_pairs: int = ranged(2_000_000, 1, 1_000_000_000)
     # Beyond the paper: from this many candidates (or beyond matching.max_candidates), candidates that lie in
     # several map regions farther apart than compatibility reaches (a building of look-alike rooms) are searched
-    # region by region, copies of one room once (clipclique.regions), when copies at least halve the searches:
+    # region by region, copies of one room once (clipclique.inliers.regions), when copies at least halve the searches:
     # the same hypotheses; num_cliques then counts each region's own search, and the candidate cap applies per
     # region. Rooms that differ are searched as one map, capped as before.
     region_split_from: int = ranged(2_000, 1, 1_000_000_000)
@@ -117,7 +117,7 @@ class InlierConfig:
     rerank: Rerank = "verification"
     # Beyond the paper: with re-ranking, the inlier stage fits this many hypotheses (the heaviest cliques),
     # verification keeps the top_n best. On a cluttered desk the right clique is often not among the
-    # heaviest five: look-alike objects form heavier wrong ones (benchmark/accuracy_levers.py).
+    # heaviest five: look-alike objects form heavier wrong ones (clipclique/benchmark/accuracy_levers.py).
     rerank_pool: int = ranged(50, 1, 1000)
     # Beyond the paper (0 = off): observations whose boxes overlap at least this much (IoU) are one
     # object seen twice (a detector's cross-class duplicate): never both in one clique.
@@ -131,13 +131,13 @@ class PoseConfig:
     # pose: with 0.1 m centre noise most such poses are over 1 m off (tools/bench_conditioning.py).
     min_conditioning: float = ranged(0.05, 0.0, 1.0)
     # Beyond the paper (0 = off): metres; each pose refitted with every observation it moves this
-    # close to a landmark it is similar to (clipclique.refine)
+    # close to a landmark it is similar to (clipclique.pose.refine)
     refine_radius: float = ranged(0.3, 0.0, 10.0)
 
 
 @dataclass
 class VerificationConfig:
-    """Image verification of every hypothesis (clipclique.verification)."""
+    """Image verification of every hypothesis (clipclique.verify.verification)."""
 
     depth_tolerance: float = ranged(0.5, 1e-6, 100.0)  # metres: depth disagreement at which an overlap counts for nothing
     missed_weight: float = ranged(0.25, 0.0, 100.0)  # a missed landmark costs a quarter of a perfect overlap
@@ -146,12 +146,12 @@ class VerificationConfig:
     # Beyond the first verification (0 = each missed landmark costs missed_weight): a missed landmark costs in
     # full when its projected box covers this fraction of the image (a sixteenth: 160 x 120 of 640 x 480), in
     # proportion when smaller. Detectors miss small objects most (a cluttered desk's right pose misses a score
-    # of them); a large object that nobody detected still rules a pose out (clipclique.verification).
+    # of them); a large object that nobody detected still rules a pose out (clipclique.verify.verification).
     missed_full_area: float = ranged(0.0625, 0.0, 1.0)
     # Beyond the paper (0 = off: each missed landmark costs alike however many the pose expects): where a pose
     # expects more than this much evidence (its landmarks in view counted by size, as missed ones are), its
     # missed evidence is scaled by this / expected: it pays for the share it missed. A cluttered desk's right
-    # pose misses a dozen small objects, a wrong one looking past the desk a few (benchmark/accuracy_levers.py).
+    # pose misses a dozen small objects, a wrong one looking past the desk a few (clipclique/benchmark/accuracy_levers.py).
     missed_share_from: float = ranged(3.0, 0.0, 1000.0)
 
 
@@ -168,7 +168,7 @@ class FitParams:
 
 @dataclass(frozen=True)
 class ObservationParams:
-    """How a detection becomes an observed ellipsoid (clipclique.observations)."""
+    """How a detection becomes an observed ellipsoid (clipclique.perception.observations)."""
 
     min_mask_pixels: int = ranged(100, 1, 100_000_000)  # smaller masks are too noisy to fit
     erode_px: int = ranged(2, 0, 100)  # mask erosion before back-projection (kept only if enough pixels survive)

@@ -97,7 +97,7 @@ def _box_parts(points: np.ndarray, spread: np.ndarray, ratio: float, min_points:
     """`_box` up to its centre, in one compiled call: (an `Oriented` value, `_oriented`'s axes and rotation, the
     inliers' mean, the middle of their extents and the scatter's eigenvectors). DEGENERATE also for fewer than
     `min_points` inliers, NOT_FINITE (and nothing else meaningful) for a scatter that is not finite. numba's
-    `eigh` calls LAPACK's dsyevd as numpy's does: the same bits (tests/unit/test_observations.py)."""
+    `eigh` calls LAPACK's dsyevd as numpy's does: the same bits (tests/unit/perception/test_observations.py)."""
     limit, kept, mean, scatter = _inliers(points, spread, ratio)
     nothing = np.zeros(3)
     if kept < min_points:

@@ -16,8 +16,7 @@ import numpy as np
 
 from clipclique.config import LocalizationConfig
 from clipclique.geometry import pose_errors
-from clipclique.outcomes import ALGORITHM_STAGES, Failure, FailureKind
-from clipclique.pipeline import LocalizationResult
+from clipclique.outcomes import ALGORITHM_STAGES, Failure, FailureKind, LocalizationResult
 from clipclique.types import Map, Observations, Pose
 
 TOP_K = (1, 3, 5)

@@ -8,8 +8,12 @@ runner's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import Enum, StrEnum
+
+import numpy as np
+
+from clipclique.types import Hypothesis
 
 
 class Stage(StrEnum):
@@ -44,7 +48,7 @@ class CapHit(StrEnum):
 @dataclass(frozen=True, kw_only=True)
 class RegionSplit:
     """How a frame of many candidates in several map regions was searched: region by region
-    (clipclique.regions, `inliers.region_split_from`).
+    (clipclique.inliers.regions, `inliers.region_split_from`).
 
     A building of identical rooms is truly ambiguous: every copy of the room holding the heaviest
     clique holds one as heavy, and `tied_regions` says in how many places the frame fits equally well.
@@ -107,3 +111,21 @@ class Failure:
 
     def __str__(self) -> str:
         return self.message
+
+
+@dataclass(kw_only=True)
+class LocalizationResult:
+    """What `pipeline.localize` found for one frame."""
+
+    hypotheses: list[Hypothesis]  # best first, at most config.top_n
+    candidates: np.ndarray  # (C, 2) int (observation index, landmark index) after initial matching
+    candidate_scores: np.ndarray  # (C,) similarity of each candidate
+    similarity: np.ndarray  # (K, N) the matrix the matching used
+    num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
+    cap_hit: CapHit | None  # the first bound hit, None when none was
+    failure: Failure | None  # why there is no pose; None on success
+    region_split: RegionSplit | None = None  # the regions searched one by one (inliers.region_split_from)
+    notes: list[str] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
+    # (C,) candidates only `matching.lookalike_candidates` added (the gap rule did not keep them); None: none were
+    lookalike_added: np.ndarray | None = None

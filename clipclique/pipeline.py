@@ -13,12 +13,12 @@ collinear or poorly conditioned)" (every set was degenerate, or nearly a row of 
 `config.pose.min_conditioning`), or NOT_CONFIDENT "no pose with confidence >= P (best c)"
 (`min_confidence`). A bound that cut work short is `LocalizationResult.cap_hit` (`outcomes.CapHit`).
 
-Every method's hypotheses are then verified in the image (`clipclique.verification`) and given a
-calibrated confidence (`clipclique.confidence`) when the observations carry their boxes and camera;
+Every method's hypotheses are then verified in the image (`clipclique.verify.verification`) and given a
+calibrated confidence (`clipclique.verify.confidence`) when the observations carry their boxes and camera;
 `inliers.rerank` reorders them by either (verification by default), keeping the top_n best of the
 `inliers.rerank_pool` hypotheses the inlier stage then fits (the heaviest cliques). Beyond the paper, by default:
 each pose is refitted with every observation it brings near a similar landmark (`pose.refine_radius`,
-clipclique.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
+clipclique.pose.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
 detected twice with two classes) never enter one clique together; adaptive matching also keeps each observation's
 best landmarks of its look-alike classes (`matching.lookalike_candidates`), and with re-ranking each clique holding
 such a pair is also fitted without it. Missing CLIP embeddings make "fused" fall back to SH only (a note
@@ -29,23 +29,27 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 from numba import njit
 from scipy.spatial import cKDTree
 
-from clipclique import (cliquesearch, compatibility, confidence, consensus, graph, lookalikes, mapalign, matching,
-                        projection, refine, regions, similarity, verification)
+from clipclique.descriptors import graph, lookalikes, matching, similarity
+from clipclique.inliers import cliquesearch, compatibility, consensus, regions
+from clipclique.multiframe import mapalign
+from clipclique.pose import refine
+from clipclique.verify import confidence, projection, verification
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, RegionSplit, Stage
-from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
-from clipclique.projection import pair_iou
+from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, LocalizationResult, Stage
+from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
+from clipclique.verify.projection import pair_iou
 from clipclique.numpybits import pairwise_sum, sort_span
-from clipclique.stack import Stack
-from clipclique.types import Hypothesis, Map, Observations
+from clipclique.pose.stack import Stack
+from clipclique.types import Map, Observations
+
 
 @dataclass(kw_only=True)
 class MapIndex:
@@ -65,22 +69,6 @@ class MapIndex:
     landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
     class_groups: matching.ClassGroups | None = None  # landmarks by class, look-alike classes (matching.lookalike_candidates)
     spreads: np.ndarray | None = None  # (N, 9) the landmarks' spreads, verification's map side (projection.spreads)
-
-
-@dataclass(kw_only=True)
-class LocalizationResult:
-    hypotheses: list[Hypothesis]  # best first, at most config.top_n
-    candidates: np.ndarray  # (C, 2) int (observation index, landmark index) after initial matching
-    candidate_scores: np.ndarray  # (C,) similarity of each candidate
-    similarity: np.ndarray  # (K, N) the matrix the matching used
-    num_cliques: int  # maximal cliques the search reached (the rest cut by its bound), or RANSAC/PROSAC hypotheses
-    cap_hit: CapHit | None  # the first bound hit, None when none was
-    failure: Failure | None  # why there is no pose; None on success
-    region_split: RegionSplit | None = None  # the regions searched one by one (inliers.region_split_from)
-    notes: list[str] = field(default_factory=list)
-    timings: dict[str, float] = field(default_factory=dict)  # seconds per stage (outcomes.PIPELINE_STAGES)
-    # (C,) candidates only `matching.lookalike_candidates` added (the gap rule did not keep them); None: none were
-    lookalike_added: np.ndarray | None = None
 
 
 def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
@@ -159,7 +147,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
 
 def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> mapalign.MapAlignment:
     """The top transforms taking `query_map`'s coordinates into `map`'s, with their confidences and whether
-    the answer is ambiguous: the query map localized as one frame (clipclique.mapalign)."""
+    the answer is ambiguous: the query map localized as one frame (clipclique.multiframe.mapalign)."""
     query = mapalign.as_query(query_map, map, config)
     result = localize(query.observations, index_map(query.map, query.config), query.config)
     return mapalign.conclude(result, query, query_map, config)
@@ -311,7 +299,7 @@ def _finite(values: np.ndarray) -> bool:
 
 def _split(observations: Observations, map: Map, candidates: np.ndarray, scores: np.ndarray,
            config: LocalizationConfig) -> regions.Regions | None:
-    """The candidates split by map region (clipclique.regions) when a clique search has at least
+    """The candidates split by map region (clipclique.inliers.regions) when a clique search has at least
     inliers.region_split_from of them (or more than matching.max_candidates) in more than one region and
     at most half as many distinct layouts as regions; None otherwise (the whole frame is searched, capped).
     The split pays only through copies searched once: a region searched on its own costs its own graph
@@ -330,7 +318,7 @@ def _solve_cliques(result: LocalizationResult, observations: Observations, map: 
                    lap: Callable[[Stage], None], split: regions.Regions | None = None) -> Stack:
     """The heaviest maximal cliques of the compatibility graph (summed similarity), one pose each (the
     pool, stacked); on a map of many candidates in several regions (`split`), region by region
-    (clipclique.regions).
+    (clipclique.inliers.regions).
 
     A degenerate clique gives no pose; the search is then asked for twice as many cliques
     until top_n poses are found or the cliques run out (the first ones come back unchanged).

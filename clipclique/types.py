@@ -189,5 +189,5 @@ class Hypothesis:
     # observed and the map side): near 0, a row of objects whose rotation is ill-determined.
     # NaN when not measured (only the pipeline measures it).
     conditioning: float = float("nan")
-    verification: float | None = None  # image verification score (clipclique.verification); None: not verified
-    confidence: float | None = None  # P(pose within the success threshold), clipclique.confidence; None: unknown
+    verification: float | None = None  # image verification score (clipclique.verify.verification); None: not verified
+    confidence: float | None = None  # P(pose within the success threshold), clipclique.verify.confidence; None: unknown

@@ -82,9 +82,9 @@ def full_size_maps(tmp_path_factory) -> FullSizeMaps:
     """`full_size_maps("demo_desk")`: the map of a whole generated scene under the repository's data/ (generated
     there on first use, as `make demo` does), built with the simulated encoder once per session."""
     from clipclique.backends import load_encoder
-    from clipclique.mapfile import save_map
+    from clipclique.io.mapfile import save_map
     from clipclique.resolve import open_scene
-    from mapping.build import build_map
+    from clipclique.mapping.build import build_map
 
     folder = tmp_path_factory.mktemp("full-size-maps")
     built: dict[str, Path] = {}

@@ -8,7 +8,7 @@ vertical spread drawn log-uniformly from 1 mm to 1 m, seen by a camera 1 to 4 m 
 observed centres carry Gaussian noise (0.1 m per axis: a median offset of 0.15 m, near the
 0.18 m measured on a real ScanNet scan, docs/REAL_SCENES.md) and every correspondence is
 correct, so all the error comes from the layout. The table bins layouts by the smaller
-`clipclique.pose.conditioning` of the observed and the map centres (as the pipeline judges) and gives, per bin, the median camera position and rotation
+`clipclique.pose.fit.conditioning` of the observed and the map centres (as the pipeline judges) and gives, per bin, the median camera position and rotation
 errors and the share of poses off by more than 1 m (the success threshold): the figure behind
 the default `pose.min_conditioning`.
 """
@@ -21,7 +21,7 @@ import numpy as np
 
 from clipclique.geometry import random_rotation
 from clipclique.config import PoseConfig
-from clipclique.pose import conditioning, fit_rigid_batch
+from clipclique.pose.fit import conditioning, fit_rigid_batch
 
 EDGES = (0.0, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
 

@@ -3,9 +3,9 @@
     .venv/bin/python tools/bench_fits.py [SCENE ...] [--max-frames 30] [--repeat 3]
 
 Every pose a query computes is a weighted fit of a correspondence set, one compiled pass per batch
-(clipclique.pose: the moments, both covariances' eigenvalues and Horn's quaternion). Each query runs
+(clipclique.pose.fit: the moments, both covariances' eigenvalues and Horn's quaternion). Each query runs
 once with its fits recorded (the refinement round by round, which computes the same as its one compiled
-call: tests/unit/test_refine.py), then, fastest of `--repeat`, the whole `localize`
+call: tests/unit/pose/test_refine.py), then, fastest of `--repeat`, the whole `localize`
 and the recorded batches fitted again alone, the same calls (`fit_rigid_conditioned` for the clique
 poses, `fit_rigid_batch` for the refinement's, each a Python call that the refinement's own compiled
 call does without). Printed per scene, medians over frames: the sets fitted per query, ms of the fits
@@ -24,9 +24,9 @@ one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clip
 import numpy as np  # noqa: E402
 
 import clipclique.pipeline as pipeline  # noqa: E402
-import clipclique.refine as refine  # noqa: E402
-from clipclique.pose import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
-from localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
+import clipclique.pose.refine as refine  # noqa: E402
+from clipclique.pose.fit import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
+from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
 
 from bench_speed import fastest  # noqa: E402  (this directory's: ms of the fastest of `repeat` calls)
 

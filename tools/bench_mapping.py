@@ -29,7 +29,7 @@ def main() -> None:
     from clipclique.sim.demo import write_scannet_mesh
     from clipclique.sim.procedural import make_room
     from clipclique.datasets.scannet import ScanNetScene
-    from mapping.build import build_map
+    from clipclique.mapping.build import build_map
 
     room = make_room(seed=7, spacing=args.spacing, boxes=6)
     with tempfile.TemporaryDirectory() as tmp:

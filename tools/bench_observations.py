@@ -3,7 +3,7 @@
     .venv/bin/python tools/bench_observations.py [SCENE ...] [--rev d350f9d] [--max-frames 40] [--repeat 3]
                                                  [--clock wall|cpu]
 
-The revision's `clipclique/observations.py`, `geometry.py` and `encoders.py` are loaded from git as
+The revision's `clipclique/perception/observations.py`, `geometry.py` and `encoders.py` are loaded from git as
 modules of their own, so both versions run in one process on the same detections (the
 sequence's own detector, run once per frame and not timed). Each frame is fitted `--repeat`
 times by each version, alternating, and the fastest kept, which damps the noise of a shared
@@ -32,10 +32,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from clipclique.encoders import Crop  # noqa: E402
+from clipclique.perception.encoders import Crop  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
-from clipclique.observations import Extraction, extract_observations  # noqa: E402
-from localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+from clipclique.perception.observations import Extraction, extract_observations  # noqa: E402
+from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 BEFORE = "d350f9d"  # the last commit before the compiled window pass (README, Observation stage)
@@ -43,7 +43,7 @@ CROWDED = 15  # detections: the frames of the target, 15 objects in 15 ms (issue
 
 
 def load_revision(rev: str, directory: Path) -> ModuleType:
-    """`clipclique.observations` as of `rev`, importing that revision's `clipclique.geometry` and `.encoders`."""
+    """`clipclique.perception.observations` as of `rev`, importing that revision's `clipclique.geometry` and `.encoders`."""
     def load(name: str) -> ModuleType:
         source = subprocess.run(["git", "show", f"{rev}:clipclique/{name}.py"], cwd=ROOT, capture_output=True,
                                 text=True, check=True).stdout

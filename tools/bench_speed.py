@@ -8,7 +8,7 @@ the merge base with main), measure the same frames in lock step (frame i in one,
 other), so both see the same machine load (`--cpu CORE`: both on one core, as a VM's cores can
 differ). Each worker runs the sequence's own detector (once), the observation stage, the encoder
 and `localize` (fastest of `--repeat`, per stage) and, in the working tree's worker, the literal
-reference (`benchmark.literal_reference`, networkx) on the same observations. Printed per scene:
+reference (`clipclique.benchmark.literal_reference`, networkx) on the same observations. Printed per scene:
 median and 90th percentile ms per stage, before and now, the observation stage per detection, and
 the literal reference's whole query beside the project's.
 
@@ -20,7 +20,7 @@ own thread (Python building Rerun's objects, under the GIL the run needs), and k
 with and without the recording (process start included, after one warm-up run each): wall seconds, and
 the CPU seconds (user + system, all threads) that a loaded machine's wall time hides.
 
-`--clutter COUNTS`: the desk scene of `benchmark.core` (26 observations a query, the desk map
+`--clutter COUNTS`: the desk scene of `clipclique.benchmark.core` (26 observations a query, the desk map
 copied into rooms 20 m apart), SH only, per landmark count: `index_map` seconds (its first call on that
 map, numba's one-time process initialisation already paid: that is printed apart), whole-query median
 and 90th percentile ms, cap hits, and the worker's peak resident memory; the literal reference at
@@ -47,6 +47,16 @@ import numpy as np  # noqa: E402
 TOOLS = Path(__file__).resolve().parent
 ROOT = TOOLS.parent
 LITERAL_UP_TO = 100  # landmarks: the literal reference's cliques explode on larger clutter maps
+
+
+def layout_module(name: str):
+    """`clipclique.<name>`, or the top-level `<name>` of a tree from before the runners moved into clipclique."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"clipclique.{name}")
+    except ModuleNotFoundError:
+        return importlib.import_module(name)
 
 
 class Worker:
@@ -84,9 +94,11 @@ def serve() -> None:
         import clipclique.synthetic
         sys.modules["clipclique.sim"] = types.ModuleType("clipclique.sim")
         sys.modules["clipclique.sim.synthetic"] = clipclique.synthetic
-    from benchmark import literal_reference
+    literal_reference = layout_module("benchmark.literal_reference")
     from clipclique.pipeline import index_map, localize
-    from localization.run import RunSettings, observe, prepare, selected_frames
+    run_module = layout_module("localization.run")
+    RunSettings, observe, prepare, selected_frames = (getattr(run_module, name) for name in (
+        "RunSettings", "observe", "prepare", "selected_frames"))
 
     numba_start = numba_start_seconds()  # first, so that no figure below carries it
     runs: dict[str, tuple] = {}
@@ -154,7 +166,9 @@ def recording_times(scene: str, max_frames: int, path: Path) -> dict:
     recording of the scene's frames."""
     from clipclique.pipeline import index_map
     from clipclique.viz import LocalizationRecorder
-    from localization.run import RunSettings, localize_frame, prepare, selected_frames
+    run_module = layout_module("localization.run")
+    RunSettings, localize_frame, prepare, selected_frames = (getattr(run_module, name) for name in (
+        "RunSettings", "localize_frame", "prepare", "selected_frames"))
 
     run = prepare(RunSettings(scene, max_frames=max_frames))
     index = index_map(run.map, run.config)
@@ -175,9 +189,9 @@ def recording_times(scene: str, max_frames: int, path: Path) -> dict:
 
 
 def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
-    """The desk scene of benchmark.core and `queries` queries of it, as JSON both trees' workers read
+    """The desk scene of clipclique.benchmark.core and `queries` queries of it, as JSON both trees' workers read
     (so a revision from before today's modules gets the very same scene)."""
-    from benchmark.core import ROOM_SPACING, desk_map, desk_query
+    from clipclique.benchmark.core import ROOM_SPACING, desk_map, desk_query
 
     base = desk_map(np.random.default_rng(seed))
     rng = np.random.default_rng(seed + 1)
@@ -222,7 +236,7 @@ def fastest(call, repeat: int) -> float:
 def observation_times(run, frame, detections, repeat: int) -> dict:
     """ms of the observation stage and of the encoder on the frame's detections, each the fastest of
     `repeat` (the detector, the slowest stage and no concern of this measure, runs once)."""
-    from clipclique.observations import embed, extract_observations
+    from clipclique.perception.observations import embed, extract_observations
 
     best = {"observations ms": np.inf, "encoder ms": np.inf}
     for _ in range(repeat):
@@ -334,7 +348,9 @@ def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory:
             for record in (True, False):
                 # -P: `python -c` puts the working directory (this tree) ahead of PYTHONPATH; without it "before"
                 # ran this tree's code too
-                command = [sys.executable, "-P", "-c", "from localization.cli import main; main()", "run", scene,
+                entry = ("from clipclique.localization.cli import main; main()" if (tree / "clipclique" / "localization").is_dir()
+                         else "from localization.cli import main; main()")  # a tree from before the move
+                command = [sys.executable, "-P", "-c", entry, "run", scene,
                            "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
                 before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 start = time.perf_counter()

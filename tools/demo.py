@@ -15,11 +15,11 @@ one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas
 
 from clipclique.commands import command  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
-from clipclique.outputs import MAP_DIR  # noqa: E402
-from localization.run import RunSettings, run_and_save  # noqa: E402
-from localization.tables import make_console, print_documents  # noqa: E402
-from mapping import tables as map_tables  # noqa: E402
-from mapping.run import run_build  # noqa: E402
+from clipclique.io.outputs import MAP_DIR  # noqa: E402
+from clipclique.localization.run import RunSettings, run_and_save  # noqa: E402
+from clipclique.localization.tables import make_console, print_documents  # noqa: E402
+from clipclique.mapping import tables as map_tables  # noqa: E402
+from clipclique.mapping.run import run_build  # noqa: E402
 
 SEQUENCES = ("demo", "demo_tum")
 METHODS = ("clipclique", "sh", "xview", "cliploc")

@@ -1,4 +1,4 @@
-"""Fit the map-to-map alignment confidence (clipclique.mapalign) on generated cases, measured on held-out ones.
+"""Fit the map-to-map alignment confidence (clipclique.multiframe.mapalign) on generated cases, measured on held-out ones.
 
     .venv/bin/python tools/fit_align_confidence.py            # prints the constants and their calibration
 
@@ -11,7 +11,7 @@ Generated cases (seeded), each a query map, a map and the true transform:
 Every reported candidate is labelled right when it moves the query map's centroid within 0.5 m of
 where the truth puts it and its rotation is within 5 degrees. A logistic regression of
 (log correspondences, margin) is fitted on even seeds and measured on odd ones (a reliability table),
-then refitted on all; paste the printed constants into clipclique/mapalign.py.
+then refitted on all; paste the printed constants into clipclique/multiframe/mapalign.py.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import expit, log_expit
 
-from clipclique import mapalign
+from clipclique.multiframe import mapalign
 from clipclique.config import make_config
 from clipclique.pipeline import align_maps
 from clipclique.geometry import random_rotation, rotation_angle

@@ -4,7 +4,7 @@
     .venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json  # your own data
 
 Each scene's frames go through the detector, the observation fit and the encoder once (as in
-benchmark.suite); all four methods then localize them. Held-out figures leave one scene out at a
+clipclique.benchmark.suite); all four methods then localize them. Held-out figures leave one scene out at a
 time (the model scoring a scene never saw it): ECE, a reliability diagram and the share of frames
 accepted at 95% precision. The model written to --out is then fitted on every scene, its Platt
 calibration on leave-one-scene-out logits. Use a refitted model with
@@ -28,14 +28,14 @@ for _variable, _value in (("HF_HUB_OFFLINE", "1"), ("YOLO_OFFLINE", "1")):
 one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas)
 
 
-from benchmark import calibration  # noqa: E402
-from benchmark.engine import ensure_map  # noqa: E402
-from benchmark.suite import cache_sequence  # noqa: E402
-from clipclique import confidence  # noqa: E402
+from clipclique.benchmark import calibration  # noqa: E402
+from clipclique.benchmark.engine import ensure_map  # noqa: E402
+from clipclique.benchmark.suite import cache_sequence  # noqa: E402
+from clipclique.verify import confidence# noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
-from clipclique.outputs import Staging  # noqa: E402
-from localization.results import json_safe  # noqa: E402
+from clipclique.io.outputs import Staging  # noqa: E402
+from clipclique.localization.results import json_safe  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -27,10 +27,10 @@ from clipclique.interop.coco import COCO80_INDEX
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.protowire import encode_field, encode_packed_floats, encode_packed_uints
 from clipclique.interop.quadric import encode_dual_quadric
-from clipclique.mapfile import load_map
+from clipclique.io.mapfile import load_map
 from clipclique.backends import make_detector
 from clipclique.resolve import default_detector
-from clipclique.yolo import coco_to_vocabulary
+from clipclique.perception.yolo import coco_to_vocabulary
 
 ROOT = Path(__file__).resolve().parent.parent
 

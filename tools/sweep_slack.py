@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from benchmark import suite as bench
+from clipclique.benchmark import suite as bench
 
 SETTINGS = {
     "none": {"inliers.partial_slack": 0.0},

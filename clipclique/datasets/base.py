@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique import safeio
+from clipclique.io import safeio
 from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 

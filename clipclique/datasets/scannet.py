@@ -39,8 +39,8 @@ from clipclique.datasets.base import (
     read_json,
     resize_rgb,
 )
-from clipclique import safeio
-from clipclique.raycast import MeshRaycaster
+from clipclique.io import safeio
+from clipclique.perception.raycast import MeshRaycaster
 from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 

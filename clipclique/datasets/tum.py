@@ -40,7 +40,7 @@ from clipclique.datasets.base import (
     read_instance_ids,
     resize_rgb,
 )
-from clipclique import safeio
+from clipclique.io import safeio
 from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import backproject
 from clipclique.types import Frame, Pose

@@ -1,5 +1,5 @@
 """A SLAM map into a dataset's ground-truth frame: its keyframe trajectory fitted to the ground
-truth by timestamps (Umeyama through `clipclique.pose.fit_similarity`: rigid for RGB-D maps,
+truth by timestamps (Umeyama through `clipclique.pose.fit.fit_similarity`: rigid for RGB-D maps,
 with scale for monocular ones), refused when the fit is poor, and recorded in the map's provenance.
 """
 
@@ -12,7 +12,7 @@ import numpy as np
 
 from clipclique.datasets.tum import associate, read_trajectory
 from clipclique.interop.errors import InteropError
-from clipclique.pose import DegeneratePoseError, Similarity, fit_similarity
+from clipclique.pose.fit import DegeneratePoseError, Similarity, fit_similarity
 from clipclique.types import Ellipsoids, Map
 
 

@@ -14,7 +14,7 @@ Published detection files (OA-SLAM, VOOM, GOReloc) hold boxes, not masks. The se
    least `min_extent_m`). The mode is where most of the object's surface is, not its front: a table,
    couch or screen seen at a slant reaches well in front of it, and keeping 4 cm alone cut its
    near part, shifted the fit backwards and cost demo_desk 4.1 points of top-1 at 1 m (0.8 now).
-The result is a mask for `clipclique.observations.extract_observations`, which fits it as any.
+The result is a mask for `clipclique.perception.observations.extract_observations`, which fits it as any.
 Measured against the detector's masks on demo_desk and demo_apartment by
 `tools/measure_interop.py box-only` (README, "Bring your own map").
 """

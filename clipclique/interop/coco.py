@@ -2,7 +2,7 @@
 reader of COCO mask files (detectron2, mmdetection and ultralytics `save_json` write them).
 
 Two id schemes name the same 80 classes: the contiguous 0-based ids that OA-SLAM, VOOM, GOReloc
-and YOLO use (`clipclique.yolo.COCO_NAMES[i]`), and the 1-based 91-id scheme with gaps of COCO's
+and YOLO use (`clipclique.perception.yolo.COCO_NAMES[i]`), and the 1-based 91-id scheme with gaps of COCO's
 own annotation files and results (`COCO91_IDS[i]` is class i's id there).
 """
 
@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.interop.errors import InteropError
-from clipclique.safeio import read_json
-from clipclique.yolo import COCO_NAMES
+from clipclique.io.safeio import read_json
+from clipclique.perception.yolo import COCO_NAMES
 
 COCO91_IDS: tuple[int, ...] = (
     1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 27, 28, 31, 32, 33, 34,

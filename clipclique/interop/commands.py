@@ -1,5 +1,5 @@
 """The work behind `clipclique-map import` and `clipclique-map export`, as library calls: read, settle
-classes, align, embed; the text an export writes. The runner (mapping.run) opens sequences and writes."""
+classes, align, embed; the text an export writes. The runner (clipclique.mapping.run) opens sequences and writes."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from clipclique.interop.align import Alignment, AlignmentLimits, align_trajector
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import ImportedMap, MapFormat, read_map
-from clipclique.encoders import Encoder
-from clipclique.outputs import map_file
+from clipclique.perception.encoders import Encoder
+from clipclique.io.outputs import map_file
 from clipclique.types import Map
 
 

@@ -12,13 +12,13 @@ import numpy as np
 import clipclique
 from clipclique.datasets import description_template
 from clipclique.datasets.tum import read_objects_table
-from clipclique.encoders import Encoder
+from clipclique.perception.encoders import Encoder
 from clipclique.interop.coco import COCO80_INDEX
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import LANDMARKS_FORMAT, LANDMARKS_VERSION, ImportedMap
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.types import Map
-from clipclique.yolo import COCO_TO_MAP
+from clipclique.perception.yolo import COCO_TO_MAP
 
 
 def read_objects(path: Path) -> dict[int, tuple[str, str]]:
@@ -106,7 +106,7 @@ def text_map(map: Map) -> tuple[str, dict[str, str], list[str]]:
 
 def coco_class(name: str) -> str | None:
     """The COCO class that stands for a map class: itself, else the first whose candidates in
-    `clipclique.yolo.COCO_TO_MAP` name it (`office chair` -> `chair`), else None."""
+    `clipclique.perception.yolo.COCO_TO_MAP` name it (`office chair` -> `chair`), else None."""
     if name in COCO80_INDEX:
         return name
     return next((coco for coco, names in COCO_TO_MAP.items() if name.lower() in names), None)

@@ -30,9 +30,9 @@ from clipclique.interop.coco import (
     write_json,
 )
 from clipclique.interop.errors import InteropError
-from clipclique.safeio import read_json
+from clipclique.io.safeio import read_json
 from clipclique.types import Detections, Frame
-from clipclique.yolo import coco_to_vocabulary
+from clipclique.perception.yolo import coco_to_vocabulary
 
 DUPLICATE_IOU = 0.7  # two boxes of different classes overlapping this much are one object
 
@@ -164,7 +164,7 @@ class FileDetector:
 
     @cached_property
     def _vocabulary(self) -> np.ndarray:
-        """COCO-80 id -> map class id (-1: dropped), by the COCO table YOLO uses (`clipclique.yolo`)."""
+        """COCO-80 id -> map class id (-1: dropped), by the COCO table YOLO uses (`clipclique.perception.yolo`)."""
         return coco_to_vocabulary(self.class_names)
 
     def detect(self, frame: Frame) -> Detections:

@@ -25,8 +25,8 @@ from clipclique.interop.coco import coco80_name
 from clipclique.interop.errors import InteropError
 from clipclique.interop.protowire import Fields, parse_message, repeated_float, repeated_uint, single_uint, submessages
 from clipclique.interop.quadric import decode_dual_quadric
-from clipclique.mapfile import MAX_LANDMARKS
-from clipclique.safeio import MAX_JSON_BYTES, check_text, read_bytes, read_json, read_text
+from clipclique.io.mapfile import MAX_LANDMARKS
+from clipclique.io.safeio import MAX_JSON_BYTES, check_text, read_bytes, read_json, read_text
 from clipclique.types import Ellipsoids
 
 LANDMARKS_FORMAT = "clipclique-landmarks"

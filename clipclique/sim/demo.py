@@ -28,7 +28,7 @@ import numpy as np
 
 from clipclique.datasets.base import DEMO_MARKER, STRUCTURE_CLASSES, read_json
 from clipclique.errors import DatasetError
-from clipclique.raycast import MeshRaycaster
+from clipclique.perception.raycast import MeshRaycaster
 from clipclique.sim.procedural import Room, Walk, make_room, make_walk
 from clipclique.sim.render import sensor_depth, shade
 from clipclique.sim.scenes import SCENES

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from clipclique.detectors import InstanceDetector, mask_boxes, vocabulary_index
+from clipclique.perception.detectors import InstanceDetector, mask_boxes, vocabulary_index
 from clipclique.types import Detections, Frame
 
 

@@ -31,8 +31,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from clipclique.detectors import id_counts
-from clipclique.encoders import Crop, normalize
+from clipclique.perception.detectors import id_counts
+from clipclique.perception.encoders import Crop, normalize
 
 SIMULATED_NAME = "simulated-clip"
 _STOP_WORDS = frozenset({"a", "an", "the", "of", "on", "in", "with", "and", "photo", "this", "is"})

@@ -1,10 +1,10 @@
-"""What a camera makes of a ray-cast render (clipclique.raycast): shaded RGB and Kinect-like depth."""
+"""What a camera makes of a ray-cast render (clipclique.perception.raycast): shaded RGB and Kinect-like depth."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from clipclique.raycast import Render
+from clipclique.perception.raycast import Render
 
 SUN = np.array([0.3, 0.45, 0.84]) / np.linalg.norm([0.3, 0.45, 0.84])
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from clipclique.geometry import look_at
-from clipclique.projection import box_area, project
+from clipclique.verify.projection import box_area, project
 from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose
 
 ENCODER = "simulated-clip"

@@ -8,7 +8,7 @@ import numpy as np
 import rerun as rr
 
 from clipclique.config import GraphConfig
-from clipclique.mapalign import MapAlignment
+from clipclique.multiframe.mapalign import MapAlignment
 from clipclique.types import Map
 from clipclique.viz.blueprints import map_blueprint
 from clipclique.viz.convert import ellipsoids3d

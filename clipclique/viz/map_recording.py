@@ -9,7 +9,7 @@ import rerun as rr
 import scipy.sparse as sp
 
 from clipclique.config import GraphConfig
-from clipclique.graph import semantic_graph
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.types import Map
 from clipclique.viz.blueprints import map_blueprint
 from clipclique.viz.convert import ellipsoids3d, spread_labels, voxel_downsample

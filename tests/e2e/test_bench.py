@@ -1,4 +1,4 @@
-"""The benchmark suite (benchmark.suite, benchmark.report): a quick run on the demo, and the report's logic."""
+"""The benchmark suite (clipclique.benchmark.suite, clipclique.benchmark.report): a quick run on the demo, and the report's logic."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from benchmark import report, suite as bench
+from clipclique.benchmark import report, suite as bench
 from clipclique.config import make_config
 from clipclique.sim.demo import DEMO_SCENES
 
@@ -86,7 +86,7 @@ def test_quick_report_matches_its_json(quick_run):
 
 def test_cached_observations_give_the_numbers_clipclique_loc_gives(quick_run):
     from clipclique.sim.demo import DEMO_SCENES
-    from localization.run import RunSettings, execute, prepare
+    from clipclique.localization.run import RunSettings, execute, prepare
 
     settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz", data_root=ROOT / "data",
                            stride=DEMO_SCENES["demo"].num_frames // bench.QUICK_FRAMES, max_frames=bench.QUICK_FRAMES,
@@ -165,7 +165,7 @@ def test_a_failed_demo_map_build_is_one_line(tmp_path, monkeypatch, capsys):
         raise DatasetError("data/demo: cannot write the demo scene there (Permission denied)")
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("benchmark.engine.run_build", unwritable)  # the suite builds demo maps through the engine
+    monkeypatch.setattr("clipclique.benchmark.engine.run_build", unwritable)  # the suite builds demo maps through the engine
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--sequences", "demo", "--quick", "--out", "report"])
     assert exit_info.value.code == 2
@@ -226,7 +226,7 @@ def tables_of(markdown: str) -> list[list[str]]:
 @pytest.mark.models
 def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkeypatch):
     """The GPU section's code path, on the CPU with the smallest models of the same families."""
-    from localization.run import RunSettings, prepare
+    from clipclique.localization.run import RunSettings, prepare
 
     monkeypatch.chdir(quick_run.parent)
     run = prepare(RunSettings("demo", data_root=ROOT / "data", max_frames=2, record=False))

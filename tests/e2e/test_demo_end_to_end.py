@@ -12,11 +12,11 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
-from clipclique.mapfile import save_map
+from clipclique.io.mapfile import save_map
 from clipclique.outcomes import FailureKind
-from localization.results import read_results
-from localization.run import RunSettings, run_and_save
-from mapping.build import build_map
+from clipclique.localization.results import read_results
+from clipclique.localization.run import RunSettings, run_and_save
+from clipclique.mapping.build import build_map
 
 pytestmark = pytest.mark.slow
 METHODS = ("clipclique", "sh", "xview", "cliploc")
@@ -119,7 +119,7 @@ def test_results_and_poses_read_back(runs, demo):
 def test_two_ablations_keep_their_folders_and_compare_tells_them_apart(demo, tmp_path, monkeypatch):
     from typer.testing import CliRunner
 
-    from localization.cli import app
+    from clipclique.localization.cli import app
 
     monkeypatch.chdir(tmp_path)
     for overrides in ([], ["inliers.d_comp=0.6"]):
@@ -184,7 +184,7 @@ def test_results_carry_each_hypothesis_verification_and_confidence(runs):
 def test_min_confidence_reports_unconfident_frames_as_not_localized(runs, demo, tmp_path):
     from typer.testing import CliRunner
 
-    from localization.cli import app
+    from clipclique.localization.cli import app
 
     printed = CliRunner().invoke(app, ["run", "demo", "--map", str(demo / "demo.map.npz"), "--data-root", str(demo),
                                        "--out", str(tmp_path), "--no-rrd", "--min-confidence", "0.9"])

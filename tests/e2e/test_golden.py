@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from localization.results import read_results, results_digest
-from localization.run import RunSettings, run_and_save
+from clipclique.localization.results import read_results, results_digest
+from clipclique.localization.run import RunSettings, run_and_save
 from tolerance import compare, decisions
 
 pytestmark = pytest.mark.slow

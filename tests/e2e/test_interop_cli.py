@@ -11,9 +11,9 @@ import pytest
 from typer.testing import CliRunner
 
 from clipclique.interop.quadric import encode_dual_quadric
-from clipclique.mapfile import load_map
-from localization.cli import app as loc_app
-from mapping.cli import app as map_app
+from clipclique.io.mapfile import load_map
+from clipclique.localization.cli import app as loc_app
+from clipclique.mapping.cli import app as map_app
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]
@@ -74,8 +74,8 @@ def test_text_round_trip_keeps_geometry_and_names_what_it_cannot_write(built, tm
 def test_a_yolo_run_writes_its_detections_and_a_file_rerun_reproduces_it(monkeypatch, built, tmp_path):
     """`--detector yolo` (a stand-in here: no weights) writes COCO results with RLE masks; `--detector file:` on
     them gives the same poses."""
-    from clipclique import yolo
-    from clipclique.detectors import InstanceDetector
+    from clipclique.perception import yolo
+    from clipclique.perception.detectors import InstanceDetector
     from clipclique.interop.coco import reported_classes
     from clipclique.sim.detectors import SimulatedDetector
     from clipclique.types import Detections

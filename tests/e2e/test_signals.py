@@ -20,9 +20,9 @@ from typer.testing import CliRunner
 
 from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
-from clipclique.mapfile import save_map
-from localization.cli import app
-from mapping.build import build_map
+from clipclique.io.mapfile import save_map
+from clipclique.localization.cli import app
+from clipclique.mapping.build import build_map
 
 pytestmark = pytest.mark.slow
 LOC = Path(sys.executable).with_name("clipclique-loc")
@@ -100,7 +100,7 @@ def test_no_rrd_never_deletes_the_recording_and_says_each_time_it_shows_other_re
 
 
 def test_map_build_with_no_rrd_keeps_the_earlier_maps_recording_and_says_when_it_shows_another_map(demo, tmp_path):
-    from mapping.cli import app as map_app
+    from clipclique.mapping.cli import app as map_app
 
     out = tmp_path / "demo.map.npz"
     (tmp_path / "demo.map.rrd").write_bytes(b"an earlier map's recording")

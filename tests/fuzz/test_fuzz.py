@@ -27,8 +27,8 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from clipclique.interop.coco import encode_rle
-from localization.cli import app as loc_app
-from mapping.cli import app as map_app
+from clipclique.localization.cli import app as loc_app
+from clipclique.mapping.cli import app as map_app
 
 RUNNER = CliRunner()
 PWNED = Path("/tmp/clipclique-fuzz-pickle-ran")  # what the hostile pickles would create if ever loaded

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from benchmark.cli import app
+from clipclique.benchmark.cli import app
 
 RUNNER = CliRunner()
 LATIN1 = "scenes = [\"d\u00e9mo\"]".encode("latin-1")
@@ -78,7 +78,7 @@ def test_hostile_options_are_one_line_exit_2(args: list[str], named: str, tmp_pa
 
 
 def test_the_readme_plan_example_reads_as_its_runs(repository: Path, tmp_path: Path):
-    from benchmark.plan import read_plan, runs
+    from clipclique.benchmark.plan import read_plan, runs
 
     readme = (repository / "README.md").read_text()
     example = readme.split("  ```toml\n", 1)[1].split("  ```", 1)[0]

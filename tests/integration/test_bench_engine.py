@@ -1,4 +1,4 @@
-"""clipclique-bench's engine (benchmark.engine) on two small demo scenes: the same results as
+"""clipclique-bench's engine (clipclique.benchmark.engine) on two small demo scenes: the same results as
 `clipclique-loc run` in this process and on a local Dask cluster of two worker processes (also when
 one is killed mid-run), resuming with only the remaining work, and a failing task retried once and
 then reported, never dropped silently."""
@@ -13,12 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from benchmark import aggregate, engine, perception
-from benchmark.engine import TaskFailure, run_jobs
-from benchmark.plan import Plan, runs
+from clipclique.benchmark import aggregate, engine, perception
+from clipclique.benchmark.engine import TaskFailure, run_jobs
+from clipclique.benchmark.plan import Plan, runs
 from clipclique.pipeline import localize
-from localization.results import read_results
-from localization.run import RunSettings, prepare, run_and_save
+from clipclique.localization.results import read_results
+from clipclique.localization.run import RunSettings, prepare, run_and_save
 
 pytestmark = pytest.mark.slow
 SCENES = ["demo", "demo_tum"]
@@ -191,7 +191,7 @@ def test_a_transient_failure_is_retried_and_leaves_no_trace(workspace, in_proces
             raise OSError("worker lost its disk for a moment")
         return localize(observations, index, config)
 
-    monkeypatch.setattr("localization.run.localize", flaky)
+    monkeypatch.setattr("clipclique.localization.run.localize", flaky)
     tracker = Recorder()
     result = run_jobs(plan_runs(workspace, "flaky"), workspace[0] / "cache-a", tracker)
     assert failed and not tracker.failures and not result.failed and len(result.documents) == 4
@@ -201,7 +201,7 @@ def test_a_transient_failure_is_retried_and_leaves_no_trace(workspace, in_proces
 
 def test_frames_without_annotations_are_left_out_as_clipclique_loc_leaves_them(tmp_path, monkeypatch, tum_sequence):
     """The tiny TUM sequence annotates one of its three frames: the benchmark's run is clipclique-loc's, note included."""
-    from mapping.run import run_build
+    from clipclique.mapping.run import run_build
 
     folder = tum_sequence(tmp_path, rounded=True)
     monkeypatch.chdir(tmp_path)

@@ -1,4 +1,4 @@
-"""benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
+"""clipclique.benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
 
 from __future__ import annotations
 
@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmark.suite import cache_sequence, ensure_map
-from benchmark.window import table, window_success
+from clipclique.benchmark.suite import cache_sequence, ensure_map
+from clipclique.benchmark.window import table, window_success
 from clipclique.config import make_config
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
-from clipclique.window import WindowConfig
+from clipclique.multiframe.window import WindowConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 

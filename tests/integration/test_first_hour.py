@@ -12,9 +12,9 @@ from rich.console import Console
 from typer.testing import CliRunner
 
 from clipclique.sim import demo
-from localization.cli import app as loc_app
-from localization.tables import print_frames
-from mapping.cli import app as map_app
+from clipclique.localization.cli import app as loc_app
+from clipclique.localization.tables import print_frames
+from clipclique.mapping.cli import app as map_app
 
 pytestmark = pytest.mark.slow
 RUNNER = CliRunner()
@@ -79,7 +79,7 @@ def test_set_spellings_of_one_change_share_a_folder_and_the_presets_value_rename
 
 
 def test_the_recordings_description_lists_the_changed_settings_not_a_json_block(in_first_use):
-    from localization.run import RunSettings, prepare, recording_description
+    from clipclique.localization.run import RunSettings, prepare, recording_description
 
     text = recording_description(prepare(RunSettings("demo", overrides=["inliers.d_comp=0.4"])))
     assert "{" not in text

@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 import tomllib
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -58,3 +59,31 @@ def test_the_demo_commands_run_without_the_models_extra(tmp_path):
     assert (tmp_path / "outputs" / "loc" / "demo" / "clipclique" / "results.json").is_file()
     probe = subprocess.run([sys.executable, "-c", "import torch"], env=env, capture_output=True, text=True)
     assert "not installed by make demo" in probe.stderr  # the blocker did block
+
+
+@pytest.mark.slow
+def test_the_wheel_installs_one_top_level_package(tmp_path):
+    """`pip install .` puts `clipclique` (and its dist-info) in site-packages, no generic name beside it. Built from
+    a copy of the sources: a build in place leaves build/ in the repository."""
+    source = tmp_path / "source"
+    source.mkdir()
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
+    shutil.copytree(ROOT / "clipclique", source / "clipclique", ignore=shutil.ignore_patterns("__pycache__"))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", tmp_path,
+                    source], check=True, capture_output=True, cwd=tmp_path)
+    wheel, = tmp_path.glob("clipclique-*.whl")
+    with zipfile.ZipFile(wheel) as archive:
+        record, = (name for name in archive.namelist() if name.endswith(".dist-info/RECORD"))
+        paths = [line.split(",")[0] for line in archive.read(record).decode().splitlines() if line]
+    tops = {path.split("/")[0] for path in paths}
+    assert tops == {"clipclique", record.split("/")[0]}, tops
+    assert {"clipclique/mapping/cli.py", "clipclique/localization/cli.py", "clipclique/benchmark/cli.py",
+            "clipclique/data/confidence.json"} <= set(paths)
+    entry_points = archive_text(wheel, record.replace("RECORD", "entry_points.txt"))
+    assert "clipclique-loc = clipclique.localization.cli:main" in entry_points
+
+
+def archive_text(wheel: Path, name: str) -> str:
+    with zipfile.ZipFile(wheel) as archive:
+        return archive.read(name).decode()

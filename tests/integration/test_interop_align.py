@@ -15,9 +15,9 @@ from clipclique.resolve import open_scene
 from clipclique.datasets.tum import read_trajectory
 from clipclique.interop.align import AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.errors import InteropError
-from clipclique.pose import Similarity
+from clipclique.pose.fit import Similarity
 from clipclique.types import Ellipsoids, Map, Pose
-from mapping.build import build_map
+from clipclique.mapping.build import build_map
 
 ROOT = Path(__file__).resolve().parents[2]
 GROUNDTRUTH = ROOT / "data" / "demo" / "demo_tum" / "groundtruth.txt"
@@ -99,9 +99,9 @@ def test_an_aligned_import_is_taken_as_the_sequences_map(tmp_path, demo_map):
     from typer.testing import CliRunner
 
     from clipclique.interop.convert import landmarks_json
-    from clipclique.mapfile import load_map
-    from localization.cli import app as loc_app
-    from mapping.cli import app as map_app
+    from clipclique.io.mapfile import load_map
+    from clipclique.localization.cli import app as loc_app
+    from clipclique.mapping.cli import app as map_app
 
     runner = CliRunner()
     truth = Similarity(1.0, Pose(TRUE_ROTATION, np.array([1.5, -0.7, 0.3])))

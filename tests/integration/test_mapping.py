@@ -11,9 +11,9 @@ from clipclique.resolve import open_scene
 from clipclique.sim.demo import DEMO_SCENES
 from clipclique.sim.procedural import make_room
 from clipclique.geometry import FitParams
-from clipclique.mapfile import load_map
-from mapping.build import BuildReport, build_map, fit_landmarks
-from mapping.cli import app
+from clipclique.io.mapfile import load_map
+from clipclique.mapping.build import BuildReport, build_map, fit_landmarks
+from clipclique.mapping.cli import app
 
 runner = CliRunner()
 
@@ -125,7 +125,7 @@ def test_the_generating_bar_appears_only_when_there_is_work():
     """Demo data that exists is not 'generating the demo data (first use) 0/?'."""
     from rich.progress import Progress
 
-    from mapping.tables import bar_on_first_call
+    from clipclique.mapping.tables import bar_on_first_call
 
     progress = Progress()
     update = bar_on_first_call(progress, "generating")

@@ -13,8 +13,8 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from clipclique.datasets import open_sequence
-from localization.cli import app as loc_app
-from mapping.cli import app
+from clipclique.localization.cli import app as loc_app
+from clipclique.mapping.cli import app
 
 RUNNER = CliRunner()
 NAME = "rgbd_dataset_freiburg2_desk"  # the tiny TUM sequence of tests/conftest.py (write_tum_sequence)

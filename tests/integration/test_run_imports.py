@@ -12,13 +12,13 @@ from pathlib import Path
 import pytest
 
 from clipclique.backends import load_encoder
-from clipclique.mapfile import save_map
+from clipclique.io.mapfile import save_map
 from clipclique.resolve import open_scene
-from mapping.build import build_map
+from clipclique.mapping.build import build_map
 
 pytestmark = pytest.mark.slow
 PROBE = ("import atexit, json, sys; atexit.register(lambda: print('MODULES', json.dumps(sorted(sys.modules)))); "
-         "from localization.cli import main; main()")
+         "from clipclique.localization.cli import main; main()")
 NEVER = {"torch", "torchvision", "open_clip", "ultralytics", "cv2", "open3d", "matplotlib", "sklearn", "networkx",
          "igraph", "dask", "distributed", "pandas", "plotly", "pycocotools"}
 
@@ -41,6 +41,6 @@ def test_a_run_imports_no_model_or_plotting_library_and_rerun_only_to_record(dem
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     modules = {name.split(".")[0] for name in json.loads(done.stdout.split("MODULES ")[-1])}
-    assert "numba" in modules and "localization" in modules  # the probe saw the run's own imports
+    assert "numba" in modules and "clipclique" in modules  # the probe saw the run's own imports
     assert sorted(modules & NEVER) == []
     assert ("rerun" in modules) == record

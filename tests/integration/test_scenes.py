@@ -1,4 +1,4 @@
-"""The realistic demo scenes (demo_apartment, demo_desk) measured by benchmark.scene_stats against
+"""The realistic demo scenes (demo_apartment, demo_desk) measured by clipclique.benchmark.scene_stats against
 docs/REAL_SCENES.md, on a few frames of each (bands wide enough for so few frames)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from benchmark import scene_stats
+from clipclique.benchmark import scene_stats
 from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, generate
 from clipclique.sim.detectors import read_lookalikes

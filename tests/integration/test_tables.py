@@ -11,8 +11,8 @@ from pathlib import Path
 
 from rich.console import Console
 
-from localization.results import ALL_STAGES, RESULTS_FORMAT, RESULTS_VERSION
-from localization.tables import print_documents
+from clipclique.localization.results import ALL_STAGES, RESULTS_FORMAT, RESULTS_VERSION
+from clipclique.localization.tables import print_documents
 
 LOC = Path(sys.executable).with_name("clipclique-loc")
 LONGEST = "rgbd_dataset_freiburg3_long_office_household"  # the longest name of a real TUM sequence we read

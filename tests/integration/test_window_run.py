@@ -9,11 +9,11 @@ from typer.testing import CliRunner
 
 from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
-from clipclique.mapfile import save_map
-from localization.cli import app
-from localization.results import tum_line
-from localization.run import RunSettings, run_and_save
-from mapping.build import build_map
+from clipclique.io.mapfile import save_map
+from clipclique.localization.cli import app
+from clipclique.localization.results import tum_line
+from clipclique.localization.run import RunSettings, run_and_save
+from clipclique.mapping.build import build_map
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENE = "demo_apartment"  # ground-truth instances: quick to observe

@@ -1,6 +1,7 @@
 """The house stays clear: every import of the project's modules, read with ast, points the way the
-README's Architecture section draws it (library <- runners <- CLIs; benchmark and tools on top),
-and no two modules import each other in a circle."""
+README's Architecture section draws it (library <- runners <- CLIs; benchmark and tools on top), and no
+two modules import each other in a circle, imports for type hints only (`TYPE_CHECKING`) included: a type
+both sides need belongs in a lower module."""
 
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-PACKAGES = ("clipclique", "mapping", "localization", "benchmark")
-CLI_MODULES = {"mapping.cli", "localization.cli"}  # argument parsing and printing only
+RUNNERS = ("clipclique.mapping", "clipclique.localization")  # the two tools: their runners and CLIs
+BENCHMARK = "clipclique.benchmark"
+CLI_MODULES = {"clipclique.mapping.cli", "clipclique.localization.cli"}  # argument parsing and printing only
 
 
 def module_name(path: Path) -> str:
@@ -21,29 +23,15 @@ def module_name(path: Path) -> str:
 
 
 def sources() -> dict[str, Path]:
-    """Module name -> file, for the packages and tools/ (as tools.NAME)."""
-    found = {module_name(p): p for package in PACKAGES for p in (ROOT / package).rglob("*.py")}
+    """Module name -> file, for the package and tools/ (as tools.NAME)."""
+    found = {module_name(p): p for p in (ROOT / "clipclique").rglob("*.py")}
     found |= {f"tools.{p.stem}": p for p in (ROOT / "tools").glob("*.py")}
     return found
 
 
-def type_checking_lines(tree: ast.Module) -> set[int]:
-    """Lines inside `if TYPE_CHECKING:` blocks: imports for annotations only, never run."""
-    lines: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING":
-            for child in node.body:
-                lines.update(range(child.lineno, (child.end_lineno or child.lineno) + 1))
-    return lines
-
-
 def imports(path: Path, known: set[str]) -> Iterator[str]:
-    """The project modules `path` imports at run time (anywhere in the file, functions included)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    skipped = type_checking_lines(tree)
-    for node in ast.walk(tree):
-        if getattr(node, "lineno", None) in skipped:
-            continue
+    """The project modules `path` imports (anywhere in the file: functions and `TYPE_CHECKING` blocks too)."""
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:  # a submodule, else the module
@@ -72,12 +60,15 @@ def offenders(graph: dict[str, set[str]], importer: tuple[str, ...], imported: t
 
 def test_the_scan_sees_the_project(graph):
     """A scan that found nothing would pass every rule below."""
-    assert {"clipclique.pipeline", "localization.run", "mapping.run", "benchmark.suite", "tools.demo"} <= set(graph)
-    assert "clipclique.pipeline" in graph["localization.run"] and "mapping.run" in graph["tools.demo"]
+    assert {"clipclique.pipeline", "clipclique.localization.run", "clipclique.mapping.run", "clipclique.benchmark.suite",
+            "tools.demo"} <= set(graph)
+    assert "clipclique.pipeline" in graph["clipclique.localization.run"]
+    assert "clipclique.mapping.run" in graph["tools.demo"]
+    assert "clipclique.localization.runs" in graph["clipclique.localization.results"]  # a former type-only import
 
 
 def test_the_library_imports_no_tool_runner_or_benchmark(graph):
-    assert offenders(graph, ("clipclique",), ("mapping", "localization", "benchmark", "tools")) == []
+    assert offenders(graph, ("clipclique",), (*RUNNERS, BENCHMARK, "tools"), exempt=(*RUNNERS, BENCHMARK)) == []
 
 
 def test_readers_never_import_the_simulation(graph):
@@ -87,36 +78,38 @@ def test_readers_never_import_the_simulation(graph):
 
 def test_only_the_registries_import_the_simulation(graph):
     """The registries (backends, resolve) sit above the real and the simulated back-ends; the rest of
-    the library, real back-ends included, never reaches into clipclique.sim, and sim never into them."""
+    the library, real back-ends included, never reaches into clipclique.sim, and sim never into them.
+    The runners and the benchmark sit above the registries."""
     registries = ("clipclique.backends", "clipclique.resolve")
-    assert offenders(graph, ("clipclique",), ("clipclique.sim",), exempt=("clipclique.sim", *registries)) == []
+    assert offenders(graph, ("clipclique",), ("clipclique.sim",),
+                     exempt=("clipclique.sim", *registries, *RUNNERS, BENCHMARK)) == []
     assert offenders(graph, ("clipclique.sim",), registries) == []
 
 
 def test_no_module_imports_a_cli_module(graph):
-    """Tools, the benchmark and tests call runners (localization.run, mapping.run), never a CLI."""
+    """Tools, the benchmark and tests call runners (clipclique.localization.run, clipclique.mapping.run), never a CLI."""
     assert sorted(f"{a} imports {b}" for a, targets in graph.items() for b in targets if b in CLI_MODULES) == []
 
 
 def test_the_two_tools_meet_only_in_the_map_file(graph):
-    assert offenders(graph, ("mapping",), ("localization",)) == []
-    assert offenders(graph, ("localization",), ("mapping",)) == []
+    assert offenders(graph, ("clipclique.mapping",), ("clipclique.localization",)) == []
+    assert offenders(graph, ("clipclique.localization",), ("clipclique.mapping",)) == []
 
 
 def test_only_tools_import_the_benchmark(graph):
-    assert offenders(graph, PACKAGES, ("benchmark",), exempt=("benchmark",)) == []
+    assert offenders(graph, ("clipclique",), (BENCHMARK,), exempt=(BENCHMARK,)) == []
 
 
-def test_no_import_circles(graph):
-    """Between files: a module that imports itself through others (function-level imports too)."""
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Each module that imports itself through others, as the path that closes the circle."""
     state: dict[str, int] = {}  # 1 on the path being walked, 2 done
-    circles: list[list[str]] = []
+    found: list[list[str]] = []
 
     def walk(name: str, path: list[str]) -> None:
         state[name] = 1
         for target in sorted(graph[name] - {name}):
             if state.get(target) == 1:
-                circles.append(path[path.index(target):] + [target])
+                found.append(path[path.index(target):] + [target])
             elif target not in state:
                 walk(target, path + [target])
         state[name] = 2
@@ -124,4 +117,36 @@ def test_no_import_circles(graph):
     for name in sorted(graph):
         if name not in state:
             walk(name, [name])
-    assert circles == []
+    return found
+
+
+def test_no_import_circles(graph):
+    """Between files: function-level and type-only imports count."""
+    assert circles(graph) == []
+
+
+def test_the_circle_finder_finds_a_circle():
+    assert circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c", "a"]]
+
+
+# The rooms of the core, lowest first: a room imports only rooms before it (and the modules every room may use:
+# errors, types, outcomes, config, geometry). A type both need lives in the lower one.
+STAGES = ("clipclique.io", "clipclique.perception", "clipclique.descriptors", "clipclique.pose", "clipclique.verify",
+          "clipclique.inliers", "clipclique.multiframe")
+BASE = ("clipclique.errors", "clipclique.types", "clipclique.outcomes", "clipclique.blas", "clipclique.commands",
+        "clipclique.exits")
+
+
+def test_the_rooms_import_only_rooms_below(graph):
+    upward = [f"{a} imports {b}" for a, targets in graph.items() for b in targets for i, room in enumerate(STAGES)
+              if under(a, room) and under(b, *STAGES[i + 1:])]
+    assert upward == []
+
+
+def test_the_base_modules_import_no_room(graph):
+    assert offenders(graph, BASE, STAGES) == []
+
+
+def test_every_room_is_there(graph):
+    """Each room holds modules (a renamed room would pass the order test empty)."""
+    assert all(any(under(name, room) and name != room for name in graph) for room in STAGES)

@@ -41,7 +41,7 @@ def _flatten(tree: dict, prefix: str = "") -> dict:
             for k, v in (_flatten(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
 
 
-# defaults moved on purpose since that config.json was written (benchmark/accuracy_levers.py measured them)
+# defaults moved on purpose since that config.json was written (clipclique/benchmark/accuracy_levers.py measured them)
 MOVED_DEFAULTS = {"inliers.rerank": "verification"}
 
 
@@ -134,7 +134,7 @@ def test_the_newly_reachable_settings_reach_the_pipeline():
 
 
 def test_the_runner_fits_observations_with_the_configs_parameters(monkeypatch):
-    from localization import run as runner
+    from clipclique.localization import run as runner
 
     config = make_config("clipclique", overrides=["observations.min_mask_pixels=777"])
     seen = {}

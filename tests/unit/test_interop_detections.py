@@ -21,7 +21,7 @@ from clipclique.interop.detections import (
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.errors import InteropError
 from clipclique.types import Detections, Frame
-from clipclique.yolo import coco_to_vocabulary
+from clipclique.perception.yolo import coco_to_vocabulary
 
 INTRINSICS = np.array([[500.0, 0, 80], [0, 500.0, 60], [0, 0, 1]])
 CLASSES = ["book", "cup", "monitor"]

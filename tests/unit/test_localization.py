@@ -16,10 +16,10 @@ from typer.testing import CliRunner
 from clipclique.geometry import random_rotation
 from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
-from localization.cli import app, imports_kept
-from localization.run import choose_encoder, read_ahead
-from localization.results import ALL_STAGES, json_safe, read_results, tum_line
-from localization.tables import results_table, run_banner
+from clipclique.localization.cli import app, imports_kept
+from clipclique.localization.run import choose_encoder, read_ahead
+from clipclique.localization.results import ALL_STAGES, json_safe, read_results, tum_line
+from clipclique.localization.tables import results_table, run_banner
 
 RUNNER = CliRunner()
 
@@ -84,8 +84,8 @@ def test_cli_help_and_missing_map(tmp_path, monkeypatch):
 
 def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     """Found before the frames are localized, as one line naming --out (it was a traceback after the run)."""
-    import localization.run as runner
-    from localization.run import RunSettings
+    import clipclique.localization.run as runner
+    from clipclique.localization.run import RunSettings
 
     monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
@@ -97,8 +97,8 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
 
 def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
     """Ctrl-C (or an error) during the frames: the folders the run created are gone, others stay."""
-    import localization.run as runner
-    from localization.run import RunSettings
+    import clipclique.localization.run as runner
+    from clipclique.localization.run import RunSettings
 
     def interrupted(*args):
         raise KeyboardInterrupt
@@ -134,8 +134,8 @@ def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
     from clipclique.metrics import evaluate_frame
     from clipclique.pipeline import index_map, localize
     from clipclique.sim.synthetic import synthetic_map, synthetic_query
-    from localization.results import frame_record
-    from localization.run import FrameOutcome
+    from clipclique.localization.results import frame_record
+    from clipclique.localization.run import FrameOutcome
 
     rng = np.random.default_rng(3)
     map = synthetic_map(rng)
@@ -152,7 +152,7 @@ def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
 
 
 def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
-    from localization.run import RunSettings
+    from clipclique.localization.run import RunSettings
 
     assert RunSettings("demo").out_dir("demo") == Path("outputs/loc/demo/clipclique")
     assert RunSettings("fr2", "sh").out_dir("rgbd_dataset_freiburg2_desk").parts[-2:] == (
@@ -172,7 +172,7 @@ def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
 def test_compare_marks_runs_that_differ_and_fits_80_columns():
     from rich.console import Console
 
-    from localization.tables import print_documents
+    from clipclique.localization.tables import print_documents
 
     def document(sequence: str, method: str, changed: dict) -> dict:
         base = _document(method, 0.7, True)
@@ -198,7 +198,7 @@ def test_compare_marks_runs_that_differ_and_fits_80_columns():
 
 
 def test_a_map_of_another_recording_is_refused_unless_said_to_be_of_the_same_place():
-    from localization.run import RunSettings, check_map_source
+    from clipclique.localization.run import RunSettings, check_map_source
 
     map = _map("simulated-clip", True)
     map.provenance = {"source": {"name": "demo"}}
@@ -214,8 +214,8 @@ def test_a_map_of_another_recording_is_refused_unless_said_to_be_of_the_same_pla
 def test_version_short_help_and_no_developer_notes():
     from importlib.metadata import version
 
-    from benchmark.cli import app as bench_app
-    from mapping.cli import app as map_app
+    from clipclique.benchmark.cli import app as bench_app
+    from clipclique.mapping.cli import app as map_app
 
     for tool, name in ((app, "clipclique-loc"), (map_app, "clipclique-map")):
         printed = RUNNER.invoke(tool, ["--version"])
@@ -229,7 +229,7 @@ def test_version_short_help_and_no_developer_notes():
 
 
 def test_ctrl_c_is_one_line_and_exit_130(monkeypatch):
-    import localization.run as runner
+    import clipclique.localization.run as runner
 
     def interrupted(settings, progress):
         raise KeyboardInterrupt

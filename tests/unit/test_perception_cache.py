@@ -7,10 +7,10 @@ import dataclasses
 
 import numpy as np
 
-from benchmark import perception
+from clipclique.benchmark import perception
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Detections
-from localization.run import Seen
+from clipclique.localization.run import Seen
 
 
 def seen_with(observations) -> Seen:

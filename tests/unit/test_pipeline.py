@@ -3,7 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from clipclique import confidence
+from clipclique.verify import confidence
 from clipclique.config import ConfigError, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
@@ -283,7 +283,7 @@ def test_cliques_without_added_pairs_are_the_loop_s_in_its_order():
 def numpy_without_added(members, sizes, added, scores, min_size):
     """`_without_added` as its numpy passes computed it before it was compiled, the totals as the pipeline summed them
     (`confidence.group_sums` of the gathered scores)."""
-    from clipclique.stack import alike
+    from clipclique.pose.stack import alike
 
     owner = np.repeat(np.arange(len(sizes)), sizes)
     ordered = members[np.lexsort((members, owner))]
@@ -332,7 +332,7 @@ def test_usable_fits_are_the_numpy_mask_to_the_bit():
     (measure >= floor)` and its `.all()`: weights of 0, -0 and NaN (a NaN counts), NaN and infinite measures, a
     measure exactly at the floor, sets already not ok, and an empty batch."""
     from clipclique.pipeline import _usable
-    from clipclique.pose import nonzero_counts
+    from clipclique.pose.fit import nonzero_counts
 
     rng = np.random.default_rng(31)
     for trial in range(500):
@@ -352,7 +352,7 @@ def test_the_fitted_stack_is_the_masked_rows_to_the_bit():
     not: both against the plain masked construction, byte for byte (a collinear set and one of two positive weights
     among good ones; all good)."""
     from clipclique.pipeline import LocalizationResult, _hypotheses
-    from clipclique.pose import fit_rigid_conditioned, nonzero_counts, weighted_sets
+    from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
 
     config = make_config("clipclique")
     rng = np.random.default_rng(3)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clipclique.encoders import Crop
+from clipclique.perception.encoders import Crop
 from clipclique.sim.encoder import SimulatedClipEncoder
 
 

@@ -11,9 +11,9 @@ import pytest
 
 from clipclique.config import make_config
 from clipclique.errors import MapFileError
-from clipclique.mapfile import load_map, save_map
+from clipclique.io.mapfile import load_map, save_map
 from clipclique.pipeline import index_map, localize
-from clipclique.similarity import soft_class_similarity
+from clipclique.descriptors.similarity import soft_class_similarity
 from clipclique.types import Ellipsoids, Map, Observations
 
 

@@ -11,7 +11,7 @@ import pytest
 import rerun as rr
 
 from clipclique.config import LocalizationConfig
-from clipclique.graph import semantic_graph
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.metrics import evaluate_frame
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
@@ -634,7 +634,7 @@ def test_projected_landmarks_are_outlined_with_their_overlap(tmp_path, run):
     """The map under each frame's top-1 pose is drawn as ellipse outlines, those supporting the pose
     labelled with the IoU of their box and the detection's; a correct pose overlaps its detections
     far better than a wrong one (frame 2: shuffled correspondences, 0.8 m off)."""
-    from clipclique.projection import box_iou
+    from clipclique.verify.projection import box_iou
 
     map, frames = run
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
@@ -691,7 +691,7 @@ def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_enti
 
 def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path, run):
     from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
-    from clipclique.window import WindowConfig, Windower
+    from clipclique.multiframe.window import WindowConfig, Windower
 
     map, frames = run
     windower = Windower(WindowConfig(size=2), [f.frame.pose for f in frames], map.class_names)

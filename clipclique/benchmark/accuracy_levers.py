@@ -1,0 +1,107 @@
+"""Accuracy levers side by side: each a config key, on the same cached observations of every realistic scene.
+
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers                  # every lever, both descriptors, all scenes
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --scenes demo_clutter --frames 40 --levers before "defaults (after)"
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --reference     # with the paper preset and the literal reference
+
+Each scene's frames go through the detector, the observation fit and the (simulated) CLIP once
+(clipclique.benchmark.suite's cache); every lever then localizes those observations, once with Semantic
+Histograms only (`similarity.alpha=0`) and once fused with the simulated CLIP. Printed as a
+markdown table: top-1 success within 0.25 / 0.5 / 1 / 2 m, and top-5 within 1 m (what re-ranking
+could reach), per scene, descriptor and lever.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from clipclique.benchmark import suite
+from clipclique.config import make_config
+from clipclique.metrics import evaluate_frame, success_within
+from clipclique.pipeline import index_map, localize
+
+SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum")
+DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
+
+# Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
+# defaults before tools/accuracy_levers.py measured them); each "no ..." turns one kept lever off.
+# "previous" is the second round's starting point (re-ranking the five heaviest cliques, every missed
+# landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers. The third
+# round's starting point is "no missed share" (each missed landmark costing alike however many the pose expects).
+# The look-alike candidates (the third round's matching lever) are off in "previous" and "before";
+# "no look-alike candidates" is today's without them.
+PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0,
+            "matching.lookalike_candidates": 0}
+BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
+LEVERS: dict[str, dict[str, Any]] = {
+    "before": BEFORE,
+    "rerank only": BEFORE | {"inliers.rerank": "verification"},
+    "refine only": BEFORE | {"pose.refine_radius": 0.3},
+    "duplicates only": BEFORE | {"inliers.duplicate_iou": 0.7},
+    "previous": PREVIOUS,
+    "pool only": PREVIOUS | {"inliers.rerank_pool": 50},
+    "sized misses only": PREVIOUS | {"verification.missed_full_area": 0.0625},
+    "defaults (after)": {},
+    "no refine": {"pose.refine_radius": 0.0},
+    "no duplicates": {"inliers.duplicate_iou": 0.0},
+    "no missed penalty": {"verification.missed_weight": 0.0},
+    "rerank confidence": {"inliers.rerank": "confidence"},
+    "no missed share": {"verification.missed_share_from": 0.0},
+    "no look-alike candidates": {"matching.lookalike_candidates": 0},
+    "look-alike candidates 1": {"matching.lookalike_candidates": 1},
+    "look-alike candidates 3": {"matching.lookalike_candidates": 3},
+    "look-alike candidates, any size": {"matching.lookalike_size_ratio": 1000.0},
+}
+
+
+def top1_errors(sequence: suite.CachedSequence, method: str, overrides: dict[str, Any],
+                reference: bool = False) -> tuple[list[float | None], float]:
+    """Top-1 translation error per frame (None when no pose), and top-5 success within 1 m."""
+    config = make_config(method, overrides=overrides)
+    localizer = (partial(suite.literal_localize, map=sequence.map, alpha=config.similarity.alpha) if reference
+                 else partial(localize, index=index_map(sequence.map, config), config=config))
+    errors, top5 = [], []
+    for frame in sequence.frames:
+        evaluation = evaluate_frame(localizer(frame.observations), frame.observations, sequence.map, frame.gt_pose,
+                                    config, frame.index)
+        errors.append(evaluation.translation_error)
+        top5.append(evaluation.success[5])
+    return errors, float(np.mean(top5))
+
+
+def row(scene: str, descriptor: str, lever: str, errors: list[float | None], top5: float) -> str:
+    within = " | ".join(f"{share:.1%}" for share in success_within(errors).values())
+    return f"| {scene} | {descriptor} | {lever} | {within} | {top5:.1%} |"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="+", default=list(SCENES))
+    parser.add_argument("--levers", nargs="+", default=list(LEVERS), choices=list(LEVERS))
+    parser.add_argument("--frames", type=int, help="frames per scene, spread evenly [default: all]")
+    parser.add_argument("--reference", action="store_true", help="also the paper preset and the literal reference")
+    args = parser.parse_args(argv)
+    print("| scene | descriptor | lever | top-1 within 0.25 m | 0.5 m | 1 m | 2 m | top-5 within 1 m |")
+    print("|---|---|---|---|---|---|---|---|", flush=True)
+    for scene in args.scenes:
+        suite.ensure_map(scene, None)
+        sequence = suite.cache_sequence(scene, None, args.frames, lambda total: None)
+        for descriptor, base in DESCRIPTORS.items():
+            if descriptor == "CLIP" and not sequence.has_clip:
+                continue
+            for lever in args.levers:
+                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])), flush=True)
+            if args.reference:
+                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)), flush=True)
+                print(row(scene, descriptor, "literal reference",
+                          *top1_errors(sequence, "clipclique-paper", base, reference=True)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

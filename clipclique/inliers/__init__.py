@@ -1,0 +1,1 @@
+"""Which correspondences agree: the compatibility graph, the clique search, regions, RANSAC/PROSAC."""

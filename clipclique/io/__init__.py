@@ -1,0 +1,1 @@
+"""Files: maps, strict readers of user files, outputs committed together."""

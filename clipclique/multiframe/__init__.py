@@ -1,0 +1,1 @@
+"""More than one frame or map: windows fused by odometry, map-to-map alignment."""

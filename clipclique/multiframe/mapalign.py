@@ -1,0 +1,223 @@
+"""Map-to-map alignment: the rigid transform taking one object map (the query map) into another.
+
+The entry point is `clipclique.pipeline.align_maps(query_map, map, config)`; this module prepares the
+query (`as_query`) and turns the pipeline's hypotheses into candidates (`conclude`).
+
+Multi-session mapping and object-based loop closing need the transform between two object maps of
+one place. The query map is given to the localization pipeline as if it were one huge frame:
+its landmarks become observations (centres, axes, classes; the text embeddings stand in for image
+embeddings when both maps share an encoder, else alpha = 0, Semantic Histograms only), and
+descriptors, matching, cliques and the weighted pose run unchanged. Each hypothesis is a 4 x 4
+matrix taking query-map coordinates into the map.
+
+Vocabularies: a query class is the map class of the same name (any case) or of a synonym
+(`lookalikes.SYNONYM_PAIRS`: couch/sofa, tv/monitor, ...); a class the map lacks is added to the
+vocabulary, where the look-alike kernel still relates it to the map's classes.
+
+Hypotheses whose transforms agree (the query map's centroid within DISTINCT_M and rotations within
+DISTINCT_DEG) are one candidate: cliques that differ by a correspondence or two. Each candidate
+is refined: every query landmark that lands within `inliers.d_comp` of a map landmark of a like
+class (nearest first, one-to-one) becomes a correspondence, and the transform is refit on them.
+
+Maps cannot be verified in an image, so a candidate's confidence comes from its evidence: the
+number of correspondences and its margin, how far its summed similarity stands above the best
+other candidate's (relative to its own). A logistic model of the two, fitted on generated cases
+(`tools/fit_align_confidence.py`: split maps moved by random transforms, unrelated maps, rooms
+repeated side by side), gives the probability that the transform is right (within 0.5 m and 5
+degrees). The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
+best: the competitors are listed instead of one being picked silently.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from clipclique.descriptors import lookalikes
+from clipclique.config import LocalizationConfig
+from clipclique.geometry import rotation_angle
+from clipclique.outcomes import Failure, LocalizationResult
+from clipclique.pose.fit import DegeneratePoseError, fit_rigid
+from clipclique.types import Map, Observations, Pose
+
+
+DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than this ...
+DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
+AMBIGUOUS_MARGIN = 0.15  # a competitor within this fraction of the best's similarity makes the answer ambiguous
+SEARCHED = 4  # hypotheses asked of the pipeline per candidate reported (near-duplicates are merged)
+# Logistic confidence, P = sigmoid(BIAS + SIZE_WEIGHT * log(correspondences) + MARGIN_WEIGHT * margin),
+# fitted by tools/fit_align_confidence.py (its output says how well it is calibrated).
+BIAS, SIZE_WEIGHT, MARGIN_WEIGHT = -7.009, 2.251, 15.571
+TRANSLATION_FLOOR_M = 0.01  # the information matrix's translation sigma is at least this
+INFORMATION_CAP = 1e6  # ... and no entry exceeds this
+
+
+@dataclass
+class Candidate:
+    """One transform of the query map into the map."""
+
+    pose: Pose  # query-map coordinates -> map coordinates
+    correspondences: np.ndarray  # (M, 2) int rows (query-map landmark, map landmark)
+    score: float  # summed similarity of the correspondences
+    margin: float  # (score - the best other candidate's score) / score; 1 without another
+    confidence: float  # P(the transform is right), module docstring
+    rms_m: float  # root-mean-square centre residual of the correspondences after the transform
+
+    def matrix(self) -> np.ndarray:
+        return self.pose.matrix()
+
+
+@dataclass
+class MapAlignment:
+    candidates: list[Candidate]  # best first, at most config.top_n
+    ambiguous: bool  # another candidate scores within AMBIGUOUS_MARGIN of the best
+    competitors: list[int]  # indices into candidates scoring within AMBIGUOUS_MARGIN of the best (the best included)
+    vocabulary: dict[str, str | None]  # query class name -> the map class it was matched to (None: added)
+    failure: Failure | None  # why the pipeline found no transform; None when it found one
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class AlignmentQuery:
+    """The query map as the pipeline's query, and the map in the shared vocabulary (`as_query`)."""
+
+    observations: Observations  # the query map's landmarks, classes in the shared vocabulary
+    map: Map  # the map with the shared vocabulary
+    config: LocalizationConfig  # the config the pipeline runs with (`_alignment_config`)
+    vocabulary: dict[str, str | None]  # query class name -> the map class it matched (None: added)
+    notes: list[str]
+
+
+def as_query(query_map: Map, map: Map, config: LocalizationConfig) -> AlignmentQuery:
+    """What `clipclique.pipeline.align_maps` localizes: the query map's landmarks as observations."""
+    names, query_ids, vocabulary = shared_vocabulary(query_map.class_names, map.class_names)
+    notes: list[str] = []
+    settings = _alignment_config(config, query_map, map, notes)
+    observations = Observations(query_map.ellipsoids, query_ids[query_map.class_ids],
+                                None if settings.similarity.alpha == 0 else query_map.text_embeddings,
+                                query_map.instance_ids, np.arange(len(query_map)))
+    return AlignmentQuery(observations, replace(map, class_names=names), settings, vocabulary, notes)
+
+
+def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, config: LocalizationConfig) -> MapAlignment:
+    """The pipeline's hypotheses as distinct, refined, ranked candidates with confidences (module docstring)."""
+    kernel = lookalikes.class_kernel(query.map.class_names, 1.0)
+    like = kernel[query.observations.class_ids][:, query.map.class_ids].toarray() > 0  # (query, map) classes alike
+    candidates: list[Candidate] = []
+    for hypothesis in result.hypotheses:
+        if any(_same_transform(hypothesis.pose, c.pose, query_map) for c in candidates):
+            continue
+        refined = _refined(hypothesis.pose, hypothesis.correspondences, query.observations, query.map, like,
+                           result.similarity, query.config.inliers.d_comp)
+        if not any(_same_transform(refined.pose, c.pose, query_map) for c in candidates):  # converged onto another
+            candidates.append(refined)
+    candidates.sort(key=lambda c: -c.score)
+    _confidences(candidates)
+    best = candidates[0].score if candidates else 0.0
+    competitors = [i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates else []
+    return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
+                        query.vocabulary, result.failure, query.notes + result.notes)
+
+
+def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[list[str], np.ndarray, dict[str, str | None]]:
+    """The map's vocabulary extended by the query classes it lacks; (names, query class id -> id in
+    names, query class name -> the map class it matched or None)."""
+    names = list(map_names)
+    ids, matched = [], {}
+    for name in query_names:
+        found = lookalikes.synonym(name, list(map_names))
+        matched[name] = None if found is None else map_names[found]
+        if found is None:
+            found = next((i for i, entry in enumerate(names) if entry.lower() == name.lower()), None)
+            if found is None:
+                names.append(name)
+                found = len(names) - 1
+        ids.append(found)
+    return names, np.array(ids, np.int64), matched
+
+
+def _alignment_config(config: LocalizationConfig, query_map: Map, map: Map, notes: list[str]) -> LocalizationConfig:
+    """The config with what maps lack turned off: no image (no re-ranking or confidence floor), CLIP only
+    between maps of one encoder; and more hypotheses, since near-duplicates are merged."""
+    settings = replace(config, top_n=SEARCHED * config.top_n, inliers=replace(config.inliers, rerank="none"),
+                       min_confidence=0.0, similarity=replace(config.similarity))
+    same_encoder = (query_map.text_embeddings is not None and map.text_embeddings is not None
+                    and query_map.encoder == map.encoder)
+    if settings.similarity.descriptor == "clip" or (settings.similarity.descriptor == "fused" and not same_encoder):
+        if settings.similarity.alpha > 0:
+            notes.append(f"text embeddings not comparable (query map: {query_map.encoder}, map: {map.encoder}): "
+                         "alpha = 0 (Semantic Histograms only)")
+        settings.similarity = replace(settings.similarity, descriptor="fused", alpha=0.0)
+    return settings
+
+
+def _same_transform(a: Pose, b: Pose, query_map: Map) -> bool:
+    centroid = query_map.ellipsoids.centers.mean(axis=0)
+    return (float(np.linalg.norm(a.apply(centroid) - b.apply(centroid))) < DISTINCT_M
+            and math.degrees(rotation_angle(a.rotation.T @ b.rotation)) < DISTINCT_DEG)
+
+
+def _refined(pose: Pose, clique: np.ndarray, observations: Observations, map: Map, like: np.ndarray,
+             similarity: np.ndarray, reach: float) -> Candidate:
+    """Every query landmark within `reach` of a like map landmark under `pose` (nearest first, one-to-one),
+    and the transform refit on them; the clique as it is when fewer than three are found."""
+    moved = pose.apply(observations.ellipsoids.centers)
+    tree = cKDTree(map.ellipsoids.centers)
+    pairs = [(float(np.linalg.norm(moved[q] - map.ellipsoids.centers[m])), q, m)
+             for q, near in enumerate(tree.query_ball_point(moved, reach)) for m in near if like[q, m]]
+    used_q, used_m, chosen = set(), set(), []
+    for _, q, m in sorted(pairs):
+        if q not in used_q and m not in used_m:
+            chosen.append((q, m))
+            used_q.add(q)
+            used_m.add(m)
+    correspondences = np.array(sorted(chosen), np.int64).reshape(-1, 2)
+    try:
+        pose = fit_rigid(observations.ellipsoids.centers[correspondences[:, 0]], map.ellipsoids.centers[correspondences[:, 1]])
+    except DegeneratePoseError:
+        correspondences = clique
+    residual = pose.apply(observations.ellipsoids.centers[correspondences[:, 0]]) - map.ellipsoids.centers[correspondences[:, 1]]
+    score = float(np.clip(similarity[correspondences[:, 0], correspondences[:, 1]], 0.0, None).sum())
+    return Candidate(pose, correspondences, score, 1.0, 0.0, float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))))
+
+
+def _confidences(candidates: list[Candidate]) -> None:
+    """Margin and confidence of each candidate (best first)."""
+    for i, candidate in enumerate(candidates):
+        other = max((c.score for j, c in enumerate(candidates) if j != i), default=0.0)
+        candidate.margin = (candidate.score - other) / candidate.score if candidate.score > 0 else 0.0
+        candidate.confidence = confidence(len(candidate.correspondences), candidate.margin)
+
+
+def confidence(size: int, margin: float) -> float:
+    """P(right) of a candidate with `size` correspondences and relative `margin` (module docstring)."""
+    return float(1.0 / (1.0 + math.exp(-(BIAS + SIZE_WEIGHT * math.log(max(size, 1)) + MARGIN_WEIGHT * margin))))
+
+
+def g2o_edge(candidate: Candidate, query_map: Map) -> str:
+    """The candidate as a g2o `EDGE_SE3:QUAT 0 1 tx ty tz qx qy qz qw` line with its information matrix.
+
+    Vertex 0 is the map, vertex 1 the query map: the measurement is the query map's frame in the map's,
+    i.e. the candidate's transform. The information matrix (upper triangle, row by row, of the 6 x 6 in
+    g2o's order x y z qx qy qz) is diagonal: translation 1 / sigma_t^2 with sigma_t = max(rms residual,
+    TRANSLATION_FLOOR_M) / sqrt(correspondences); rotation 1 / sigma_q^2 with sigma_q = sigma_t / (2 r),
+    r the correspondences' radius of gyration about their centroid in the query map (a rotation by a
+    small angle moves points at r by r * angle; the quaternion's vector part is half the angle).
+    Entries are capped at INFORMATION_CAP.
+    """
+    pose = candidate.pose
+    count = max(len(candidate.correspondences), 1)
+    sigma_t = max(candidate.rms_m, TRANSLATION_FLOOR_M) / math.sqrt(count)
+    points = query_map.ellipsoids.centers[candidate.correspondences[:, 0]]
+    radius = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))) if len(points) else 0.0
+    sigma_q = sigma_t / (2 * max(radius, TRANSLATION_FLOOR_M))
+    diagonal = [min(1 / sigma_t**2, INFORMATION_CAP)] * 3 + [min(1 / sigma_q**2, INFORMATION_CAP)] * 3
+    information = np.diag(diagonal)
+    upper = information[np.triu_indices(6)]
+    quaternion = Rotation.from_matrix(pose.rotation).as_quat()  # x y z w
+    values = [*pose.translation, *quaternion]
+    return "EDGE_SE3:QUAT 0 1 " + " ".join(f"{v:.9g}" for v in values) + " " + " ".join(f"{v:.6g}" for v in upper)

@@ -1,0 +1,1 @@
+"""Poses from correspondences: the weighted fits, their conditioning, refinement, the stacked pool."""

@@ -1,0 +1,419 @@
+"""Pose refinement: a clique's pose refitted with every observation it brings next to a matching landmark.
+
+A clique holds three or four objects of a crowded desk, a few decimetres apart: their centres
+fix the rotation poorly, and a camera a metre or two away then lands half a metre to two metres
+off. Moved into the map with that pose, most other observations fall near their own landmarks;
+taking every observation that lands within `radius` of a landmark it is similar to (one-to-one,
+nearest first) and refitting with all of them pins the pose down. Done `rounds` times per hypothesis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from scipy.spatial import cKDTree
+
+from clipclique.config import PoseWeights
+from clipclique.pose.fit import (WEIGHT_MODES, compiled_weighted_sets, fit_rigid_batch, fit_rigid_sets, nonzero_counts,
+                             weighted_sets)
+from clipclique.pose.stack import Stack, alike, alike_spans
+from clipclique.types import Hypothesis, Map, Observations, Pose
+
+
+def nearby_pairs(pose: Pose, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                 landmarks: cKDTree | None = None) -> np.ndarray:
+    """(M, 2) (observation, landmark) pairs, one-to-one, nearest first (ties by observation, then
+    landmark): each observation moved into the map by `pose` lies within `radius` of a landmark its
+    similarity to is positive."""
+    return nearby_pairs_of([pose], observations, map, similarity, radius, landmarks)[0]
+
+
+def nearby_pairs_of(poses: list[Pose], observations: Observations, map: Map, similarity: np.ndarray,
+                    radius: float, landmarks: cKDTree | None = None) -> list[np.ndarray]:
+    """`nearby_pairs` of each pose (a re-ranked frame has fifty), by `_stacked_nearby_pairs`."""
+    rotations = np.array([pose.rotation for pose in poses]).reshape(-1, 3, 3)
+    translations = np.array([pose.translation for pose in poses]).reshape(-1, 3)
+    pairs, counts = _stacked_nearby_pairs(rotations, translations, observations, map, similarity, radius, landmarks)
+    ends = np.cumsum(counts).tolist()
+    return [pairs[start:end] for start, end in zip([0, *ends], ends)]
+
+
+def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, observations: Observations, map: Map,
+                          similarity: np.ndarray, radius: float,
+                          landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray]:
+    """The nearby pairs of B poses (rotations (B, 3, 3), translations (B, 3)) stacked pose after pose, and (B,)
+    how many each has: the observations moved by all of them; for a room-sized map one compiled pass tests each
+    point against the landmarks within reach along one axis and picks each pose's nearest one-to-one
+    (`_nearest_of_all`: fifty poses of a frame against 47 landmarks); beyond, a KD-tree join lists the pairs nearer
+    than `radius` (`_near_pairs`) and one compiled pass picks (a numpy pass each cost more than the work)."""
+    moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
+    centers = map.ellipsoids.centers
+    if len(moved) * len(centers) <= DENSE_PAIRS:
+        return _nearest_of_all(moved, *_along_widest_axis(np.ascontiguousarray(centers, np.float64)), similarity,
+                               radius, len(rotations), len(observations))
+    near = _near_pairs(moved, centers, similarity, radius, len(observations), landmarks)
+    return _nearest_one_to_one(*near, len(rotations), len(observations), len(map))
+
+
+@njit(cache=True)
+def _moved(rotations, translations, points):
+    """(B * K, 3) the K points moved by each of B poses, `np.einsum("bij,kj->bki", rotations, points) +
+    translations[:, None]` in one pass (two numpy passes cost more than the arithmetic)."""
+    moved = np.empty((len(rotations) * len(points), 3))
+    for b in range(len(rotations)):
+        for k in range(len(points)):
+            for i in range(3):
+                moved[b * len(points) + k, i] = (rotations[b, i, 0] * points[k, 0] + rotations[b, i, 1] * points[k, 1]
+                                                 + rotations[b, i, 2] * points[k, 2] + translations[b, i])
+    return moved
+
+
+DENSE_PAIRS = 1 << 18  # up to this many (moved observation, landmark) pairs, every one is tested
+
+
+def _near_pairs(points: np.ndarray, centers: np.ndarray, similarity: np.ndarray, radius: float, num_obs: int,
+                landmarks: cKDTree | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(distance, pose, observation, landmark) of every moved observation (point = pose * num_obs +
+    observation) nearer than `radius` to a landmark its similarity to is positive, by pose, observation,
+    landmark, by a KD-tree join (a map of 47,000 landmarks costs a join, not a distance matrix; `landmarks`: a
+    KD-tree of the map's centres, None: built here)."""
+    tree = cKDTree(centers) if landmarks is None else landmarks
+    join = cKDTree(points).sparse_distance_matrix(tree, _reach(radius), output_type="ndarray")
+    point, landmark = join["i"].astype(np.int64), join["j"].astype(np.int64)
+    order = np.argsort(point * len(centers) + landmark)
+    return _near_pairs_listed(points, centers, similarity, radius, num_obs, point[order], landmark[order])
+
+
+@njit(cache=True, inline="always")
+def _reach(radius):
+    """A hair wider than `radius`: a pair beyond it is surely not nearer than `radius`, whatever the rounding."""
+    return radius * (1 + 1e-9) + 1e-12
+
+
+@njit(cache=True)
+def _near_pairs_listed(points, centers, similarity, radius, num_obs, point, landmark):
+    """`_near_pairs` of the listed (point, landmark) candidates ordered by point, then landmark."""
+    distance, pose, obs, lm = (np.empty(len(point)), np.empty(len(point), np.int64), np.empty(len(point), np.int64),
+                               np.empty(len(point), np.int64))
+    count, limit = 0, _reach(radius) ** 2
+    for i in range(len(point)):
+        p, n = point[i], landmark[i]
+        d = _near(points, p, centers, n, limit, radius)
+        if d >= 0 and similarity[p % num_obs, n] > 0:
+            distance[count], pose[count], obs[count], lm[count] = d, p // num_obs, p % num_obs, n
+            count += 1
+    return distance[:count], pose[:count], obs[:count], lm[:count]
+
+
+@njit(cache=True, inline="always")
+def _near(points, p, centers, n, limit, radius):
+    """The distance of points[p] and centers[n] where it is below `radius`, else -1, its square root taken only
+    within `limit`, `_reach` squared (most pairs of a map are far). Indices, not rows: a row is an array view,
+    counted in and out per pair."""
+    dx = points[p, 0] - centers[n, 0]
+    dy = points[p, 1] - centers[n, 1]
+    dz = points[p, 2] - centers[n, 2]
+    squared = dx * dx + dy * dy + dz * dz
+    if squared <= limit:
+        d = np.sqrt(squared)
+        if d < radius:
+            return d
+    return -1.0
+
+
+@njit(cache=True)
+def _along_widest_axis(centers):
+    """The map's centres as `_nearest_of_all` reads them: (3, N') their x, y and z in order along the axis they spread
+    most on (finite ones), that axis, and (N',) the landmark of each column; a centre without a place along it (NaN)
+    is near nothing and left out."""
+    low, high = np.full(3, np.inf), np.full(3, -np.inf)
+    for n in range(len(centers)):
+        for i in range(3):
+            if np.isfinite(centers[n, i]):
+                low[i], high[i] = min(low[i], centers[n, i]), max(high[i], centers[n, i])
+    axis = np.argmax(high - low)
+    placed = np.flatnonzero(~np.isnan(centers[:, axis]))
+    order = placed[np.argsort(centers[placed, axis])]
+    return np.ascontiguousarray(centers[order].T), axis, order
+
+
+@njit(cache=True)
+def _nearest_of_all(points, by_axis, axis, landmark_of, similarity, radius, num_poses, num_obs):
+    """`_nearest_one_to_one` of the near pairs of every point and every centre, pose after pose, with no list of all
+    poses' pairs in between. by_axis, axis, landmark_of: `_along_widest_axis`. Each point meets only the centres
+    whose coordinate along `axis` differs from its own by at most a hair beyond `_reach` (a fifth of a desk's,
+    found by bisection): that difference is the very one the distance squares, and one beyond it squares past
+    `_reach` squared whatever the rounding, so no near pair is missed. The distance as `_near` computes it."""
+    size = len(landmark_of)
+    distance, lm = np.empty(num_obs * size), np.empty(num_obs * size, np.int64)
+    firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
+    pairs = np.empty((num_poses * min(num_obs, size), 2), np.int64)
+    per_pose = np.zeros(num_poses, np.int64)
+    landmark_used_by = np.full(similarity.shape[1], -1)
+    keys, limit = by_axis[axis], _reach(radius) ** 2
+    bound, count = _reach(_reach(radius)), 0  # a hair beyond reach: a difference past it squares past `limit`
+    for b in range(num_poses):
+        near = 0
+        for k in range(num_obs):
+            x, y, z = points[b * num_obs + k, 0], points[b * num_obs + k, 1], points[b * num_obs + k, 2]
+            key = points[b * num_obs + k, axis]
+            low, high = 0, size  # the first centre not beyond `bound` below the point (NaN: none is)
+            while low < high:
+                middle = (low + high) >> 1
+                if key - keys[middle] > bound:
+                    low = middle + 1
+                else:
+                    high = middle
+            firsts[k] = near
+            for i in range(low, size):
+                if not key - keys[i] >= -bound:
+                    break
+                dx, dy, dz = x - by_axis[0, i], y - by_axis[1, i], z - by_axis[2, i]
+                squared = dx * dx + dy * dy + dz * dz
+                if squared <= limit:
+                    d, n = np.sqrt(squared), landmark_of[i]
+                    if d < radius and similarity[k, n] > 0:
+                        distance[near], lm[near] = d, n
+                        near += 1
+            ends[k] = near
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
+        per_pose[b], count = taken - count, taken
+    return pairs[:count].copy(), per_pose
+
+
+@njit(cache=True)
+def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmarks):
+    """Near pairs ordered by pose, observation, landmark -> per pose nearest first (ties by observation, then
+    landmark) and one-to-one: (M, 2) (observation, landmark) pose after pose, and (B,) how many each pose took
+    (`_take_nearest` per pose)."""
+    first = np.searchsorted(pose, np.arange(num_poses + 1))
+    firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
+    pairs = np.empty((len(pose), 2), np.int64)
+    per_pose = np.zeros(num_poses, np.int64)
+    landmark_used_by = np.full(num_landmarks, -1)
+    count = 0
+    for b in range(num_poses):
+        firsts[:], ends[:] = 0, 0
+        for i in range(first[b], first[b + 1]):
+            if ends[obs[i]] == 0:
+                firsts[obs[i]] = i
+            ends[obs[i]] = i + 1
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
+        per_pose[b], count = taken - count, taken
+    return pairs[:count].copy(), per_pose
+
+
+@njit(cache=True, inline="always")
+def _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, pose, landmark_used_by, pairs, count):
+    """Pose `pose`'s near pairs taken nearest first, ties by observation, then landmark, each where neither side is
+    used yet, written to `pairs` from row `count`; the rows written up to. Observation k's near pairs are
+    distance[firsts[k]: ends[k]] and lm[...], in any order (`landmark_used_by`: the last pose that used each
+    landmark; nearest, nearest_landmark: scratch). The greedy over all pairs sorted, without the sort: it takes
+    the least pair whose sides are both free, which is the least of each free observation's nearest free
+    landmark; after a take only the observations whose nearest was that landmark look again. Inlined into its
+    callers, as `_near`: its arrays are not counted in and out per pose."""
+    for k in range(len(firsts)):
+        nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose, landmark_used_by)
+    while True:
+        best, least = -1, np.inf
+        for k in range(len(firsts)):
+            if nearest[k] < least:  # a tie keeps the first observation
+                best, least = k, nearest[k]
+        if best < 0:
+            return count
+        taken = nearest_landmark[best]
+        landmark_used_by[taken], nearest[best] = pose, np.inf
+        pairs[count, 0], pairs[count, 1] = best, taken
+        count += 1
+        for k in range(len(firsts)):
+            if nearest_landmark[k] == taken and nearest[k] < np.inf:
+                nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose,
+                                                                landmark_used_by)
+
+
+@njit(cache=True, inline="always")
+def _nearest_free(distance, lm, start, stop, pose, landmark_used_by):
+    """The least (distance, landmark) of distance[start: stop] and lm[...] whose landmark `pose` has not used;
+    (inf, -1) where none is (a near pair's distance is below the radius, finite)."""
+    least, landmark = np.inf, -1
+    for i in range(start, stop):
+        if (distance[i] < least or (distance[i] == least and lm[i] < landmark)) and landmark_used_by[lm[i]] != pose:
+            least, landmark = distance[i], lm[i]
+    return least, landmark
+
+
+def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+           weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> None:
+    """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place
+    (`refined` of their stack)."""
+    stack, moved = refined(Stack.of(hypotheses), observations, map, similarity, radius, weights, rounds, landmarks)
+    ends = np.cumsum(stack.counts)
+    for i in np.flatnonzero(moved).tolist():
+        hypotheses[i].pose = Pose(stack.rotations[i], stack.translations[i])
+        hypotheses[i].correspondences = stack.pairs[ends[i] - stack.counts[i]: ends[i]]
+
+
+def refined(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> tuple[Stack, np.ndarray]:
+    """The stack with each hypothesis's pose and pairs replaced by the refit on its nearby pairs, as long as
+    they are at least as many as it had (a refit never rests on fewer objects), `rounds` times; and (B,)
+    which were replaced. The hypotheses still refining are refitted together, one batch per round (a
+    re-ranked frame has fifty). A room-sized map is refined in one compiled call (`_refined_densely`; a dozen
+    Python-level calls a round cost as much as the work), a larger one round by round (`_refined_by_rounds`).
+    `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
+    if len(stack) * len(observations) * len(map) <= DENSE_PAIRS:
+        rotations, translations, sizes, pairs, moved = _refined_densely(
+            stack.rotations, stack.translations, stack.counts, stack.pairs,
+            np.ascontiguousarray(observations.ellipsoids.centers, np.float64), observations.ellipsoids.axes,
+            np.ascontiguousarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes, similarity, radius,
+            WEIGHT_MODES[weights], rounds)
+        return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes, scores=stack.scores,
+                      conditioning=stack.conditioning) if moved.any() else stack), moved
+    return _refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
+
+
+def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                       weights: PoseWeights, rounds: int, landmarks: cKDTree | None) -> tuple[Stack, np.ndarray]:
+    """`refined`, a round at a time: the nearby pairs of each by `_stacked_nearby_pairs` (a KD-tree join beyond a
+    room-sized map) and the fits by `fit_rigid_batch`."""
+    rotations, translations, sizes = stack.rotations.copy(), stack.translations.copy(), stack.counts.copy()
+    found = [stack.pairs]  # every round's pairs after the stack's own; `origin` indexes them all, joined
+    origin, offset = stack.starts(), len(stack.pairs)
+    moved = np.zeros(len(stack), bool)
+    active = np.arange(len(stack))
+    for _ in range(rounds):
+        if not len(active):
+            break
+        pairs, counts = _stacked_nearby_pairs(rotations[active], translations[active], observations, map, similarity,
+                                              radius, landmarks)
+        starts, refits = _refitting(counts, sizes[active])
+        if not len(refits):
+            break
+        # Hypotheses that found the same pairs refit alike (a row's fit does not depend on the others'):
+        # each distinct set is fitted once.
+        fitted, firsts = alike(np.zeros((len(refits), 0)), pairs, starts[refits], counts[refits])
+        firsts = refits[firsts]
+        rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
+                                           weights)
+        active = _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations,
+                        translations, sizes, origin, moved)
+        found.append(pairs)
+        offset += len(pairs)
+    if not moved.any():
+        return stack, moved
+    gather = np.repeat(origin - (np.cumsum(sizes) - sizes), sizes) + np.arange(sizes.sum())
+    return Stack(rotations=rotations, translations=translations, pairs=np.concatenate(found)[gather], counts=sizes,
+                 scores=stack.scores, conditioning=stack.conditioning), moved
+
+
+@njit(cache=True)
+def _refined_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
+                     similarity, radius, mode, rounds):
+    """`_refined_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
+    stack's arrays) and which hypotheses moved. Each round as
+    `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
+    `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and `_taken`."""
+    rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
+    num_obs, (by_axis, axis, landmark_of) = len(centers), _along_widest_axis(landmark_centers)
+    found = np.empty((len(pairs) + rounds * len(sizes) * min(num_obs, len(landmark_centers)), 2), np.int64)
+    found[:len(pairs)] = pairs
+    origin, offset = np.cumsum(sizes) - sizes, len(pairs)
+    moved = np.zeros(len(sizes), np.bool_)
+    active = np.arange(len(sizes))
+    for _ in range(rounds):
+        if not len(active):
+            break
+        near, near_counts = _nearest_of_all(_moved(rotations[active], translations[active], centers), by_axis, axis,
+                                            landmark_of, similarity, radius, len(active), num_obs)
+        starts, refits = _refitting(near_counts, sizes[active])
+        if not len(refits):
+            break
+        fitted, firsts = alike_spans(np.zeros((len(refits), 0), np.int64), near.reshape(-1), 2 * starts[refits],
+                                     2 * near_counts[refits])
+        firsts = refits[firsts]
+        chosen, scores = _gathered(near, starts[firsts], near_counts[firsts], similarity)
+        source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[firsts], 0, 0,
+                                                   np.float64(similarity[0, 0]), centers, axes, landmark_centers,
+                                                   landmark_axes, mode)
+        rotation, translation, ok = fit_rigid_sets(w, source, target)
+        active = _taken(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts, offset,
+                        near_counts, rotations, translations, sizes, origin, moved)
+        found[offset: offset + len(near)] = near
+        offset += len(near)
+    joined = np.empty((sizes.sum(), 2), np.int64)
+    row = 0
+    for b in range(len(sizes)):
+        for i in range(origin[b], origin[b] + sizes[b]):
+            joined[row, 0], joined[row, 1] = found[i, 0], found[i, 1]
+            row += 1
+    return rotations, translations, sizes, joined, moved
+
+
+def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,
+           similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
+    with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
+    chosen, scores = _gathered(pairs, starts, counts, similarity)
+    source, target, w = weighted_sets(chosen, scores, counts, (0, 0, similarity[0, 0]),
+                                      (observations.ellipsoids.centers, observations.ellipsoids.axes),
+                                      (map.ellipsoids.centers, map.ellipsoids.axes), weights)
+    rotation, translation, ok = fit_rigid_batch(source, target, w)
+    return rotation, translation, ok & (nonzero_counts(w) >= 3)
+
+
+@njit(cache=True)
+def _refitting(counts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(B,) where each pose's nearby pairs begin among all (`counts[b]` each), and the poses that refit: those
+    with at least 3 pairs and no fewer than they hold (`sizes`), in order. One pass for numpy's
+    `np.cumsum(counts) - counts` and `np.flatnonzero(counts >= np.maximum(3, sizes))` (a call costs more than
+    the work)."""
+    starts, refits = np.empty(len(counts), np.int64), np.empty(len(counts), np.int64)
+    start, found = 0, 0
+    for b in range(len(counts)):
+        starts[b] = start
+        start += counts[b]
+        if counts[b] >= max(3, sizes[b]):
+            refits[found] = b
+            found += 1
+    return starts, refits[:found].copy()
+
+
+@njit(cache=True)
+def _gathered(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray,
+              similarity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sets pairs[start: start + count] one after another (M, 2), and (M,) each pair's similarity: numpy's
+    `pairs[np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())]` and
+    `similarity[chosen[:, 0], chosen[:, 1]]` in one pass."""
+    chosen = np.empty((counts.sum(), 2), np.int64)
+    scores = np.empty(counts.sum(), similarity.dtype)
+    row = 0
+    for b in range(len(counts)):
+        for i in range(starts[b], starts[b] + counts[b]):
+            chosen[row, 0], chosen[row, 1] = pairs[i, 0], pairs[i, 1]
+            scores[row] = similarity[pairs[i, 0], pairs[i, 1]]
+            row += 1
+    return chosen, scores
+
+
+@njit(cache=True)
+def _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations, translations, sizes,
+           origin, moved):
+    """A round's refits taken where their set has a pose (`ok[fitted[r]]`): hypothesis `active[refits[r]]` gets the
+    pose of its set, `counts[refits[r]]` pairs from `offset + starts[refits[r]]` on and is marked moved, in place; the
+    hypotheses taken, in order (those still refining). numpy's masks and fancy assignments in one pass."""
+    taken = np.empty(len(refits), np.int64)
+    count = 0
+    for r in range(len(refits)):
+        f = fitted[r]
+        if ok[f]:
+            a = active[refits[r]]
+            for i in range(3):  # number by number: row views are counted in and out
+                translations[a, i] = translation[f, i]
+                for j in range(3):
+                    rotations[a, i, j] = rotation[f, i, j]
+            sizes[a], origin[a], moved[a] = counts[refits[r]], offset + starts[refits[r]], True
+            taken[count] = a
+            count += 1
+    return taken[:count].copy()

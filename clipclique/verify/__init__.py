@@ -1,0 +1,1 @@
+"""Whether a pose explains the image: projection, verification, calibrated confidence."""

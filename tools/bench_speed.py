@@ -50,13 +50,14 @@ LITERAL_UP_TO = 100  # landmarks: the literal reference's cliques explode on lar
 
 
 def layout_module(name: str):
-    """`clipclique.<name>`, or the top-level `<name>` of a tree from before the runners moved into clipclique."""
+    """`clipclique.<name>`, or the top-level `<name>` of a tree from before the runners moved into clipclique (told
+    by the loaded clipclique's folder: an editable install would find the moved module in this tree instead)."""
     import importlib
 
-    try:
-        return importlib.import_module(f"clipclique.{name}")
-    except ModuleNotFoundError:
-        return importlib.import_module(name)
+    import clipclique
+
+    moved = (Path(clipclique.__file__).parent / name.split(".")[0]).is_dir()
+    return importlib.import_module(f"clipclique.{name}" if moved else name)
 
 
 class Worker:

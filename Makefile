@@ -1,7 +1,7 @@
 # Two commands set up everything on a fresh machine:
 #   make demo   build the demo maps, localize the demo sequences with all four methods
 #   make test   run the test suite (what CI runs)
-#   make test-fast   the unit tests only (tests/unit, no model weights): the quick loop while editing
+#   make test-fast   the unit tests only (tests/unit) on the core install and pytest: the quick loop while editing
 # and one regenerates every figure the repository commits:
 #   make docs   make demo, the benchmark into docs/benchmark/ and the README's figures, docs/*.png
 # Each creates .venv with what it needs and the system libraries (open3d: libusb; headless
@@ -17,6 +17,7 @@ CORE   := $(VENV)/.installed-core
 STAMP  := $(VENV)/.installed
 # the cluster extra (dask): make test installs it on top of make install; make demo does without
 CLUSTER_STAMP := $(VENV)/.cluster
+DEV_STAMP := $(VENV)/.installed-dev
 APT_PACKAGES := libusb-1.0-0 libgomp1 mesa-vulkan-drivers
 
 export YOLO_OFFLINE ?= 1
@@ -58,10 +59,15 @@ $(CLUSTER_STAMP): $(STAMP)
 	touch $(CLUSTER_STAMP)
 
 test: $(CLUSTER_STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
-test-fast: $(STAMP)
-	$(PY) -m pytest -q tests/unit -m "not models"
+# the core and pytest only: no torch, so a fresh clone is testing in a minute or two
+$(DEV_STAMP): $(CORE)
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(DEV_STAMP)
+
+test-fast: $(DEV_STAMP)
+	$(PY) -m pytest -q tests/unit -m "not models" --durations=15
 
 bench: $(STAMP)
 	$(PY) tools/bench.py

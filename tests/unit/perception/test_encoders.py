@@ -31,6 +31,12 @@ def test_missing_weights_name_the_option(monkeypatch):
     monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     with pytest.raises(ModelUnavailableError, match="--encoder"):
         load_encoder("open_clip:ViT-B-32/laion2b_s34b_b79k")
+
+
+@pytest.mark.models
+def test_an_unknown_pretrained_tag_is_named(monkeypatch):
+    pytest.importorskip("open_clip")  # without it the error is the missing extra, checked above
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
     with pytest.raises(ModelUnavailableError, match="no pretrained tag"):
         load_encoder("open_clip:ViT-B-32/no-such-tag")
 

@@ -21,6 +21,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
+from typing import IO
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -114,6 +115,7 @@ def ensure_scene(name: str, data_root: Path, progress: Progress | None = None) -
         )
     try:
         folder.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(folder.parent / f".{name}.lock", "a")
         staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=folder.parent))
     except OSError as error:
         raise DatasetError(
@@ -121,14 +123,28 @@ def ensure_scene(name: str, data_root: Path, progress: Progress | None = None) -
             "$CLIPCLIQUE_DATA at a writable folder"
         ) from None
     try:
-        generate(staging, name, spec, progress)
-        staging.chmod(0o755)  # mkdtemp makes it private; the data folder is for everyone
-        if folder.exists():  # an older generation of ours
-            shutil.rmtree(folder)
-        os.replace(staging, folder)
+        with lock:
+            _hold(lock)  # another process generating the same scene finishes first, and its scene is taken
+            if is_generated(name, data_root):
+                return folder
+            generate(staging, name, spec, progress)
+            staging.chmod(0o755)  # mkdtemp makes it private; the data folder is for everyone
+            if folder.exists():  # an older generation of ours
+                shutil.rmtree(folder)
+            os.replace(staging, folder)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return folder
+
+
+def _hold(lock: IO[str]) -> None:
+    """Hold an exclusive lock on the open file until it is closed (where the platform has `fcntl`; elsewhere
+    processes generating one scene at once each write it whole and the last one's stays)."""
+    try:
+        import fcntl
+    except ImportError:
+        return
+    fcntl.flock(lock.fileno(), fcntl.LOCK_EX)
 
 
 def scene_detector(folder: Path) -> str | None:

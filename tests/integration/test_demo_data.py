@@ -139,6 +139,33 @@ def test_spec_intrinsics_scale_with_the_image():
     np.testing.assert_allclose(half.intrinsics()[:2], full.intrinsics()[:2] / 2)
 
 
+def test_processes_generating_one_scene_at_once_generate_it_once(tmp_path, monkeypatch):
+    """Test workers (pytest -n 2) and two commands started together share one generation: the second waits on the
+    first's lock and takes its scene (before, it deleted the folder the first had just moved into place)."""
+    import threading
+    import time
+
+    import clipclique.sim.demo as demo
+
+    calls = []
+
+    def slow_small(folder, name, spec, progress=None):
+        calls.append(name)
+        time.sleep(0.3)  # long enough for the other caller to reach the lock
+        generate(folder, name, SMALL[name])
+
+    monkeypatch.setattr(demo, "generate", slow_small)
+    folders = []
+    callers = [threading.Thread(target=lambda: folders.append(ensure_scene("demo", tmp_path))) for _ in range(2)]
+    for caller in callers:
+        caller.start()
+    for caller in callers:
+        caller.join()
+    assert calls == ["demo"] and folders == [tmp_path / "demo" / "demo"] * 2
+    assert len(open_scene("demo", tmp_path)) == 4
+    assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == [".demo.lock", "demo"]  # no staging left
+
+
 def test_ensure_scene_never_deletes_a_folder_it_did_not_write(tmp_path):
     from clipclique.errors import DatasetError
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from clipclique.interop.align import Alignment, AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
 from clipclique.interop.errors import InteropError
+from clipclique.interop.labels import COCO, LabelSet, duplicate_note
 from clipclique.interop.maps import ImportedMap, MapFormat, read_map
 from clipclique.perception.encoders import Encoder
 from clipclique.io.outputs import map_file
@@ -43,9 +44,10 @@ class ImportReport:
 
 
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
-               encoder: Encoder | None) -> ImportReport:
-    """The clipclique map of another system's map file, aligned to ground truth when asked."""
-    imported = read_map(path, format)
+               encoder: Encoder | None, labels: LabelSet = COCO) -> ImportReport:
+    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when asked."""
+    imported = read_map(path, format, labels)
+    imported.notes += duplicate_note(labels)
     map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder)
     if request.groundtruth is None:
         return ImportReport(map, imported, None, imported.frame)

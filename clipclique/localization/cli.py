@@ -68,6 +68,14 @@ def run(
              "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     min_score: Annotated[Optional[float], typer.Option(
         min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
+    # --- published files (issue 38): label sets and degenerate entries of --detector file:
+    labels: Annotated[Optional[str], typer.Option(
+        help="coco | lvis | FILE (one class name per line, the 0-based line the id): the label set of a "
+             "--detector file:'s category ids \\[default: coco]", rich_help_panel=INPUTS)] = None,
+    strict_detections: Annotated[bool, typer.Option(
+        "--strict-detections", help="refuse a detection file holding an ellipse or box under 1 pixel (default: "
+                                    "skip them with one warning)", rich_help_panel=INPUTS)] = False,
+    # --- end of published files' options
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(
@@ -120,7 +128,8 @@ def run(
     settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, same_place=same_place, min_score=min_score or 0.0, window=window,
-                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift)
+                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift,
+                           labels=labels, strict_detections=strict_detections)
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)

@@ -28,6 +28,7 @@ from clipclique.interop.commands import (
     import_map,
 )
 from clipclique.interop.errors import InteropError
+from clipclique.interop.labels import label_set
 from clipclique.interop.maps import MapFormat
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.io.outputs import Staging, map_file
@@ -123,9 +124,10 @@ class Imported:
 def run_import(path: Path, format: MapFormat | None = None, objects: Path | None = None, align_to: str | None = None,
                groundtruth: Path | None = None, request: AlignmentRequest = AlignmentRequest(),
                data_root: Path | None = None, out: Path | None = None, encoder_spec: str = "auto",
-               rrd: bool = True) -> Imported:
+               rrd: bool = True, labels: str | None = None) -> Imported:
     """Read another system's map, align it to `align_to`'s groundtruth.txt (or `groundtruth`) when given, embed
-    its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz."""
+    its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz; `labels`
+    (`--labels`: coco, lvis or a names file) names the file's category ids."""
     started = time.perf_counter()
     if align_to is not None and groundtruth is not None:
         raise InteropError("give --align-to or --groundtruth, not both")
@@ -142,7 +144,7 @@ def run_import(path: Path, format: MapFormat | None = None, objects: Path | None
     with Staging() as staging:
         staged_map = staging.path(out)
         staged_recording = staging.path(recording) if rrd else None
-        report = import_map(path, format, objects, request, load_encoder(encoder_spec))
+        report = import_map(path, format, objects, request, load_encoder(encoder_spec), label_set(labels))
         save_map(report.map, staged_map)
         if staged_recording is not None:
             from clipclique.viz import write_map_recording

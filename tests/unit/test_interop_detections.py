@@ -102,7 +102,7 @@ def test_box_mask_keeps_the_near_part_of_a_slanted_surface():
 @pytest.mark.parametrize("content, problem", [
     ({"file_name": "a.png"}, "needs 'file_name' and a 'detections' list"),
     ({"file_name": "a.png", "detections": [{"category_id": 80, "detection_score": 0.5, "bbox": [0, 0, 1, 1]}]},
-     "category id 80 is not a COCO-80 class id"),
+     r"category id 80 is not a coco class id \(0..79\); an LVIS file\? pass --labels lvis"),
     ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 2, "bbox": [0, 0, 1, 1]}]},
      "detection_score 2 is not a number in"),
     ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 0.5, "bbox": [5, 0, 1, 1]}]},

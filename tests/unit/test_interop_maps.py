@@ -119,7 +119,7 @@ def test_text_map_column_major_with_classes(tmp_path):
 
 @pytest.mark.parametrize("line, problem", [
     ("12 41 1 2 3", "expected '<id> <category id> <16 numbers>'"),
-    ("12 95 " + " ".join(["0"] * 16), "category id 95 is not a COCO-80 class id"),
+    ("12 95 " + " ".join(["0"] * 16), r"category id 95 is not a coco class id \(0..79\)"),
     ("12 41 " + " ".join(["x"] * 16), "not numbers"),
     ("12 41 " + " ".join(["nan"] * 16), "the dual quadric holds non-finite numbers"),
 ])
@@ -236,7 +236,7 @@ def test_msgloc_without_baseline_label_falls_back_to_the_likelihoods(tmp_path):
     ({"orientation": [2, 0, 0, 0]}, "not a unit quaternion"),
     ({"radii": [0, 1, 1]}, "a radius is 0"),
     ({"translation": [1, 2]}, "translation should be a list of 3 numbers"),
-    ({"baseline_label": {"cup": [0.5, [1, 2, 3]]}}, "key 'cup' is not a COCO id"),
+    ({"baseline_label": {"cup": [0.5, [1, 2, 3]]}}, "key 'cup' is not a class id"),
     ({"baseline_label": {"66.0": [1.5, [1, 2, 3]]}}, "should start with a probability"),
 ])
 def test_msgloc_malformed_node_refused(tmp_path, change, problem):

@@ -828,6 +828,7 @@ def detection_cases() -> list[Case]:
         "bbox-text": given("d.json", frames(good | {"bbox": "10 10 40 40"})),
         "ellipse-short": given("d.json", frames(good | {"ellipse": [1, 2, 3]})),
         "not-utf8": given("d.json", frames(good) + LATIN1),
+        "other-sequence": given("d.json", frames(good)),  # well formed, but names none of the demo's frames
         "coco-no-image-list": given("r.json", json.dumps([coco]).encode()),
         "coco-image-unknown": given("r.json", json.dumps([coco | {"image_id": 5}]).encode(), image_list),
         "coco-category-0": given("r.json", json.dumps([coco | {"category_id": 0}]).encode(), image_list),

@@ -85,6 +85,7 @@ def import_map(
     data_root: Annotated[Path | None, typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL)] = None,
     out: Annotated[Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<file name>.map.npz]", rich_help_panel=OUTPUT_PANEL)] = None,
     encoder: Annotated[str, typer.Option("--encoder", help="text encoder: auto | simulated | none | open_clip:MODEL/TAG | checkpoint file", rich_help_panel=DATA_PANEL)] = "auto",
+    force: Annotated[bool, typer.Option("--force", help="replace a map at --out that came from another source (an import of the same file replaces its own)", rich_help_panel=OUTPUT_PANEL)] = False,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
@@ -104,7 +105,7 @@ def import_map(
             raise InteropError(f"--format {format!r}: choose {', '.join(MapFormat)}")
         request = AlignmentRequest(trajectory=trajectory, with_scale=scale, limits=AlignmentLimits(min_keyframes, max_rmse))
         imported = run_import(path, MapFormat(format) if format else None, objects, align_to, groundtruth, request,
-                              data_root, out, encoder, not no_rrd, labels)
+                              data_root, out, encoder, not no_rrd, labels, force)
     print_import(console, imported, quiet)
 
 

@@ -26,6 +26,7 @@ from clipclique.interop.commands import (
     default_import_path,
     export_text,
     import_map,
+    replaced_source,
 )
 from clipclique.interop.errors import InteropError
 from clipclique.interop.labels import label_set
@@ -124,10 +125,11 @@ class Imported:
 def run_import(path: Path, format: MapFormat | None = None, objects: Path | None = None, align_to: str | None = None,
                groundtruth: Path | None = None, request: AlignmentRequest = AlignmentRequest(),
                data_root: Path | None = None, out: Path | None = None, encoder_spec: str = "auto",
-               rrd: bool = True, labels: str | None = None) -> Imported:
+               rrd: bool = True, labels: str | None = None, force: bool = False) -> Imported:
     """Read another system's map, align it to `align_to`'s groundtruth.txt (or `groundtruth`) when given, embed
     its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz; `labels`
-    (`--labels`: coco, lvis or a names file) names the file's category ids."""
+    (`--labels`: coco, lvis or a names file) names the file's category ids. A map at `out` from another source
+    is refused unless `force` (two systems' Osmap maps of one sequence are both `map_<name>.yaml`)."""
     started = time.perf_counter()
     if align_to is not None and groundtruth is not None:
         raise InteropError("give --align-to or --groundtruth, not both")
@@ -145,6 +147,9 @@ def run_import(path: Path, format: MapFormat | None = None, objects: Path | None
         staged_map = staging.path(out)
         staged_recording = staging.path(recording) if rrd else None
         report = import_map(path, format, objects, request, load_encoder(encoder_spec), label_set(labels))
+        if not force and (held := replaced_source(out, report.map)):
+            raise InteropError(f"{out} holds {held}; importing {path} would replace it: pass --out FILE, "
+                               "or --force to replace it")
         save_map(report.map, staged_map)
         if staged_recording is not None:
             from clipclique.viz import write_map_recording

@@ -141,9 +141,11 @@ def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[lis
 
 
 def _alignment_config(config: LocalizationConfig, query_map: Map, map: Map, notes: list[str]) -> LocalizationConfig:
-    """The config with what maps lack turned off: no image (no re-ranking or confidence floor), CLIP only
-    between maps of one encoder; and more hypotheses, since near-duplicates are merged."""
-    settings = replace(config, top_n=SEARCHED * config.top_n, inliers=replace(config.inliers, rerank="none"),
+    """The config with what maps lack turned off: no image (no re-ranking or confidence floor, and RANSAC's
+    verification by 3D centres, not projected boxes: every method aligns), CLIP only between maps of one
+    encoder; and more hypotheses, since near-duplicates are merged."""
+    inliers = replace(config.inliers, rerank="none", verification="centers")
+    settings = replace(config, top_n=SEARCHED * config.top_n, inliers=inliers,
                        min_confidence=0.0, similarity=replace(config.similarity))
     same_encoder = (query_map.text_embeddings is not None and map.text_embeddings is not None
                     and query_map.encoder == map.encoder)

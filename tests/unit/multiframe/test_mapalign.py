@@ -54,6 +54,19 @@ def test_two_overlapping_parts_moved_by_a_known_transform(seed):
     assert np.array_equal(query.instance_ids[pairs[:, 0]], room.subset(np.flatnonzero(x > 1.8)).instance_ids[pairs[:, 1]])
 
 
+@pytest.mark.parametrize("method", ["sh", "xview", "cliploc", "clipclique-paper"])
+def test_every_method_aligns_maps_by_centres(method):
+    """Maps have no image: the RANSAC methods' overlap verification (the preset) would stop on it."""
+    rng = np.random.default_rng(7)
+    room = synthetic_map(rng, 40)
+    truth = Pose(random_rotation(rng), rng.uniform(-5, 5, 3))
+    query = moved(room.subset(np.arange(25)), truth, rng)
+    assert make_config(method).inliers.verification == "overlap"
+    best = align_maps(query, room, make_config(method)).candidates[0]
+    translation, rotation = errors(best.pose, truth, query)
+    assert translation < 0.05 and rotation < 1.0
+
+
 def test_unrelated_maps_give_no_confident_alignment():
     for seed in range(6):
         rng = np.random.default_rng(100 + seed)

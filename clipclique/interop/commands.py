@@ -14,7 +14,7 @@ from clipclique.errors import ClipcliqueError
 from clipclique.interop.errors import InteropError
 from clipclique.io.mapfile import load_map
 from clipclique.interop.labels import COCO, LabelSet, duplicate_note
-from clipclique.interop.maps import MAX_BINARY_BYTES, ImportedMap, MapFormat, read_map
+from clipclique.interop.maps import MAX_BINARY_BYTES, ImportedMap, MapFormat, map_input, read_map
 from clipclique.perception.encoders import Encoder
 from clipclique.io.outputs import map_file
 from clipclique.io.safeio import read_bytes
@@ -50,6 +50,7 @@ class ImportReport:
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
                encoder: Encoder | None, labels: LabelSet = COCO) -> ImportReport:
     """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when asked."""
+    path = map_input(path, format)
     imported = read_map(path, format, labels)
     imported.notes += duplicate_note(labels)
     digest = hashlib.sha256(read_bytes(path, MAX_BINARY_BYTES, "map file", InteropError)).hexdigest()

@@ -78,6 +78,23 @@ class ImportedMap:
         return len(self.object_ids)
 
 
+OSMAP_BINARIES = (".objects", ".mapobjects", ".objecttracks", ".keyframes", ".mappoints", ".features")
+
+
+def map_input(path: Path, format: MapFormat | None) -> Path:
+    """The file to read for `path`: itself, or the one Osmap `.yaml` of a folder; InteropError, one line saying
+    what to pass instead, for another folder or an Osmap binary file (protobuf, named by its `.yaml`)."""
+    if path.is_dir():
+        yamls = sorted(p for p in path.iterdir() if p.suffix.lower() in (".yaml", ".yml") and p.is_file())
+        if len(yamls) == 1 and format in (None, MapFormat.OSMAP):
+            return yamls[0]
+        held = f"it holds {len(yamls)} .yaml files ({', '.join(p.name for p in yamls[:3])})" if yamls else "it holds no .yaml"
+        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap map_*.yaml, a .json): {held}")
+    if path.suffix.lower() in OSMAP_BINARIES:
+        raise InteropError(f"{path}: one of an Osmap map's binary files (protobuf); pass the map_*.yaml that names it")
+    return path
+
+
 def sniff_format(path: Path) -> MapFormat:
     """The format of a map file from its name and first bytes."""
     name = path.name.lower()
@@ -95,7 +112,7 @@ def sniff_format(path: Path) -> MapFormat:
 def read_map(path: Path, format: MapFormat | None = None, labels: LabelSet = COCO) -> ImportedMap:
     """The landmarks of a map file of any supported format (sniffed when not given), category ids read in
     `labels` (`--labels`; clipclique's JSON list names its classes and ignores it)."""
-    path = Path(path)
+    path = map_input(Path(path), format)
     format = format or sniff_format(path)
     reader = {MapFormat.OASLAM_TXT: read_text_map, MapFormat.OSMAP: read_osmap, MapFormat.MSGLOC: read_msgloc,
               MapFormat.JSON: read_landmarks_json}[format]

@@ -30,7 +30,7 @@ from clipclique.interop.commands import (
 )
 from clipclique.interop.errors import InteropError
 from clipclique.interop.labels import label_set
-from clipclique.interop.maps import MapFormat
+from clipclique.interop.maps import MapFormat, map_input
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.io.outputs import Staging, map_file
 from clipclique.resolve import first_use_notice, open_scene
@@ -141,6 +141,7 @@ def run_import(path: Path, format: MapFormat | None = None, objects: Path | None
         request = dataclasses.replace(request, groundtruth=sequence.root / "groundtruth.txt", sequence_name=sequence.name)
     elif groundtruth is not None:
         request = dataclasses.replace(request, groundtruth=groundtruth)
+    path = map_input(path, format)  # a folder's one Osmap .yaml
     out = out or default_import_path(path)
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
     with Staging() as staging:

@@ -284,3 +284,24 @@ def test_text_round_trip_within_a_micrometre_and_says_what_it_cannot_write(tmp_p
     for row, source in enumerate((1, 2)):
         same_ellipsoid(back.ellipsoids, row, map.ellipsoids.centers[source], map.ellipsoids.axes[source],
                        map.ellipsoids.rotations[source], tolerance=1e-6)
+
+
+# ---- what a user passes instead of the map file ---------------------------------------------------
+
+def test_an_osmap_binary_file_says_pass_the_yaml(tmp_path):
+    yaml = write_osmap(tmp_path, "objectsFile", {"map_desk.objects": b"\x0a\x03\x0a\x01\x00"})
+    for format in (None, MapFormat.OSMAP):  # it said "not UTF-8 text; save it as UTF-8" with --format osmap
+        with pytest.raises(InteropError, match=r"map_desk.objects: one of an Osmap map's binary files \(protobuf\); "
+                                               r"pass the map_\*.yaml that names it"):
+            read_map(tmp_path / "map_desk.objects", format)
+    assert yaml.name == "map_desk.yaml"
+
+
+def test_a_folder_holding_one_osmap_yaml_is_read_others_get_one_message(tmp_path):
+    write_osmap(tmp_path, "objectsFile", {"map_desk.objects": goreloc_object(5, [41], [2], True)})
+    assert read_map(tmp_path).classes == ["cup"] and read_map(tmp_path).source == "goreloc"
+    (tmp_path / "map_other.yaml").write_text("%YAML:1.0\n")
+    for format in (None, MapFormat.OSMAP, MapFormat.MSGLOC):
+        with pytest.raises(InteropError, match=r": a folder; pass a map file \(map_objects_\*.txt, an Osmap map_\*.yaml, "
+                                               r"a .json\): it holds 2 .yaml files \(map_desk.yaml, map_other.yaml\)"):
+            read_map(tmp_path, format)

@@ -100,13 +100,19 @@ def shows_map(earlier: Path, map: Map) -> bool:
 
 
 def describe(map: Map, scene: str) -> str:
-    """The recording's text document: what the map is and what made it."""
+    """The recording's text document: what the map is and what made it (an imported map: which file, which
+    system); classes counted only where they hold a landmark."""
     source = map.provenance.get("source", {})
     simulated = " (simulated CLIP: a stand-in for real CLIP on synthetic data)" if map.provenance.get("encoder_simulated") else ""
+    if source.get("kind") == "import":
+        origin = f"imported from {source.get('file', '?')} ({source.get('format', '?')})"
+    else:
+        origin = f"from a {source.get('kind', '?')} scene{' (synthetic demo)' if source.get('synthetic') else ''}"
+    structure = map.provenance.get("structure_left_out", [])
     return (
-        f"# Map of {scene}\n\n{len(map)} landmarks, {len(map.class_names)} classes, from a {source.get('kind', '?')} "
-        f"scene{' (synthetic demo)' if source.get('synthetic') else ''}.\n\nText embeddings: {map.encoder}{simulated}.\n\n"
-        f"Left out as structure: {', '.join(map.provenance.get('structure_left_out', []))}."
+        f"# Map of {scene}\n\n{len(map)} landmarks, {len(set(map.class_ids.tolist()))} classes, {origin}.\n\n"
+        f"Text embeddings: {map.encoder}{simulated}."
+        + (f"\n\nLeft out as structure: {', '.join(structure)}." if structure else "")
     )
 
 

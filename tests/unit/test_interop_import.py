@@ -3,6 +3,8 @@ input imported again replaces its own output (the provenance's sha256)."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -39,3 +41,27 @@ def test_import_refuses_to_replace_an_unreadable_file(tmp_path):
     with pytest.raises(InteropError, match="x.map.npz holds a file that is not a readable map"):
         run_import(text_map(tmp_path / "m.txt"), out=out, encoder_spec="none", rrd=False)
     assert out.read_bytes() == b"not a map"
+
+
+def test_an_imported_maps_text_and_table_name_its_source_and_held_classes_only(tmp_path):
+    """Before: 'from a import scene.', 'Left out as structure: .' and table rows (and a class count) for classes
+    that only a class distribution names."""
+    from rich.console import Console
+
+    from clipclique.mapping.run import describe
+    from clipclique.mapping.tables import print_import
+    from tests.unit.test_interop_maps import msgloc_node
+
+    path = tmp_path / "desk_map.json"
+    path.write_text(json.dumps({"nodes": [msgloc_node(node_id=i, translation=[i * 0.4, 0, 2]) for i in range(3)]}))
+    imported = run_import(path, out=tmp_path / "desk.map.npz", encoder_spec="none", rrd=False)
+    map = imported.report.map
+    assert map.class_names == ["keyboard", "mouse"] and set(map.class_ids.tolist()) == {0}
+    text = describe(map, "desk_map.json")
+    assert text.startswith(f"# Map of desk_map.json\n\n3 landmarks, 1 classes, imported from {path} (msgloc).")
+    assert "structure" not in text
+    console = Console(record=True, width=200)
+    print_import(console, imported)
+    printed = console.export_text()
+    assert "3 landmarks, 1 classes" in printed and "mouse " not in printed
+    assert "1 more classes appear only in the class distributions" in printed

@@ -18,12 +18,25 @@ import typer
 
 from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
+from clipclique.localization.inputs import (
+    INPUTS,
+    LabelsOption,
+    MapOption,
+    MinScoreOption,
+    OdometryDriftOption,
+    OdometryOption,
+    RunInputs,
+    SamePlaceOption,
+    StrictDetectionsOption,
+    WindowOption,
+    WindowStepOption,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
 
 TOOL = "clipclique-loc"
-ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "Output"
+ALGORITHM, OUTPUT = "Algorithm", "Output"
 
 
 @app.callback()
@@ -58,24 +71,16 @@ def run(
         min=0.0, max=1.0, help="report a frame whose poses are all less confident as not localized "
                                "(confidence: the calibrated probability that a pose is within 1 m)",
         rich_help_panel=ALGORITHM)] = None,
-    map_path: Annotated[Optional[Path], typer.Option("--map", help="map file \\[default: outputs/maps/SEQUENCE.map.npz]",
-                                                     rich_help_panel=INPUTS)] = None,
+    map_path: MapOption = None,
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
         help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
              "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
              "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
-    min_score: Annotated[Optional[float], typer.Option(
-        min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
-    # --- published files (issue 38): label sets and degenerate entries of --detector file:
-    labels: Annotated[Optional[str], typer.Option(
-        help="coco | lvis | FILE (one class name per line, the 0-based line the id): the label set of a "
-             "--detector file:'s category ids \\[default: coco]", rich_help_panel=INPUTS)] = None,
-    strict_detections: Annotated[bool, typer.Option(
-        "--strict-detections", help="refuse a detection file holding an ellipse or box under 1 pixel (default: "
-                                    "skip them with one warning)", rich_help_panel=INPUTS)] = False,
-    # --- end of published files' options
+    min_score: MinScoreOption = None,
+    labels: LabelsOption = None,
+    strict_detections: StrictDetectionsOption = False,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(
@@ -85,19 +90,11 @@ def run(
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    same_place: Annotated[bool, typer.Option(
-        "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
-                             "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
-    window: Annotated[int, typer.Option(min=1, help="localize each frame with the K - 1 frames before it, fused by "
-                                               "odometry", metavar="K", rich_help_panel=WINDOW)] = 1,
-    window_step: Annotated[int, typer.Option(min=1, help="the window takes every S-th frame back from the newest",
-                                             metavar="S", rich_help_panel=WINDOW)] = 1,
-    odometry: Annotated[Optional[str], typer.Option(
-        help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or groundtruth "
-             "(with --odometry-drift, simulated)", rich_help_panel=WINDOW)] = None,
-    odometry_drift: Annotated[float, typer.Option(min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, "
-                                                  "percent of the distance travelled", metavar="PCT",
-                                                  rich_help_panel=WINDOW)] = 0.0,
+    same_place: SamePlaceOption = False,
+    window: WindowOption = 1,
+    window_step: WindowStepOption = 1,
+    odometry: OdometryOption = None,
+    odometry_drift: OdometryDriftOption = 0.0,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -125,11 +122,11 @@ def run(
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     with user_errors(TOOL):
         method = method_key(method)
-    settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
-                           detector, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, same_place=same_place, min_score=min_score or 0.0, window=window,
-                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift,
-                           labels=labels, strict_detections=strict_detections)
+    inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
+                       odometry_drift)
+    settings = RunSettings(sequence, method, config, overrides, data_root=data_root, detector=detector,
+                           encoder=encoder, yolo_weights=yolo_weights, stride=stride, max_frames=max_frames, out=out,
+                           record=not no_rrd, **inputs.settings())
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)

@@ -176,3 +176,22 @@ def test_a_map_too_small_to_align_says_why(tmp_path):
     document = alignment_document(AlignSettings(tmp_path / "a", tmp_path / "b"), alignment, query, room)
     assert document["failure"] == "fewer than 3 observations (2)" and document["failure_kind"] == "few_observations"
     assert document["g2o"] is None
+
+
+def test_few_correspondence_wrong_answers_between_two_detectors_maps_are_not_confident():
+    """Maps of one room by two simulated detectors (clipclique.sim.mappairs): before the evidence, 3 to 6
+    correspondences of a sparse overlap gave wrong transforms confidence 0.95-1.0 (seeds 39, 58, 71, 117)."""
+    from clipclique.sim.mappairs import detector_pair
+
+    wrong, right = [], []
+    for seed in range(120):
+        query, map, truth = detector_pair(np.random.default_rng(20_000 + seed))
+        alignment = align_maps(query, map, CONFIG)
+        if not alignment.candidates or alignment.ambiguous:
+            continue
+        best = alignment.candidates[0]
+        translation, rotation = errors(best.pose, truth, query)
+        (right if translation < 0.3 and rotation < 5 else wrong).append((seed, len(best.correspondences), best.confidence))
+    confident = [case for case in wrong if case[2] >= 0.5]
+    assert len(wrong) >= 10 and all(size >= 6 for _, size, _ in confident) and len(confident) <= 1, confident
+    assert sum(confidence >= 0.5 for _, _, confidence in right) >= 0.8 * len(right) >= 12

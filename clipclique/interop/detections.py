@@ -69,7 +69,8 @@ class DetectionFile:
         """One warning line for the skipped entries ("7 of 14,071 detections skipped: zero-size ellipse")."""
         if not self.skipped:
             return []
-        reasons = ", ".join(f"{why}" if len(self.skipped) == 1 else f"{count:,} {why}" for why, count in self.skipped.items())
+        alone = len(self.skipped) == 1
+        reasons = ", ".join(why if alone else f"{count:,} {why}" for why, count in self.skipped.items())
         return [f"{path.name}: {sum(self.skipped.values()):,} of {self.total:,} detections skipped: {reasons} "
                 "(--strict-detections refuses the file instead)"]
 

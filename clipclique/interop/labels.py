@@ -5,8 +5,9 @@ detections in LVIS ids (`Detection_assets/lvis.txt`: 1,203 names, the 0-based li
 `--labels coco | lvis | FILE` picks the set; this module owns it for map import and detection files.
 COCO results files name their classes themselves (`categories`) and do not use it.
 
-Maps and detections in different sets meet through `LVIS_TO_COCO` (LVIS was annotated on COCO's
-images: each COCO class has LVIS names, `mug` and `cup`, `computer keyboard` and `keyboard`).
+Maps and detections in different sets meet through `LVIS_TO_COCO` (in clipclique.descriptors.lookalikes, which
+map alignment matches classes by; LVIS was annotated on COCO's images: each COCO class has LVIS names, `mug`
+and `cup`, `computer keyboard` and `keyboard`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
+from clipclique.descriptors.lookalikes import LVIS_TO_COCO
 from clipclique.interop.errors import InteropError
 from clipclique.io.safeio import check_text, read_text
 from clipclique.perception.yolo import COCO_NAMES
@@ -23,18 +25,6 @@ from clipclique.perception.yolo import COCO_NAMES
 MAX_LABELS = 10_000  # LVIS holds 1,203; a larger file is not a label list
 BUNDLED = ("coco", "lvis")
 
-# LVIS name -> the COCO class it is (or is a kind of); LVIS names equal to a COCO name map to themselves.
-LVIS_TO_COCO: dict[str, str] = {
-    "car (automobile)": "car", "bus (vehicle)": "bus", "train (railroad vehicle)": "train", "fireplug": "fire hydrant",
-    "necktie": "tie", "ball": "sports ball", "soccer ball": "sports ball", "tennis ball": "sports ball",
-    "wineglass": "wine glass", "orange (fruit)": "orange", "doughnut": "donut", "sofa": "couch",
-    "flowerpot": "potted plant", "television set": "tv", "monitor (computer equipment) computer monitor": "tv",
-    "laptop computer": "laptop", "mouse (computer equipment)": "mouse", "remote control": "remote",
-    "computer keyboard": "keyboard", "cellular telephone": "cell phone", "microwave oven": "microwave",
-    "hair dryer": "hair drier", "ski": "skis", "mug": "cup", "teacup": "cup", "armchair": "chair",
-    "folding chair": "chair", "water bottle": "bottle", "wine bottle": "bottle", "beer bottle": "bottle",
-    "kitchen table": "dining table", "desk": "dining table", "table": "dining table", "notebook": "book",
-}
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ map, the matched landmarks' spread, and the residual against the map's scale (`m
 model of them, fitted on generated cases (`tools/fit_align_confidence.py`: split maps moved by random
 transforms, unrelated maps, rooms repeated side by side, and maps of one room by two simulated
 detectors, `clipclique.sim.mappairs`), gives the probability that the transform is right (within
-0.3 m and 5 degrees); fewer than MIN_SUPPORT correspondences are never confident (`supported`). The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
+0.3 m and 5 degrees); fewer than MIN_SUPPORT correspondences are never confident (`supported`).
+The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
 best: the competitors are listed instead of one being picked silently.
 """
 

@@ -169,6 +169,9 @@ def compare(results: Annotated[list[Path], typer.Argument(
 def align(
     query_map: Annotated[Path, typer.Argument(metavar="MAP_A", help="the map to align (the query map)")],
     map_path: Annotated[Path, typer.Argument(metavar="MAP_B", help="the map to align it into")],
+    third: Annotated[Optional[Path], typer.Argument(
+        metavar="[MAP_C]", help="a third map: align A into B, B into C, C into A and check that the cycle closes",
+        show_default=False)] = None,
     method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc (whose descriptors "
                                              "and matching align the maps)", rich_help_panel=ALGORITHM)] = "clipclique",
     top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
@@ -188,10 +191,13 @@ def align(
     from clipclique.localization.tables import make_console
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    console = make_console()
+    if third is not None:
+        _align_cycle([query_map, map_path, third], method, config, overrides, out, not no_rrd, console)
+        return
     with user_errors(TOOL):
         settings = AlignSettings(query_map, map_path, method_key(method), config, overrides, out, record=not no_rrd)
         document = align_and_save(settings)
-    console = make_console()
     for note in document["notes"]:
         console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
     if not document["candidates"]:
@@ -208,6 +214,33 @@ def align(
     if settings.record:
         console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
                       highlight=False, soft_wrap=True)
+
+
+def _align_cycle(maps: list[Path], method: str, config: Optional[Path], overrides: list[str], out: Optional[Path],
+                 record: bool, console: object) -> None:
+    """`align A B C`: each link written as `align` writes it (under OUT/ when given), then the cycle's closure."""
+    from rich.markup import escape
+
+    from clipclique.config import method_key
+    from clipclique.exits import user_errors
+    from clipclique.io.mapfile import load_map
+    from clipclique.localization.align import AlignSettings, align_and_save
+    from clipclique.localization.cycle import cycle
+
+    documents = []
+    with user_errors(TOOL):
+        for query, target in zip(maps, maps[1:] + maps[:1]):
+            settings = AlignSettings(query, target, method_key(method), config, overrides, None, record=record)
+            settings.out = None if out is None else out / settings.out_dir().name
+            documents.append(align_and_save(settings))
+            best = documents[-1]["candidates"][:1]
+            found = (f"confidence {best[0]['confidence']:.2f}, {len(best[0]['correspondences'])} correspondences"
+                     if best else f"no alignment: {documents[-1]['failure']}")
+            console.print(escape(f"{query} into {target}: {found}; results: {settings.out_dir()}/"), highlight=False,
+                          soft_wrap=True)
+        closure = cycle(documents, load_map(maps[0]).ellipsoids.centers)
+    console.print(escape(closure.line() if closure else "cycle not checked: a link found no transform"), highlight=False,
+                  soft_wrap=True)
 
 
 def main() -> None:

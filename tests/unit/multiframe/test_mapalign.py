@@ -214,3 +214,31 @@ def test_an_lvis_map_aligns_with_a_coco_map_of_the_same_room_as_the_same_vocabul
     assert other.vocabulary == dict(zip(lvis, coco))
     assert len(other.candidates[0].correspondences) == len(same.candidates[0].correspondences) >= 6
     np.testing.assert_allclose(other.candidates[0].pose.matrix(), same.candidates[0].pose.matrix(), atol=1e-12)
+
+
+def test_align_three_maps_checks_that_the_cycle_closes_and_names_the_weakest_link(tmp_path):
+    from typer.testing import CliRunner
+
+    from clipclique.io.mapfile import save_map
+    from clipclique.localization.cli import app
+    from clipclique.localization.cycle import cycle
+
+    rng = np.random.default_rng(5)
+    room = synthetic_map(rng, 45)
+    x = room.ellipsoids.centers[:, 0]
+    parts = [np.flatnonzero(x < 3.5), np.flatnonzero((x > 0.8) & (x < 4.3)), np.flatnonzero(x > 1.5)]
+    for name, part in zip("abc", parts):
+        save_map(moved(room.subset(part), Pose(random_rotation(rng), rng.uniform(-5, 5, 3)), rng), tmp_path / f"{name}.map.npz")
+    save_map(synthetic_map(rng, 45), tmp_path / "other.map.npz")
+    args = ["align", *(str(tmp_path / f"{name}.map.npz") for name in "ab"), "--out", str(tmp_path / "out"), "--no-rrd"]
+    closed = CliRunner().invoke(app, [*args, str(tmp_path / "c.map.npz")])
+    assert closed.exit_code == 0, closed.output
+    assert "cycle closes: " in closed.output and (tmp_path / "out" / "c_into_a" / "alignment.json").is_file()
+    broken = CliRunner().invoke(app, [*args, str(tmp_path / "other.map.npz")])
+    assert broken.exit_code == 0 and "cycle does not close (limits 2 deg, 0.05 m)" in broken.output, broken.output
+    assert "weakest link " in broken.output and "other.map.npz" in broken.output.split("weakest link ")[1]
+    link = {"query_map": "a", "map": "b", "candidates": [{"matrix": np.eye(4).tolist(), "confidence": 0.9}]}
+    turned = Pose(Rotation.from_euler("z", 3, degrees=True).as_matrix(), np.zeros(3)).matrix().tolist()
+    check = cycle([link, link | {"query_map": "b", "map": "c"},
+                   {"query_map": "c", "map": "a", "candidates": [{"matrix": turned, "confidence": 0.4}]}], np.eye(3))
+    assert not check.closes and check.rotation_deg == pytest.approx(3.0) and check.weakest == "c into a"

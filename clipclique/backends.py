@@ -28,13 +28,16 @@ DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "simulated-yolo
 
 
 def make_detector(kind: str, object_classes: dict[int, str], class_names: list[str],
-                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0, min_score: float = 0.0) -> Detector:
+                  yolo_weights: str | Path = "yolov8x-seg.pt", seed: int = 0, min_score: float = 0.0,
+                  labels: str | None = None, strict: bool = False) -> Detector:
     """The back-end a `--detector` value names (`DETECTORS`); `file:PATH[,images=LIST]` reads a detection file
-    (`clipclique.interop.detections`). `min_score` drops weaker detections (file: and yolo)."""
+    (`clipclique.interop.detections`), its ids in the label set `labels` (`clipclique.interop.labels.label_set`).
+    `min_score` drops weaker detections (file: and yolo); `strict` refuses a file's degenerate entries."""
     if kind.startswith("file:"):
         from clipclique.interop.detections import FileDetector
+        from clipclique.interop.labels import label_set
 
-        return FileDetector.load(kind, class_names, min_score)
+        return FileDetector.load(kind, class_names, min_score, label_set(labels), strict)
     if kind == "gt":
         return InstanceDetector(object_classes, class_names)
     if kind == "annotations":

@@ -17,6 +17,18 @@ import typer
 from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 from clipclique.io.outputs import BENCH_DIR, CACHE_DIR
+from clipclique.localization.inputs import (
+    LabelsOption,
+    MapOption,
+    MinScoreOption,
+    OdometryDriftOption,
+    OdometryOption,
+    RunInputs,
+    SamePlaceOption,
+    StrictDetectionsOption,
+    WindowOption,
+    WindowStepOption,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
@@ -42,6 +54,17 @@ def main_command(
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --detector", rich_help_panel=INPUTS)] = None,
     encoder: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --encoder", rich_help_panel=INPUTS)] = None,
+    # --- the input options shared with clipclique-loc run (clipclique.localization.inputs, issue 38)
+    map_path: MapOption = None,
+    same_place: SamePlaceOption = False,
+    min_score: MinScoreOption = None,
+    labels: LabelsOption = None,
+    strict_detections: StrictDetectionsOption = False,
+    window: WindowOption = 1,
+    window_step: WindowStepOption = 1,
+    odometry: OdometryOption = None,
+    odometry_drift: OdometryDriftOption = 0.0,
+    # --- end of the shared input options
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     workers: Annotated[Optional[int], typer.Option(min=1, help="a local Dask cluster of N worker processes (127.0.0.1 only)",
@@ -70,16 +93,19 @@ def main_command(
     from clipclique.localization.tables import make_console, print_documents
 
     console = make_console()
+    inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
+                       odometry_drift)
     with user_errors(TOOL):
         if plan is not None:
-            if scenes or grid or methods != "clipclique":
-                raise PlanError(f"--plan {plan}: give the scenes, methods and grid in the plan file, not as well on the command line")
+            if scenes or grid or methods != "clipclique" or inputs != RunInputs():
+                raise PlanError(f"--plan {plan}: give the scenes, methods, grid and inputs in the plan file, not as well "
+                                "on the command line")
             chosen = read_plan(plan)
         elif not scenes:
             raise PlanError("no scenes: name some (e.g. demo demo_tum) or pass --plan FILE.toml")
         else:
             chosen = Plan(scenes, [m.strip() for m in methods.split(",")], parse_grid(grid or []), stride, max_frames,
-                          detector, encoder)
+                          detector, encoder, inputs)
         if workers is not None and scheduler is not None:
             raise PlanError("--workers starts a local cluster, --scheduler joins one: pass one of them")
         settings = runs(chosen, out, data_root, record)

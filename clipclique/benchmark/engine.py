@@ -21,12 +21,16 @@ from enum import Enum
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
+
 from clipclique.benchmark import perception
 from clipclique.datasets import resolve_data_root, scene_name
 from clipclique.errors import ClipcliqueError, MapFileError, one_line
 from clipclique.io.outputs import map_file
+from clipclique.multiframe.window import WindowConfig, Windower, window_frames
 from clipclique.pipeline import MapIndex, index_map
 from clipclique.sim import DEMO_SCENES
+from clipclique.types import Ellipsoids, Observations
 from clipclique.localization.results import read_results
 from clipclique.localization.run import (FrameOutcome, Run, RunSettings, localize_observed, note_unannotated, observe, prepare,
                               save_run, selected_frames)
@@ -84,6 +88,12 @@ class Job:
     outcomes: dict[int, FrameOutcome | str] = field(default_factory=dict)  # a name: not annotated, left out
     failures: list[TaskFailure] = field(default_factory=list)
     pending: int = 0
+
+    def members(self, frame: int) -> list[int]:
+        """The frames localizing `frame` reads: itself, and its window's earlier frames (--window)."""
+        settings = self.run.settings
+        return [frame] if self.run.odometry is None else window_frames(frame, WindowConfig(settings.window,
+                                                                                          settings.window_step))
 
 
 @dataclass
@@ -146,6 +156,8 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
     run = _prepared(settings)
     key = json.dumps([dataclasses.asdict(settings), run.config.to_dict()], default=str, sort_keys=True)
     index = _kept(_INDEXES, key, lambda: index_map(run.map, run.config))
+    windower = None if run.odometry is None else Windower(
+        WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
     outcomes = []
     for i in frames:
         try:
@@ -153,12 +165,25 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
             if seen.observations is None:
                 outcomes.append(seen.name)
                 continue
-            result, evaluation = localize_observed(run, index, seen.observations, seen.gt_pose, seen.index)
+            query = None
+            if windower is not None:  # as clipclique-loc run's localize_window, the earlier frames from the cache
+                query = windower.query(i, seen.observations, lambda j: _cached_observations(folder, j))
+            observations = seen.observations if query is None else query.observations
+            result, evaluation = localize_observed(run, index, observations, seen.gt_pose, seen.index)
         except Exception as error:  # noqa: BLE001
             raise FrameError(f"{run.sequence.name} frame {i}: {type(error).__name__}: {one_line(error)}") from None
         outcomes.append(FrameOutcome(seen.index, seen.timestamp, seen.name, seen.gt_pose, seen.num_detections,
-                                     seen.dropped, result, evaluation, seen.timings | result.timings))
+                                     seen.dropped, result, evaluation, seen.timings | result.timings, query))
     return outcomes
+
+
+def _cached_observations(folder: Path, frame: int) -> Observations:
+    """A window's earlier frame from the cache; nothing seen where its detector had no annotations to read."""
+    observations = perception.load(perception.frame_file(folder, frame)).observations
+    if observations is None:
+        empty = np.zeros(0, np.int64)
+        return Observations(Ellipsoids.empty(), empty, None, empty, empty)
+    return observations
 
 
 # ---- this process: plan the tasks, run them, write the runs ----
@@ -192,7 +217,8 @@ def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dic
     map and models instead of loading them a second time (seconds for CLIP and YOLO)."""
     jobs, done = [], {}
     for settings in runs:
-        ensure_map(settings.sequence, settings.data_root)
+        if settings.map_path is None:  # --map: the user's map, never built here
+            ensure_map(settings.sequence, settings.data_root)
         worker_settings = dataclasses.replace(settings, data_root=resolve_data_root(settings.data_root).resolve(),
                                               map_path=settings.resolved_map_path().resolve(), out=None)
         run = prepare(settings)
@@ -239,7 +265,7 @@ def submissions(jobs: list[Job]) -> list[Submission]:
     localization chunks, each after the perception chunks of its frames."""
     wanted: dict[Path, tuple[Job, set[int]]] = {}
     for job in jobs:
-        wanted.setdefault(job.cache, (job, set()))[1].update(job.frames)
+        wanted.setdefault(job.cache, (job, set()))[1].update(i for frame in job.frames for i in job.members(frame))
     perceiving: dict[tuple[Path, int], Submission] = {}
     tasks = []
     for folder, (job, frames) in wanted.items():
@@ -251,7 +277,8 @@ def submissions(jobs: list[Job]) -> list[Submission]:
             perceiving |= {(folder, i): submission for i in chunk}
     for job in jobs:
         for chunk in chunks(job.frames):
-            after = list({id(s): s for i in chunk if (s := perceiving.get((job.cache, i)))}.values())
+            read = [i for frame in chunk for i in job.members(frame)]
+            after = list({id(s): s for i in read if (s := perceiving.get((job.cache, i)))}.values())
             tasks.append(Submission(Task(TaskKind.LOCALIZE, job.run.sequence.name, chunk, job.run.settings.run_name()),
                                     localize_chunk, (job.worker_settings, chunk, job.cache), False, job, after))
             job.pending += 1

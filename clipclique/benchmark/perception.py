@@ -55,6 +55,8 @@ def key_of(run: Run) -> dict[str, Any]:
     """Everything the observations of `run`'s frames depend on."""
     return {"sequence": run.sequence.name, "kind": run.sequence.kind, "sequence_frames": len(run.sequence),
             "detector": run.detector.name, "encoder": None if run.encoder is None else run.encoder.name,
+            "detector_spec": run.settings.detector, "min_score": run.settings.min_score, "labels": run.settings.labels,
+            "strict_detections": run.settings.strict_detections, "map_classes": run.map.class_names,
             "yolo_weights": run.settings.yolo_weights, "seed": run.settings.seed,
             "observations": run.config.to_dict()["observations"], "code": code_version(), "format": CACHE_FORMAT}
 

@@ -8,6 +8,10 @@ A plan file (`clipclique-bench --plan FILE.toml`; not a `--config`, which sets p
     max_frames = 30
     detector = "gt"                                                  # optional, as clipclique-loc run
     encoder = "open_clip:ViT-L-14/openai"                            # optional
+    map = "outputs/maps/map_desk.map.npz"                            # optional: every clipclique-loc run input
+    same_place = true                                                #   option, by its name (PLAN_KEYS of
+    window = 3                                                       #   clipclique.localization.inputs)
+    odometry = "groundtruth"
     [grid]                                                           # every combination is one run
     inliers.d_comp = [0.2, 0.3, 0.4]
 """
@@ -26,6 +30,7 @@ from clipclique.config import METHOD_PRESETS, MAX_CONFIG_BYTES, ConfigError, mak
 from clipclique.datasets import scene_name
 from clipclique.errors import ClipcliqueError
 from clipclique.io.safeio import read_text
+from clipclique.localization.inputs import PLAN_KEYS, RunInputs
 from clipclique.localization.run import RunSettings
 
 GLOB_CHARACTERS = "*?["
@@ -45,11 +50,12 @@ class Plan:
     max_frames: int | None = None
     detector: str | None = None
     encoder: str | None = None
+    inputs: RunInputs = RunInputs()  # the options shared with clipclique-loc run (--map, --window, ...)
     source: str = "command line"  # the plan file, for the errors found when its runs are made
 
 
 FIELDS = {"scenes": list, "methods": list, "grid": dict, "stride": int, "max_frames": int, "detector": str,
-          "encoder": str}
+          "encoder": str} | {key: kind for key, (kind, _) in PLAN_KEYS.items()}
 
 
 def parse_grid(items: list[str], source: str = "--grid") -> dict[str, list[str]]:
@@ -76,10 +82,12 @@ def read_plan(path: Path) -> Plan:
         raise PlanError(f"{path}: unknown entry {unknown[0]!r} (known: {', '.join(FIELDS)})")
     for key, value in tree.items():
         kind = FIELDS[key]
-        if not isinstance(value, kind) or isinstance(value, bool):
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = tree[key] = float(value)
+        if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
             raise PlanError(f"{path}: {key} must be a {kind.__name__}, not {type(value).__name__}")
     for key in ("scenes", "methods"):
-        if not all(isinstance(item, str) and item for item in tree.get(key, [""])):
+        if not all(isinstance(item, str) and item for item in tree.get(key, [])):
             raise PlanError(f"{path}: {key} must be a list of non-empty strings")
     if "scenes" not in tree or not tree["scenes"]:
         raise PlanError(f"{path}: no scenes (scenes = [\"demo\", ...])")
@@ -93,8 +101,9 @@ def read_plan(path: Path) -> Plan:
         if not values or not all(isinstance(v, (str, int, float, bool)) for v in values):
             raise PlanError(f"{path}: grid.{key} must be a value or a non-empty list of numbers, strings or booleans")
         grid[key] = [_toml_value(v) for v in values]
+    inputs = RunInputs(**{key: make(tree[key]) for key, (_, make) in PLAN_KEYS.items() if key in tree})
     return Plan(tree["scenes"], tree.get("methods", ["clipclique"]), grid, tree.get("stride", 1),
-                tree.get("max_frames"), tree.get("detector"), tree.get("encoder"), str(path))
+                tree.get("max_frames"), tree.get("detector"), tree.get("encoder"), inputs, str(path))
 
 
 def _dotted(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -146,7 +155,8 @@ def runs(plan: Plan, out_root: Path, data_root: Path | None, record: bool) -> li
         except ConfigError as error:
             raise PlanError(f"{plan.source}: grid {' '.join(point)}: {error}") from None
         run = RunSettings(scene, method, overrides=list(point), data_root=data_root, detector=plan.detector,
-                          encoder=plan.encoder, stride=plan.stride, max_frames=plan.max_frames, record=record)
+                          encoder=plan.encoder, stride=plan.stride, max_frames=plan.max_frames, record=record,
+                          **plan.inputs.settings())
         run.out = out_root / scene_name(scene) / run.run_name()
         settings.setdefault(run.out, run)
     return list(settings.values())

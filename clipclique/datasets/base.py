@@ -82,6 +82,11 @@ class Sequence(ABC):
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""
         return None
 
+    def frame_name(self, i: int) -> str:
+        """Frame `i`'s name (what a detection file names it by); readers that know it without decoding images
+        say so cheaper."""
+        return self[i].name
+
     def trajectory(self) -> tuple[np.ndarray, list[Pose | None]]:
         """(timestamps (F,), ground-truth camera-to-world pose or None) of every frame; readers that know them
         without decoding images say so cheaper."""

@@ -105,6 +105,9 @@ class ScanNetScene(Sequence):
     def trajectory(self) -> tuple[np.ndarray, list[Pose | None]]:
         return np.array(self.frame_numbers, np.float64), list(self.poses)
 
+    def frame_name(self, i: int) -> str:
+        return str(self.frame_numbers[i])
+
     def __getitem__(self, i: int) -> Frame:
         i = self._check_index(i)
         n = self.frame_numbers[i]

@@ -61,14 +61,34 @@ SYNONYM_PAIRS: tuple[tuple[str, str], ...] = (
 )
 
 
+# LVIS name -> the COCO class it is (or is a kind of); LVIS names equal to a COCO name map to themselves.
+# The one table of the two label sets (clipclique.interop.labels reads ids through it; `synonym` matches by it).
+LVIS_TO_COCO: dict[str, str] = {
+    "car (automobile)": "car", "bus (vehicle)": "bus", "train (railroad vehicle)": "train", "fireplug": "fire hydrant",
+    "necktie": "tie", "ball": "sports ball", "soccer ball": "sports ball", "tennis ball": "sports ball",
+    "wineglass": "wine glass", "orange (fruit)": "orange", "doughnut": "donut", "sofa": "couch",
+    "flowerpot": "potted plant", "television set": "tv", "monitor (computer equipment) computer monitor": "tv",
+    "laptop computer": "laptop", "mouse (computer equipment)": "mouse", "remote control": "remote",
+    "computer keyboard": "keyboard", "cellular telephone": "cell phone", "microwave oven": "microwave",
+    "hair dryer": "hair drier", "ski": "skis", "mug": "cup", "teacup": "cup", "armchair": "chair",
+    "folding chair": "chair", "water bottle": "bottle", "wine bottle": "bottle", "beer bottle": "bottle",
+    "kitchen table": "dining table", "desk": "dining table", "table": "dining table", "notebook": "book",
+}
+
+
 def synonym(name: str, vocabulary: list[str]) -> int | None:
-    """Index in `vocabulary` of `name` (any case) or of a synonym of it; None when neither is there."""
+    """Index in `vocabulary` of `name` (any case) or of a synonym of it (SYNONYM_PAIRS, or the same COCO class
+    by LVIS_TO_COCO: an LVIS map's `computer keyboard` and a COCO map's `keyboard`); None when neither is there."""
     index = {entry.lower(): i for i, entry in enumerate(vocabulary)}
     name = name.lower()
     if name in index:
         return index[name]
-    return next((index[b if a == name else a] for a, b in SYNONYM_PAIRS
-                 if name in (a, b) and (b if a == name else a) in index), None)
+    found = next((index[b if a == name else a] for a, b in SYNONYM_PAIRS
+                  if name in (a, b) and (b if a == name else a) in index), None)
+    if found is None:
+        coco = LVIS_TO_COCO.get(name, name)
+        found = next((i for entry, i in index.items() if LVIS_TO_COCO.get(entry, entry) == coco), None)
+    return found
 
 
 def class_kernel(class_names: list[str], lookalike_weight: float) -> sp.csr_matrix:

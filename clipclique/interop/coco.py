@@ -27,13 +27,6 @@ COCO91_TO_80: dict[int, int] = {coco91: index for index, coco91 in enumerate(COC
 COCO80_INDEX: dict[str, int] = {name: index for index, name in enumerate(COCO_NAMES)}
 
 
-def coco80_name(category: int, where: str) -> str:
-    """The class name of a 0-based COCO-80 id; InteropError naming `where` outside 0..79."""
-    if not 0 <= category < len(COCO_NAMES):
-        raise InteropError(f"{where}: category id {category} is not a COCO-80 class id (0..79)")
-    return COCO_NAMES[category]
-
-
 @dataclass
 class CocoResult:
     """One detection of a COCO results file."""

@@ -4,15 +4,20 @@ classes, align, embed; the text an export writes. The runner (clipclique.mapping
 from __future__ import annotations
 
 import enum
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
 from clipclique.interop.align import Alignment, AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
+from clipclique.errors import ClipcliqueError
 from clipclique.interop.errors import InteropError
-from clipclique.interop.maps import ImportedMap, MapFormat, read_map
+from clipclique.io.mapfile import load_map
+from clipclique.interop.labels import COCO, LabelSet, duplicate_note
+from clipclique.interop.maps import MAX_BINARY_BYTES, ImportedMap, MapFormat, map_input, read_map
 from clipclique.perception.encoders import Encoder
 from clipclique.io.outputs import map_file
+from clipclique.io.safeio import read_bytes
 from clipclique.types import Map
 
 
@@ -43,10 +48,13 @@ class ImportReport:
 
 
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
-               encoder: Encoder | None) -> ImportReport:
-    """The clipclique map of another system's map file, aligned to ground truth when asked."""
-    imported = read_map(path, format)
-    map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder)
+               encoder: Encoder | None, labels: LabelSet = COCO) -> ImportReport:
+    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when asked."""
+    path = map_input(path, format)
+    imported = read_map(path, format, labels)
+    imported.notes += duplicate_note(labels)
+    digest = hashlib.sha256(read_bytes(path, MAX_BINARY_BYTES, "map file", InteropError)).hexdigest()
+    map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder, digest)
     if request.groundtruth is None:
         return ImportReport(map, imported, None, imported.frame)
     trajectory = request.trajectory or imported.trajectory
@@ -57,6 +65,22 @@ def import_map(path: Path, format: MapFormat | None, objects: Path | None, reque
     map = aligned_map(map, alignment, request.sequence_name or f"{request.groundtruth.name} frame",
                       alignment.record(trajectory, request.groundtruth))
     return ImportReport(map, imported, alignment, request.sequence_name)
+
+
+def replaced_source(out: Path, map: Map) -> str | None:
+    """What an existing `out` holds when importing `map` would replace another source's map (None: nothing there, or
+    an import of the same input, by its sha256, which may be replaced)."""
+    if not out.exists():
+        return None
+    try:
+        source = load_map(out).provenance.get("source", {})
+    except (ClipcliqueError, OSError):
+        return "a file that is not a readable map"
+    if source.get("kind") == "import" and source.get("sha256") == map.provenance["source"].get("sha256"):
+        return None
+    if source.get("kind") == "import":
+        return f"a map imported from {source.get('file', '?')}"
+    return f"a map of {source.get('name', '?')} ({source.get('kind', '?')})"
 
 
 def default_import_path(path: Path) -> Path:

@@ -14,7 +14,7 @@ the frame `1311868164.36`), or by frame index when the file names frames by numb
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 from functools import cached_property
 from pathlib import Path, PurePosixPath
 
@@ -22,24 +22,25 @@ import numpy as np
 
 from clipclique.interop.boxfit import BoxSegmentation, box_mask
 from clipclique.interop.coco import (
-    COCO80_INDEX,
-    coco80_name,
     coco_results,
     read_coco_results,
     read_image_list,
     write_json,
 )
 from clipclique.interop.errors import InteropError
+from clipclique.interop.labels import COCO, LabelSet, class_lookup
 from clipclique.io.safeio import read_json
 from clipclique.types import Detections, Frame
-from clipclique.perception.yolo import coco_to_vocabulary
+
+if TYPE_CHECKING:
+    from clipclique.datasets import Sequence
 
 DUPLICATE_IOU = 0.7  # two boxes of different classes overlapping this much are one object
 
 
 @dataclass
 class FileDetection:
-    class_name: str  # COCO name
+    class_name: str  # the name in the file's label set (COCO's by default)
     box: np.ndarray  # (4,) xyxy pixels
     score: float
     mask: np.ndarray | None = None  # (H, W) bool, from a COCO results file
@@ -53,28 +54,69 @@ def frame_key(name: str) -> str:
     return stem if dot and suffix.lower() in ("png", "jpg", "jpeg", "bmp", "tif", "tiff") else base
 
 
+MIN_SIDE_PX = 1.0  # an ellipse axis or a box side under this is no object: skipped (VOOM writes a few)
+
+
+@dataclass
+class DetectionFile:
+    """The detections of a file by frame key, and the degenerate entries left out of them."""
+
+    frames: dict[str, list[FileDetection]]
+    total: int = 0  # entries read, skipped ones included
+    skipped: dict[str, int] = field(default_factory=dict)  # why -> how many
+
+    def notes(self, path: Path) -> list[str]:
+        """One warning line for the skipped entries ("7 of 14,071 detections skipped: zero-size ellipse")."""
+        if not self.skipped:
+            return []
+        alone = len(self.skipped) == 1
+        reasons = ", ".join(why if alone else f"{count:,} {why}" for why, count in self.skipped.items())
+        return [f"{path.name}: {sum(self.skipped.values()):,} of {self.total:,} detections skipped: {reasons} "
+                "(--strict-detections refuses the file instead)"]
+
+
 def _box(value: object, where: str) -> np.ndarray:
     if not (isinstance(value, list) and len(value) == 4
             and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
         raise InteropError(f"{where}: bbox should be [x1, y1, x2, y2], got {str(value)[:60]}")
     box = np.array(value, dtype=np.float64)
-    if not np.isfinite(box).all() or box[2] <= box[0] or box[3] <= box[1]:
+    if not np.isfinite(box).all() or box[2] < box[0] or box[3] < box[1]:
         raise InteropError(f"{where}: bbox {value} is not a box with x2 > x1 and y2 > y1")
     return box
 
 
-def read_detection_json(path: Path) -> dict[str, list[FileDetection]]:
-    """Frame key -> detections of an OA-SLAM / VOOM / GOReloc detection file."""
+def _ellipse(value: object, where: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    if not (isinstance(value, list) and len(value) == 5
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            and np.isfinite(value).all() and value[2] >= 0 and value[3] >= 0):
+        raise InteropError(f"{where}: ellipse should be [cx, cy, width > 0, height > 0, angle_rad]")
+    return np.array(value, dtype=np.float64)
+
+
+def _degenerate(box: np.ndarray, ellipse: np.ndarray | None) -> str | None:
+    """Why an entry is no object (an axis or side under MIN_SIDE_PX), None when it is one."""
+    if ellipse is not None and min(ellipse[2], ellipse[3]) < MIN_SIDE_PX:
+        return "zero-size ellipse"
+    if min(box[2] - box[0], box[3] - box[1]) < MIN_SIDE_PX:
+        return "box under 1 pixel"
+    return None
+
+
+def read_detection_json(path: Path, labels: LabelSet = COCO, strict: bool = False) -> DetectionFile:
+    """The detections of an OA-SLAM / VOOM / GOReloc detection file, category ids in `labels`; degenerate
+    entries skipped and counted (refused, naming the entry, when `strict`)."""
     data = read_json(path, "detection file", InteropError)
     if not isinstance(data, list):
         raise InteropError(f"{path}: a detection file is a JSON list of {{'file_name', 'detections'}}")
-    out: dict[str, list[FileDetection]] = {}
+    read = DetectionFile({})
     for index, entry in enumerate(data):
         where = f"{path}, entry {index}"
         if not (isinstance(entry, dict) and isinstance(entry.get("file_name"), (str, int))
                 and isinstance(entry.get("detections"), list)):
             raise InteropError(f"{where}: needs 'file_name' and a 'detections' list")
-        detections = out.setdefault(frame_key(str(entry["file_name"])), [])
+        detections = read.frames.setdefault(frame_key(str(entry["file_name"])), [])
         for number, item in enumerate(entry["detections"]):
             spot = f"{where}, detection {number}"
             if not isinstance(item, dict):
@@ -84,20 +126,22 @@ def read_detection_json(path: Path) -> dict[str, list[FileDetection]]:
                 raise InteropError(f"{spot}: category_id {category!r} is not an integer")
             if not (isinstance(score, (int, float)) and not isinstance(score, bool) and 0 <= score <= 1):
                 raise InteropError(f"{spot}: detection_score {score!r} is not a number in [0, 1]")
-            ellipse = item.get("ellipse")
-            if ellipse is not None:
-                if not (isinstance(ellipse, list) and len(ellipse) == 5
-                        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in ellipse)
-                        and np.isfinite(ellipse).all() and ellipse[2] > 0 and ellipse[3] > 0):
-                    raise InteropError(f"{spot}: ellipse should be [cx, cy, width > 0, height > 0, angle_rad]")
-                ellipse = np.array(ellipse, dtype=np.float64)
-            detections.append(FileDetection(coco80_name(category, spot), _box(item.get("bbox"), spot), float(score),
-                                            ellipse=ellipse))
-    return out
+            box, ellipse = _box(item.get("bbox"), spot), _ellipse(item.get("ellipse"), spot)
+            name = labels.name(category, spot)
+            read.total += 1
+            if why := _degenerate(box, ellipse):
+                if strict:
+                    raise InteropError(f"{spot}: a {why} (--strict-detections; without it such entries are skipped)")
+                read.skipped[why] = read.skipped.get(why, 0) + 1
+                continue
+            detections.append(FileDetection(name, box, float(score), ellipse=ellipse))
+    return read
 
 
-def read_detections(path: Path, images: Path | None = None) -> dict[str, list[FileDetection]]:
-    """Frame key -> detections of either format (sniffed from the first entry)."""
+def read_detections(path: Path, images: Path | None = None, labels: LabelSet = COCO,
+                    strict: bool = False) -> DetectionFile:
+    """The detections of either format (sniffed from the first entry); `labels` names the ids of a detection
+    JSON (COCO results name theirs by COCO's own ids); `strict` refuses a degenerate entry of one."""
     data = read_json(path, "detection file", InteropError)
     if isinstance(data, list) and data and isinstance(data[0], dict) and "image_id" in data[0]:
         images = images or path.parent / "images.json"
@@ -105,11 +149,12 @@ def read_detections(path: Path, images: Path | None = None) -> dict[str, list[Fi
             raise InteropError(f"{path}: COCO results name images by id; give the image list with "
                                f"--detector file:{path},images=FILE (no {images})")
         out: dict[str, list[FileDetection]] = {}
-        for result in read_coco_results(path, read_image_list(images)):
+        results = read_coco_results(path, read_image_list(images))
+        for result in results:
             out.setdefault(frame_key(result.image), []).append(
                 FileDetection(result.class_name, result.box, result.score, result.mask))
-        return out
-    return read_detection_json(path)
+        return DetectionFile(out, len(results))
+    return read_detection_json(path, labels, strict)
 
 
 def parse_spec(spec: str) -> tuple[Path, Path | None]:
@@ -142,11 +187,11 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 
 @dataclass
 class FileDetector:
-    """Detections of a file, in the map's vocabulary (COCO classes mapped as YOLO's are); box-only ones
-    segmented from the depth (boxfit)."""
+    """Detections of a file, in the map's vocabulary (`clipclique.interop.labels.class_lookup`: COCO classes
+    mapped as YOLO's are, LVIS names through their COCO class); box-only ones segmented from the depth (boxfit)."""
 
     path: Path
-    table: dict[str, list[FileDetection]]
+    read: DetectionFile
     class_names: list[str]
     min_score: float = 0.0
     segmentation: BoxSegmentation = field(default_factory=BoxSegmentation)
@@ -158,22 +203,42 @@ class FileDetector:
         return f"file:{self.path.name}"
 
     @classmethod
-    def load(cls, spec: str, class_names: list[str], min_score: float = 0.0) -> FileDetector:
+    def load(cls, spec: str, class_names: list[str], min_score: float = 0.0, labels: LabelSet = COCO,
+             strict: bool = False) -> FileDetector:
         path, images = parse_spec(spec)
-        return cls(path, read_detections(path, images), class_names, min_score)
+        return cls(path, read_detections(path, images, labels, strict), class_names, min_score)
+
+    @property
+    def table(self) -> dict[str, list[FileDetection]]:
+        return self.read.frames
 
     @cached_property
-    def _vocabulary(self) -> np.ndarray:
-        """COCO-80 id -> map class id (-1: dropped), by the COCO table YOLO uses (`clipclique.perception.yolo`)."""
-        return coco_to_vocabulary(self.class_names)
+    def _lookup(self) -> dict[str, int]:
+        """Detection class name -> map class id; names missing are dropped."""
+        return class_lookup(self.class_names)
+
+    def check_coverage(self, sequence: Sequence, selected: range) -> list[str]:
+        """Before a run: an error naming both naming schemes when the file covers none of the selected frames
+        (another sequence's file); the notes to print: skipped entries, and the count below half coverage."""
+        covered = sum(sequence.frame_name(i) in self.table or str(i) in self.table for i in selected)
+        if covered == 0:
+            theirs = next(iter(self.table), None)
+            named = f"names frames like {theirs!r}" if theirs is not None else "names no frame"
+            raise InteropError(f"{self.path}: {named}; {sequence.name}'s are like {sequence.frame_name(selected[0])!r} "
+                               f"or numbers 0..{len(sequence) - 1}: covered 0 of {len(selected)} frames "
+                               "(a detection file of another sequence?)")
+        notes = self.read.notes(self.path)
+        if covered * 2 < len(selected):
+            notes.append(f"{self.path.name} covered {covered} of {len(selected)} frames; the others have no detections")
+        return notes
 
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
         listed = self.table.get(frame.name, self.table.get(str(frame.index), []))
-        vocabulary, index = self._vocabulary, COCO80_INDEX
-        kept = [d for d in listed if d.score >= self.min_score and vocabulary[index[d.class_name]] >= 0]
+        lookup = self._lookup
+        kept = [d for d in listed if d.score >= self.min_score and d.class_name.lower() in lookup]
         boxes = np.array([d.box for d in kept]).reshape(-1, 4)
-        class_ids = np.array([vocabulary[index[d.class_name]] for d in kept], dtype=np.int64)
+        class_ids = np.array([lookup[d.class_name.lower()] for d in kept], dtype=np.int64)
         scores = np.array([d.score for d in kept], dtype=np.float64)
         keep = merged_duplicates(boxes, class_ids, scores)
         masks = np.zeros((len(keep), height, width), bool)

@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.interop.coco import coco80_name
 from clipclique.interop.errors import InteropError
+from clipclique.interop.labels import COCO, LabelSet
 from clipclique.interop.protowire import Fields, parse_message, repeated_float, repeated_uint, single_uint, submessages
 from clipclique.interop.quadric import decode_dual_quadric
 from clipclique.io.mapfile import MAX_LANDMARKS
@@ -78,6 +78,23 @@ class ImportedMap:
         return len(self.object_ids)
 
 
+OSMAP_BINARIES = (".objects", ".mapobjects", ".objecttracks", ".keyframes", ".mappoints", ".features")
+
+
+def map_input(path: Path, format: MapFormat | None) -> Path:
+    """The file to read for `path`: itself, or the one Osmap `.yaml` of a folder; InteropError, one line saying
+    what to pass instead, for another folder or an Osmap binary file (protobuf, named by its `.yaml`)."""
+    if path.is_dir():
+        yamls = sorted(p for p in path.iterdir() if p.suffix.lower() in (".yaml", ".yml") and p.is_file())
+        if len(yamls) == 1 and format in (None, MapFormat.OSMAP):
+            return yamls[0]
+        held = f"it holds {len(yamls)} .yaml files ({', '.join(p.name for p in yamls[:3])})" if yamls else "it holds no .yaml"
+        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap map_*.yaml, a .json): {held}")
+    if path.suffix.lower() in OSMAP_BINARIES:
+        raise InteropError(f"{path}: one of an Osmap map's binary files (protobuf); pass the map_*.yaml that names it")
+    return path
+
+
 def sniff_format(path: Path) -> MapFormat:
     """The format of a map file from its name and first bytes."""
     name = path.name.lower()
@@ -92,13 +109,14 @@ def sniff_format(path: Path) -> MapFormat:
                        f"({', '.join(f.value for f in MapFormat)})")
 
 
-def read_map(path: Path, format: MapFormat | None = None) -> ImportedMap:
-    """The landmarks of a map file of any supported format (sniffed when not given)."""
-    path = Path(path)
+def read_map(path: Path, format: MapFormat | None = None, labels: LabelSet = COCO) -> ImportedMap:
+    """The landmarks of a map file of any supported format (sniffed when not given), category ids read in
+    `labels` (`--labels`; clipclique's JSON list names its classes and ignores it)."""
+    path = map_input(Path(path), format)
     format = format or sniff_format(path)
     reader = {MapFormat.OASLAM_TXT: read_text_map, MapFormat.OSMAP: read_osmap, MapFormat.MSGLOC: read_msgloc,
               MapFormat.JSON: read_landmarks_json}[format]
-    imported = reader(path)
+    imported = reader(path) if format == MapFormat.JSON else reader(path, labels)
     if not 1 <= len(imported) <= MAX_LANDMARKS:
         raise InteropError(f"{path}: {len(imported)} objects; a map holds 1 to {MAX_LANDMARKS}")
     return imported
@@ -111,7 +129,7 @@ def _stack(fits: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Ellipsoids:
     return Ellipsoids(centers, axes, rotations)
 
 
-def read_text_map(path: Path) -> ImportedMap:
+def read_text_map(path: Path, labels: LabelSet = COCO) -> ImportedMap:
     """An OA-SLAM / VOOM `map_objects_*.txt`: `<track id> <category id> <16 numbers of Q*>` per line."""
     fits, ids, classes = [], [], []
     for number, line in enumerate(read_text(path, "map file", InteropError).splitlines(), start=1):
@@ -126,7 +144,7 @@ def read_text_map(path: Path) -> ImportedMap:
             values = np.array([float(p) for p in parts[2:]])
         except ValueError:
             raise InteropError(f"{where}: not numbers: {line[:80]!r}") from None
-        classes.append(coco80_name(category, where))
+        classes.append(labels.name(category, where))
         fits.append(decode_dual_quadric(values.reshape(4, 4).T, where))  # column-major
         ids.append(object_id)
     return ImportedMap(SourceSystem.OASLAM_TXT, _stack(fits), ids, classes, [None] * len(ids))
@@ -166,17 +184,17 @@ def _ellipsoid(element: Fields, where: str) -> tuple[np.ndarray, np.ndarray, np.
     return decode_dual_quadric(np.array(values).reshape(4, 4), where)
 
 
-def read_osmap(path: Path) -> ImportedMap:
+def read_osmap(path: Path, labels: LabelSet = COCO) -> ImportedMap:
     """An Osmap map by its `.yaml`: GOReloc (`objectsFile`), OA-SLAM (`mapobjectsFile` + `objecttracksFile`)
     or VOOM (`ObjectsFile`)."""
     entries = read_osmap_yaml(path)
     trajectory = _trajectory_beside(path)
     if "objectsFile" in entries:
-        imported = _read_goreloc(_osmap_file(path, entries, "objectsFile"))
+        imported = _read_goreloc(_osmap_file(path, entries, "objectsFile"), labels)
         declared = entries.get("nObjects")
     elif "mapobjectsFile" in entries:
         tracks = _osmap_file(path, entries, "objecttracksFile") if "objecttracksFile" in entries else None
-        imported = _read_oaslam(_osmap_file(path, entries, "mapobjectsFile"), tracks)
+        imported = _read_oaslam(_osmap_file(path, entries, "mapobjectsFile"), tracks, labels)
         declared = entries.get("nMapobjects")
     elif "ObjectsFile" in entries:
         imported = _read_voom(_osmap_file(path, entries, "ObjectsFile"))
@@ -199,7 +217,7 @@ def _trajectory_beside(yaml: Path) -> Path | None:
     return None
 
 
-def _read_goreloc(path: Path) -> ImportedMap:
+def _read_goreloc(path: Path, labels: LabelSet) -> ImportedMap:
     fits, ids, classes, distributions = [], [], [], []
     for index, element in enumerate(_array(path, "GOReloc objects file")):
         where = f"{path}, object {index}"
@@ -213,7 +231,7 @@ def _read_goreloc(path: Path) -> ImportedMap:
         counts = counts or [1] * len(categories)
         total: dict[str, float] = {}
         for category, count in zip(categories, counts):
-            name = coco80_name(category, where)
+            name = labels.name(category, where)
             total[name] = total.get(name, 0.0) + count
         if sum(total.values()) <= 0:
             raise InteropError(f"{where}: every class count is 0")
@@ -222,7 +240,7 @@ def _read_goreloc(path: Path) -> ImportedMap:
     return ImportedMap(SourceSystem.GORELOC, _stack(fits), ids, classes, distributions)
 
 
-def _read_oaslam(path: Path, tracks_path: Path | None) -> ImportedMap:
+def _read_oaslam(path: Path, tracks_path: Path | None, labels: LabelSet) -> ImportedMap:
     categories: dict[int, int] = {}
     if tracks_path is not None:
         for index, track in enumerate(_array(tracks_path, "OA-SLAM object tracks file")):
@@ -237,7 +255,7 @@ def _read_oaslam(path: Path, tracks_path: Path | None) -> ImportedMap:
             raise InteropError(f"{where}: track id {track} has no entry in "
                                f"{tracks_path or 'the object tracks file (objecttracksFile missing from the .yaml)'}")
         ids.append(track)
-        classes.append(coco80_name(categories[track], where))
+        classes.append(labels.name(categories[track], where))
     return ImportedMap(SourceSystem.OASLAM, _stack(fits), ids, classes, [None] * len(ids))
 
 
@@ -261,29 +279,29 @@ def _numbers(value: object, count: int, where: str) -> np.ndarray:
     return array
 
 
-def _label_distribution(labels: object, where: str, with_colour: bool) -> dict[str, float]:
-    """MSG-Loc's `{"66.0": [p, ...]}` as {COCO name: p}."""
-    if not isinstance(labels, dict):
-        raise InteropError(f"{where} should be an object keyed by COCO id")
+def _label_distribution(value: object, where: str, with_colour: bool, labels: LabelSet) -> dict[str, float]:
+    """MSG-Loc's `{"66.0": [p, ...]}` as {class name in `labels`: p}."""
+    if not isinstance(value, dict):
+        raise InteropError(f"{where} should be an object keyed by class id")
     out: dict[str, float] = {}
-    for key, value in labels.items():
+    for key, entry in value.items():
         try:
             number = float(key)
         except ValueError:
-            raise InteropError(f"{where}: key {key!r} is not a COCO id") from None
+            raise InteropError(f"{where}: key {key!r} is not a class id") from None
         if not number.is_integer():
-            raise InteropError(f"{where}: key {key!r} is not a whole COCO id")
-        if not (isinstance(value, list) and value and isinstance(value[0], (int, float)) and not isinstance(value[0], bool)
-                and math.isfinite(value[0]) and 0 <= value[0] <= 1 + 1e-6):
+            raise InteropError(f"{where}: key {key!r} is not a whole class id")
+        if not (isinstance(entry, list) and entry and isinstance(entry[0], (int, float)) and not isinstance(entry[0], bool)
+                and math.isfinite(entry[0]) and 0 <= entry[0] <= 1 + 1e-6):
             raise InteropError(f"{where}[{key!r}] should start with a probability in [0, 1]")
-        if with_colour and len(value) > 1 and not (isinstance(value[1], list) and len(value[1]) == 3):
+        if with_colour and len(entry) > 1 and not (isinstance(entry[1], list) and len(entry[1]) == 3):
             raise InteropError(f"{where}[{key!r}]: the second entry should be an [r, g, b] colour")
-        name = coco80_name(int(number), where)
-        out[name] = out.get(name, 0.0) + float(value[0])
+        name = labels.name(int(number), where)
+        out[name] = out.get(name, 0.0) + float(entry[0])
     return out
 
 
-def read_msgloc(path: Path) -> ImportedMap:
+def read_msgloc(path: Path, labels: LabelSet = COCO) -> ImportedMap:
     """An MSG-Loc JSON map: nodes with w-first quaternions, radii (absolute values taken), class labels."""
     data = read_json(path, "MSG-Loc map", InteropError)
     if not isinstance(data, dict) or not isinstance(data.get("nodes"), list):
@@ -306,9 +324,9 @@ def read_msgloc(path: Path) -> ImportedMap:
         if (np.abs(radii) <= 0).any():
             raise InteropError(f"{where}: a radius is 0")
         if "baseline_label" in node:
-            distribution = _label_distribution(node["baseline_label"], f"{where}: baseline_label", True)
+            distribution = _label_distribution(node["baseline_label"], f"{where}: baseline_label", True, labels)
         elif "msgloc_label" in node:
-            distribution = _label_distribution(node["msgloc_label"], f"{where}: msgloc_label", False)
+            distribution = _label_distribution(node["msgloc_label"], f"{where}: msgloc_label", False, labels)
         else:
             raise InteropError(f"{where}: no baseline_label or msgloc_label, so no class")
         total = sum(distribution.values())

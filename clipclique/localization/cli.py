@@ -18,12 +18,25 @@ import typer
 
 from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
+from clipclique.localization.inputs import (
+    INPUTS,
+    LabelsOption,
+    MapOption,
+    MinScoreOption,
+    OdometryDriftOption,
+    OdometryOption,
+    RunInputs,
+    SamePlaceOption,
+    StrictDetectionsOption,
+    WindowOption,
+    WindowStepOption,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
                   context_settings={"help_option_names": ["-h", "--help"]})
 
 TOOL = "clipclique-loc"
-ALGORITHM, INPUTS, WINDOW, OUTPUT = "Algorithm", "Inputs", "Window of frames", "Output"
+ALGORITHM, OUTPUT = "Algorithm", "Output"
 
 
 @app.callback()
@@ -58,16 +71,16 @@ def run(
         min=0.0, max=1.0, help="report a frame whose poses are all less confident as not localized "
                                "(confidence: the calibrated probability that a pose is within 1 m)",
         rich_help_panel=ALGORITHM)] = None,
-    map_path: Annotated[Optional[Path], typer.Option("--map", help="map file \\[default: outputs/maps/SEQUENCE.map.npz]",
-                                                     rich_help_panel=INPUTS)] = None,
+    map_path: MapOption = None,
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
         help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
              "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
              "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
-    min_score: Annotated[Optional[float], typer.Option(
-        min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
+    min_score: MinScoreOption = None,
+    labels: LabelsOption = None,
+    strict_detections: StrictDetectionsOption = False,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
                                               rich_help_panel=INPUTS)] = "yolov8x-seg.pt",
     encoder: Annotated[Optional[str], typer.Option(
@@ -77,19 +90,11 @@ def run(
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    same_place: Annotated[bool, typer.Option(
-        "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
-                             "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
-    window: Annotated[int, typer.Option(min=1, help="localize each frame with the K - 1 frames before it, fused by "
-                                               "odometry", metavar="K", rich_help_panel=WINDOW)] = 1,
-    window_step: Annotated[int, typer.Option(min=1, help="the window takes every S-th frame back from the newest",
-                                             metavar="S", rich_help_panel=WINDOW)] = 1,
-    odometry: Annotated[Optional[str], typer.Option(
-        help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or groundtruth "
-             "(with --odometry-drift, simulated)", rich_help_panel=WINDOW)] = None,
-    odometry_drift: Annotated[float, typer.Option(min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, "
-                                                  "percent of the distance travelled", metavar="PCT",
-                                                  rich_help_panel=WINDOW)] = 0.0,
+    same_place: SamePlaceOption = False,
+    window: WindowOption = 1,
+    window_step: WindowStepOption = 1,
+    odometry: OdometryOption = None,
+    odometry_drift: OdometryDriftOption = 0.0,
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -117,10 +122,11 @@ def run(
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     with user_errors(TOOL):
         method = method_key(method)
-    settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
-                           detector, encoder, yolo_weights, stride, max_frames, out,
-                           record=not no_rrd, same_place=same_place, min_score=min_score or 0.0, window=window,
-                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift)
+    inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
+                       odometry_drift)
+    settings = RunSettings(sequence, method, config, overrides, data_root=data_root, detector=detector,
+                           encoder=encoder, yolo_weights=yolo_weights, stride=stride, max_frames=max_frames, out=out,
+                           record=not no_rrd, **inputs.settings())
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
@@ -163,6 +169,9 @@ def compare(results: Annotated[list[Path], typer.Argument(
 def align(
     query_map: Annotated[Path, typer.Argument(metavar="MAP_A", help="the map to align (the query map)")],
     map_path: Annotated[Path, typer.Argument(metavar="MAP_B", help="the map to align it into")],
+    third: Annotated[Optional[Path], typer.Argument(
+        metavar="[MAP_C]", help="a third map: align A into B, B into C, C into A and check that the cycle closes",
+        show_default=False)] = None,
     method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc (whose descriptors "
                                              "and matching align the maps)", rich_help_panel=ALGORITHM)] = "clipclique",
     top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
@@ -182,10 +191,13 @@ def align(
     from clipclique.localization.tables import make_console
 
     overrides = list(set_ or []) + ([f"top_n={top_n}"] if top_n is not None else [])
+    console = make_console()
+    if third is not None:
+        _align_cycle([query_map, map_path, third], method, config, overrides, out, not no_rrd, console)
+        return
     with user_errors(TOOL):
         settings = AlignSettings(query_map, map_path, method_key(method), config, overrides, out, record=not no_rrd)
         document = align_and_save(settings)
-    console = make_console()
     for note in document["notes"]:
         console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
     if not document["candidates"]:
@@ -202,6 +214,33 @@ def align(
     if settings.record:
         console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
                       highlight=False, soft_wrap=True)
+
+
+def _align_cycle(maps: list[Path], method: str, config: Optional[Path], overrides: list[str], out: Optional[Path],
+                 record: bool, console: object) -> None:
+    """`align A B C`: each link written as `align` writes it (under OUT/ when given), then the cycle's closure."""
+    from rich.markup import escape
+
+    from clipclique.config import method_key
+    from clipclique.exits import user_errors
+    from clipclique.io.mapfile import load_map
+    from clipclique.localization.align import AlignSettings, align_and_save
+    from clipclique.localization.cycle import cycle
+
+    documents = []
+    with user_errors(TOOL):
+        for query, target in zip(maps, maps[1:] + maps[:1]):
+            settings = AlignSettings(query, target, method_key(method), config, overrides, None, record=record)
+            settings.out = None if out is None else out / settings.out_dir().name
+            documents.append(align_and_save(settings))
+            best = documents[-1]["candidates"][:1]
+            found = (f"confidence {best[0]['confidence']:.2f}, {len(best[0]['correspondences'])} correspondences"
+                     if best else f"no alignment: {documents[-1]['failure']}")
+            console.print(escape(f"{query} into {target}: {found}; results: {settings.out_dir()}/"), highlight=False,
+                          soft_wrap=True)
+        closure = cycle(documents, load_map(maps[0]).ellipsoids.centers)
+    console.print(escape(closure.line() if closure else "cycle not checked: a link found no transform"), highlight=False,
+                  soft_wrap=True)
 
 
 def main() -> None:

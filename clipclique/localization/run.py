@@ -38,7 +38,7 @@ from clipclique.multiframe.window import WindowConfig, Windower
 from clipclique.localization.runs import FrameOutcome, Run, RunSettings
 from clipclique.localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 from clipclique.interop.coco import reported_classes
-from clipclique.interop.detections import CocoRecorder
+from clipclique.interop.detections import CocoRecorder, FileDetector
 from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
@@ -65,7 +65,12 @@ def prepare(settings: RunSettings) -> Run:
         notes.append(f"{gap}; those frames cannot be scored")
     detector_kind = settings.detector or default_detector(sequence)
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
-                             settings.seed, settings.min_score)
+                             settings.seed, settings.min_score, settings.labels,
+                             settings.strict_detections)
+    if isinstance(detector, FileDetector):
+        notes += detector.check_coverage(sequence, frame_selection(settings, len(sequence)))
+    elif settings.labels is not None:
+        raise ClipcliqueError(f"--labels {settings.labels}: only a --detector file: reads category ids")
     if config.similarity.descriptor in ("clip", "fused"):
         encoder = choose_encoder(settings.encoder, map, notes, sequence)
     else:  # SH and X-View never read CLIP: no model to load, no crops to embed every frame
@@ -178,10 +183,15 @@ def localize_observed(run: Run, index: MapIndex, observations: Observations, gt_
 
 
 def selected_frames(run: Run) -> range:
-    selected = range(0, len(run.sequence), run.settings.stride)[:run.settings.max_frames]
+    return frame_selection(run.settings, len(run.sequence))
+
+
+def frame_selection(settings: RunSettings, length: int) -> range:
+    """The frame indices a run localizes (--stride, --max-frames); an error when none."""
+    selected = range(0, length, settings.stride)[:settings.max_frames]
     if not selected:
-        raise ClipcliqueError(f"{run.settings.sequence}: no frames selected ({len(run.sequence)} frames, "
-                              f"stride {run.settings.stride}, max {run.settings.max_frames})")
+        raise ClipcliqueError(f"{settings.sequence}: no frames selected ({length} frames, "
+                              f"stride {settings.stride}, max {settings.max_frames})")
     return selected
 
 

@@ -43,6 +43,8 @@ class RunSettings:
     seed: int = 0  # the simulated detector's (and the simulated odometry drift's)
     same_place: bool = False  # the map is of another recording of this place (else such a map is refused)
     min_score: float = 0.0  # detections scoring lower are dropped (file: and yolo detectors)
+    labels: str | None = None  # --labels: the label set of a detection file's ids (coco, lvis or a names file)
+    strict_detections: bool = False  # refuse a detection file with degenerate entries instead of skipping them
     window: int = 1  # K: localize each frame with the K - 1 before it (every window_step-th), fused by odometry
     window_step: int = 1
     odometry: str | None = None  # "groundtruth" or a TUM trajectory file; needed with window > 1
@@ -65,7 +67,8 @@ class RunSettings:
         given = {"map": self.map_path and self.map_path.name.removesuffix(".map.npz"), "detector": self.detector,
                  "encoder": self.encoder, "stride": self.stride if self.stride != 1 else None,
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
-                 "max_frames": self.max_frames, "min_score": self.min_score or None}
+                 "max_frames": self.max_frames, "min_score": self.min_score or None,
+                 "labels": self.labels and Path(self.labels).stem}
         if self.window > 1:
             given |= {"window": self.window, "window_step": self.window_step if self.window_step != 1 else None,
                       "odometry": Path(self.odometry).name if self.odometry else None,

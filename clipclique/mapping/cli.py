@@ -75,6 +75,7 @@ def import_map(
     path: Annotated[Path, typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map", show_default=False)],
     format: Annotated[str | None, typer.Option("--format", help="oaslam-txt | osmap | msgloc | json \\[default: from the file name]", rich_help_panel=DATA_PANEL)] = None,
     objects: Annotated[Path | None, typer.Option("--objects", help="objects.csv (id,class,description): classes and descriptions by object id", rich_help_panel=DATA_PANEL)] = None,
+    labels: Annotated[str | None, typer.Option("--labels", help="coco | lvis | FILE (one class name per line, the 0-based line the id): the label set of the map's category ids \\[default: coco]", rich_help_panel=DATA_PANEL)] = None,
     align_to: Annotated[str | None, typer.Option("--align-to", help="fit the keyframe trajectory to this TUM sequence's groundtruth.txt", rich_help_panel=ALIGN_PANEL)] = None,
     trajectory: Annotated[Path | None, typer.Option("--trajectory", help="keyframe trajectory, TUM text \\[default: the one saved beside the map]", rich_help_panel=ALIGN_PANEL)] = None,
     groundtruth: Annotated[Path | None, typer.Option("--groundtruth", help="ground truth, TUM text (instead of --align-to)", rich_help_panel=ALIGN_PANEL)] = None,
@@ -84,6 +85,7 @@ def import_map(
     data_root: Annotated[Path | None, typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL)] = None,
     out: Annotated[Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<file name>.map.npz]", rich_help_panel=OUTPUT_PANEL)] = None,
     encoder: Annotated[str, typer.Option("--encoder", help="text encoder: auto | simulated | none | open_clip:MODEL/TAG | checkpoint file", rich_help_panel=DATA_PANEL)] = "auto",
+    force: Annotated[bool, typer.Option("--force", help="replace a map at --out that came from another source (an import of the same file replaces its own)", rich_help_panel=OUTPUT_PANEL)] = False,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
@@ -103,7 +105,7 @@ def import_map(
             raise InteropError(f"--format {format!r}: choose {', '.join(MapFormat)}")
         request = AlignmentRequest(trajectory=trajectory, with_scale=scale, limits=AlignmentLimits(min_keyframes, max_rmse))
         imported = run_import(path, MapFormat(format) if format else None, objects, align_to, groundtruth, request,
-                              data_root, out, encoder, not no_rrd)
+                              data_root, out, encoder, not no_rrd, labels, force)
     print_import(console, imported, quiet)
 
 

@@ -26,9 +26,11 @@ from clipclique.interop.commands import (
     default_import_path,
     export_text,
     import_map,
+    replaced_source,
 )
 from clipclique.interop.errors import InteropError
-from clipclique.interop.maps import MapFormat
+from clipclique.interop.labels import label_set
+from clipclique.interop.maps import MapFormat, map_input
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.io.outputs import Staging, map_file
 from clipclique.resolve import first_use_notice, open_scene
@@ -98,13 +100,19 @@ def shows_map(earlier: Path, map: Map) -> bool:
 
 
 def describe(map: Map, scene: str) -> str:
-    """The recording's text document: what the map is and what made it."""
+    """The recording's text document: what the map is and what made it (an imported map: which file, which
+    system); classes counted only where they hold a landmark."""
     source = map.provenance.get("source", {})
     simulated = " (simulated CLIP: a stand-in for real CLIP on synthetic data)" if map.provenance.get("encoder_simulated") else ""
+    if source.get("kind") == "import":
+        origin = f"imported from {source.get('file', '?')} ({source.get('format', '?')})"
+    else:
+        origin = f"from a {source.get('kind', '?')} scene{' (synthetic demo)' if source.get('synthetic') else ''}"
+    structure = map.provenance.get("structure_left_out", [])
     return (
-        f"# Map of {scene}\n\n{len(map)} landmarks, {len(map.class_names)} classes, from a {source.get('kind', '?')} "
-        f"scene{' (synthetic demo)' if source.get('synthetic') else ''}.\n\nText embeddings: {map.encoder}{simulated}.\n\n"
-        f"Left out as structure: {', '.join(map.provenance.get('structure_left_out', []))}."
+        f"# Map of {scene}\n\n{len(map)} landmarks, {len(set(map.class_ids.tolist()))} classes, {origin}.\n\n"
+        f"Text embeddings: {map.encoder}{simulated}."
+        + (f"\n\nLeft out as structure: {', '.join(structure)}." if structure else "")
     )
 
 
@@ -123,9 +131,11 @@ class Imported:
 def run_import(path: Path, format: MapFormat | None = None, objects: Path | None = None, align_to: str | None = None,
                groundtruth: Path | None = None, request: AlignmentRequest = AlignmentRequest(),
                data_root: Path | None = None, out: Path | None = None, encoder_spec: str = "auto",
-               rrd: bool = True) -> Imported:
+               rrd: bool = True, labels: str | None = None, force: bool = False) -> Imported:
     """Read another system's map, align it to `align_to`'s groundtruth.txt (or `groundtruth`) when given, embed
-    its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz."""
+    its descriptions, write the map (and .rrd) to `out`, default outputs/maps/<file stem>.map.npz; `labels`
+    (`--labels`: coco, lvis or a names file) names the file's category ids. A map at `out` from another source
+    is refused unless `force` (two systems' Osmap maps of one sequence are both `map_<name>.yaml`)."""
     started = time.perf_counter()
     if align_to is not None and groundtruth is not None:
         raise InteropError("give --align-to or --groundtruth, not both")
@@ -137,12 +147,16 @@ def run_import(path: Path, format: MapFormat | None = None, objects: Path | None
         request = dataclasses.replace(request, groundtruth=sequence.root / "groundtruth.txt", sequence_name=sequence.name)
     elif groundtruth is not None:
         request = dataclasses.replace(request, groundtruth=groundtruth)
+    path = map_input(path, format)  # a folder's one Osmap .yaml
     out = out or default_import_path(path)
     recording = out.with_name(out.name.removesuffix(".npz") + ".rrd")
     with Staging() as staging:
         staged_map = staging.path(out)
         staged_recording = staging.path(recording) if rrd else None
-        report = import_map(path, format, objects, request, load_encoder(encoder_spec))
+        report = import_map(path, format, objects, request, load_encoder(encoder_spec), label_set(labels))
+        if not force and (held := replaced_source(out, report.map)):
+            raise InteropError(f"{out} holds {held}; importing {path} would replace it: pass --out FILE, "
+                               "or --force to replace it")
         save_map(report.map, staged_map)
         if staged_recording is not None:
             from clipclique.viz import write_map_recording

@@ -68,12 +68,16 @@ def bar_on_first_call(progress: Progress, description: str) -> Callable[[int, in
 
 def print_summary(console: Console, map: Map, report: BuildReport, spec: str) -> None:
     """The landmarks per class, what was left out or skipped and why, the encoder and times."""
-    table = Table(title=f"{len(map)} landmarks", title_justify="left")
+    held = [name for name in map.class_names if report.landmarks_per_class[name]]
+    table = Table(title=f"{len(map)} landmarks, {len(held)} classes", title_justify="left")
     table.add_column("class")
     table.add_column("landmarks", justify="right")
-    for name in map.class_names:
+    for name in held:
         table.add_row(escape(name), str(report.landmarks_per_class[name]))
     console.print(table)
+    if len(held) < len(map.class_names):
+        console.print(f"{len(map.class_names) - len(held)} more classes appear only in the class distributions",
+                      highlight=False)
     print_graph(console, map)
     if report.structure:
         console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))

@@ -19,12 +19,15 @@ DISTINCT_DEG) are one candidate: cliques that differ by a correspondence or two.
 is refined: every query landmark that lands within `inliers.d_comp` of a map landmark of a like
 class (nearest first, one-to-one) becomes a correspondence, and the transform is refit on them.
 
-Maps cannot be verified in an image, so a candidate's confidence comes from its evidence: the
-number of correspondences and its margin, how far its summed similarity stands above the best
-other candidate's (relative to its own). A logistic model of the two, fitted on generated cases
-(`tools/fit_align_confidence.py`: split maps moved by random transforms, unrelated maps, rooms
-repeated side by side), gives the probability that the transform is right (within 0.5 m and 5
-degrees). The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
+Maps cannot be verified in an image, so a candidate's confidence comes from its evidence (EVIDENCE):
+the number of correspondences, its margin (how far its summed similarity stands above the best other
+candidate's, relative to its own), the similarity per correspondence, the matched classes' rarity in the
+map, the matched landmarks' spread, and the residual against the map's scale (`map_scale`). A logistic
+model of them, fitted on generated cases (`tools/fit_align_confidence.py`: split maps moved by random
+transforms, unrelated maps, rooms repeated side by side, and maps of one room by two simulated
+detectors, `clipclique.sim.mappairs`), gives the probability that the transform is right (within
+0.3 m and 5 degrees); fewer than MIN_SUPPORT correspondences are never confident (`supported`).
+The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
 best: the competitors are listed instead of one being picked silently.
 """
 
@@ -49,9 +52,12 @@ DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than
 DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
 AMBIGUOUS_MARGIN = 0.15  # a competitor within this fraction of the best's similarity makes the answer ambiguous
 SEARCHED = 4  # hypotheses asked of the pipeline per candidate reported (near-duplicates are merged)
-# Logistic confidence, P = sigmoid(BIAS + SIZE_WEIGHT * log(correspondences) + MARGIN_WEIGHT * margin),
+# Logistic confidence, P = sigmoid(BIAS + WEIGHTS . evidence), the evidence being EVIDENCE (`evidence`),
 # fitted by tools/fit_align_confidence.py (its output says how well it is calibrated).
-BIAS, SIZE_WEIGHT, MARGIN_WEIGHT = -7.009, 2.251, 15.571
+EVIDENCE = ("log correspondences", "margin", "score per correspondence", "class rarity", "log spread (m)",
+            "rms / map scale")
+MIN_SUPPORT, SPARSE_CAP = 6, 0.4  # fewer correspondences than this: never confident (`supported`)
+BIAS, WEIGHTS = 1.588, (-0.306, 11.395, -4.444, 0.959, 1.135, -20.243)
 TRANSLATION_FLOOR_M = 0.01  # the information matrix's translation sigma is at least this
 INFORMATION_CAP = 1e6  # ... and no entry exceeds this
 
@@ -66,6 +72,8 @@ class Candidate:
     margin: float  # (score - the best other candidate's score) / score; 1 without another
     confidence: float  # P(the transform is right), module docstring
     rms_m: float  # root-mean-square centre residual of the correspondences after the transform
+    spread_m: float = 0.0  # radius of gyration of the matched query landmarks (a rotation needs spread points)
+    rarity: float = 0.0  # mean -log(share of the map's landmarks of the matched class): rare classes say more
 
     def matrix(self) -> np.ndarray:
         return self.pose.matrix()
@@ -116,7 +124,7 @@ def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, 
         if not any(_same_transform(refined.pose, c.pose, query_map) for c in candidates):  # converged onto another
             candidates.append(refined)
     candidates.sort(key=lambda c: -c.score)
-    _confidences(candidates)
+    _confidences(candidates, map_scale(query.map))
     best = candidates[0].score if candidates else 0.0
     competitors = [i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates else []
     return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
@@ -141,9 +149,11 @@ def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[lis
 
 
 def _alignment_config(config: LocalizationConfig, query_map: Map, map: Map, notes: list[str]) -> LocalizationConfig:
-    """The config with what maps lack turned off: no image (no re-ranking or confidence floor), CLIP only
-    between maps of one encoder; and more hypotheses, since near-duplicates are merged."""
-    settings = replace(config, top_n=SEARCHED * config.top_n, inliers=replace(config.inliers, rerank="none"),
+    """The config with what maps lack turned off: no image (no re-ranking or confidence floor, and RANSAC's
+    verification by 3D centres, not projected boxes: every method aligns), CLIP only between maps of one
+    encoder; and more hypotheses, since near-duplicates are merged."""
+    inliers = replace(config.inliers, rerank="none", verification="centers")
+    settings = replace(config, top_n=SEARCHED * config.top_n, inliers=inliers,
                        min_confidence=0.0, similarity=replace(config.similarity))
     same_encoder = (query_map.text_embeddings is not None and map.text_embeddings is not None
                     and query_map.encoder == map.encoder)
@@ -182,20 +192,48 @@ def _refined(pose: Pose, clique: np.ndarray, observations: Observations, map: Ma
         correspondences = clique
     residual = pose.apply(observations.ellipsoids.centers[correspondences[:, 0]]) - map.ellipsoids.centers[correspondences[:, 1]]
     score = float(np.clip(similarity[correspondences[:, 0], correspondences[:, 1]], 0.0, None).sum())
-    return Candidate(pose, correspondences, score, 1.0, 0.0, float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))))
+    points = observations.ellipsoids.centers[correspondences[:, 0]]
+    spread = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
+    share = np.bincount(map.class_ids, minlength=len(map.class_names)) / max(len(map), 1)
+    rarity = float(np.mean(-np.log(share[map.class_ids[correspondences[:, 1]]])))
+    return Candidate(pose, correspondences, score, 1.0, 0.0, float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
+                     spread, rarity)
 
 
-def _confidences(candidates: list[Candidate]) -> None:
+def map_scale(map: Map) -> float:
+    """The median distance from a map landmark to its nearest neighbour: how far apart wrong matches can lie,
+    the unit a candidate's residual is measured in."""
+    if len(map) < 2:
+        return 1.0
+    distances, _ = cKDTree(map.ellipsoids.centers).query(map.ellipsoids.centers, k=2)
+    return max(float(np.median(distances[:, 1])), TRANSLATION_FLOOR_M)
+
+
+def _confidences(candidates: list[Candidate], scale: float) -> None:
     """Margin and confidence of each candidate (best first)."""
     for i, candidate in enumerate(candidates):
         other = max((c.score for j, c in enumerate(candidates) if j != i), default=0.0)
         candidate.margin = (candidate.score - other) / candidate.score if candidate.score > 0 else 0.0
-        candidate.confidence = confidence(len(candidate.correspondences), candidate.margin)
+        candidate.confidence = confidence(evidence(candidate, scale))
 
 
-def confidence(size: int, margin: float) -> float:
-    """P(right) of a candidate with `size` correspondences and relative `margin` (module docstring)."""
-    return float(1.0 / (1.0 + math.exp(-(BIAS + SIZE_WEIGHT * math.log(max(size, 1)) + MARGIN_WEIGHT * margin))))
+def evidence(candidate: Candidate, scale: float) -> np.ndarray:
+    """The features the confidence weighs (EVIDENCE, in order)."""
+    size = max(len(candidate.correspondences), 1)
+    return np.array([math.log(size), candidate.margin, candidate.score / size, candidate.rarity,
+                     math.log(max(candidate.spread_m, TRANSLATION_FLOOR_M)), candidate.rms_m / scale])
+
+
+def confidence(features: np.ndarray) -> float:
+    """P(right) of a candidate of these `evidence` features (module docstring), capped by `supported`."""
+    return supported(float(1.0 / (1.0 + math.exp(-(BIAS + float(np.dot(WEIGHTS, features)))))), features[0])
+
+
+def supported(probability: float, log_size: float) -> float:
+    """`probability`, at most SPARSE_CAP for fewer than MIN_SUPPORT correspondences: on maps of one place made by
+    two detectors such an answer is mostly a coincidence of a few objects (generated pairs: 17 of 19 wrong), which
+    the margin and residual of the few cannot tell apart from the truth."""
+    return min(probability, SPARSE_CAP) if round(math.exp(log_size)) < MIN_SUPPORT else probability
 
 
 def g2o_edge(candidate: Candidate, query_map: Map) -> str:

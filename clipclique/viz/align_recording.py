@@ -30,7 +30,7 @@ def write_alignment_recording(path: Path, query_map: Map, map: Map, alignment: M
     and `description` (markdown)."""
     placed = [query_map.ellipsoids.transformed(c.pose) for c in alignment.candidates]
     framed = np.concatenate([map.ellipsoids.centers, *(e.centers for e in placed[:1])]).reshape(-1, 3)
-    with RecordingFile(path, "clipclique-align", lambda: map_blueprint(framed)) as recording:
+    with RecordingFile(path, "clipclique-align", lambda: map_blueprint(framed, hide_graph=True)) as recording:
         stream = recording.stream
         log_map(stream, map, d_adj)
         labels = [query_map.class_names[c] for c in query_map.class_ids]

@@ -33,10 +33,13 @@ def _panels(timeline: str | None = None) -> list:
     ]
 
 
-def map_blueprint(centers: np.ndarray) -> rrb.Blueprint:
+def map_blueprint(centers: np.ndarray, hide_graph: bool = False) -> rrb.Blueprint:
+    """The map recording's layout; `hide_graph` (the alignment recording) opens the 3D view without the semantic
+    graph, whose edges bury the correspondences as they bury the matches of a localization recording."""
+    overrides = {"world/map/graph": rrb.EntityBehavior(visible=False)} if hide_graph else None
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="map", origin="world", eye_controls=framing(centers)),
+            rrb.Spatial3DView(name="map", origin="world", eye_controls=framing(centers), overrides=overrides),
             rrb.TextDocumentView(name="description", origin="description"),
             column_shares=[3, 1],
         ),

@@ -773,6 +773,31 @@ def import_cases() -> list[Case]:
     return cases
 
 
+def label_cases() -> list[Case]:
+    """A hostile names file given as --labels FILE to import (an LVIS-like list): one line naming the file."""
+    q = " ".join(f"{v:.8f}" for v in np.diag([0.09, 0.01, 0.04, -1.0]).T.ravel())
+
+    def labelled(text: bytes) -> Callable:
+        def make(space: Workspace, case_dir: Path):
+            (case_dir / "lvis.txt").write_bytes(text)
+            (case_dir / "map_objects_x.txt").write_text(f"1 41 {q}\n")
+            return map_app, ["import", str(case_dir / "map_objects_x.txt"), "--labels", str(case_dir / "lvis.txt"),
+                             "--out", str(case_dir / "x.map.npz"), "--encoder", "none", "--no-rrd"], "lvis.txt"
+
+        return make
+
+    names = [f"class {i}" for i in range(60)]
+    makers = {
+        "missing-line": labelled("\n".join(names[:41]).encode()),  # id 41 is past the last line
+        "blank-line": labelled("\n".join(names[:5] + [""] + names[5:]).encode()),
+        "not-utf8": labelled("\n".join(names).encode() + LATIN1),
+        "million-lines": labelled(b"x\n" * 1_000_000),
+        "control": labelled("\n".join(names[:3] + ["c\x1bup"] + names[3:]).encode()),
+        "empty": labelled(b""),
+    }
+    return [Case("labels", name, make) for name, make in makers.items()]
+
+
 def detection_cases() -> list[Case]:
     """A detection file given to clipclique-loc run --detector file:: each reader refuses it in one line naming it."""
     good = {"category_id": 41, "detection_score": 0.5, "bbox": [10, 10, 40, 40]}
@@ -803,6 +828,7 @@ def detection_cases() -> list[Case]:
         "bbox-text": given("d.json", frames(good | {"bbox": "10 10 40 40"})),
         "ellipse-short": given("d.json", frames(good | {"ellipse": [1, 2, 3]})),
         "not-utf8": given("d.json", frames(good) + LATIN1),
+        "other-sequence": given("d.json", frames(good)),  # well formed, but names none of the demo's frames
         "coco-no-image-list": given("r.json", json.dumps([coco]).encode()),
         "coco-image-unknown": given("r.json", json.dumps([coco | {"image_id": 5}]).encode(), image_list),
         "coco-category-0": given("r.json", json.dumps([coco | {"category_id": 0}]).encode(), image_list),
@@ -816,7 +842,7 @@ def detection_cases() -> list[Case]:
     return [Case("detections", name, make) for name, make in makers.items()]
 
 
-CASES = map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + detection_cases()
+CASES = map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + label_cases() + detection_cases()
 
 
 def test_the_suite_is_large_and_covers_every_family():
@@ -824,7 +850,7 @@ def test_the_suite_is_large_and_covers_every_family():
     assert len({str(case) for case in CASES}) == len(CASES)
     assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
                                                "outputs", "encoder", "compare", "names", "import",
-                                               "detections", "annotate",
+                                               "detections", "labels", "annotate",
                                                "align", "odometry"}
 
 

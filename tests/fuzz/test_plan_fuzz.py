@@ -40,6 +40,9 @@ PLANS: dict[str, bytes | None] = {
     "huge": b"# " + b"x" * (2 << 20),
     "nul": b'scenes = ["demo\x00"]',
     "folder": None,
+    "window-a-string": b'scenes = ["demo"]\nwindow = "3"',
+    "same-place-a-number": b'scenes = ["demo"]\nsame_place = 1',
+    "map-a-list": b'scenes = ["demo"]\nmap = ["a.map.npz"]',
 }
 
 
@@ -90,3 +93,15 @@ def test_the_readme_plan_example_reads_as_its_runs(repository: Path, tmp_path: P
         ("demo", "clipclique", ["inliers.d_comp=0.4"], 30)]
     assert len(settings) == 12
     assert settings[0].out == tmp_path / "out" / "demo" / "clipclique+inliers.d_comp=0.2+max_frames=30"
+
+
+def test_a_plans_run_inputs_are_the_options_of_clipclique_loc_run(tmp_path: Path):
+    from clipclique.benchmark.plan import read_plan, runs
+
+    path = tmp_path / "plan.toml"
+    path.write_text('scenes = ["demo"]\nmap = "m.map.npz"\nsame_place = true\nwindow = 3\nodometry = "groundtruth"\n'
+                    'odometry_drift = 2\nmin_score = 0.3\nlabels = "lvis"\nstrict_detections = true\n')
+    (settings,) = runs(read_plan(path), tmp_path / "out", None, record=False)
+    assert (settings.map_path, settings.same_place, settings.window, settings.window_step, settings.odometry,
+            settings.odometry_drift, settings.min_score, settings.labels, settings.strict_detections) == (
+        Path("m.map.npz"), True, 3, 1, "groundtruth", 2.0, 0.3, "lvis", True)

@@ -212,3 +212,32 @@ def test_frames_without_annotations_are_left_out_as_clipclique_loc_leaves_them(t
     assert document["summary"]["frames"] == 1 and document["summary"]["not_annotated"] == 2
     assert document["run"]["notes"] == reference["run"]["notes"] and any("no annotations" in n for n in reference["run"]["notes"])
     assert canonical(tmp_path / "bench" / folder.name / "clipclique" / "results.json") == canonical(tmp_path / "loc" / "results.json")
+
+
+def test_run_inputs_shared_with_clipclique_loc_give_its_results_in_process_and_on_a_cluster(workspace, in_process):
+    """--map, --same-place, --window, --odometry and --odometry-drift (clipclique.localization.inputs): a window's
+    earlier frames are perceived and read from the cache; before, clipclique-bench had none of these options."""
+    from distributed import Client, LocalCluster
+
+    from clipclique.localization.inputs import RunInputs
+
+    folder, data = workspace
+    inputs = RunInputs(map=folder / "outputs" / "maps" / "demo.map.npz", same_place=True, window=3,
+                       odometry="groundtruth", odometry_drift=2.0)
+    plan = Plan(["demo_tum"], ["clipclique"], stride=2, inputs=inputs)
+    (settings,) = runs(plan, folder / "inputs-a", data, record=False)
+    assert settings.map_path == inputs.map and settings.window == 3 and "window=3" in settings.run_name()
+    result = run_jobs([settings], folder / "cache-inputs", Recorder())
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) \
+            as cluster, Client(cluster) as client:
+        on_cluster = run_jobs(runs(plan, folder / "inputs-b", data, record=False), folder / "cache-inputs-b", Recorder(),
+                              client)
+    assert not result.failed and not on_cluster.failed
+    reference = folder / "loc-inputs"
+    run_and_save(RunSettings("demo_tum", data_root=data, out=reference, record=False, stride=2, **inputs.settings()))
+    expected = canonical(reference / "results.json")
+    assert len(expected) == 3
+    for out in (settings.out, folder / "inputs-b" / settings.out.relative_to(folder / "inputs-a")):
+        assert canonical(out / "results.json") == expected
+        assert (out / "poses.tum").read_text() == (reference / "poses.tum").read_text()
+    assert read_results(settings.out / "results.json")["frames"][2]["window"]["frames"] == [2, 3, 4]  # 3: not selected, perceived for the window

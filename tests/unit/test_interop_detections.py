@@ -102,7 +102,7 @@ def test_box_mask_keeps_the_near_part_of_a_slanted_surface():
 @pytest.mark.parametrize("content, problem", [
     ({"file_name": "a.png"}, "needs 'file_name' and a 'detections' list"),
     ({"file_name": "a.png", "detections": [{"category_id": 80, "detection_score": 0.5, "bbox": [0, 0, 1, 1]}]},
-     "category id 80 is not a COCO-80 class id"),
+     r"category id 80 is not a coco class id \(0..79\); an LVIS file\? pass --labels lvis"),
     ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 2, "bbox": [0, 0, 1, 1]}]},
      "detection_score 2 is not a number in"),
     ({"file_name": "a.png", "detections": [{"category_id": 1, "detection_score": 0.5, "bbox": [5, 0, 1, 1]}]},
@@ -163,3 +163,51 @@ def test_coco_results_without_their_image_list_say_how_to_give_it(tmp_path):
     (tmp_path / "list.json").write_text(json.dumps({"images": [{"id": 2, "file_name": "x.png"}]}))
     with pytest.raises(InteropError, match=r"detection 0: image_id 1 is not in the image list"):
         read_detections(path, tmp_path / "list.json")
+
+
+def voom_file(tmp_path, frames: int = 3):
+    """Shaped as VOOM's diamond files: boxes with ellipses, one of them zero-width ([199.0, 278.5, 0.0, 0.0018, 0.0])."""
+    entries = [{"file_name": f"rgb/{1311868164 + i}.363181.png", "detections": [
+        {"category_id": 41, "detection_score": 0.9, "bbox": [58, 38, 102, 82], "ellipse": [80, 60, 44, 44, 0.1]}]}
+        for i in range(frames)]
+    entries[1]["detections"].append({"category_id": 41, "detection_score": 0.4, "bbox": [199.0, 278.5, 199.0, 278.5018],
+                                     "ellipse": [199.0, 278.5, 0.0, 0.0018, 0.0]})
+    entries[2]["detections"].append({"category_id": 73, "detection_score": 0.4, "bbox": [10, 10, 10.5, 30]})
+    path = tmp_path / "voom_detections.json"
+    path.write_text(json.dumps(entries))
+    return path
+
+
+def test_degenerate_entries_are_skipped_with_one_warning_line(tmp_path):
+    read = read_detections(voom_file(tmp_path))
+    assert read.total == 5 and read.skipped == {"zero-size ellipse": 1, "box under 1 pixel": 1}
+    assert [len(read.frames[f"{1311868164 + i}.363181"]) for i in range(3)] == [1, 1, 1]
+    assert read.notes(tmp_path / "voom_detections.json") == [
+        "voom_detections.json: 2 of 5 detections skipped: 1 zero-size ellipse, 1 box under 1 pixel "
+        "(--strict-detections refuses the file instead)"]
+    with pytest.raises(InteropError, match=r"entry 1, detection 1: a zero-size ellipse \(--strict-detections"):
+        read_detections(voom_file(tmp_path), strict=True)
+
+
+class Named:
+    """A sequence as check_coverage sees it: a name and frame names."""
+
+    def __init__(self, names: list[str]):
+        self.name, self.names = "fr3_office", names
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def frame_name(self, i: int) -> str:
+        return self.names[i]
+
+
+def test_a_file_of_another_sequence_is_refused_naming_both_schemes(tmp_path):
+    found = detector(voom_file(tmp_path))
+    other = Named([f"1341847980.{i:06d}" for i in range(120)])
+    with pytest.raises(InteropError, match=r"names frames like '1311868164.363181'; fr3_office's are like "
+                                           r"'1341847980.000000' or numbers 0..119: covered 0 of 120 frames"):
+        found.check_coverage(other, range(120))
+    partly = Named([f"{1311868164 + i}.363181" for i in range(2)] + [f"9.{i}" for i in range(8)])
+    assert found.check_coverage(partly, range(10))[-1] == "voom_detections.json covered 2 of 10 frames; the others have no detections"
+    assert found.check_coverage(partly, range(0, 4)) == found.read.notes(found.path)  # 2 of 4: no coverage warning

@@ -119,7 +119,7 @@ def test_text_map_column_major_with_classes(tmp_path):
 
 @pytest.mark.parametrize("line, problem", [
     ("12 41 1 2 3", "expected '<id> <category id> <16 numbers>'"),
-    ("12 95 " + " ".join(["0"] * 16), "category id 95 is not a COCO-80 class id"),
+    ("12 95 " + " ".join(["0"] * 16), r"category id 95 is not a coco class id \(0..79\)"),
     ("12 41 " + " ".join(["x"] * 16), "not numbers"),
     ("12 41 " + " ".join(["nan"] * 16), "the dual quadric holds non-finite numbers"),
 ])
@@ -236,7 +236,7 @@ def test_msgloc_without_baseline_label_falls_back_to_the_likelihoods(tmp_path):
     ({"orientation": [2, 0, 0, 0]}, "not a unit quaternion"),
     ({"radii": [0, 1, 1]}, "a radius is 0"),
     ({"translation": [1, 2]}, "translation should be a list of 3 numbers"),
-    ({"baseline_label": {"cup": [0.5, [1, 2, 3]]}}, "key 'cup' is not a COCO id"),
+    ({"baseline_label": {"cup": [0.5, [1, 2, 3]]}}, "key 'cup' is not a class id"),
     ({"baseline_label": {"66.0": [1.5, [1, 2, 3]]}}, "should start with a probability"),
 ])
 def test_msgloc_malformed_node_refused(tmp_path, change, problem):
@@ -284,3 +284,24 @@ def test_text_round_trip_within_a_micrometre_and_says_what_it_cannot_write(tmp_p
     for row, source in enumerate((1, 2)):
         same_ellipsoid(back.ellipsoids, row, map.ellipsoids.centers[source], map.ellipsoids.axes[source],
                        map.ellipsoids.rotations[source], tolerance=1e-6)
+
+
+# ---- what a user passes instead of the map file ---------------------------------------------------
+
+def test_an_osmap_binary_file_says_pass_the_yaml(tmp_path):
+    yaml = write_osmap(tmp_path, "objectsFile", {"map_desk.objects": b"\x0a\x03\x0a\x01\x00"})
+    for format in (None, MapFormat.OSMAP):  # it said "not UTF-8 text; save it as UTF-8" with --format osmap
+        with pytest.raises(InteropError, match=r"map_desk.objects: one of an Osmap map's binary files \(protobuf\); "
+                                               r"pass the map_\*.yaml that names it"):
+            read_map(tmp_path / "map_desk.objects", format)
+    assert yaml.name == "map_desk.yaml"
+
+
+def test_a_folder_holding_one_osmap_yaml_is_read_others_get_one_message(tmp_path):
+    write_osmap(tmp_path, "objectsFile", {"map_desk.objects": goreloc_object(5, [41], [2], True)})
+    assert read_map(tmp_path).classes == ["cup"] and read_map(tmp_path).source == "goreloc"
+    (tmp_path / "map_other.yaml").write_text("%YAML:1.0\n")
+    for format in (None, MapFormat.OSMAP, MapFormat.MSGLOC):
+        with pytest.raises(InteropError, match=r": a folder; pass a map file \(map_objects_\*.txt, an Osmap map_\*.yaml, "
+                                               r"a .json\): it holds 2 .yaml files \(map_desk.yaml, map_other.yaml\)"):
+            read_map(tmp_path, format)

@@ -737,3 +737,19 @@ def test_a_run_that_fails_drops_the_frames_still_queued(tmp_path, run):
             recorder.log_frame(f.frame, f.detections, f.observations, f.result, f.evaluation)
         raise RuntimeError("the run failed")
     assert not list(tmp_path.iterdir())
+
+
+def test_the_alignment_layout_hides_the_semantic_graph_the_map_layout_shows_it(tmp_path, recorded_entities):
+    """Two maps' graphs bury the correspondences, as a map's buries a localization recording's matches."""
+    from clipclique.config import make_config
+    from clipclique.pipeline import align_maps
+    from clipclique.sim.synthetic import synthetic_map
+    from clipclique.viz.align_recording import write_alignment_recording
+
+    map = synthetic_map(np.random.default_rng(3), 20)
+    write_alignment_recording(tmp_path / "align.rrd", map.subset(np.arange(12)), map,
+                              align_maps(map.subset(np.arange(12)), map, make_config("clipclique")), "# aligned")
+    write_map_recording(tmp_path / "map.rrd", map, None, None, description="# map")
+    hidden = {name: [columns for path, (_, columns) in recorded_entities(tmp_path / name).items()
+                     if "/overrides/world/map/graph" in path] for name in ("align.rrd", "map.rrd")}
+    assert hidden == {"align.rrd": [{"EntityBehavior:visible"}], "map.rrd": []}

@@ -54,6 +54,19 @@ def test_two_overlapping_parts_moved_by_a_known_transform(seed):
     assert np.array_equal(query.instance_ids[pairs[:, 0]], room.subset(np.flatnonzero(x > 1.8)).instance_ids[pairs[:, 1]])
 
 
+@pytest.mark.parametrize("method", ["sh", "xview", "cliploc", "clipclique-paper"])
+def test_every_method_aligns_maps_by_centres(method):
+    """Maps have no image: the RANSAC methods' overlap verification (the preset) would stop on it."""
+    rng = np.random.default_rng(7)
+    room = synthetic_map(rng, 40)
+    truth = Pose(random_rotation(rng), rng.uniform(-5, 5, 3))
+    query = moved(room.subset(np.arange(25)), truth, rng)
+    assert make_config(method).inliers.verification == "overlap"
+    best = align_maps(query, room, make_config(method)).candidates[0]
+    translation, rotation = errors(best.pose, truth, query)
+    assert translation < 0.05 and rotation < 1.0
+
+
 def test_unrelated_maps_give_no_confident_alignment():
     for seed in range(6):
         rng = np.random.default_rng(100 + seed)
@@ -163,3 +176,69 @@ def test_a_map_too_small_to_align_says_why(tmp_path):
     document = alignment_document(AlignSettings(tmp_path / "a", tmp_path / "b"), alignment, query, room)
     assert document["failure"] == "fewer than 3 observations (2)" and document["failure_kind"] == "few_observations"
     assert document["g2o"] is None
+
+
+def test_few_correspondence_wrong_answers_between_two_detectors_maps_are_not_confident():
+    """Maps of one room by two simulated detectors (clipclique.sim.mappairs): before the evidence, 3 to 6
+    correspondences of a sparse overlap gave wrong transforms confidence 0.95-1.0 (seeds 39, 58, 71, 117)."""
+    from clipclique.sim.mappairs import detector_pair
+
+    wrong, right = [], []
+    for seed in range(120):
+        query, map, truth = detector_pair(np.random.default_rng(20_000 + seed))
+        alignment = align_maps(query, map, CONFIG)
+        if not alignment.candidates or alignment.ambiguous:
+            continue
+        best = alignment.candidates[0]
+        translation, rotation = errors(best.pose, truth, query)
+        (right if translation < 0.3 and rotation < 5 else wrong).append((seed, len(best.correspondences), best.confidence))
+    confident = [case for case in wrong if case[2] >= 0.5]
+    assert len(wrong) >= 10 and all(size >= 6 for _, size, _ in confident) and len(confident) <= 1, confident
+    assert sum(confidence >= 0.5 for _, _, confidence in right) >= 0.8 * len(right) >= 12
+
+
+def test_an_lvis_map_aligns_with_a_coco_map_of_the_same_room_as_the_same_vocabulary_does():
+    """MSG-Loc's LVIS maps against COCO ones: classes meet through LVIS_TO_COCO (before: 7 of 8 classes unmatched)."""
+    import dataclasses
+
+    coco = ["keyboard", "mouse", "cup", "tv", "couch", "laptop", "book", "chair"]
+    lvis = ["computer keyboard", "mouse (computer equipment)", "mug", "television set", "sofa", "laptop computer",
+            "book", "armchair"]
+    rng = np.random.default_rng(11)
+    room = dataclasses.replace(synthetic_map(rng, 40), class_names=coco)
+    truth = Pose(random_rotation(rng), rng.uniform(-5, 5, 3))
+    x = room.ellipsoids.centers[:, 0]
+    query = moved(room.subset(np.flatnonzero(x < 3.2)), truth, rng)
+    same = align_maps(query, room.subset(np.flatnonzero(x > 1.8)), CONFIG)
+    other = align_maps(dataclasses.replace(query, class_names=lvis), room.subset(np.flatnonzero(x > 1.8)), CONFIG)
+    assert other.vocabulary == dict(zip(lvis, coco))
+    assert len(other.candidates[0].correspondences) == len(same.candidates[0].correspondences) >= 6
+    np.testing.assert_allclose(other.candidates[0].pose.matrix(), same.candidates[0].pose.matrix(), atol=1e-12)
+
+
+def test_align_three_maps_checks_that_the_cycle_closes_and_names_the_weakest_link(tmp_path):
+    from typer.testing import CliRunner
+
+    from clipclique.io.mapfile import save_map
+    from clipclique.localization.cli import app
+    from clipclique.localization.cycle import cycle
+
+    rng = np.random.default_rng(5)
+    room = synthetic_map(rng, 45)
+    x = room.ellipsoids.centers[:, 0]
+    parts = [np.flatnonzero(x < 3.5), np.flatnonzero((x > 0.8) & (x < 4.3)), np.flatnonzero(x > 1.5)]
+    for name, part in zip("abc", parts):
+        save_map(moved(room.subset(part), Pose(random_rotation(rng), rng.uniform(-5, 5, 3)), rng), tmp_path / f"{name}.map.npz")
+    save_map(synthetic_map(rng, 45), tmp_path / "other.map.npz")
+    args = ["align", *(str(tmp_path / f"{name}.map.npz") for name in "ab"), "--out", str(tmp_path / "out"), "--no-rrd"]
+    closed = CliRunner().invoke(app, [*args, str(tmp_path / "c.map.npz")])
+    assert closed.exit_code == 0, closed.output
+    assert "cycle closes: " in closed.output and (tmp_path / "out" / "c_into_a" / "alignment.json").is_file()
+    broken = CliRunner().invoke(app, [*args, str(tmp_path / "other.map.npz")])
+    assert broken.exit_code == 0 and "cycle does not close (limits 2 deg, 0.05 m)" in broken.output, broken.output
+    assert "weakest link " in broken.output and "other.map.npz" in broken.output.split("weakest link ")[1]
+    link = {"query_map": "a", "map": "b", "candidates": [{"matrix": np.eye(4).tolist(), "confidence": 0.9}]}
+    turned = Pose(Rotation.from_euler("z", 3, degrees=True).as_matrix(), np.zeros(3)).matrix().tolist()
+    check = cycle([link, link | {"query_map": "b", "map": "c"},
+                   {"query_map": "c", "map": "a", "candidates": [{"matrix": turned, "confidence": 0.4}]}], np.eye(3))
+    assert not check.closes and check.rotation_deg == pytest.approx(3.0) and check.weakest == "c into a"

@@ -1,0 +1,73 @@
+"""The input options of a localization run, defined once: `clipclique-loc run` and `clipclique-bench` take them
+as the same options (these `Annotated` types), and a benchmark plan file as keys of the same names (`PLAN_KEYS`).
+
+Typer reads options off a command's parameters, so each CLI lists them as parameters of these types and hands
+them to `RunInputs`, which gives the `RunSettings` fields.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+INPUTS, WINDOW = "Inputs", "Window of frames"
+
+MapOption = Annotated[Optional[Path], typer.Option(
+    "--map", help="map file \\[default: outputs/maps/SEQUENCE.map.npz]", rich_help_panel=INPUTS)]
+SamePlaceOption = Annotated[bool, typer.Option(
+    "--same-place", help="the map is of another recording of this place: localize against it (poses in the map's "
+                         "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)]
+MinScoreOption = Annotated[Optional[float], typer.Option(
+    "--min-score", min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)",
+    rich_help_panel=INPUTS)]
+LabelsOption = Annotated[Optional[str], typer.Option(
+    "--labels", help="coco | lvis | FILE (one class name per line, the 0-based line the id): the label set of a "
+                     "--detector file:'s category ids \\[default: coco]", rich_help_panel=INPUTS)]
+StrictDetectionsOption = Annotated[bool, typer.Option(
+    "--strict-detections", help="refuse a detection file holding an ellipse or box under 1 pixel (default: skip "
+                                "them with one warning)", rich_help_panel=INPUTS)]
+WindowOption = Annotated[int, typer.Option(
+    "--window", min=1, help="localize each frame with the K - 1 frames before it, fused by odometry", metavar="K",
+    rich_help_panel=WINDOW)]
+WindowStepOption = Annotated[int, typer.Option(
+    "--window-step", min=1, help="the window takes every S-th frame back from the newest", metavar="S",
+    rich_help_panel=WINDOW)]
+OdometryOption = Annotated[Optional[str], typer.Option(
+    "--odometry", help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or "
+                       "groundtruth (with --odometry-drift, simulated)", rich_help_panel=WINDOW)]
+OdometryDriftOption = Annotated[float, typer.Option(
+    "--odometry-drift", min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, percent of the "
+                                                 "distance travelled", metavar="PCT", rich_help_panel=WINDOW)]
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What the shared options were given; the field names are the plan file's keys."""
+
+    map: Path | None = None
+    same_place: bool = False
+    min_score: float | None = None
+    labels: str | None = None
+    strict_detections: bool = False
+    window: int = 1
+    window_step: int = 1
+    odometry: str | None = None
+    odometry_drift: float = 0.0
+
+    def settings(self) -> dict[str, Any]:
+        """The `RunSettings` keyword arguments these inputs set."""
+        fields = asdict(self)
+        fields["map_path"] = fields.pop("map")
+        fields["min_score"] = fields["min_score"] or 0.0
+        return fields
+
+
+# plan key -> (TOML type, how the value becomes a RunInputs field)
+PLAN_KEYS: dict[str, tuple[type, Any]] = {
+    "map": (str, Path), "same_place": (bool, bool), "min_score": (float, float), "labels": (str, str),
+    "strict_detections": (bool, bool), "window": (int, int), "window_step": (int, int), "odometry": (str, str),
+    "odometry_drift": (float, float),
+}

@@ -1,0 +1,85 @@
+"""Label sets (`--labels`): names files as MSG-Loc ships them, the bundled COCO and LVIS lists, LVIS maps and
+detection files read through them, and the LVIS-to-COCO table that lets the two vocabularies meet."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from clipclique.interop.errors import InteropError
+from clipclique.interop.labels import COCO, LVIS_TO_COCO, MAX_LABELS, class_lookup, duplicate_note, label_set, read_label_file
+from clipclique.interop.maps import read_map
+from clipclique.perception.yolo import COCO_NAMES
+from tests.unit.test_interop_detections import CLASSES, detector, frame
+from tests.unit.test_interop_maps import msgloc_node
+
+
+def test_bundled_sets_hold_the_published_ids():
+    lvis = label_set("lvis")
+    assert len(lvis.names) == 1203 and lvis.names[704] == "mouse (computer equipment)" and lvis.names[0] == "aerosol can"
+    assert label_set(None) is COCO and label_set("coco").names == tuple(COCO_NAMES) and COCO.names[41] == "cup"
+    assert lvis.duplicates == {}
+    assert set(LVIS_TO_COCO) <= set(lvis.names) and set(LVIS_TO_COCO.values()) <= set(COCO_NAMES)
+
+
+def test_names_file_final_newline_optional_crlf_accepted(tmp_path):
+    for text in ("cup\nmug\nbook", "cup\nmug\nbook\n", "cup\r\nmug\r\nbook\r\n"):
+        (tmp_path / "l.txt").write_bytes(text.encode())
+        assert read_label_file(tmp_path / "l.txt").names == ("cup", "mug", "book")
+
+
+@pytest.mark.parametrize("text, problem", [
+    ("cup\n\nbook\n", r"l.txt, line 2: a blank line; every line names the class of id 1"),
+    ("", "an empty label file"),
+    ("cup\nbo\x1bok\n", "line 2 'bo.x1bok' holds a control character"),
+    ("x\n" * (MAX_LABELS + 1), "10001 lines; a label file holds at most 10,000"),
+])
+def test_hostile_names_file_refused_naming_the_line(tmp_path, text, problem):
+    (tmp_path / "l.txt").write_text(text)
+    with pytest.raises(InteropError, match=problem.replace("(", r"\(")):
+        read_label_file(tmp_path / "l.txt")
+
+
+def test_two_ids_with_one_name_are_accepted_with_a_note(tmp_path):
+    (tmp_path / "l.txt").write_text("cup\nbook\ncup\n")
+    labels = read_label_file(tmp_path / "l.txt")
+    assert labels.duplicates == {"cup": [0, 2]} and labels.name(2, "here") == "cup"
+    assert duplicate_note(labels) == [f"{tmp_path / 'l.txt'}: 1 names given to several ids (first 'cup': ids 0, 2); "
+                                      "those ids are one class"]
+
+
+def test_lvis_msgloc_map_needs_labels_lvis(tmp_path):
+    """MSG-Loc's desk_*_lvis_map.json: ids 704 (mouse) and 295 (computer keyboard) are not COCO-80 ids."""
+    path = tmp_path / "desk_yolo_lvis_map.json"
+    node = msgloc_node(baseline_label={"704.0": [0.7, [1, 2, 3]], "295.0": [0.3, [1, 2, 3]]})
+    path.write_text(json.dumps({"nodes": [node]}))
+    with pytest.raises(InteropError, match=r"category id 704 is not a coco class id \(0..79\); an LVIS file\? pass --labels lvis"):
+        read_map(path)
+    imported = read_map(path, labels=label_set("lvis"))
+    assert imported.classes == ["mouse (computer equipment)"]
+    assert imported.distributions[0] == pytest.approx({"mouse (computer equipment)": 0.7, "computer keyboard": 0.3})
+
+
+def test_vocabularies_meet_through_the_lvis_to_coco_table():
+    lvis_map = ["computer keyboard", "mouse (computer equipment)", "mug", "book", "television set"]
+    lookup = class_lookup(lvis_map)  # COCO detections against an LVIS map
+    assert [lookup[name] for name in ("keyboard", "mouse", "cup", "book", "tv")] == [0, 1, 2, 3, 4]
+    assert lookup["computer keyboard"] == 0 and "person" not in lookup
+    coco_map = ["keyboard", "mouse", "cup", "monitor"]
+    lookup = class_lookup(coco_map)  # LVIS detections against a COCO map (monitor: COCO's tv, as for YOLO)
+    assert [lookup[name] for name in ("computer keyboard", "mouse (computer equipment)", "mug", "television set")] == [0, 1, 2, 3]
+    assert "aerosol can" not in lookup
+
+
+def test_lvis_detection_file_against_a_coco_map(tmp_path):
+    path = tmp_path / "detections.json"
+    path.write_text(json.dumps([{"file_name": "rgb/1311868164.363181.png", "detections": [
+        {"category_id": 343, "detection_score": 0.9, "bbox": [58, 38, 102, 82]},  # LVIS 'cup' at the cup
+        {"category_id": 0, "detection_score": 0.8, "bbox": [0, 0, 20, 20]}]}]))  # aerosol can: not in the map
+    assert label_set("lvis").names[343] == "cup"
+    found = detector(path, labels=label_set("lvis")).detect(frame())
+    assert found.class_ids.tolist() == [CLASSES.index("cup")] and found.scores.tolist() == [0.9]
+    with pytest.raises(InteropError, match="category id 343 is not a coco class id"):
+        detector(path)  # read as COCO-80 ids

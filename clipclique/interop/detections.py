@@ -8,7 +8,10 @@ Two formats (docs/import_export.md), told apart by their entries:
   "score", "segmentation"}]`), images named through an image list (`images=FILE`, default
   `images.json` beside the results): what `--detector yolo` writes into its run folder.
 Frames are matched by file name without folder or extension (`rgb/1311868164.36.png` matches
-the frame `1311868164.36`), or by frame index when the file names frames by number.
+the frame `1311868164.36`); else by timestamp, a name that is a stamp (`1311868164.36`, with a decimal
+point) meeting the frame whose colour stamp is within MAX_TIME_DIFF of it (TUM's pairing rule: the
+detections of a TUM folder apply to the same recording's bag); else by frame index when the file
+names frames by number.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from clipclique.datasets.tum import MAX_TIME_DIFF, associate
 from clipclique.interop.boxfit import BoxSegmentation, box_mask
 from clipclique.interop.coco import (
     COCO80_INDEX,
@@ -167,9 +171,30 @@ class FileDetector:
         """COCO-80 id -> map class id (-1: dropped), by the COCO table YOLO uses (`clipclique.perception.yolo`)."""
         return coco_to_vocabulary(self.class_names)
 
+    @cached_property
+    def _stamps(self) -> tuple[np.ndarray, list[str]]:
+        """(stamps, names) of the names that are timestamps (a number with a decimal point; `12` is an index)."""
+        found = []
+        for key in self.table:
+            if "." not in key:
+                continue
+            try:
+                found.append((float(key), key))
+            except ValueError:
+                continue
+        return np.array([stamp for stamp, _ in found], np.float64), [key for _, key in found]
+
+    def listed(self, frame: Frame) -> list[FileDetection]:
+        """The frame's detections: by name, else by colour stamp within MAX_TIME_DIFF, else by index."""
+        if frame.name in self.table:
+            return self.table[frame.name]
+        stamps, names = self._stamps
+        nearest = associate(np.array([frame.timestamp], np.float64), stamps, MAX_TIME_DIFF)[0]
+        return self.table[names[nearest]] if nearest >= 0 else self.table.get(str(frame.index), [])
+
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
-        listed = self.table.get(frame.name, self.table.get(str(frame.index), []))
+        listed = self.listed(frame)
         vocabulary, index = self._vocabulary, COCO80_INDEX
         kept = [d for d in listed if d.score >= self.min_score and vocabulary[index[d.class_name]] >= 0]
         boxes = np.array([d.box for d in kept]).reshape(-1, 4)

@@ -228,3 +228,19 @@ def print_frames(console: Console, document: dict[str, Any]) -> None:
         count = frame["observations"]
         console.print(f"frame {frame['index']}{name}: {count} observation{'' if count == 1 else 's'}, "
                       f"{escape(outcome)}", highlight=False, soft_wrap=True)
+
+
+def print_survey(console: Console, survey: Any) -> None:
+    """`clipclique-loc inspect`: a bag's topics (a clipclique.datasets.rosbag.Survey), then what a run would read
+    and why, or why it cannot without a topic named."""
+    table = Table(title=escape(f"{survey.path} ({survey.duration_s:.1f} s)"), box=box.SIMPLE_HEAD)
+    for column in ("topic", "type", "messages", "rate (Hz)", "encoding", "frame", "role"):
+        table.add_column(column, justify="right" if column in ("messages", "rate (Hz)") else "left")
+    for topic in survey.topics:
+        table.add_row(escape(topic.name), escape(topic.msgtype), str(topic.count), f"{topic.rate_hz:.1f}",
+                      escape(topic.encoding), escape(topic.frame_id), topic.role)
+    print_whole(console, table)
+    for reason in survey.reasons:
+        console.print(f"reads {escape(reason)}", highlight=False, soft_wrap=True)
+    if survey.problem:
+        console.print(f"cannot read it as is: {escape(survey.problem)}", highlight=False, soft_wrap=True)

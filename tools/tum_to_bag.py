@@ -121,6 +121,7 @@ def write_bag(folder: Path, out: Path, storage: str = "ros1", layout: str = "tum
     """Write the TUM folder `folder` as a bag at `out` (a .bag file for ros1, else a ROS 2 folder); `out`."""
     ros1 = storage == "ros1"
     store = typestore(ros1)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
     names = LAYOUTS[layout]
     types = {"colour": "sensor_msgs/msg/CompressedImage" if layout == "realsense" else "sensor_msgs/msg/Image",
              "depth": "sensor_msgs/msg/Image", "info": "sensor_msgs/msg/CameraInfo", "tf": "tf2_msgs/msg/TFMessage"}

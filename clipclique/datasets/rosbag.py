@@ -297,18 +297,19 @@ class BagSequence(Sequence):
             nearest = associate(self.timestamps, times)
             return [poses[k] if k >= 0 else None for k in nearest]
         if self.options.gt_frames is not None:
-            return self.tf_poses(self.options.gt_frames, "--gt-frames")
+            return self.tf_poses(self.options.gt_frames, "--gt-frames ")
         return [None] * len(self.colour)
 
     def tf_poses(self, spec: str, flag: str) -> list[Pose | None]:
-        """Each frame's pose of CHILD in PARENT (`spec` "PARENT:CHILD") from /tf, static transforms applied."""
+        """Each frame's pose of CHILD in PARENT (`spec` "PARENT:CHILD") from /tf, static transforms applied; errors
+        name `flag` + `spec` ("--gt-frames world:camera")."""
         parent, sep, child = spec.partition(":")
         if not sep or not parent or not child:
-            raise DatasetError(f"{flag} {spec!r}: expected PARENT:CHILD, two tf frame names (e.g. world:camera)")
+            raise DatasetError(f"{flag}{spec!r}: expected PARENT:CHILD, two tf frame names (e.g. world:camera)")
         try:
             return self.tf.poses(parent, child, self.timestamps, MAX_TIME_DIFF)
         except DatasetError as error:
-            raise DatasetError(f"{self.root}: {flag} {spec}: {error}") from None
+            raise DatasetError(f"{self.root}: {flag}{spec}: {error}") from None
 
     def odometry_track(self, topic: str) -> tuple[np.ndarray, list[Pose]]:
         """(stamps, camera poses) of a nav_msgs/Odometry topic; its child frame is carried to the colour

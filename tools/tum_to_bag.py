@@ -89,7 +89,8 @@ def image(store, stamp: float, frame: str, pixels: np.ndarray, encoding: str, ro
     height, width = pixels.shape[:2]
     data = np.ascontiguousarray(pixels).view(np.uint8).reshape(-1)
     return store.types["sensor_msgs/msg/Image"](header=header(store, stamp, frame, ros1), height=height, width=width,
-                                                 encoding=encoding, is_bigendian=0, step=len(data) // height, data=data)
+                                                 encoding=encoding, is_bigendian=0,
+                                                 step=pixels.dtype.itemsize * int(np.prod(pixels.shape[1:])), data=data)
 
 
 def compressed(store, stamp: float, frame: str, pixels: np.ndarray, ros1: bool):

@@ -231,7 +231,7 @@ class BagSequence(Sequence):
         self.name = self.root.name if self.root.is_dir() else self.root.stem
         self.options = options or BagOptions()
         if self.options.depth_scale is not None and not (np.isfinite(self.options.depth_scale) and self.options.depth_scale > 0):
-            raise DatasetError(f"--depth-scale {self.options.depth_scale:g}: metres per depth unit must be a positive number")
+            raise DatasetError(f"{self.root}: --depth-scale {self.options.depth_scale:g}: metres per depth unit must be a positive number")
         self.bag = BagReader(self.root)
         self.survey = survey(self.bag, self.options)
         if self.survey.problem:

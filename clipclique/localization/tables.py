@@ -174,8 +174,10 @@ def failure_line(document: dict[str, Any], title: str) -> str | None:
 
 
 def unscored_line(document: dict[str, Any], title: str) -> str | None:
-    """When no frame has a ground-truth pose (a bag run without --groundtruth): say so, not a table of dashes alone."""
-    if any(frame["gt_pose"] is not None for frame in document["frames"]):
+    """When no frame has a ground-truth pose (a bag run without --groundtruth): say so, not a table of dashes alone.
+    (Success is averaged over the frames with ground truth: null when there is none.)"""
+    summary = document["summary"]
+    if not summary["frames"] or summary.get("success@1") is not None:
         return None
     return f"{title}: no ground truth: poses written (poses.tum), not scored"
 

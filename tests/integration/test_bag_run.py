@@ -124,3 +124,23 @@ def test_inspect_lists_topics_and_says_what_it_reads(recording):
     assert "encoding 16UC1" in result.output and "encoding jpeg" in result.output
     assert "reads colour: /camera/color/image_raw/compressed (the only colour image topic)" in result.output
     assert "reads camera_info: /camera/color/camera_info (the only CameraInfo topic)" in result.output
+
+
+def test_the_benchmark_takes_a_bag_with_its_default_map(recording, folder_run, tmp_path, monkeypatch):
+    """clipclique-bench BAG reads outputs/maps/<the bag's stem>.map.npz, as it reads every scene's (without it, one
+    line says a bag holds none) and decides as the folder; unscored: the benchmark passes no ground truth to a bag."""
+    from clipclique.benchmark.cli import app as bench
+
+    monkeypatch.chdir(tmp_path)
+    args = [str(recording["mcap"]), "--detector", f"file:{recording['detections']}", "--encoder", "none",
+            "--out", "bench", "--cache", "cache", "-q"]
+    missing = RUNNER.invoke(bench, args)
+    assert missing.exit_code == 2 and "no map for the bag" in missing.output and "a bag holds none" in missing.output
+    (tmp_path / "outputs" / "maps").mkdir(parents=True)
+    (tmp_path / "outputs" / "maps" / "demo_tum.map.npz").write_bytes(recording["map"].read_bytes())
+    result = RUNNER.invoke(bench, args)
+    assert result.exit_code == 0, result.output
+    (results,) = (tmp_path / "bench" / "demo_tum").glob("*/results.json")
+    unscored = [frame | {"translation_error_m": None, "rotation_error_deg": None} for frame in decisions(folder_run)]
+    comparison = compare(unscored, decisions(read_results(results)))
+    assert comparison.frames == 8 and comparison.differing == {}, comparison.report()

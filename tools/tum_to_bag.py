@@ -11,7 +11,8 @@ Storage: a ROS 1 `.bag`, or a ROS 2 folder in mcap or sqlite3 (`--storage`). Mes
 order one at a time, so a long sequence never sits in memory; `--repeat N` writes the sequence N times
 over (later copies shifted in time), for memory benchmarks. A bag holds no annotations; for a generated
 scene, `--detections FILE.json --map MAP` also writes what its simulated detector sees in each frame of the
-folder (COCO results in MAP's classes, their images.json beside), for `clipclique-loc run BAG --detector file:FILE.json`.
+folder (COCO results in MAP's classes, their images.json beside), for
+`clipclique-loc run BAG --detector file:FILE.json`.
 
     python tools/tum_to_bag.py data/demo/demo_tum demo_tum.bag --map outputs/maps/demo_tum.map.npz \
         --detections demo_tum.detections.json
@@ -34,10 +35,18 @@ from clipclique.datasets.tum import DEPTH_FACTOR, TumSequence, read_file_list, r
 from clipclique.types import Pose
 
 LAYOUTS = {
-    "tum": {"colour": "/camera/rgb/image_color", "depth": "/camera/depth/image", "info": "/camera/rgb/camera_info",
-            "frame": "openni_rgb_optical_frame"},
-    "realsense": {"colour": "/camera/color/image_raw/compressed", "depth": "/camera/aligned_depth_to_color/image_raw",
-                  "info": "/camera/color/camera_info", "frame": "camera_color_optical_frame"},
+    "tum": {
+        "colour": "/camera/rgb/image_color",
+        "depth": "/camera/depth/image",
+        "info": "/camera/rgb/camera_info",
+        "frame": "openni_rgb_optical_frame",
+    },
+    "realsense": {
+        "colour": "/camera/color/image_raw/compressed",
+        "depth": "/camera/aligned_depth_to_color/image_raw",
+        "info": "/camera/color/camera_info",
+        "frame": "camera_color_optical_frame",
+    },
 }
 WORLD, BODY = "world", "kinect"
 # The camera's optical frame on the body: x right, y down, z forward, with the body's x forward (REP 103).
@@ -67,11 +76,15 @@ def transform(store, stamp: float, parent: str, child: str, pose: Pose, ros1: bo
     types = store.types
     q = Rotation.from_matrix(pose.rotation).as_quat()
     return types["geometry_msgs/msg/TransformStamped"](
-        header=header(store, stamp, parent, ros1), child_frame_id=child,
+        header=header(store, stamp, parent, ros1),
+        child_frame_id=child,
         transform=types["geometry_msgs/msg/Transform"](
-            translation=types["geometry_msgs/msg/Vector3"](x=float(pose.translation[0]), y=float(pose.translation[1]),
-                                                           z=float(pose.translation[2])),
-            rotation=types["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))))
+            translation=types["geometry_msgs/msg/Vector3"](
+                x=float(pose.translation[0]), y=float(pose.translation[1]), z=float(pose.translation[2])
+            ),
+            rotation=types["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+        ),
+    )
 
 
 def camera_info(store, stamp: float, frame: str, size: tuple[int, int], k: np.ndarray, ros1: bool):
@@ -80,24 +93,38 @@ def camera_info(store, stamp: float, frame: str, size: tuple[int, int], k: np.nd
     p = np.hstack([k, np.zeros((3, 1))]).reshape(-1)
     values = (np.zeros(5), k.reshape(-1).astype(np.float64), np.eye(3).reshape(-1), p)
     roi = store.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return store.types["sensor_msgs/msg/CameraInfo"](header=header(store, stamp, frame, ros1), height=height, width=width,
-                                                      distortion_model="plumb_bob", **dict(zip(names, values)),
-                                                      binning_x=0, binning_y=0, roi=roi)
+    return store.types["sensor_msgs/msg/CameraInfo"](
+        header=header(store, stamp, frame, ros1),
+        height=height,
+        width=width,
+        distortion_model="plumb_bob",
+        **dict(zip(names, values)),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
+    )
 
 
 def image(store, stamp: float, frame: str, pixels: np.ndarray, encoding: str, ros1: bool):
     height, width = pixels.shape[:2]
     data = np.ascontiguousarray(pixels).view(np.uint8).reshape(-1)
-    return store.types["sensor_msgs/msg/Image"](header=header(store, stamp, frame, ros1), height=height, width=width,
-                                                 encoding=encoding, is_bigendian=0,
-                                                 step=pixels.dtype.itemsize * int(np.prod(pixels.shape[1:])), data=data)
+    return store.types["sensor_msgs/msg/Image"](
+        header=header(store, stamp, frame, ros1),
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=pixels.dtype.itemsize * int(np.prod(pixels.shape[1:])),
+        data=data,
+    )
 
 
 def compressed(store, stamp: float, frame: str, pixels: np.ndarray, ros1: bool):
     buffer = io.BytesIO()
     Image.fromarray(pixels).save(buffer, "JPEG", quality=95)
-    return store.types["sensor_msgs/msg/CompressedImage"](header=header(store, stamp, frame, ros1), format="jpeg",
-                                                           data=np.frombuffer(buffer.getvalue(), np.uint8))
+    return store.types["sensor_msgs/msg/CompressedImage"](
+        header=header(store, stamp, frame, ros1), format="jpeg", data=np.frombuffer(buffer.getvalue(), np.uint8)
+    )
 
 
 def events(folder: Path, layout: str, repeat: int) -> Iterator[tuple[float, str, str, object]]:
@@ -105,7 +132,9 @@ def events(folder: Path, layout: str, repeat: int) -> Iterator[tuple[float, str,
     names = LAYOUTS[layout]
     rgb_times, rgb_files = read_file_list(folder / "rgb.txt")
     depth_times, depth_files = read_file_list(folder / "depth.txt")
-    gt_times, gt_poses = read_trajectory(folder / "groundtruth.txt") if (folder / "groundtruth.txt").exists() else ([], [])
+    gt_times, gt_poses = (
+        read_trajectory(folder / "groundtruth.txt") if (folder / "groundtruth.txt").exists() else ([], [])
+    )
     span = max([*rgb_times, *depth_times, *gt_times]) - min([*rgb_times, *depth_times, *gt_times]) + 1.0
     found = [(float(min(rgb_times)) - 1e-3, "/tf_static", "tf", ("static", OPTICAL))]
     for copy in range(repeat):
@@ -113,7 +142,10 @@ def events(folder: Path, layout: str, repeat: int) -> Iterator[tuple[float, str,
         found += [(t + shift, names["colour"], "colour", folder / f) for t, f in zip(rgb_times, rgb_files)]
         found += [(t + shift, names["info"], "info", folder / f) for t, f in zip(rgb_times, rgb_files)]
         found += [(t + shift, names["depth"], "depth", folder / f) for t, f in zip(depth_times, depth_files)]
-        found += [(t + shift, "/tf", "tf", ("dynamic", pose.compose(OPTICAL.inverse()))) for t, pose in zip(gt_times, gt_poses)]
+        found += [
+            (t + shift, "/tf", "tf", ("dynamic", pose.compose(OPTICAL.inverse())))
+            for t, pose in zip(gt_times, gt_poses)
+        ]
     found.sort(key=lambda event: event[0])
     return iter(found)
 
@@ -124,8 +156,12 @@ def write_bag(folder: Path, out: Path, storage: str = "ros1", layout: str = "tum
     store = typestore(ros1)
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     names = LAYOUTS[layout]
-    types = {"colour": "sensor_msgs/msg/CompressedImage" if layout == "realsense" else "sensor_msgs/msg/Image",
-             "depth": "sensor_msgs/msg/Image", "info": "sensor_msgs/msg/CameraInfo", "tf": "tf2_msgs/msg/TFMessage"}
+    types = {
+        "colour": "sensor_msgs/msg/CompressedImage" if layout == "realsense" else "sensor_msgs/msg/Image",
+        "depth": "sensor_msgs/msg/Image",
+        "info": "sensor_msgs/msg/CameraInfo",
+        "tf": "tf2_msgs/msg/TFMessage",
+    }
     if ros1:
         from rosbags.rosbag1 import Writer
 
@@ -133,7 +169,9 @@ def write_bag(folder: Path, out: Path, storage: str = "ros1", layout: str = "tum
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3)
+        writer = Writer(
+            out, version=9, storage_plugin=StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        )
     k = TumSequence(Path(folder)).intrinsics
     with writer:
         connections: dict[str, object] = {}
@@ -143,14 +181,24 @@ def write_bag(folder: Path, out: Path, storage: str = "ros1", layout: str = "tum
             if kind == "tf":
                 which, pose = payload
                 parent, child = (BODY, names["frame"]) if which == "static" else (WORLD, BODY)
-                message = store.types["tf2_msgs/msg/TFMessage"](transforms=[transform(store, stamp, parent, child, pose, ros1)])
+                message = store.types["tf2_msgs/msg/TFMessage"](
+                    transforms=[transform(store, stamp, parent, child, pose, ros1)]
+                )
             elif kind == "depth":
                 metres = np.asarray(Image.open(payload), np.uint16).astype(np.float32) / np.float32(DEPTH_FACTOR)
                 if layout == "realsense":
-                    message = image(store, stamp, names["frame"], np.round(metres * 1000).astype(np.uint16), "16UC1", ros1)
+                    message = image(
+                        store, stamp, names["frame"], np.round(metres * 1000).astype(np.uint16), "16UC1", ros1
+                    )
                 else:
-                    message = image(store, stamp, names["frame"], np.where(metres > 0, metres, np.nan).astype(np.float32),
-                                    "32FC1", ros1)
+                    message = image(
+                        store,
+                        stamp,
+                        names["frame"],
+                        np.where(metres > 0, metres, np.nan).astype(np.float32),
+                        "32FC1",
+                        ros1,
+                    )
             else:
                 rgb = np.asarray(Image.open(payload).convert("RGB"))
                 if kind == "info":

@@ -1,9 +1,9 @@
 """ROS bags as sequences: a ROS 1 `.bag`, a ROS 2 bag folder (sqlite3 or mcap storage) or its `.mcap`/`.db3`.
 
-Read through `rosbags` (pure Python, no ROS install). Opening a bag makes one pass over its colour, depth,
-CameraInfo and `/tf` messages, one message at a time, keeping only each image's stamps and where it lies
-(the bag's receive time): frames are then read from the bag when asked for, so memory stays flat in the
-bag's length.
+Read through `rosbags` (pure Python, no ROS install). Opening a bag makes one pass over its colour, depth
+and CameraInfo messages, one message at a time, keeping only each image's stamps and where it lies (the
+bag's receive time): frames are then read from the bag when asked for, so memory stays flat in the bag's
+length. `/tf` is read only for ground truth or odometry from it.
 
 - Topics: chosen when unambiguous (one colour `sensor_msgs/Image` or `CompressedImage` topic, one depth
   topic, told apart by their first message's encoding, and the CameraInfo beside the colour topic), else
@@ -24,6 +24,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -108,12 +109,15 @@ class BagReader:
                 reader = AnyReader([self.path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
                 reader.open()
             except Exception as error:  # rosbags raises many kinds; every one is an unreadable bag
-                raise DatasetError(f"{self.path}: not a readable ROS bag ({one_line(error) or type(error).__name__})") from None
+                raise DatasetError(
+                    f"{self.path}: not a readable ROS bag ({one_line(error) or type(error).__name__})"
+                ) from None
             self._local.reader = reader
         return reader
 
-    def messages(self, topics: list[str], start: int | None = None,
-                 stop: int | None = None) -> Iterator[tuple[str, int, object]]:
+    def messages(
+        self, topics: list[str], start: int | None = None, stop: int | None = None
+    ) -> Iterator[tuple[str, int, object]]:
         """(topic, receive time ns, message) of `topics` in time order, deserialized one at a time."""
         reader = self.reader
         connections = [c for c in reader.connections if c.topic in topics]
@@ -125,8 +129,10 @@ class BagReader:
         except DatasetError:
             raise
         except Exception as error:
-            raise DatasetError(f"{self.path}: unreadable message ({one_line(error) or type(error).__name__}); "
-                               "the bag may be truncated or damaged") from None
+            raise DatasetError(
+                f"{self.path}: unreadable message ({one_line(error) or type(error).__name__}); "
+                "the bag may be truncated or damaged"
+            ) from None
 
     def first(self, topic: str) -> object | None:
         return next((message for _, _, message in self.messages([topic])), None)
@@ -145,7 +151,11 @@ def _role(msgtype: str, first: object | None) -> str:
         if first is None:
             return ""
         encoding = encoding_of(first)
-        return "depth" if ("compressedDepth" in encoding or (not is_compressed(first) and encoding in DEPTH_IMAGE_ENCODINGS)) else "colour"
+        return (
+            "depth"
+            if ("compressedDepth" in encoding or (not is_compressed(first) and encoding in DEPTH_IMAGE_ENCODINGS))
+            else "colour"
+        )
     return {CAMERA_INFO: "camera_info", TF_TYPE: "tf", ODOMETRY_TYPE: "odometry"}.get(msgtype, "")
 
 
@@ -156,9 +166,17 @@ def survey(bag: BagReader, options: BagOptions = BagOptions()) -> Survey:
     for name, (msgtype, count) in sorted(bag.topics().items()):
         first = bag.first(name) if msgtype in IMAGE_TYPES and count else None
         header = getattr(first, "header", None)
-        topics.append(Topic(name, msgtype, count, count / duration if duration > 0 else 0.0,
-                            encoding_of(first) if first is not None else "",
-                            frame_id(header.frame_id) if header is not None else "", _role(msgtype, first)))
+        topics.append(
+            Topic(
+                name,
+                msgtype,
+                count,
+                count / duration if duration > 0 else 0.0,
+                encoding_of(first) if first is not None else "",
+                frame_id(header.frame_id) if header is not None else "",
+                _role(msgtype, first),
+            )
+        )
     found = Survey(bag.path, duration, topics)
     try:
         _choose(found, options)
@@ -170,8 +188,11 @@ def survey(bag: BagReader, options: BagOptions = BagOptions()) -> Survey:
 def _choose(found: Survey, options: BagOptions) -> None:
     """Fill `found.chosen` and its reasons; a DatasetError naming the bag and the option when it cannot."""
     by_name = {topic.name: topic for topic in found.topics}
-    given = {"colour": (options.rgb_topic, "--rgb-topic"), "depth": (options.depth_topic, "--depth-topic"),
-             "camera_info": (options.camera_info_topic, "--camera-info-topic")}
+    given = {
+        "colour": (options.rgb_topic, "--rgb-topic"),
+        "depth": (options.depth_topic, "--depth-topic"),
+        "camera_info": (options.camera_info_topic, "--camera-info-topic"),
+    }
     for role, (name, flag) in given.items():
         if name is None:
             continue
@@ -202,11 +223,15 @@ def _choose(found: Survey, options: BagOptions) -> None:
             found.chosen["camera_info"] = infos[0]
             found.reasons.append(f"camera_info: {infos[0]} (the only CameraInfo topic)")
         elif not infos:
-            raise DatasetError(f"{found.path}: no sensor_msgs/CameraInfo topic: the camera's intrinsics are unknown "
-                               "(record the colour camera's camera_info with the images)")
+            raise DatasetError(
+                f"{found.path}: no sensor_msgs/CameraInfo topic: the camera's intrinsics are unknown "
+                "(record the colour camera's camera_info with the images)"
+            )
         else:
-            raise DatasetError(f"{found.path}: {len(infos)} CameraInfo topics ({', '.join(infos)}) and none beside "
-                               f"{found.chosen['colour']}; name one with --camera-info-topic TOPIC")
+            raise DatasetError(
+                f"{found.path}: {len(infos)} CameraInfo topics ({', '.join(infos)}) and none beside "
+                f"{found.chosen['colour']}; name one with --camera-info-topic TOPIC"
+            )
 
 
 @dataclass
@@ -230,49 +255,57 @@ class BagSequence(Sequence):
         self.root = Path(path)
         self.name = self.root.name if self.root.is_dir() else self.root.stem
         self.options = options or BagOptions()
-        if self.options.depth_scale is not None and not (np.isfinite(self.options.depth_scale) and self.options.depth_scale > 0):
-            raise DatasetError(f"{self.root}: --depth-scale {self.options.depth_scale:g}: metres per depth unit must be a positive number")
+        if self.options.depth_scale is not None and not (
+            np.isfinite(self.options.depth_scale) and self.options.depth_scale > 0
+        ):
+            raise DatasetError(
+                f"{self.root}: --depth-scale {self.options.depth_scale:g}: metres per depth unit must be a "
+                "positive number"
+            )
         self.bag = BagReader(self.root)
         self.survey = survey(self.bag, self.options)
         if self.survey.problem:
             raise DatasetError(self.survey.problem)
         self.topics = self.survey.chosen
         self._notes: list[str] = []
-        self.tf = TfTree()
         colour, depth, info = self._index()
         self.intrinsics, self.distortion = self._camera(info)
         pairs = associate(np.array([c.stamp for c in colour]), np.array([d.stamp for d in depth]))
         keep = np.flatnonzero(pairs >= 0)
         if not len(keep):
-            raise DatasetError(f"{self.root}: no image of {self.topics['colour']} ({len(colour)}) has a depth image of "
-                               f"{self.topics['depth']} ({len(depth)}) within {MAX_TIME_DIFF} s of its header.stamp")
+            raise DatasetError(
+                f"{self.root}: no image of {self.topics['colour']} ({len(colour)}) has a depth image of "
+                f"{self.topics['depth']} ({len(depth)}) within {MAX_TIME_DIFF} s of its header.stamp"
+            )
         self.colour = [colour[k] for k in keep]
         self.depth = [depth[pairs[k]] for k in keep]
         self.timestamps = np.array([c.stamp for c in self.colour])
         self.poses = self._ground_truth()
 
     def _index(self) -> tuple[list[Stamped], list[Stamped], object]:
-        """One pass over the chosen topics and /tf: image stamps, the first CameraInfo, the tf tree."""
+        """One pass over the chosen topics: image stamps and the first CameraInfo (/tf waits until asked: `tf`)."""
         colour: list[Stamped] = []
         depth: list[Stamped] = []
         info = None
         frames: dict[str, str] = {}
-        wanted = [self.topics["colour"], self.topics["depth"], self.topics["camera_info"], *TF_TOPICS]
+        wanted = [self.topics["colour"], self.topics["depth"], self.topics["camera_info"]]
         for topic, time_ns, message in self.bag.messages(wanted):
-            if topic in TF_TOPICS:
-                self.tf.add(message, TF_TOPICS[topic], f"{self.root}, {topic}")
-            elif topic == self.topics["camera_info"]:
+            if topic == self.topics["camera_info"]:
                 info = info or message
             else:
-                (colour if topic == self.topics["colour"] else depth).append(Stamped(time_ns, stamp_seconds(message.header.stamp)))
+                (colour if topic == self.topics["colour"] else depth).append(
+                    Stamped(time_ns, stamp_seconds(message.header.stamp))
+                )
                 frames.setdefault(topic, frame_id(message.header.frame_id))
         if info is None:
             raise DatasetError(f"{self.root}: {self.topics['camera_info']} holds no CameraInfo message")
         colour_frame, depth_frame = frames.get(self.topics["colour"]), frames.get(self.topics["depth"])
         if colour_frame and depth_frame and colour_frame != depth_frame:
-            self._notes.append(f"depth ({self.topics['depth']}, frame {depth_frame}) is read as registered to colour "
-                               f"({self.topics['colour']}, frame {colour_frame}); if it is not, record the aligned "
-                               "depth (RealSense: aligned_depth_to_color)")
+            self._notes.append(
+                f"depth ({self.topics['depth']}, frame {depth_frame}) is read as registered to colour "
+                f"({self.topics['colour']}, frame {colour_frame}); if it is not, record the aligned "
+                "depth (RealSense: aligned_depth_to_color)"
+            )
         self.colour_frame = colour_frame or ""
         return colour, depth, info
 
@@ -285,8 +318,10 @@ class BagSequence(Sequence):
             raise DatasetError(f"{where}: K {k.tolist()} is not a camera matrix (fx, fy, cx, cy > 0)")
         self.info_size = (int(info.height), int(info.width))
         if d.size and np.any(np.abs(d) > 1e-9):
-            self._notes.append(f"{self.topics['camera_info']}: the images are distorted ({info.distortion_model} "
-                               f"{np.round(d, 4).tolist()}); the distortion is ignored")
+            self._notes.append(
+                f"{self.topics['camera_info']}: the images are distorted ({info.distortion_model} "
+                f"{np.round(d, 4).tolist()}); the distortion is ignored"
+            )
         return k.reshape(3, 3), d
 
     def _ground_truth(self) -> list[Pose | None]:
@@ -299,6 +334,15 @@ class BagSequence(Sequence):
         if self.options.gt_frames is not None:
             return self.tf_poses(self.options.gt_frames, "--gt-frames ")
         return [None] * len(self.colour)
+
+    @cached_property
+    def tf(self) -> TfTree:
+        """/tf and /tf_static, read in one pass of their own when ground truth or odometry asks (a 100 Hz /tf
+        holds more messages than the images: a run without them never reads it)."""
+        tree = TfTree()
+        for topic, _, message in self.bag.messages(list(TF_TOPICS)):
+            tree.add(message, TF_TOPICS[topic], f"{self.root}, {topic}")
+        return tree
 
     def tf_poses(self, spec: str, flag: str) -> list[Pose | None]:
         """Each frame's pose of CHILD in PARENT (`spec` "PARENT:CHILD") from /tf, static transforms applied; errors
@@ -322,12 +366,16 @@ class BagSequence(Sequence):
             poses.append(transform_pose(message.pose.pose))
             child = child or frame_id(message.child_frame_id)
         try:
-            extrinsic = self.tf.poses(child, self.colour_frame, np.zeros(1), np.inf)[0] if child and self.colour_frame else None
+            extrinsic = (
+                self.tf.poses(child, self.colour_frame, np.zeros(1), np.inf)[0] if child and self.colour_frame else None
+            )
         except DatasetError:
             extrinsic = None
         if extrinsic is None:
-            self._notes.append(f"--odometry topic:{topic}: /tf does not connect its frame {child or '?'} to the colour "
-                               f"camera's {self.colour_frame or '?'}; its poses are taken as the camera's")
+            self._notes.append(
+                f"--odometry topic:{topic}: /tf does not connect its frame {child or '?'} to the colour "
+                f"camera's {self.colour_frame or '?'}; its poses are taken as the camera's"
+            )
         else:
             poses = [pose.compose(extrinsic) for pose in poses]
         return np.array(times), poses
@@ -340,8 +388,10 @@ class BagSequence(Sequence):
         if not missing:
             return None
         if self.options.groundtruth is None and self.options.gt_frames is None:
-            return (f"{missing} of {len(self)} frames have no ground-truth pose: a bag holds none unless told "
-                    "(--groundtruth FILE.txt or --gt-frames WORLD:CAMERA)")
+            return (
+                f"{missing} of {len(self)} frames have no ground-truth pose: a bag holds none unless told "
+                "(--groundtruth FILE.txt or --gt-frames WORLD:CAMERA)"
+            )
         source = self.options.groundtruth or f"/tf {self.options.gt_frames}"
         return f"{missing} of {len(self)} frames have no ground-truth pose: {source} has none within {MAX_TIME_DIFF} s"
 
@@ -367,15 +417,25 @@ class BagSequence(Sequence):
         rgb_msg = self._message(self.topics["colour"], self.colour[i])
         rgb = decode_colour(rgb_msg, f"{self.root}, {self.topics['colour']} at {name}")
         if self.info_size != (0, 0) and rgb.shape[:2] != self.info_size:
-            raise DatasetError(f"{self.root}, {self.topics['colour']} at {name}: image is {rgb.shape[1]} x {rgb.shape[0]}, "
-                               f"its CameraInfo ({self.topics['camera_info']}) {self.info_size[1]} x {self.info_size[0]}")
+            raise DatasetError(
+                f"{self.root}, {self.topics['colour']} at {name}: image is {rgb.shape[1]} x {rgb.shape[0]}, "
+                f"its CameraInfo ({self.topics['camera_info']}) {self.info_size[1]} x {self.info_size[0]}"
+            )
         depth_msg = self._message(self.topics["depth"], self.depth[i])
         where = f"{self.root}, {self.topics['depth']} at {self.depth[i].stamp:.6f}"
         depth = decode_depth(depth_msg, where, self.options.depth_scale)
         del depth_msg, rgb_msg
         intrinsics = intrinsics_for(self.intrinsics, depth.shape, Path(where), f"{self.topics['camera_info']}'s K")
-        return Frame(i, float(self.timestamps[i]), resize_rgb(rgb, depth.shape), depth, intrinsics, self.poses[i],
-                     None, name=name)
+        return Frame(
+            i,
+            float(self.timestamps[i]),
+            resize_rgb(rgb, depth.shape),
+            depth,
+            intrinsics,
+            self.poses[i],
+            None,
+            name=name,
+        )
 
     def instances(self) -> list[Instance]:
         return []

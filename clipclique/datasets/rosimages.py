@@ -34,13 +34,21 @@ def _raw_pixels(msg: object, dtype: np.dtype, channels: int, where: str) -> np.n
     if height <= 0 or width <= 0:
         raise DatasetError(f"{where}: image is {width} x {height} pixels (empty)")
     if height * width > MAX_IMAGE_PIXELS:
-        raise DatasetError(f"{where}: image declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS} allowed")
+        raise DatasetError(
+            f"{where}: image declares {width} x {height} pixels, more than the {MAX_IMAGE_PIXELS} allowed"
+        )
     row = width * channels * dtype.itemsize
     data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
     if step < row or len(data) < step * (height - 1) + row:
-        raise DatasetError(f"{where}: {msg.encoding} image of {width} x {height} needs {height} rows of {row} bytes, "
-                           f"the message has {len(data)} bytes with a step of {step}")
-    rows = np.lib.stride_tricks.as_strided(data, (height, row), (step, 1)) if step != row else data[:height * row].reshape(height, row)
+        raise DatasetError(
+            f"{where}: {msg.encoding} image of {width} x {height} needs {height} rows of {row} bytes, "
+            f"the message has {len(data)} bytes with a step of {step}"
+        )
+    rows = (
+        np.lib.stride_tricks.as_strided(data, (height, row), (step, 1))
+        if step != row
+        else data[: height * row].reshape(height, row)
+    )
     order = ">" if msg.is_bigendian else "<"
     pixels = np.ascontiguousarray(rows).view(dtype.newbyteorder(order)).astype(dtype.newbyteorder("="), copy=False)
     return pixels.reshape(height, width, channels) if channels > 1 else pixels.reshape(height, width)
@@ -59,8 +67,10 @@ def decode_colour(msg: object, where: str) -> np.ndarray:
     if encoding in ("rgb8", "bgr8"):
         pixels = _raw_pixels(msg, np.dtype(np.uint8), 3, where)
         return pixels if encoding == "rgb8" else np.ascontiguousarray(pixels[..., ::-1])
-    raise DatasetError(f"{where}: colour encoding {encoding!r} is not read; expected one of "
-                       f"{', '.join(COLOUR_ENCODINGS)} or a JPEG/PNG CompressedImage")
+    raise DatasetError(
+        f"{where}: colour encoding {encoding!r} is not read; expected one of "
+        f"{', '.join(COLOUR_ENCODINGS)} or a JPEG/PNG CompressedImage"
+    )
 
 
 def decode_depth(msg: object, where: str, depth_scale: float | None = None) -> np.ndarray:
@@ -71,8 +81,10 @@ def decode_depth(msg: object, where: str, depth_scale: float | None = None) -> n
     else:
         encoding = str(msg.encoding)
         if encoding not in DEPTH_ENCODINGS:
-            raise DatasetError(f"{where}: depth encoding {encoding!r} is not read; expected 32FC1 (metres), "
-                               "16UC1 (millimetres) or a compressedDepth CompressedImage")
+            raise DatasetError(
+                f"{where}: depth encoding {encoding!r} is not read; expected 32FC1 (metres), "
+                "16UC1 (millimetres) or a compressedDepth CompressedImage"
+            )
         dtype = np.dtype(np.float32 if encoding == "32FC1" else np.uint16)
         stored, unit = _raw_pixels(msg, dtype, 1, where), DEPTH_ENCODINGS[encoding]
     metres = stored.astype(np.float32) * np.float32(depth_scale or unit)
@@ -85,12 +97,16 @@ def _compressed_depth(msg: object, where: str) -> tuple[np.ndarray, float]:
     quantised inverse depth to metres (unit 1), `16UC1` stays millimetres."""
     fmt = str(msg.format)
     if "compressedDepth" not in fmt:
-        raise DatasetError(f"{where}: a CompressedImage depth must be compressedDepth (format {fmt!r}); a JPEG or PNG "
-                           "colour format holds no depth")
+        raise DatasetError(
+            f"{where}: a CompressedImage depth must be compressedDepth (format {fmt!r}); a JPEG or PNG "
+            "colour format holds no depth"
+        )
     data = bytes(msg.data)
     if len(data) <= COMPRESSED_DEPTH_HEADER:
-        raise DatasetError(f"{where}: compressedDepth message of {len(data)} bytes holds no image after its "
-                           f"{COMPRESSED_DEPTH_HEADER}-byte header")
+        raise DatasetError(
+            f"{where}: compressedDepth message of {len(data)} bytes holds no image after its "
+            f"{COMPRESSED_DEPTH_HEADER}-byte header"
+        )
     _, quant_a, quant_b = struct.unpack("<iff", data[:COMPRESSED_DEPTH_HEADER])
     png = decode_image(data[COMPRESSED_DEPTH_HEADER:], where, None, DatasetError)
     if png.ndim != 2 or png.dtype.kind not in "ui" or png.size == 0:

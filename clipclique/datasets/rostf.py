@@ -82,8 +82,8 @@ class TfTree:
         if common is None:
             known = ", ".join(sorted(self.frames())) or "none"
             raise DatasetError(f"/tf does not connect {parent} to {child} (frames in /tf and /tf_static: {known})")
-        down = up_from[child][:up_from[child].index(common) + 1][::-1]  # common ... child
-        up = up_from[parent][:up_from[parent].index(common) + 1]  # parent ... common
+        down = up_from[child][: up_from[child].index(common) + 1][::-1]  # common ... child
+        up = up_from[parent][: up_from[parent].index(common) + 1]  # parent ... common
         steps = [(self.edges[self.parent[a], a], True) for a in up[:-1]]
         return steps + [(self.edges[a, b], False) for a, b in zip(down, down[1:])]
 
@@ -99,8 +99,10 @@ class TfTree:
         out: list[Pose | None] = [Pose(np.eye(3), np.zeros(3))] * len(times)
         for edge, inverted in self.path(parent, child):
             samples = edge.at(np.asarray(times, np.float64), max_diff)
-            out = [None if a is None or b is None else a.compose(b.inverse() if inverted else b)
-                   for a, b in zip(out, samples)]
+            out = [
+                None if a is None or b is None else a.compose(b.inverse() if inverted else b)
+                for a, b in zip(out, samples)
+            ]
         return out
 
 

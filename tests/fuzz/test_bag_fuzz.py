@@ -33,9 +33,12 @@ def inputs(demo_data, bag_tools, tmp_path_factory) -> dict[str, Path]:
     map, _ = build_map(open_scene(str(folder)), load_encoder("none"))
     save_map(map, root / "demo_tum.map.npz")
     (root / "empty.json").write_text("[]")
-    return {"map": root / "demo_tum.map.npz", "detections": root / "empty.json",
-            "ros1": bag_tools.write_bag(folder, root / "good" / "demo_tum.bag"),
-            "mcap": bag_tools.write_bag(folder, root / "good-mcap" / "demo_tum", "mcap")}
+    return {
+        "map": root / "demo_tum.map.npz",
+        "detections": root / "empty.json",
+        "ros1": bag_tools.write_bag(folder, root / "good" / "demo_tum.bag"),
+        "mcap": bag_tools.write_bag(folder, root / "good-mcap" / "demo_tum", "mcap"),
+    }
 
 
 def write(bag_tools, path: Path, messages: list[tuple[str, str, float, Callable]]) -> Path:
@@ -58,8 +61,9 @@ def colour(pixels: np.ndarray | None = None, encoding: str = "rgb8", frame: str 
 
 
 def depth(frame: str = "cam") -> Callable:
-    return lambda bag_tools: lambda store, stamp: bag_tools.image(store, stamp, frame, np.full((12, 16), 2.0, np.float32),
-                                                                   "32FC1", False)
+    return lambda bag_tools: (
+        lambda store, stamp: bag_tools.image(store, stamp, frame, np.full((12, 16), 2.0, np.float32), "32FC1", False)
+    )
 
 
 def info(size: tuple[int, int] = (12, 16)) -> Callable:
@@ -67,28 +71,52 @@ def info(size: tuple[int, int] = (12, 16)) -> Callable:
 
 
 def scene(*parts: tuple[str, str, Callable], stamps=(1.0, 2.0), offsets: dict[str, float] | None = None) -> list:
-    return [(topic, msgtype, t + (offsets or {}).get(topic, 0.0), make) for t in stamps for topic, msgtype, make in parts]
+    return [
+        (topic, msgtype, t + (offsets or {}).get(topic, 0.0), make) for t in stamps for topic, msgtype, make in parts
+    ]
 
 
 GOOD = [("/cam/image", IMAGE, colour()), ("/cam/depth", IMAGE, depth()), ("/cam/camera_info", INFO, info())]
 BAGS = {  # name -> (messages, extra options, text the line must hold)
-    "two-colour-topics": (scene(*GOOD, ("/other/image", IMAGE, colour())), [],
-                          "2 colour Image or CompressedImage topics (/cam/image, /other/image); name the one to read "
-                          "with --rgb-topic TOPIC"),
+    "two-colour-topics": (
+        scene(*GOOD, ("/other/image", IMAGE, colour())),
+        [],
+        "2 colour Image or CompressedImage topics (/cam/image, /other/image); name the one to read "
+        "with --rgb-topic TOPIC",
+    ),
     "no-camera-info": (scene(*GOOD[:2]), [], "no sensor_msgs/CameraInfo topic: the camera's intrinsics are unknown"),
     "no-such-topic": (scene(*GOOD), ["--depth-topic", "/nope"], "--depth-topic /nope: no such topic"),
-    "not-an-image-topic": (scene(*GOOD), ["--rgb-topic", "/cam/camera_info"],
-                           "--rgb-topic /cam/camera_info is a sensor_msgs/msg/CameraInfo"),
-    "size-disagrees": (scene(GOOD[0], GOOD[1], ("/cam/camera_info", INFO, info((24, 32)))), [],
-                       "image is 16 x 12, its CameraInfo (/cam/camera_info) 32 x 24"),
-    "unknown-encoding": (scene(("/cam/image", IMAGE, colour(np.zeros((12, 16, 4), np.uint8), "rgba8")), *GOOD[1:]),
-                         [], "colour encoding 'rgba8' is not read"),
-    "zero-sized": (scene(("/cam/image", IMAGE, colour(np.zeros((0, 16, 3), np.uint8))), *GOOD[1:]), [],
-                   "image is 16 x 0 pixels (empty)"),
-    "no-colour-partner": (scene(*GOOD, offsets={"/cam/depth": 0.3}), [],
-                          "no image of /cam/image (2) has a depth image of /cam/depth (2) within 0.02 s"),
+    "not-an-image-topic": (
+        scene(*GOOD),
+        ["--rgb-topic", "/cam/camera_info"],
+        "--rgb-topic /cam/camera_info is a sensor_msgs/msg/CameraInfo",
+    ),
+    "size-disagrees": (
+        scene(GOOD[0], GOOD[1], ("/cam/camera_info", INFO, info((24, 32)))),
+        [],
+        "image is 16 x 12, its CameraInfo (/cam/camera_info) 32 x 24",
+    ),
+    "unknown-encoding": (
+        scene(("/cam/image", IMAGE, colour(np.zeros((12, 16, 4), np.uint8), "rgba8")), *GOOD[1:]),
+        [],
+        "colour encoding 'rgba8' is not read",
+    ),
+    "zero-sized": (
+        scene(("/cam/image", IMAGE, colour(np.zeros((0, 16, 3), np.uint8))), *GOOD[1:]),
+        [],
+        "image is 16 x 0 pixels (empty)",
+    ),
+    "no-colour-partner": (
+        scene(*GOOD, offsets={"/cam/depth": 0.3}),
+        [],
+        "no image of /cam/image (2) has a depth image of /cam/depth (2) within 0.02 s",
+    ),
     "bad-depth-scale": (scene(*GOOD), ["--depth-scale", "-1"], "--depth-scale -1: metres per depth unit"),
-    "no-gt-frame": (scene(*GOOD), ["--gt-frames", "world:cam"], "--gt-frames world:cam: /tf does not connect world to cam"),
+    "no-gt-frame": (
+        scene(*GOOD),
+        ["--gt-frames", "world:cam"],
+        "--gt-frames world:cam: /tf does not connect world to cam",
+    ),
 }
 
 
@@ -105,8 +133,19 @@ def test_a_hostile_bag_is_one_line(inputs, bag_tools, tmp_path, monkeypatch, nam
     messages, options, text = BAGS[name]
     bag = write(bag_tools, tmp_path / "demo_tum", [(t, m, s, make(bag_tools)) for t, m, s, make in messages])
     monkeypatch.chdir(tmp_path)
-    result = RUNNER.invoke(app, ["run", str(bag), "--map", str(inputs["map"]), "--detector",
-                                 f"file:{inputs['detections']}", "--no-rrd", *options])
+    result = RUNNER.invoke(
+        app,
+        [
+            "run",
+            str(bag),
+            "--map",
+            str(inputs["map"]),
+            "--detector",
+            f"file:{inputs['detections']}",
+            "--no-rrd",
+            *options,
+        ],
+    )
     refused(result, str(bag), text)
     assert not (tmp_path / "outputs").exists()
 
@@ -117,10 +156,11 @@ def test_a_truncated_bag_is_one_line(inputs, tmp_path, monkeypatch, storage, kee
     good = inputs[storage] if storage == "ros1" else inputs[storage] / "demo_tum.mcap"
     cut = tmp_path / good.name
     data = good.read_bytes()
-    cut.write_bytes(data[:int(len(data) * keep)])
+    cut.write_bytes(data[: int(len(data) * keep)])
     monkeypatch.chdir(tmp_path)
-    result = RUNNER.invoke(app, ["run", str(cut), "--map", str(inputs["map"]), "--detector",
-                                 f"file:{inputs['detections']}", "--no-rrd"])
+    result = RUNNER.invoke(
+        app, ["run", str(cut), "--map", str(inputs["map"]), "--detector", f"file:{inputs['detections']}", "--no-rrd"]
+    )
     refused(result, str(cut))
     assert not (tmp_path / "outputs").exists()
 
@@ -128,7 +168,9 @@ def test_a_truncated_bag_is_one_line(inputs, tmp_path, monkeypatch, storage, kee
 def test_an_unknown_storage_plugin_is_one_line(inputs, tmp_path):
     folder = tmp_path / "demo_tum"
     folder.mkdir()
-    text = (inputs["mcap"] / "metadata.yaml").read_text().replace("storage_identifier: mcap", "storage_identifier: lmdb")
+    text = (
+        (inputs["mcap"] / "metadata.yaml").read_text().replace("storage_identifier: mcap", "storage_identifier: lmdb")
+    )
     (folder / "metadata.yaml").write_text(text)
     (folder / "demo_tum.lmdb").write_bytes(b"\0" * 64)
     refused(RUNNER.invoke(app, ["inspect", str(folder)]), str(folder), "not a readable ROS bag")

@@ -35,18 +35,34 @@ def recording(demo_data, bag_tools, tmp_path_factory) -> dict[str, Path]:
     folder = demo_data("demo_tum", frames=8) / "demo" / "demo_tum"
     map, _ = build_map(open_scene(str(folder)), load_encoder("simulated"))
     save_map(map, root / "demo_tum.map.npz")
-    found = {"folder": folder, "map": root / "demo_tum.map.npz",
-             "detections": bag_tools.write_detections(folder, root / "demo_tum.map.npz", root / "det" / "detections.json")}
-    for name, storage, layout in (("ros1", "ros1", "tum"), ("mcap", "mcap", "tum"), ("realsense", "sqlite3", "realsense")):
-        found[name] = bag_tools.write_bag(folder, root / name / ("demo_tum.bag" if storage == "ros1" else "demo_tum"),
-                                          storage, layout)
+    found = {
+        "folder": folder,
+        "map": root / "demo_tum.map.npz",
+        "detections": bag_tools.write_detections(folder, root / "demo_tum.map.npz", root / "det" / "detections.json"),
+    }
+    for name, storage, layout in (
+        ("ros1", "ros1", "tum"),
+        ("mcap", "mcap", "tum"),
+        ("realsense", "sqlite3", "realsense"),
+    ):
+        found[name] = bag_tools.write_bag(
+            folder, root / name / ("demo_tum.bag" if storage == "ros1" else "demo_tum"), storage, layout
+        )
     found["frames"] = {layout: bag_tools.LAYOUTS[layout]["frame"] for layout in bag_tools.LAYOUTS}
     return found
 
 
 def localized(recording: dict[str, Path], sequence: Path, out: Path, bag: BagOptions | None = None, **given) -> dict:
-    settings = RunSettings(str(sequence), map_path=recording["map"], detector=f"file:{recording['detections']}",
-                           encoder="none", out=out, record=False, bag=bag, **given)
+    settings = RunSettings(
+        str(sequence),
+        map_path=recording["map"],
+        detector=f"file:{recording['detections']}",
+        encoder="none",
+        out=out,
+        record=False,
+        bag=bag,
+        **given,
+    )
     run_and_save(settings)
     return read_results(out / "results.json")
 
@@ -58,7 +74,9 @@ def folder_run(recording, tmp_path_factory) -> dict:
 
 @pytest.mark.parametrize("bag", ["ros1", "mcap"])
 def test_an_rgb8_32fc1_bag_decides_as_its_folder(recording, folder_run, tmp_path, bag):
-    document = localized(recording, recording[bag], tmp_path, BagOptions(gt_frames=f"world:{recording['frames']['tum']}"))
+    document = localized(
+        recording, recording[bag], tmp_path, BagOptions(gt_frames=f"world:{recording['frames']['tum']}")
+    )
     expected = decisions(folder_run)
     assert sum(bool(frame["hypotheses"]) for frame in expected) >= 1  # not a comparison of failures alone
     comparison = compare(expected, decisions(document))
@@ -75,8 +93,20 @@ def test_a_realsense_bag_succeeds_within_two_frames(recording, folder_run, tmp_p
 
 def test_the_cli_names_its_folder_after_the_bag_and_says_no_ground_truth(recording, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    result = RUNNER.invoke(app, ["run", str(recording["ros1"]), "--map", str(recording["map"]), "--detector",
-                                 f"file:{recording['detections']}", "--encoder", "none", "--no-rrd"])
+    result = RUNNER.invoke(
+        app,
+        [
+            "run",
+            str(recording["ros1"]),
+            "--map",
+            str(recording["map"]),
+            "--detector",
+            f"file:{recording['detections']}",
+            "--encoder",
+            "none",
+            "--no-rrd",
+        ],
+    )
     assert result.exit_code == 0, result.output
     assert "no ground truth: poses written (poses.tum), not scored" in result.output
     assert "a bag holds none unless told (--groundtruth FILE.txt or --gt-frames WORLD:CAMERA)" in result.output
@@ -88,17 +118,28 @@ def test_the_cli_names_its_folder_after_the_bag_and_says_no_ground_truth(recordi
     assert len(poses) == round(summary["frames"] * summary["localized"]) >= 1
 
 
-@pytest.mark.parametrize("args, text", [
-    (["--detector", "file:x"], "a ROS bag holds no map; pass --map FILE.map.npz"),
-    (["--map", "MAP"], "a ROS bag has no annotations to detect from; pass --detector file:DETECTIONS.json (e.g. a TUM "
-                       "folder run's, matched by colour stamp) or --detector yolo"),
-    (["--map", "MAP", "--detector", "file:DET", "--rgb-topic", "/nope"], "--rgb-topic /nope: no such topic"),
-    (["--map", "MAP", "--detector", "file:DET", "--window", "2", "--odometry", "tf:world:nowhere"],
-     "--odometry tf:world:nowhere: /tf does not connect world to nowhere"),
-])
+@pytest.mark.parametrize(
+    "args, text",
+    [
+        (["--detector", "file:x"], "a ROS bag holds no map; pass --map FILE.map.npz"),
+        (
+            ["--map", "MAP"],
+            "a ROS bag has no annotations to detect from; pass --detector file:DETECTIONS.json (e.g. a TUM "
+            "folder run's, matched by colour stamp) or --detector yolo",
+        ),
+        (["--map", "MAP", "--detector", "file:DET", "--rgb-topic", "/nope"], "--rgb-topic /nope: no such topic"),
+        (
+            ["--map", "MAP", "--detector", "file:DET", "--window", "2", "--odometry", "tf:world:nowhere"],
+            "--odometry tf:world:nowhere: /tf does not connect world to nowhere",
+        ),
+    ],
+)
 def test_cli_refusals_are_one_line(recording, tmp_path, monkeypatch, args, text):
     monkeypatch.chdir(tmp_path)
-    args = [str(recording["map"]) if a == "MAP" else f"file:{recording['detections']}" if a == "file:DET" else a for a in args]
+    args = [
+        str(recording["map"]) if a == "MAP" else f"file:{recording['detections']}" if a == "file:DET" else a
+        for a in args
+    ]
     result = RUNNER.invoke(app, ["run", str(recording["mcap"]), "--no-rrd", *args])
     assert result.exit_code == 2, result.output
     lines = [line for line in result.output.splitlines() if line.strip()]
@@ -132,8 +173,18 @@ def test_the_benchmark_takes_a_bag_with_its_default_map(recording, folder_run, t
     from clipclique.benchmark.cli import app as bench
 
     monkeypatch.chdir(tmp_path)
-    args = [str(recording["mcap"]), "--detector", f"file:{recording['detections']}", "--encoder", "none",
-            "--out", "bench", "--cache", "cache", "-q"]
+    args = [
+        str(recording["mcap"]),
+        "--detector",
+        f"file:{recording['detections']}",
+        "--encoder",
+        "none",
+        "--out",
+        "bench",
+        "--cache",
+        "cache",
+        "-q",
+    ]
     missing = RUNNER.invoke(bench, args)
     assert missing.exit_code == 2 and "no map for the bag" in missing.output and "a bag holds none" in missing.output
     (tmp_path / "outputs" / "maps").mkdir(parents=True)

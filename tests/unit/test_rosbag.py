@@ -59,7 +59,9 @@ def test_colour_encodings_give_rgb():
     grey = RGB[..., 0].copy()
     assert np.array_equal(decode_colour(raw(grey, "mono8"), "m"), np.repeat(grey[..., None], 3, axis=2))
     assert np.array_equal(decode_colour(Compressed("png", np.frombuffer(png(RGB), np.uint8)), "m"), RGB)
-    jpeg = decode_colour(Compressed("jpeg", np.frombuffer(png(np.full((8, 8, 3), 120, np.uint8), "JPEG"), np.uint8)), "m")
+    jpeg = decode_colour(
+        Compressed("jpeg", np.frombuffer(png(np.full((8, 8, 3), 120, np.uint8), "JPEG"), np.uint8)), "m"
+    )
     assert jpeg.shape == (8, 8, 3) and abs(int(jpeg.mean()) - 120) <= 2
 
 
@@ -80,30 +82,43 @@ def test_compressed_depth_32fc1_is_quantised_inverse_depth():
     a, b = quant * (quant + 1.0), 1.0 - quant * (quant + 1.0) / max_depth
     depth = np.array([[1.0, 2.0], [0.5, 0.0]], np.float32)
     stored = np.where(depth > 0, a / np.where(depth > 0, depth, 1) + b, 0).round().astype(np.uint16)
-    message = Compressed("32FC1; compressedDepth png", np.frombuffer(struct.pack("<iff", 0, a, b) + png(stored), np.uint8))
+    message = Compressed(
+        "32FC1; compressedDepth png", np.frombuffer(struct.pack("<iff", 0, a, b) + png(stored), np.uint8)
+    )
     decoded = decode_depth(message, "m")
     assert decoded[1, 1] == 0
     assert np.allclose(decoded[depth > 0], depth[depth > 0], rtol=1e-3)
 
 
-@pytest.mark.parametrize("message, text", [
-    (raw(RGB, "rgba16"), "colour encoding 'rgba16'"),
-    (Img(4, 5, "rgb8", 15, np.zeros(20, np.uint8)), "needs 4 rows of 15 bytes"),
-    (Img(0, 5, "rgb8", 15, np.zeros(0, np.uint8)), "empty"),
-    (Compressed("jpeg", np.frombuffer(b"not an image", np.uint8)), "unreadable image"),
-])
+@pytest.mark.parametrize(
+    "message, text",
+    [
+        (raw(RGB, "rgba16"), "colour encoding 'rgba16'"),
+        (Img(4, 5, "rgb8", 15, np.zeros(20, np.uint8)), "needs 4 rows of 15 bytes"),
+        (Img(0, 5, "rgb8", 15, np.zeros(0, np.uint8)), "empty"),
+        (Compressed("jpeg", np.frombuffer(b"not an image", np.uint8)), "unreadable image"),
+    ],
+)
 def test_bad_colour_is_one_line_naming_the_message(message, text):
     with pytest.raises(DatasetError, match="^bag, /rgb: .*" + text):
         decode_colour(message, "bag, /rgb")
 
 
-@pytest.mark.parametrize("message, text", [
-    (raw(RGB, "rgb8"), "depth encoding 'rgb8'"),
-    (Compressed("jpeg", np.frombuffer(png(RGB, "JPEG"), np.uint8)), "must be compressedDepth"),
-    (Compressed("32FC1; compressedDepth", np.zeros(12, np.uint8)), "holds no image"),
-    (Compressed("32FC1; compressedDepth", np.frombuffer(struct.pack("<iff", 0, 0, 0) + png(np.ones((2, 2), np.uint16)),
-                                                         np.uint8)), "no quantisation"),
-])
+@pytest.mark.parametrize(
+    "message, text",
+    [
+        (raw(RGB, "rgb8"), "depth encoding 'rgb8'"),
+        (Compressed("jpeg", np.frombuffer(png(RGB, "JPEG"), np.uint8)), "must be compressedDepth"),
+        (Compressed("32FC1; compressedDepth", np.zeros(12, np.uint8)), "holds no image"),
+        (
+            Compressed(
+                "32FC1; compressedDepth",
+                np.frombuffer(struct.pack("<iff", 0, 0, 0) + png(np.ones((2, 2), np.uint16)), np.uint8),
+            ),
+            "no quantisation",
+        ),
+    ],
+)
 def test_bad_depth_is_one_line_naming_the_message(message, text):
     with pytest.raises(DatasetError, match="^bag, /depth: .*" + text):
         decode_depth(message, "bag, /depth")
@@ -156,8 +171,7 @@ class TfMessage:
 
 def stamped(t: float, parent: str, child: str, pose: Pose) -> Stamped:
     q = Rotation.from_matrix(pose.rotation).as_quat()
-    return Stamped(Head(Stamp(int(t), int(round((t % 1) * 1e9))), parent), child,
-                   Tf(Vec(*pose.translation), Quat(*q)))
+    return Stamped(Head(Stamp(int(t), int(round((t % 1) * 1e9))), parent), child, Tf(Vec(*pose.translation), Quat(*q)))
 
 
 def test_tf_chains_dynamic_and_static_edges_up_and_down():
@@ -181,7 +195,9 @@ def test_tf_chains_dynamic_and_static_edges_up_and_down():
 
 
 def frame(name: str, timestamp: float, index: int) -> Frame:
-    return Frame(index, timestamp, np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32), np.eye(3), None, name=name)
+    return Frame(
+        index, timestamp, np.zeros((4, 4, 3), np.uint8), np.ones((4, 4), np.float32), np.eye(3), None, name=name
+    )
 
 
 def test_detection_files_meet_frames_by_name_then_stamp_then_index():

@@ -245,3 +245,52 @@ def test_the_bag_is_read_lazily(demo_data, bag_tools, tmp_path, monkeypatch):
     monkeypatch.setattr(reader, "deserialize", lambda raw, msgtype: seen.append(msgtype) or original(raw, msgtype))
     bag[2]
     assert sorted(seen) == ["sensor_msgs/msg/Image", "sensor_msgs/msg/Image"]
+
+
+def test_odometry_topic_is_carried_to_the_camera_by_the_static_tf(bag_tools, tmp_path):
+    """topic:/odom poses are the base's: composed with /tf_static's base -> camera they are the camera's."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from clipclique.multiframe.odometry import open_odometry
+
+    store = bag_tools.typestore(False)
+    types = store.types
+    rng = np.random.default_rng(1)
+    extrinsic = Pose(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3))
+    bases = [Pose(Rotation.from_rotvec(rng.normal(size=3)).as_matrix(), rng.normal(size=3)) for _ in range(3)]
+    k = np.array([[20.0, 0, 8], [0, 20.0, 6], [0, 0, 1]])
+    with Writer(tmp_path / "odom", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        add = {t: writer.add_connection(t, m, typestore=store) for t, m in [
+            ("/tf_static", "tf2_msgs/msg/TFMessage"), ("/cam/image", "sensor_msgs/msg/Image"),
+            ("/cam/depth", "sensor_msgs/msg/Image"), ("/cam/camera_info", "sensor_msgs/msg/CameraInfo"),
+            ("/odom", "nav_msgs/msg/Odometry")]}
+
+        def put(topic, stamp, message):
+            writer.write(add[topic], int(stamp * 1e9), store.serialize_cdr(message, add[topic].msgtype))
+
+        put("/tf_static", 0.5, types["tf2_msgs/msg/TFMessage"](
+            transforms=[bag_tools.transform(store, 0.5, "base", "cam", extrinsic, False)]))
+        for i, base in enumerate(bases):
+            t = 1.0 + i
+            put("/cam/image", t, bag_tools.image(store, t, "cam", np.zeros((12, 16, 3), np.uint8), "rgb8", False))
+            put("/cam/depth", t, bag_tools.image(store, t, "cam", np.ones((12, 16), np.float32), "32FC1", False))
+            put("/cam/camera_info", t, bag_tools.camera_info(store, t, "cam", (12, 16), k, False))
+            stamped = bag_tools.transform(store, t + 0.005, "odom", "base", base, False)
+            position, q = stamped.transform.translation, stamped.transform.rotation
+            pose = types["geometry_msgs/msg/Pose"](
+                position=types["geometry_msgs/msg/Point"](x=position.x, y=position.y, z=position.z), orientation=q)
+            covariance = np.zeros(36)
+            put("/odom", t + 0.005, types["nav_msgs/msg/Odometry"](
+                header=stamped.header, child_frame_id="base",
+                pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=covariance),
+                twist=types["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=types["geometry_msgs/msg/Twist"](linear=types["geometry_msgs/msg/Vector3"](x=0, y=0, z=0),
+                                                           angular=types["geometry_msgs/msg/Vector3"](x=0, y=0, z=0)),
+                    covariance=covariance)))
+    bag = open_sequence(str(tmp_path / "odom"))
+    odometry = open_odometry("topic:/odom", 0.0, 0, bag.timestamps, bag.poses, bag)
+    assert odometry.name == "topic:/odom" and bag.notes() == []
+    for got, base in zip(odometry.poses, bases):
+        assert np.allclose(got.matrix(), base.compose(extrinsic).matrix(), atol=1e-9)
+    with pytest.raises(DatasetError, match="no nav_msgs/Odometry topic of that name"):
+        open_odometry("topic:/cam/image", 0.0, 0, bag.timestamps, bag.poses, bag)

@@ -24,9 +24,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def read_all(path: str) -> dict[str, float]:
-    """Open `path` (a bag or a TUM folder), read every frame; its frames, seconds and this process's peak RSS."""
+    """Open `path` (a bag or a TUM folder), read every frame; its frames, seconds, and this process's peak RSS
+    after the imports and at the end (what the reading added is their difference)."""
     from clipclique.datasets import open_sequence
 
+    imported = peak_rss_mb()
     clock = time.perf_counter()
     sequence = open_sequence(path)
     opened = time.perf_counter() - clock
@@ -73,7 +75,7 @@ def main() -> None:
         folder_run = measured(folder)
         print(
             f"TUM folder: {folder_run['frames']} frames, {folder_run['frames'] / folder_run['seconds']:.0f} frames/s, "
-            f"peak RSS {folder_run['peak_rss_mb']:.0f} MB"
+            f"peak RSS {folder_run['peak_rss_mb']:.0f} MB ({folder_run['imports_rss_mb']:.0f} after the imports)"
         )
         for storage in ("ros1", "mcap"):
             for repeat in (int(r) for r in args.repeats.split(",")):
@@ -85,7 +87,7 @@ def main() -> None:
                     f"{storage} x{repeat}: {run['frames']} frames, {size / 2**20:.0f} MB, "
                     f"opened in {run['open_s']:.2f} s, "
                     f"{run['frames'] / run['seconds']:.0f} frames/s (opening included), "
-                    f"peak RSS {run['peak_rss_mb']:.0f} MB"
+                    f"peak RSS {run['peak_rss_mb']:.0f} MB ({run['imports_rss_mb']:.0f} after the imports)"
                 )
 
 

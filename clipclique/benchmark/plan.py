@@ -115,7 +115,8 @@ def _toml_value(value: str | int | float | bool) -> str:
 
 
 def expand_scenes(patterns: list[str], source: str = "command line") -> list[str]:
-    """Names, folders and bags as given; a glob becomes the folders and ROS bags it matches (sorted), none is an error."""
+    """Names, folders and bags as given; a glob becomes the folders and ROS bags it matches (sorted), none is an
+    error."""
     scenes: list[str] = []
     for pattern in patterns:
         if any(c in pattern for c in GLOB_CHARACTERS):

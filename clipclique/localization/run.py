@@ -103,8 +103,9 @@ def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | Non
             raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")
         return None
     if settings.odometry is None:
+        on_bag = ", or from the bag: tf:PARENT:CHILD or topic:/odom" if sequence.kind == "rosbag" else ""
         raise ClipcliqueError(f"--window {settings.window} needs --odometry FILE.tum (a metric trajectory) or "
-                              f"--odometry {GROUND_TRUTH} (with --odometry-drift PCT, simulated)")
+                              f"--odometry {GROUND_TRUTH} (with --odometry-drift PCT, simulated){on_bag}")
     timestamps, truth = sequence.trajectory()
     return open_odometry(settings.odometry, settings.odometry_drift, settings.seed, timestamps, truth, sequence)
 

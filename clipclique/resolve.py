@@ -11,18 +11,18 @@ from collections.abc import Callable
 from pathlib import Path
 
 from clipclique import sim
-from clipclique.datasets import TUM_SHORT_NAMES, Sequence, open_folder, open_sequence, resolve_data_root
+from clipclique.datasets import TUM_SHORT_NAMES, BagOptions, Sequence, open_folder, open_sequence, resolve_data_root
 from clipclique.errors import DatasetError, one_line
 
 
 def open_scene(name: str, data_root: Path | None = None,
-               progress: Callable[[int, int], None] | None = None) -> Sequence:
-    """The sequence `name` names (`open_sequence`'s names and paths, and the generated scenes'),
-    generating a generated scene under `<data_root>/demo/` on first use (`progress` per frame)."""
+               progress: Callable[[int, int], None] | None = None, bag: BagOptions | None = None) -> Sequence:
+    """The sequence `name` names (`open_sequence`'s names and paths, a bag read with the `bag` options, and the
+    generated scenes'), generating a generated scene under `<data_root>/demo/` on first use (`progress` per frame)."""
     if name in sim.DEMO_SCENES:
         return open_folder(sim.ensure_scene(name, resolve_data_root(data_root), progress))
     try:
-        return open_sequence(name, data_root)
+        return open_sequence(name, data_root, bag)
     except DatasetError as error:
         if (near := nearest_scene(name, data_root)) is None:
             raise

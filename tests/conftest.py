@@ -211,6 +211,18 @@ def tum_sequence() -> Callable[..., Path]:
 
 
 @pytest.fixture(scope="session")
+def bag_tools():
+    """tools/tum_to_bag.py as a module: `write_bag(folder, out, storage, layout)` writes a TUM folder as a ROS bag,
+    and its message makers (`typestore`, `image`, `camera_info`, ...) build hostile ones."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("tum_to_bag", ROOT / "tools" / "tum_to_bag.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="session")
 def scannet_scene() -> Callable[..., tuple[Path, dict[str, np.ndarray]]]:
     """`scannet_scene(root, tsv=False, descriptions=True)` writes the tiny ScanNet scene (write_scannet_scene)."""
     return write_scannet_scene

@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from clipclique.benchmark import perception
-from clipclique.datasets import resolve_data_root, scene_name
+from clipclique.datasets import is_bag, resolve_data_root, scene_name
 from clipclique.errors import ClipcliqueError, MapFileError, one_line
 from clipclique.io.outputs import map_file
 from clipclique.multiframe.window import WindowConfig, Windower, window_frames
@@ -194,6 +194,9 @@ def ensure_map(name: str, data_root: Path | None) -> None:
     path = map_file(scene_name(name))
     if path.is_file():
         return
+    if is_bag(Path(name)):
+        raise MapFileError(f"{path}: no map for the bag {name} (a bag holds none); build it from the recording's TUM "
+                           f"folder (`clipclique-map build FOLDER --out {path}`)")
     if name not in DEMO_SCENES:
         raise MapFileError(f"{path}: no map of {name}; build it with `clipclique-map build {name}`")
     run_build(name, data_root, path, rrd=False)

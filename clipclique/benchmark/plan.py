@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from clipclique.config import METHOD_PRESETS, MAX_CONFIG_BYTES, ConfigError, make_config
-from clipclique.datasets import scene_name
+from clipclique.datasets import is_bag, scene_name
+from clipclique.io.outputs import map_file
 from clipclique.errors import ClipcliqueError
 from clipclique.io.safeio import read_text
 from clipclique.localization.inputs import PLAN_KEYS, RunInputs
@@ -123,13 +124,14 @@ def _toml_value(value: str | int | float | bool) -> str:
 
 
 def expand_scenes(patterns: list[str], source: str = "command line") -> list[str]:
-    """Names and folders as given; a glob becomes the folders it matches (sorted), none is an error."""
+    """Names, folders and bags as given; a glob becomes the folders and ROS bags it matches (sorted), none is an
+    error."""
     scenes: list[str] = []
     for pattern in patterns:
         if any(c in pattern for c in GLOB_CHARACTERS):
-            matches = sorted(p for p in glob.glob(pattern) if Path(p).is_dir())
+            matches = sorted(p for p in glob.glob(pattern) if Path(p).is_dir() or is_bag(Path(p)))
             if not matches:
-                raise PlanError(f"{source}: scene pattern {pattern!r} matches no folder")
+                raise PlanError(f"{source}: scene pattern {pattern!r} matches no folder or ROS bag")
             scenes += matches
         else:
             scenes.append(pattern)
@@ -158,6 +160,8 @@ def runs(plan: Plan, out_root: Path, data_root: Path | None, record: bool) -> li
                           encoder=plan.encoder, stride=plan.stride, max_frames=plan.max_frames, record=record,
                           **plan.inputs.settings())
         run.out = out_root / scene_name(scene) / run.run_name()
+        if is_bag(Path(scene)):  # a bag holds no map: the benchmark reads the default one, as for every scene
+            run.map_path = map_file(scene_name(scene))
         settings.setdefault(run.out, run)
     return list(settings.values())
 

@@ -15,16 +15,19 @@ import re
 from pathlib import Path
 
 from clipclique.datasets.base import STRUCTURE_CLASSES, Instance, Sequence, description_template, is_structure
+from clipclique.datasets.rosbag import BagOptions, BagSequence, is_bag
 from clipclique.datasets.scannet import ScanNetScene
 from clipclique.datasets.tum import TumSequence
 from clipclique.errors import DatasetError
 
 __all__ = [
     "READERS",
+    "BagOptions",
     "STRUCTURE_CLASSES",
     "Instance",
     "Sequence",
     "description_template",
+    "is_bag",
     "is_structure",
     "open_folder",
     "open_sequence",
@@ -33,7 +36,7 @@ __all__ = [
 ]
 
 # Reader by dataset name (`Sequence.kind`), in the order `open_folder` tries them.
-READERS: dict[str, type[Sequence]] = {"tum": TumSequence, "scannet": ScanNetScene}
+READERS: dict[str, type[Sequence]] = {"tum": TumSequence, "scannet": ScanNetScene, "rosbag": BagSequence}
 
 DATA_ENV = "CLIPCLIQUE_DATA"
 SCANNET_NAME = re.compile(r"^scene\d{4}_\d{2}$")
@@ -53,9 +56,11 @@ def resolve_data_root(cli_value: Path | None = None) -> Path:
     return Path(os.environ.get(DATA_ENV) or "data")
 
 
-def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
-    """A scene or sequence by short name ("scene0002_00", "fr2", "fr3") or folder path; never generates one
-    (the generated scenes' names are resolved by `clipclique.resolve.open_scene`)."""
+def open_sequence(name: str, data_root: Path | None = None, bag: BagOptions | None = None) -> Sequence:
+    """A scene or sequence by short name ("scene0002_00", "fr2", "fr3"), folder path or ROS bag (read with the
+    `bag` options); never generates one (the generated scenes' names are resolved by `clipclique.resolve.open_scene`)."""
+    if is_bag(Path(name)):
+        return BagSequence(Path(os.path.abspath(name)), bag)
     root = resolve_data_root(data_root)
     if SCANNET_NAME.match(name):
         folder = root / "scannet" / "scans" / name
@@ -80,7 +85,8 @@ def open_sequence(name: str, data_root: Path | None = None) -> Sequence:
         return open_folder(Path(os.path.abspath(name)))
     raise DatasetError(
         f"unknown scene {name!r}: use a ScanNet name (scene0002_00), fr1/fr2/fr3, a TUM folder name "
-        f"(rgbd_dataset_freiburg2_desk), demo, demo_tum, or the path of a scene folder"
+        f"(rgbd_dataset_freiburg2_desk), demo, demo_tum, the path of a scene folder, or a ROS bag (.bag, .mcap, .db3 "
+        f"or a ROS 2 bag folder)"
     )
 
 
@@ -92,6 +98,8 @@ def scene_name(name: str) -> str:
         return TUM_SHORT_NAMES[name]
     if name.startswith("rgbd_dataset_"):
         return _folder_name(name, Path("<data root>") / "tum")
+    if is_bag(Path(name)):  # a bag file: its stem (rec.bag -> rec), as the reader names its sequence
+        return Path(os.path.abspath(name)).stem if Path(name).is_file() else Path(os.path.abspath(name)).name
     folder = Path(os.path.abspath(name)).name if ("/" in name or name in (".", "..")) else name
     if not folder or not re.fullmatch(r"[^\x00-\x1f/]+", folder):
         raise DatasetError(f"{name!r}: not a scene name or a folder a scene can be named after")
@@ -115,5 +123,6 @@ def open_folder(folder: Path) -> Sequence:
         if reader.recognizes(folder):
             return reader(folder)
     raise DatasetError(
-        f"{folder}: neither a ScanNet scene (no *_vh_clean_2.labels.ply) nor a TUM RGB-D sequence (no rgb.txt)"
+        f"{folder}: neither a ScanNet scene (no *_vh_clean_2.labels.ply), a TUM RGB-D sequence (no rgb.txt) nor a "
+        f"ROS 2 bag (no metadata.yaml)"
     )

@@ -45,7 +45,7 @@ class Sequence(ABC):
     """A scene or sequence of one dataset: frames in order plus its annotated objects."""
 
     name: str
-    kind: str  # "scannet" | "tum"
+    kind: str  # "scannet" | "tum" | "rosbag"
     root: Path
     synthetic: bool  # True for the generated demo scenes (their ground truth is exact)
     default_detector: str  # the `--detector` its frames get unless asked (a generated scene's own comes from clipclique.sim)
@@ -77,6 +77,10 @@ class Sequence(ABC):
         """How many frames have no ground-truth pose and why, for the messages a user reads (a map built
         without them, a run that cannot be scored); None when every frame has one."""
         return None
+
+    def notes(self) -> list[str]:
+        """Facts about how the frames were read that a run's user must see (a bag's distortion ignored, ...)."""
+        return []
 
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(points (P, 3), colours (P, 3) uint8) of the whole scene for viewers, None if unknown."""

@@ -8,7 +8,10 @@ Two formats (docs/import_export.md), told apart by their entries:
   "score", "segmentation"}]`), images named through an image list (`images=FILE`, default
   `images.json` beside the results): what `--detector yolo` writes into its run folder.
 Frames are matched by file name without folder or extension (`rgb/1311868164.36.png` matches
-the frame `1311868164.36`), or by frame index when the file names frames by number.
+the frame `1311868164.36`); else by timestamp, a name that is a stamp (`1311868164.36`, with a decimal
+point) meeting the frame whose colour stamp is within MAX_TIME_DIFF of it (TUM's pairing rule: the
+detections of a TUM folder apply to the same recording's bag); else by frame index when the file
+names frames by number.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from clipclique.datasets.tum import MAX_TIME_DIFF, associate
 from clipclique.interop.boxfit import BoxSegmentation, box_mask
 from clipclique.interop.coco import (
     coco_results,
@@ -220,7 +224,13 @@ class FileDetector:
     def check_coverage(self, sequence: Sequence, selected: range) -> list[str]:
         """Before a run: an error naming both naming schemes when the file covers none of the selected frames
         (another sequence's file); the notes to print: skipped entries, and the count below half coverage."""
-        covered = sum(sequence.frame_name(i) in self.table or str(i) in self.table for i in selected)
+        found = [sequence.frame_name(i) in self.table for i in selected]
+        stamps, _ = self._stamps
+        if len(stamps) and not all(found):  # a bag's frames meet a TUM folder's file by colour stamp
+            timestamps = sequence.trajectory()[0][selected.start:selected.stop:selected.step]
+            found = [by_name or by_stamp for by_name, by_stamp in
+                     zip(found, associate(timestamps, stamps, MAX_TIME_DIFF) >= 0)]
+        covered = sum(by_name or str(i) in self.table for by_name, i in zip(found, selected))
         if covered == 0:
             theirs = next(iter(self.table), None)
             named = f"names frames like {theirs!r}" if theirs is not None else "names no frame"
@@ -232,9 +242,30 @@ class FileDetector:
             notes.append(f"{self.path.name} covered {covered} of {len(selected)} frames; the others have no detections")
         return notes
 
+    @cached_property
+    def _stamps(self) -> tuple[np.ndarray, list[str]]:
+        """(stamps, names) of the names that are timestamps (a number with a decimal point; `12` is an index)."""
+        found = []
+        for key in self.table:
+            if "." not in key:
+                continue
+            try:
+                found.append((float(key), key))
+            except ValueError:
+                continue
+        return np.array([stamp for stamp, _ in found], np.float64), [key for _, key in found]
+
+    def listed(self, frame: Frame) -> list[FileDetection]:
+        """The frame's detections: by name, else by colour stamp within MAX_TIME_DIFF, else by index."""
+        if frame.name in self.table:
+            return self.table[frame.name]
+        stamps, names = self._stamps
+        nearest = associate(np.array([frame.timestamp], np.float64), stamps, MAX_TIME_DIFF)[0]
+        return self.table[names[nearest]] if nearest >= 0 else self.table.get(str(frame.index), [])
+
     def detect(self, frame: Frame) -> Detections:
         height, width = frame.depth.shape
-        listed = self.table.get(frame.name, self.table.get(str(frame.index), []))
+        listed = self.listed(frame)
         lookup = self._lookup
         kept = [d for d in listed if d.score >= self.min_score and d.class_name.lower() in lookup]
         boxes = np.array([d.box for d in kept]).reshape(-1, 4)

@@ -108,19 +108,28 @@ def read_json(path: Path, what: str = "JSON file", error: type[ClipcliqueError] 
 def read_image(path: Path, mode: str | None = None, error: type[ClipcliqueError] = ClipcliqueError,
                max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
     """An image as an array, its declared size checked before any pixel is decoded."""
+    check_file(path, "image", error)
+    return decode_image(path, str(path), mode, error, max_pixels)
+
+
+def decode_image(source: Path | bytes, where: str, mode: str | None = None,
+                 error: type[ClipcliqueError] = ClipcliqueError, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
+    """An image file or encoded bytes (a bag's compressed image) as an array, its declared size checked first;
+    `where` names it in the error."""
+    import io
+
     from PIL import Image, UnidentifiedImageError
 
-    check_file(path, "image", error)
     try:
-        with Image.open(path) as image:
+        with Image.open(io.BytesIO(source) if isinstance(source, bytes) else source) as image:
             width, height = image.size
             if width * height > max_pixels:
-                raise error(f"{path}: image declares {width} x {height} pixels, more than the {max_pixels} allowed")
+                raise error(f"{where}: image declares {width} x {height} pixels, more than the {max_pixels} allowed")
             return np.asarray(image.convert(mode) if mode and image.mode != mode else image)  # convert copies even to its own mode
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as problem:
-        raise error(f"{path}: unreadable image ({problem})") from None
+        raise error(f"{where}: unreadable image ({problem})") from None
     except ImportError:  # once ultralytics is imported, its patched Image.open tries an optional HEIF plugin on failure
-        raise error(f"{path}: unreadable image (not a format Pillow reads)") from None
+        raise error(f"{where}: unreadable image (not a format Pillow reads)") from None
 
 
 def read_single_channel(path: Path, what: str, error: type[ClipcliqueError] = ClipcliqueError) -> np.ndarray:

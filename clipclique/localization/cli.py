@@ -37,6 +37,7 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
 
 TOOL = "clipclique-loc"
 ALGORITHM, OUTPUT = "Algorithm", "Output"
+BAG = "ROS bag"
 
 
 @app.callback()
@@ -59,7 +60,8 @@ def imports_kept() -> Iterator[None]:
 
 @app.command()
 def run(
-    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, or a sequence folder")],
+    sequence: Annotated[str, typer.Argument(help="demo, demo_tum, demo_apartment, demo_desk, scene0002_00, fr2, fr3, a "
+                                                 "sequence folder, or a ROS bag (.bag, ROS 2 folder, .mcap, .db3)")],
     method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc, or the name a "
                                              "table prints (CLIP-Clique, X-View, ...)",
                                         rich_help_panel=ALGORITHM)] = "clipclique",
@@ -95,6 +97,20 @@ def run(
     window_step: WindowStepOption = 1,
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
+    # ---- ROS bag options (clipclique.datasets.rosbag) ----
+    rgb_topic: Annotated[Optional[str], typer.Option(help="colour topic \\[default: the only colour Image or "
+                                                           "CompressedImage topic]", rich_help_panel=BAG)] = None,
+    depth_topic: Annotated[Optional[str], typer.Option(help="depth topic \\[default: the only 32FC1, 16UC1 or "
+                                                             "compressedDepth topic]", rich_help_panel=BAG)] = None,
+    camera_info_topic: Annotated[Optional[str], typer.Option(help="CameraInfo topic \\[default: the colour topic's "
+                                                                   "camera_info]", rich_help_panel=BAG)] = None,
+    depth_scale: Annotated[Optional[float], typer.Option(help="metres per depth unit \\[default: 32FC1 1, 16UC1 0.001]",
+                                                         rich_help_panel=BAG)] = None,
+    groundtruth: Annotated[Optional[Path], typer.Option(help="ground truth of a bag: a TUM trajectory file",
+                                                        rich_help_panel=BAG)] = None,
+    gt_frames: Annotated[Optional[str], typer.Option(help="ground truth of a bag from /tf: WORLD:CAMERA (static "
+                                                          "transforms applied)", rich_help_panel=BAG)] = None,
+    # ---- end of the ROS bag options ----
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -126,7 +142,9 @@ def run(
                        odometry_drift)
     settings = RunSettings(sequence, method, config, overrides, data_root=data_root, detector=detector,
                            encoder=encoder, yolo_weights=yolo_weights, stride=stride, max_frames=max_frames, out=out,
-                           record=not no_rrd, **inputs.settings())
+                           record=not no_rrd, **inputs.settings(),
+                           bag=bag_options(rgb_topic, depth_topic, camera_info_topic, depth_scale, groundtruth,
+                                           gt_frames))
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
@@ -150,6 +168,40 @@ def run(
     elif recording is not None and quiet:  # the notes above say it; under -q, this does (every time)
         print(f"clipclique-loc: warning: {folder / recording['file']} is an earlier run's and does not show these "
               "results (run without --no-rrd to replace it)", file=sys.stderr)
+
+
+def bag_options(rgb_topic: str | None, depth_topic: str | None, camera_info_topic: str | None,
+                depth_scale: float | None, groundtruth: Path | None, gt_frames: str | None):
+    """The ROS bag options given, None when none is (BagOptions is imported only then: --help stays instant)."""
+    given = (rgb_topic, depth_topic, camera_info_topic, depth_scale, groundtruth, gt_frames)
+    if all(value is None for value in given):
+        return None
+    from clipclique.datasets import BagOptions
+
+    return BagOptions(*given)
+
+
+@app.command()
+def inspect(path: Annotated[Path, typer.Argument(help="a ROS bag: .bag, a ROS 2 bag folder, .mcap or .db3")],
+            rgb_topic: Annotated[Optional[str], typer.Option(help="colour topic to check", rich_help_panel=BAG)] = None,
+            depth_topic: Annotated[Optional[str], typer.Option(help="depth topic to check", rich_help_panel=BAG)] = None,
+            camera_info_topic: Annotated[Optional[str], typer.Option(help="CameraInfo topic to check",
+                                                                     rich_help_panel=BAG)] = None) -> None:
+    """A bag's topics (type, count, rate, encoding) and the colour, depth and CameraInfo topics a run would read."""
+    from clipclique.exits import user_errors
+    from clipclique.localization.tables import make_console, print_survey
+
+    with user_errors(TOOL):
+        from clipclique.datasets.rosbag import BagOptions, BagReader, is_bag, survey
+
+        if not is_bag(path):
+            from clipclique.errors import DatasetError
+
+            raise DatasetError(f"{path}: not a ROS bag (a .bag, .mcap or .db3 file, or a folder holding metadata.yaml)")
+        found = survey(BagReader(path), BagOptions(rgb_topic, depth_topic, camera_info_topic))
+    print_survey(make_console(), found)
+    if found.problem:
+        raise typer.Exit(1)
 
 
 @app.command()

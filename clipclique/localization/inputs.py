@@ -37,7 +37,8 @@ WindowStepOption = Annotated[int, typer.Option(
     rich_help_panel=WINDOW)]
 OdometryOption = Annotated[Optional[str], typer.Option(
     "--odometry", help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or "
-                       "groundtruth (with --odometry-drift, simulated)", rich_help_panel=WINDOW)]
+                       "groundtruth (with --odometry-drift, simulated); on a ROS bag also tf:PARENT:CHILD (/tf) or "
+                       "topic:/odom (nav_msgs/Odometry)", rich_help_panel=WINDOW)]
 OdometryDriftOption = Annotated[float, typer.Option(
     "--odometry-drift", min=0.0, max=100.0, help="simulated drift of --odometry groundtruth, percent of the "
                                                  "distance travelled", metavar="PCT", rich_help_panel=WINDOW)]

@@ -23,7 +23,8 @@ import numpy as np
 from clipclique.commands import command
 from clipclique.config import make_config
 from clipclique.backends import load_encoder, make_detector
-from clipclique.datasets import Sequence
+from clipclique.datasets import Sequence, is_bag
+from clipclique.datasets.rosbag import NO_DETECTOR
 from clipclique.perception.encoders import Encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.io.mapfile import load_map
@@ -50,6 +51,9 @@ def prepare(settings: RunSettings) -> Run:
     """Open the sequence and map, choose the detector and encoder (none when the descriptor does not use
     CLIP), settle the config."""
     config = make_config(settings.method, settings.config_file, settings.overrides)
+    if settings.map_path is None and is_bag(Path(settings.sequence)):
+        raise MapFileError(f"{settings.sequence}: a ROS bag holds no map; pass --map FILE.map.npz (a map of the place, "
+                           f"e.g. `{command('clipclique-map')} build` of its TUM folder)")
     map_path = settings.resolved_map_path()
     if not map_path.exists():
         if settings.map_path is not None:
@@ -58,12 +62,15 @@ def prepare(settings: RunSettings) -> Run:
         raise MapFileError(f"{map_path}: no map of {settings.sequence} yet; build it with "
                            f"`{command('clipclique-map')} build {settings.sequence}` (or pass --map PATH)")
     map = load_map(map_path)
-    sequence = open_scene(settings.sequence, settings.data_root)
-    notes: list[str] = []
+    sequence = open_scene(settings.sequence, settings.data_root, bag=settings.bag)
+    notes: list[str] = sequence.notes()
     check_map_source(map, map_path, sequence.name, settings, notes)
     if gap := sequence.missing_poses():
         notes.append(f"{gap}; those frames cannot be scored")
     detector_kind = settings.detector or default_detector(sequence)
+    if detector_kind == NO_DETECTOR:
+        raise ClipcliqueError(f"{settings.sequence}: a ROS bag has no annotations to detect from; pass --detector "
+                              "file:DETECTIONS.json (e.g. a TUM folder run's, matched by colour stamp) or --detector yolo")
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed, settings.min_score, settings.labels,
                              settings.strict_detections)
@@ -101,10 +108,11 @@ def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | Non
             raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")
         return None
     if settings.odometry is None:
+        on_bag = ", or from the bag: tf:PARENT:CHILD or topic:/odom" if sequence.kind == "rosbag" else ""
         raise ClipcliqueError(f"--window {settings.window} needs --odometry FILE.tum (a metric trajectory) or "
-                              f"--odometry {GROUND_TRUTH} (with --odometry-drift PCT, simulated)")
+                              f"--odometry {GROUND_TRUTH} (with --odometry-drift PCT, simulated){on_bag}")
     timestamps, truth = sequence.trajectory()
-    return open_odometry(settings.odometry, settings.odometry_drift, settings.seed, timestamps, truth)
+    return open_odometry(settings.odometry, settings.odometry_drift, settings.seed, timestamps, truth, sequence)
 
 
 def check_map_source(map: Map, map_path: Path, sequence_name: str, settings: RunSettings, notes: list[str]) -> None:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from clipclique.config import LocalizationConfig, changed_by_overrides
-from clipclique.datasets import Sequence, scene_name
+from clipclique.datasets import BagOptions, Sequence, scene_name
 from clipclique.perception.detectors import Detector
 from clipclique.perception.encoders import Encoder
 from clipclique.interop.detections import CocoRecorder
@@ -49,6 +49,7 @@ class RunSettings:
     window_step: int = 1
     odometry: str | None = None  # "groundtruth" or a TUM trajectory file; needed with window > 1
     odometry_drift: float = 0.0  # percent, simulated on ground truth
+    bag: BagOptions | None = None  # how a ROS bag is read (topics, depth unit, ground truth); None: chosen
 
     def out_dir(self, sequence_name: str) -> Path:
         """`--out`, else outputs/loc/<the sequence's resolved name>/<run_name()>."""
@@ -69,6 +70,9 @@ class RunSettings:
                  "yolo": Path(self.yolo_weights).stem if self.detector == "yolo" else None,
                  "max_frames": self.max_frames, "min_score": self.min_score or None,
                  "labels": self.labels and Path(self.labels).stem}
+        if self.bag is not None:
+            given |= {"rgb": self.bag.rgb_topic, "depth": self.bag.depth_topic,
+                      "depth_scale": self.bag.depth_scale}
         if self.window > 1:
             given |= {"window": self.window, "window_step": self.window_step if self.window_step != 1 else None,
                       "odometry": Path(self.odometry).name if self.odometry else None,

@@ -173,6 +173,15 @@ def failure_line(document: dict[str, Any], title: str) -> str | None:
     return f"{title}: {sum(failures.values())} of {summary['frames']} frames without a pose: {reasons}"
 
 
+def unscored_line(document: dict[str, Any], title: str) -> str | None:
+    """When no frame has a ground-truth pose (a bag run without --groundtruth): say so, not a table of dashes alone.
+    (Success is averaged over the frames with ground truth: null when there is none.)"""
+    summary = document["summary"]
+    if not summary["frames"] or summary.get("success@1") is not None:
+        return None
+    return f"{title}: no ground truth: poses written (poses.tum), not scored"
+
+
 def run_banner(document: dict[str, Any]) -> str:
     """Which detector and encoder ran, flagged when simulated, and the run's notes."""
     run = document["run"]
@@ -211,6 +220,8 @@ def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
         for i in rows:
             if line := failure_line(documents[i], titles[i]):
                 console.print(escape(line), highlight=False, soft_wrap=not console.is_terminal)  # piped: whole
+            if line := unscored_line(documents[i], titles[i]):
+                console.print(escape(line), highlight=False, soft_wrap=not console.is_terminal)
     console.print()
     for caption in (results_caption(documents), STAGE_CAPTION):
         console.print(caption, highlight=False, markup=False)  # prose: wraps at the console's width
@@ -228,3 +239,19 @@ def print_frames(console: Console, document: dict[str, Any]) -> None:
         count = frame["observations"]
         console.print(f"frame {frame['index']}{name}: {count} observation{'' if count == 1 else 's'}, "
                       f"{escape(outcome)}", highlight=False, soft_wrap=True)
+
+
+def print_survey(console: Console, survey: Any) -> None:
+    """`clipclique-loc inspect`: a bag's topics (a clipclique.datasets.rosbag.Survey), one line each (names are
+    long: never cut), then what a run would read and why, or why it cannot without a topic named."""
+    console.print(escape(f"{survey.path}: {survey.duration_s:.1f} s, {len(survey.topics)} topics"), highlight=False,
+                  soft_wrap=True)
+    for topic in survey.topics:
+        parts = [topic.name, topic.msgtype, f"{topic.count} messages", f"{topic.rate_hz:.1f} Hz"]
+        parts += [f"encoding {topic.encoding}"] * bool(topic.encoding) + [f"frame {topic.frame_id}"] * bool(topic.frame_id)
+        parts += [f"-> {topic.role}"] * bool(topic.role)
+        console.print(escape("  " + "  ".join(parts)), highlight=False, soft_wrap=True)
+    for reason in survey.reasons:
+        console.print(f"reads {escape(reason)}", highlight=False, soft_wrap=True)
+    if survey.problem:
+        console.print(f"cannot read it as is: {escape(survey.problem)}", highlight=False, soft_wrap=True)

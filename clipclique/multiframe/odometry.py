@@ -1,7 +1,7 @@
 """Odometry for window localization: where each frame's camera was, in some drifting world of its own.
 
 Only relative motion within a short window is used, so the odometry's world frame is arbitrary.
-Two sources:
+Three sources:
 - a metric trajectory file in TUM format (`timestamp tx ty tz qx qy qz qw`, camera-to-world) from a
   VO or SLAM system, matched to the frames by timestamp (nearest within `MAX_TIME_DIFF`, as TUM's
   associate.py; a frame without a match has no odometry). Scale-free monocular odometry is out of
@@ -14,6 +14,8 @@ Two sources:
   errors add up nearly in line: the odometry is off by about PCT % of the distance travelled and of
   the angle turned (the relative error of KITTI's odometry benchmark), the worst case for its
   percentage. A frame without ground truth has no odometry.
+- a ROS bag's own (`bag_odometry`): `tf:PARENT:CHILD` (the camera's pose from /tf, static transforms applied)
+  or `topic:/odom` (a nav_msgs/Odometry topic, matched by stamp as a trajectory file is).
 """
 
 from __future__ import annotations
@@ -24,12 +26,15 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from clipclique.datasets import Sequence
+from clipclique.datasets.rosbag import BagSequence
 from clipclique.datasets.tum import MAX_TIME_DIFF, associate, read_trajectory
 from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import rotation_angle
 from clipclique.types import Pose
 
 GROUND_TRUTH = "groundtruth"  # the source name of ground truth with simulated drift
+BAG_SOURCES = ("tf:", "topic:")  # a bag's odometry: tf:PARENT:CHILD, topic:/odom
 DIRECTION_WANDER = 0.1  # per step: how fast the drift's direction turns (radians, roughly)
 
 
@@ -43,13 +48,16 @@ class Odometry:
 
 
 def open_odometry(source: str, drift_percent: float, seed: int, timestamps: np.ndarray,
-                  truth: list[Pose | None]) -> Odometry:
-    """`source` GROUND_TRUTH (with the simulated drift) or a TUM trajectory file, for frames at `timestamps`."""
+                  truth: list[Pose | None], sequence: Sequence | None = None) -> Odometry:
+    """`source` GROUND_TRUTH (with the simulated drift), a TUM trajectory file, or (`sequence` a bag) a
+    `BAG_SOURCES` source, for frames at `timestamps`."""
     if source == GROUND_TRUTH:
         return drifting(truth, drift_percent, seed)
     if drift_percent:
         raise ClipcliqueError(f"--odometry-drift simulates drift on ground truth (--odometry {GROUND_TRUTH}), "
                               f"not on {source}")
+    if source.startswith(BAG_SOURCES):
+        return bag_odometry(source, sequence)
     return from_trajectory(Path(source), timestamps)
 
 
@@ -58,11 +66,33 @@ def from_trajectory(path: Path, timestamps: np.ndarray, max_diff: float = MAX_TI
     file or one that matches no frame)."""
     path = Path(path)
     times, poses = read_trajectory(path)
-    nearest = associate(np.asarray(timestamps, np.float64), times, max_diff)
+    return matched(times, poses, timestamps, str(path), path.name, max_diff)
+
+
+def matched(times: np.ndarray, poses: list[Pose], timestamps: np.ndarray, where: str, name: str,
+            max_diff: float = MAX_TIME_DIFF) -> Odometry:
+    """The poses at `times` nearest to each frame's timestamp; a DatasetError naming `where` when none is near."""
+    nearest = associate(np.asarray(timestamps, np.float64), np.asarray(times, np.float64), max_diff)
     if len(timestamps) and (nearest < 0).all():
-        raise DatasetError(f"{path}: no pose within {max_diff} s of any frame's timestamp (frames at "
+        raise DatasetError(f"{where}: no pose within {max_diff} s of any frame's timestamp (frames at "
                            f"{timestamps[0]:.3f} .. {timestamps[-1]:.3f} s)")
-    return Odometry([poses[k] if k >= 0 else None for k in nearest], path.name, simulated=False)
+    return Odometry([poses[k] if k >= 0 else None for k in nearest], name, simulated=False)
+
+
+def bag_odometry(source: str, sequence: Sequence | None) -> Odometry:
+    """`tf:PARENT:CHILD` or `topic:/odom` of the bag `sequence` (a ClipcliqueError when it is no bag)."""
+    if not isinstance(sequence, BagSequence):
+        raise ClipcliqueError(f"--odometry {source}: tf: and topic: read a ROS bag's messages; this sequence is not a bag "
+                              "(give FILE.tum or groundtruth)")
+    kind, _, rest = source.partition(":")
+    if kind == "tf":
+        poses = sequence.tf_poses(rest, "--odometry tf:")
+        if not any(pose is not None for pose in poses):
+            raise DatasetError(f"{sequence.root}: --odometry {source}: /tf has no transform within {MAX_TIME_DIFF} s of "
+                               "any frame")
+        return Odometry(poses, source, simulated=False)
+    times, poses = sequence.odometry_track(rest)
+    return matched(times, poses, sequence.timestamps, f"{sequence.root}, {rest}", source)
 
 
 def drifting(truth: list[Pose | None], percent: float, seed: int = 0) -> Odometry:

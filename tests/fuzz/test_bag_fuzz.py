@@ -7,6 +7,7 @@ defect; the truncated ones are a demo_tum bag (ROS 1 and mcap) cut short.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,12 +28,12 @@ IMAGE, INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
 
 @pytest.fixture(scope="module")
 def inputs(demo_data, bag_tools, tmp_path_factory) -> dict[str, Path]:
-    """A map (of demo_tum, which every bag here is named after), an empty detection file, and a good demo_tum bag."""
+    """A map (of demo_tum, which every bag here is named after), a detection file listing no detection in the first frames (by index), and a good demo_tum bag."""
     root = tmp_path_factory.mktemp("bag-fuzz")
     folder = demo_data("demo_tum") / "demo" / "demo_tum"
     map, _ = build_map(open_scene(str(folder)), load_encoder("none"))
     save_map(map, root / "demo_tum.map.npz")
-    (root / "empty.json").write_text("[]")
+    (root / "empty.json").write_text(json.dumps([{"file_name": str(i), "detections": []} for i in range(8)]))
     return {
         "map": root / "demo_tum.map.npz",
         "detections": root / "empty.json",

@@ -201,6 +201,9 @@ class Named:
     def frame_name(self, i: int) -> str:
         return self.names[i]
 
+    def trajectory(self) -> tuple[np.ndarray, list[None]]:
+        return np.array([float(name) for name in self.names]), [None] * len(self.names)  # TUM names are stamps
+
 
 def test_a_file_of_another_sequence_is_refused_naming_both_schemes(tmp_path):
     found = detector(voom_file(tmp_path))

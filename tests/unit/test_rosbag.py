@@ -17,7 +17,7 @@ from clipclique.datasets import BagOptions, open_sequence
 from clipclique.datasets.rosimages import decode_colour, decode_depth
 from clipclique.datasets.rostf import TfTree
 from clipclique.errors import DatasetError
-from clipclique.interop.detections import FileDetection, FileDetector
+from clipclique.interop.detections import DetectionFile, FileDetection, FileDetector
 from clipclique.types import Frame, Pose
 
 
@@ -204,7 +204,8 @@ def test_detection_files_meet_frames_by_name_then_stamp_then_index():
     one = [FileDetection("cup", np.array([0, 0, 1, 1.0]), 0.9)]
     two = [FileDetection("cup", np.array([0, 0, 2, 2.0]), 0.8)]
     three = [FileDetection("cup", np.array([0, 0, 3, 3.0]), 0.7)]
-    detector = FileDetector(Path("d.json"), {"1305031102.175304": one, "2": two, "1305031103.5": three}, ["cup"])
+    detector = FileDetector(Path("d.json"), DetectionFile({"1305031102.175304": one, "2": two, "1305031103.5": three}),
+                            ["cup"])
     assert detector.listed(frame("1305031102.175304", 0.0, 9)) is one  # by name
     assert detector.listed(frame("a", 1305031102.19, 9)) is one  # by stamp: 0.0147 s away
     assert detector.listed(frame("a", 1305031102.2, 9)) == []  # 0.0247 s: too far, and no index 9

@@ -255,7 +255,8 @@ def _in_range(centers: np.ndarray, axes: np.ndarray, translations: np.ndarray, m
     differences. Of a large map only these are projected."""
     near = np.zeros(len(centers), np.bool_)
     for n in range(len(centers)):
-        size = axes[n].max()  # NaN where an axis is
+        a0, a1, a2 = axes[n, 0], axes[n, 1], axes[n, 2]  # by index: a row's view is counted in and out
+        size = np.nan if np.isnan(a0) or np.isnan(a1) or np.isnan(a2) else max(a0, a1, a2)
         for b in range(len(translations)):
             dx = centers[n, 0] - translations[b, 0]
             dy = centers[n, 1] - translations[b, 1]

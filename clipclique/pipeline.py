@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from clipclique.descriptors import graph, lookalikes, matching, similarity
 from clipclique.inliers import cliquesearch, compatibility, consensus, regions
+from clipclique.inliers.cliquesearch import sort_span
 from clipclique.multiframe import mapalign
 from clipclique.pose import refine
 from clipclique.verify import confidence, projection, verification
@@ -46,7 +47,6 @@ from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, LocalizationResult, Stage
 from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.verify.projection import pair_iou
-from clipclique.numpybits import pairwise_sum, sort_span
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations
 
@@ -405,7 +405,7 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, sc
     """Each clique (of `members`, clique after clique, `sizes[c]` each) holding candidates only
     `matching.lookalike_candidates` added, without them, where at least `min_size` remain and neither a clique nor
     an earlier such set is that set already, in the cliques' order: their members (in each clique's order), sizes,
-    stacked alike, and totals (the sum of each one's float64 `scores`, as numpy sums its gathered scores).
+    stacked alike, and totals (the sum of each one's float64 `scores`).
 
     An added look-alike pair may complete a clique (the right one where a cup was detected as "bottle"), but
     as a maximal clique it also replaces the clique without it, whose pose was often the more precise one on
@@ -420,8 +420,7 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np
     """`_without_added` in one compiled pass, instead of a dozen numpy passes (lexsort, bincounts, repeats) on a
     frame's few cliques: each clique's members sorted, each eligible rest (sorted) kept unless a clique of its size or
     an eligible rest before it holds the same numbers (only the rests compared: grouping every set with every other,
-    a desk frame's fifty overlapping cliques among them, took most of the pass), and the kept rests' totals summed
-    as numpy sums their gathered scores."""
+    a desk frame's fifty overlapping cliques among them, took most of the pass), and the kept rests' score totals."""
     count = len(sizes)
     starts = np.cumsum(sizes) - sizes
     rest_sizes = np.zeros(count, np.int64)
@@ -454,12 +453,13 @@ def _rests(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, scores: np
     totals = np.empty(kept.sum())
     at = 0
     for b, c in enumerate(np.flatnonzero(kept)):
-        start = at
+        total = 0.0
         for i in range(starts[c], starts[c] + sizes[c]):
             if not added[members[i]]:
                 kept_members[at], kept_scores[at] = members[i], scores[members[i]]
+                total += kept_scores[at]
                 at += 1
-        totals[b] = 0.0 + pairwise_sum(kept_scores, start, at, 0.0)  # numpy's sum: 0 + the scores
+        totals[b] = total
     return kept_members, rest_sizes[kept], totals
 
 

@@ -24,6 +24,7 @@ SUCCESS_FRAMES = 1
 THRESHOLDS_M = (0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 5.0)  # wider than any table's, so a new threshold is covered
 EXACT = ("index", "failure_kind", "detections", "observations", "candidates", "num_cliques")
 SCALARS = ("score", "conditioning", "verification", "confidence")
+KERNEL_RTOL = 1e-12  # a compiled kernel against its numpy reference: rounding, a few ulps of the largest term
 
 
 def decisions(document: dict[str, Any]) -> list[dict[str, Any]]:
@@ -128,3 +129,17 @@ def _close(a: float | None, b: float | None, rtol: float, atol: float) -> bool:
     if a is None or b is None:
         return a is b
     return abs(a - b) <= atol + rtol * abs(a)
+
+
+def assert_close(ours: np.ndarray, theirs: np.ndarray, atol: float | None = None) -> None:
+    """A kernel's array against its numpy reference: the same shape; integers and booleans equal, floats (either
+    side) within KERNEL_RTOL and KERNEL_RTOL of the array's largest finite magnitude (or `atol`), NaN where NaN
+    and infinities alike. Types are the caller's to check (a reference's empty sum may be an integer 0)."""
+    assert ours.shape == theirs.shape, (ours.shape, theirs.shape)
+    if ours.dtype.kind != "f" and theirs.dtype.kind != "f":
+        np.testing.assert_array_equal(ours, theirs)
+        return
+    theirs = np.asarray(theirs, np.float64)
+    finite = np.abs(theirs[np.isfinite(theirs)])
+    atol = KERNEL_RTOL * max(1.0, float(finite.max(initial=0.0))) if atol is None else atol
+    np.testing.assert_allclose(ours, theirs, rtol=KERNEL_RTOL, atol=atol)

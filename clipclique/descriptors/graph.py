@@ -290,7 +290,7 @@ def query_histograms(
     kernel: sp.csr_matrix | None = None,
 ) -> SparseRows:
     """`semantic_histograms(semantic_graph(centers, d_adj, max_degree), ...)` of one frame's observations,
-    to the bit (the same stored entries in the same order, so products with it sum alike), in one
+    with the same values (the same stored entries in the same order, so products with it sum alike), in one
     compiled pass instead of some thirty sparse-matrix constructions (most of a query's fixed cost).
 
     Falls back to the sparse path where the compiled one would differ or not pay: no observations, more

@@ -20,8 +20,8 @@ def histogram_similarity(query: sp.csr_matrix | SparseRows, landmarks_by_bin: sp
 
     `landmarks_by_bin` is the map's (N, C^s) histograms transposed to a (C^s, N) CSR matrix
     (`by_bin`), made once per map: `query @ landmarks.T` would convert it again every query. The
-    product is `(query @ landmarks_by_bin).toarray()` to the bit (each sum from 0, its terms in the
-    query row's stored order, as scipy's sparse product adds them), written straight into the
+    product is `(query @ landmarks_by_bin).toarray()` (each sum from 0, its terms in the query row's stored
+    order, as scipy's sparse product adds them), written straight into the
     dense result instead of through a sparse one."""
     out = np.zeros((query.shape[0], landmarks_by_bin.shape[1]))
     _sparse_product_into(out, query.indptr, query.indices, query.data.astype(np.float64, copy=False),

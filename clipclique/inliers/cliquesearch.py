@@ -33,7 +33,6 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
-from clipclique.numpybits import sort_span
 from clipclique.outcomes import CapHit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
@@ -298,11 +297,24 @@ def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
         rank[j] = i
 
 
+@njit(cache=True, inline="always")
+def sort_span(values: np.ndarray, start: int, stop: int) -> None:
+    """values[start: stop].sort() of integers by an insertion sort in place: a clique's dozen members, where a
+    view's sort costs its reference counts and numba's quicksort setup (inlined into its callers)."""
+    for i in range(start + 1, stop):
+        value = values[i]
+        j = i
+        while j > start and values[j - 1] > value:
+            values[j] = values[j - 1]
+            j -= 1
+        values[j] = value
+
+
 @njit(cache=True)
 def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
            best_size: np.ndarray, best_slot: np.ndarray, best_members: np.ndarray) -> None:
     """Insert a maximal clique into the ranked top list if it ranks high enough. Written out without helper calls
-    or views (the sort, `numpybits.sort_span`, is inlined): each array handed to a compiled call, or sliced, is
+    or views (the sort, `sort_span`, is inlined): each array handed to a compiled call, or sliced, is
     reference-counted by two atomic operations, which cost a desk search a quarter of its time when the comparison
     was a function and the sort a view's sort."""
     sort_span(clique, 0, size)

@@ -21,7 +21,6 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-from clipclique.numpybits import largest
 
 KD_LEAF_SIZE = 16  # cKDTree's default leafsize: up to this many points, its tree is a single leaf
 
@@ -87,16 +86,14 @@ def _leaf_pairs(points: np.ndarray, reach: float) -> np.ndarray:
 
 @njit(cache=True, inline="always")
 def _squared_distance(points: np.ndarray, a: int, b: int) -> float:
-    """|points[a] - points[b]|^2 as (dx^2 + dy^2) + dz^2, rows read by index (no views); the KD-tree's sum from 0
-    is the same bits, a square never being -0."""
+    """|points[a] - points[b]|^2 as (dx^2 + dy^2) + dz^2, rows read by index (no views)."""
     dx, dy, dz = points[a, 0] - points[b, 0], points[a, 1] - points[b, 1], points[a, 2] - points[b, 2]
     return (dx * dx + dy * dy) + dz * dz
 
 
 def pair_distances(centers: np.ndarray) -> np.ndarray:
-    """(K, K) distances between the centres (K, 3): `np.linalg.norm(centers[:, None] - centers[None], axis=-1)` to
-    the bit, ((dx^2 + dy^2) + dz^2) ** 0.5 as numpy adds the squares, in one compiled pass (the numpy form's
-    temporaries cost a frame's compatibility stage a fifth of its time)."""
+    """(K, K) distances between the centres (K, 3), `np.linalg.norm(centers[:, None] - centers[None], axis=-1)`
+    in one compiled pass (the numpy form's temporaries cost a frame's compatibility stage a fifth of its time)."""
     return _pair_distances(np.ascontiguousarray(centers, np.float64))
 
 
@@ -194,12 +191,11 @@ _NO_SLACK = np.zeros(0)
 
 @njit(cache=True)
 def _reach(observed: np.ndarray, d_comp: float, slack: np.ndarray) -> float:
-    """`pair_reach` of the distances and slack flattened: numpy's maximum of each (NaN wins; ValueError on no
-    distances, as numpy's reduction; of +0 and -0 either, as the reach is only compared), then the sum in its order."""
+    """`pair_reach` of the distances and slack flattened (ValueError on no distances, as numpy's reduction)."""
     if len(observed) == 0:
         raise ValueError("zero-size array to reduction operation maximum which has no identity")
-    widest = 0.0 if len(slack) == 0 else 2.0 * largest(slack)
-    return largest(observed) + d_comp + widest
+    widest = 0.0 if len(slack) == 0 else 2.0 * slack.max()
+    return observed.max() + d_comp + widest
 
 
 def partial_view_slack(

@@ -10,7 +10,7 @@ landmark shapes and layout to a nanometre, positions relative to the region's fi
 one search whose cliques are mapped onto every copy. A region's graph is tested on its own landmarks
 exactly as the whole map's would be; where a test is decided by less than DECIDED_BY, its copies are
 tested one by one. The heaviest cliques overall are merged in `cliquesearch`'s order (heavier first,
-ties by the sorted member lists): the same cliques as one search of the whole graph, to the bit, when
+ties by the sorted member lists): the same cliques, with the same weights, as one search of the whole graph, when
 no cap is hit. Only `reached` differs: it counts each region's own search.
 """
 

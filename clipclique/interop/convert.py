@@ -114,7 +114,8 @@ def coco_class(name: str) -> str | None:
 
 
 def landmarks_json(map: Map) -> str:
-    """The clipclique JSON landmark list of `map` (docs/import_export.md), exact to the bit (floats as JSON's shortest repr)."""
+    """The clipclique JSON landmark list of `map` (docs/import_export.md), exact (floats as JSON's shortest repr,
+    which reads back to the same float)."""
     landmarks = []
     for i, object_id in enumerate(object_ids(map)):
         item = {"id": object_id, "class": map.class_names[map.class_ids[i]], "description": map.descriptions[i],

@@ -28,7 +28,6 @@ from numba import njit
 from scipy.special import expit, log_expit
 
 from clipclique.errors import ClipcliqueError
-from clipclique.numpybits import pairwise_sum
 from clipclique.pose.stack import Stack
 from clipclique.verify.verification import Verification
 
@@ -48,24 +47,25 @@ class Evidence:
 
 
 def group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """The sum of each group values[ends[b - 1]: ends[b]] of a contiguous array, in its type, to the bit as
-    numpy's `.sum()` of each (a sum per group cost more than the arithmetic)."""
-    return _group_sums(values, np.asarray(ends, np.int64), values.dtype.type(0))
+    """The sum of each group values[ends[b - 1]: ends[b]] of a contiguous array, in its type (a numpy sum per group
+    cost more than the arithmetic)."""
+    return _group_sums(values, np.asarray(ends, np.int64))
 
 
 @njit(cache=True)
-def _group_sums(values: np.ndarray, ends: np.ndarray, zero) -> np.ndarray:
-    """`group_sums` (`zero`: 0 of the values' type, where numpy's reduction starts: -0 sums to +0)."""
-    sums = np.empty(len(ends), values.dtype)
+def _group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """`group_sums`, each from +0 in order."""
+    sums = np.zeros(len(ends), values.dtype)
     start = 0
     for b in range(len(ends)):
-        sums[b] = zero + pairwise_sum(values, start, ends[b], zero)
+        for i in range(start, ends[b]):
+            sums[b] += values[i]
         start = ends[b]
     return sums
 
 
 # Each feature: its name, its column number in `_features` (the order here) and the sign its coefficient is held
-# to (0: free). How each is computed from a frame's `Evidence`, as numpy computed it (`_features` to the bit):
+# to (0: free). How each is computed from a frame's `Evidence` (`_features` computes the same values in one pass):
 # - verification_in_frame: overlap - missed_weight * missed_in_frame: the verification score with its missed
 #   penalty counted beyond the frame's fewest (by count, as the model was fitted; with every missed landmark
 #   counted in full, verification.missed_full_area = 0, the score plus a constant per frame, so monotone in it
@@ -91,7 +91,7 @@ def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES))
     checked, hypotheses, similarity = evidence.verification, evidence.hypotheses, evidence.similarity
     return _features(_columns(tuple(names)), checked.overlap, checked.score,
                      checked.mean_iou, checked.missed, checked.depth_error, float(checked.missed_weight),
-                     hypotheses.counts, hypotheses.pairs, similarity, similarity.dtype.type(0),
+                     hypotheses.counts, hypotheses.pairs, similarity,
                      float(evidence.num_observations))
 
 
@@ -104,7 +104,7 @@ def _columns(names: tuple[str, ...]) -> np.ndarray:
 
 
 @njit(cache=True)
-def _features(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity, zero,
+def _features(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity,
               observations):
     """`feature_matrix` of the features numbered `columns` (their order in `FEATURES`), each written as numpy's
     passes computed it: the missed count as a float less the frame's fewest, np.minimum's NaN, the margin against
@@ -131,7 +131,7 @@ def _features(columns, overlap, score, mean_iou, missed, depth_error, missed_wei
             values = np.empty(len(pairs), similarity.dtype)
             for m in range(len(pairs)):
                 values[m] = similarity[pairs[m, 0], pairs[m, 1]]
-            matrix[:, j] = _group_sums(values, np.cumsum(counts), zero)
+            matrix[:, j] = _group_sums(values, np.cumsum(counts))
         else:
             matrix[:, j] = observations
     return matrix

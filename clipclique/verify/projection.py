@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from clipclique.numpybits import fma
 from clipclique.types import Camera, Ellipsoids
 
 MIN_DEPTH = 0.05  # metres: an ellipsoid reaching nearer than this is not projected
@@ -57,25 +56,10 @@ def spreads(ellipsoids: Ellipsoids) -> np.ndarray:
 def project_spreads(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                     camera: Camera) -> Projection:
     """`project` of ellipsoids given by their centres (N, 3) and `spreads` (N, 9)."""
-    if len(centers) == 1:
-        return _project_one(centers, spread, rotations, translations, camera)
     conics, boxes, visible, images, full_areas = _projected(centers, spread, rotations, translations, camera.intrinsics,
                                                             float(camera.width), float(camera.height),
                                                             float(camera.max_depth))
     return Projection(conics, boxes, visible, images[..., 2], full_areas)
-
-
-def _project_one(center: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-                 camera: Camera) -> Projection:
-    """`project_spreads` of one ellipsoid by numpy's products: its one-row products go through OpenBLAS's gemv,
-    whose sums are ordered otherwise than `_projected`'s (dgemm's), and the results stay those bits."""
-    view = camera.intrinsics @ rotations.transpose(0, 2, 1)  # (B, 3, 3)
-    kron = _kron(view).reshape(-1, 9, 9)
-    image = (center[None] - translations[:, None]) @ view.transpose(0, 2, 1)  # (B, 1, 3)
-    # K's last row is (0, 0, 1): the third coordinate is the depth, and (V M V^T)_33 the squared half-extent along the axis.
-    conics, boxes, visible, full_areas = _outline_boxes(spread @ kron.transpose(0, 2, 1), image, float(camera.width),
-                                                        float(camera.height), float(camera.max_depth))
-    return Projection(conics, boxes, visible, image[..., 2], full_areas)
 
 
 @njit(cache=True)
@@ -83,9 +67,8 @@ def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, t
                intrinsics: np.ndarray, width: float, height: float,
                max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_outline_boxes` of V = K R^T, vec(V M V^T) = spread (V kron V)^T and h = (c - t) V^T in one compiled call,
-    each product as numpy's matmul gets it from OpenBLAS's dgemm: from +0, one fused multiply-add per term in order
-    (`numpybits.fma`); three BLAS calls per pose cost more than the arithmetic. Returns the conics, boxes, visibility,
-    h (B, N, 3) (its third coordinate the depth) and the full areas."""
+    each product a plain loop (three BLAS calls per pose cost more than the arithmetic). Returns the conics, boxes,
+    visibility, h (B, N, 3) (its third coordinate the depth) and the full areas."""
     count, size = len(rotations), len(centers)
     view = _views(rotations, intrinsics)
     kron = _kron(view).reshape(count, 9, 9)
@@ -102,10 +85,7 @@ def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, t
 def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                   camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`project_spreads`'s boxes (B, N, 4), visibility (B, N) and full areas (B, N), the boxes and areas where visible
-    (0 elsewhere), to the bit: what image verification reads, without the conics it does not (`_visible_boxes`)."""
-    if len(centers) == 1:
-        seen = _project_one(centers, spread, rotations, translations, camera)
-        return np.where(seen.visible[..., None], seen.boxes, 0.0), seen.visible, np.where(seen.visible, seen.full_areas, 0.0)
+    (0 elsewhere): what image verification reads, without the conics it does not (`_visible_boxes`)."""
     return _visible_boxes(centers, spread, rotations, translations, camera.intrinsics, float(camera.width),
                           float(camera.height), float(camera.max_depth))
 
@@ -137,23 +117,22 @@ def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarra
 @njit(cache=True, inline="always")
 def _image_row_into(centers_t: np.ndarray, translations: np.ndarray, view: np.ndarray, b: int, i: int,
                     out: np.ndarray) -> None:
-    """Coordinate i of h = (c - t) V^T of every landmark (centres (3, N)) under pose b, as dgemm gets it."""
+    """Coordinate i of h = (c - t) V^T of every landmark (centres (3, N)) under pose b."""
     t0, t1, t2 = translations[b, 0], translations[b, 1], translations[b, 2]
     v0, v1, v2 = view[b, i, 0], view[b, i, 1], view[b, i, 2]
     for n in range(centers_t.shape[1]):
-        out[n] = fma(centers_t[2, n] - t2, v2, fma(centers_t[1, n] - t1, v1, fma(centers_t[0, n] - t0, v0, 0.0)))
+        out[n] = (centers_t[0, n] - t0) * v0 + (centers_t[1, n] - t1) * v1 + (centers_t[2, n] - t2) * v2
 
 
 @njit(cache=True, inline="always")
 def _term_row_into(spread_t: np.ndarray, kron: np.ndarray, b: int, row: int, out: np.ndarray) -> None:
-    """Entry `row` of vec(V M V^T) of every landmark (spreads (9, N)) under pose b: `_term`'s chain, nine fused
-    multiply-adds from +0 in order."""
+    """Entry `row` of vec(V M V^T) of every landmark (spreads (9, N)) under pose b."""
     k0, k1, k2, k3, k4 = kron[b, row, 0], kron[b, row, 1], kron[b, row, 2], kron[b, row, 3], kron[b, row, 4]
     k5, k6, k7, k8 = kron[b, row, 5], kron[b, row, 6], kron[b, row, 7], kron[b, row, 8]
     for n in range(spread_t.shape[1]):
-        total = fma(spread_t[3, n], k3, fma(spread_t[2, n], k2, fma(spread_t[1, n], k1, fma(spread_t[0, n], k0, 0.0))))
-        total = fma(spread_t[7, n], k7, fma(spread_t[6, n], k6, fma(spread_t[5, n], k5, fma(spread_t[4, n], k4, total))))
-        out[n] = fma(spread_t[8, n], k8, total)
+        total = spread_t[0, n] * k0 + spread_t[1, n] * k1 + spread_t[2, n] * k2 + spread_t[3, n] * k3
+        total += spread_t[4, n] * k4 + spread_t[5, n] * k5 + spread_t[6, n] * k6 + spread_t[7, n] * k7
+        out[n] = total + spread_t[8, n] * k8
 
 
 @njit(cache=True, inline="always")
@@ -192,37 +171,37 @@ def _boxes_where_visible(entries: np.ndarray, width: float, height: float, max_d
 
 @njit(cache=True)
 def _views(rotations: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """(B, 3, 3) V = K R^T of each pose, as numpy's matmul gets it from dgemm (one fma per term from +0)."""
+    """(B, 3, 3) V = K R^T of each pose."""
     view = np.empty((len(rotations), 3, 3))
     for b in range(len(rotations)):
         for i in range(3):
             for j in range(3):
-                view[b, i, j] = fma(intrinsics[i, 2], rotations[b, j, 2], fma(
-                    intrinsics[i, 1], rotations[b, j, 1], fma(intrinsics[i, 0], rotations[b, j, 0], 0.0)))
+                view[b, i, j] = (intrinsics[i, 0] * rotations[b, j, 0] + intrinsics[i, 1] * rotations[b, j, 1]
+                                 + intrinsics[i, 2] * rotations[b, j, 2])
     return view
 
 
 @njit(cache=True)
 def _image_into(center: np.ndarray, translation: np.ndarray, view: np.ndarray, image: np.ndarray) -> None:
-    """image = (c - t) V^T, one pose and landmark, as dgemm gets it."""
+    """image = (c - t) V^T, one pose and landmark."""
     x0, x1, x2 = center[0] - translation[0], center[1] - translation[1], center[2] - translation[2]
     for i in range(3):
-        image[i] = fma(x2, view[i, 2], fma(x1, view[i, 1], fma(x0, view[i, 0], 0.0)))
+        image[i] = x0 * view[i, 0] + x1 * view[i, 1] + x2 * view[i, 2]
 
 
 @njit(cache=True)
 def _term(spread: np.ndarray, kron_row: np.ndarray) -> float:
-    """One entry of vec(V M V^T): the landmark's spread (9,) against one row of V kron V, as dgemm adds it."""
+    """One entry of vec(V M V^T): the landmark's spread (9,) against one row of V kron V."""
     total = 0.0
     for k in range(9):
-        total = fma(spread[k], kron_row[k], total)
+        total += spread[k] * kron_row[k]
     return total
 
 
 @njit(cache=True)
 def _kron(view: np.ndarray) -> np.ndarray:
-    """(B, 3, 3, 3, 3) `np.einsum("bij,blk->biljk", view, view)` to the bit: each entry one product added to einsum's
-    zeroed output (so -0 comes out +0); compiled, without einsum's setup (a fifth of a frame's projection)."""
+    """(B, 3, 3, 3, 3) `np.einsum("bij,blk->biljk", view, view)`, compiled, without einsum's setup (a fifth of a
+    frame's projection)."""
     count = view.shape[0]
     kron = np.empty((count, 3, 3, 3, 3))
     for b in range(count):
@@ -230,7 +209,7 @@ def _kron(view: np.ndarray) -> np.ndarray:
             for l in range(3):
                 for j in range(3):
                     for k in range(3):
-                        kron[b, i, l, j, k] = 0.0 + view[b, i, j] * view[b, l, k]
+                        kron[b, i, l, j, k] = view[b, i, j] * view[b, l, k]
     return kron
 
 
@@ -240,8 +219,7 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
     """Per (pose, ellipsoid), from vec(V M V^T) (B, N, 9) and h (B, N, 3): the dual conic V M V^T - h h^T, the
     box of the outline clipped to the image, whether it is visible, and the unclipped box's area (0 unless the
     ellipsoid is wholly in front). C*33 = reach^2 - depth^2 < 0 in front orders the two roots of each axis;
-    elsewhere -1 stands in. One compiled pass, numpy's operations in order (np.maximum(x, 0) gives +0 for -0,
-    np.clip keeps -0): a dozen (B, N) numpy passes cost more than the work."""
+    elsewhere -1 stands in. One compiled pass: a dozen (B, N) numpy passes cost more than the work."""
     count, size = centers.shape[:2]
     conics = np.empty((count, size, 3, 3))
     boxes, visible, full_areas = np.empty((count, size, 4)), np.empty((count, size), np.bool_), np.empty((count, size))

@@ -33,7 +33,6 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.numpybits import maximum
 from clipclique.verify import projection
 from clipclique.verify.projection import at_least_zero, box_iou, corners_iou, project
 from clipclique.pose.stack import Stack, alike_spans
@@ -156,13 +155,12 @@ def _rows_pairs(pairs: np.ndarray, counts: np.ndarray,
 def _depths_along(centers: np.ndarray, lm: np.ndarray, translations: np.ndarray, rotations: np.ndarray,
                   owner: np.ndarray) -> np.ndarray:
     """(M,) each pair's landmark depth along its pose's optical axis, `np.einsum("mi,mi->m", centers[lm] -
-    translations[owner], rotations[owner, :, 2])` to the bit (einsum's sum of three products, (x0 y0 + x2 y2) +
-    x1 y1, added to its 0), without the two gathers and einsum's setup."""
+    translations[owner], rotations[owner, :, 2])`, without the two gathers and einsum's setup."""
     depths = np.empty(len(lm))
     for m in range(len(lm)):
         center, translation, axis = centers[lm[m]], translations[owner[m]], rotations[owner[m], :, 2]
         x0, x1, x2 = center[0] - translation[0], center[1] - translation[1], center[2] - translation[2]
-        depths[m] = 0.0 + ((x0 * axis[0] + x2 * axis[2]) + x1 * axis[1])
+        depths[m] = x0 * axis[0] + x1 * axis[1] + x2 * axis[2]
     return depths
 
 
@@ -230,8 +228,8 @@ def _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, de
 
 @njit(cache=True)
 def _group_medians(values, sizes):
-    """np.median of each group of values (group b: the next sizes[b]; inf for an empty group), to the bit where
-    no NaN is in it, each group sorted stably (NaN last) by an insertion sort into one scratch array (a group is a
+    """np.median of each group of values (group b: the next sizes[b]; inf for an empty group), the same values
+    where no NaN is in it, each group sorted stably (NaN last) by an insertion sort into one scratch array (a group is a
     hypothesis's dozen pairs; an argsort allocates twice a group): a median is (lower + upper) / 2 of the middle
     pair, as numpy computes it (the middle value twice when the count is odd)."""
     medians = np.empty(len(sizes))
@@ -253,11 +251,12 @@ def _group_medians(values, sizes):
 @njit(cache=True)
 def _in_range(centers: np.ndarray, axes: np.ndarray, translations: np.ndarray, max_depth: float) -> np.ndarray:
     """(N,) whether a landmark some camera (B positions) may see: `np.linalg.norm(centers - translation) -
-    axes.max(axis=1) <= max_depth` for some translation, the norm as numpy computes it, ((dx^2 + dy^2) + dz^2) ** 0.5,
-    the size NaN where an axis is, without a (B, N, 3) array of differences. Of a large map only these are projected."""
+    axes.max(axis=1) <= max_depth` for some translation (never where an axis is NaN), without a (B, N, 3) array of
+    differences. Of a large map only these are projected."""
     near = np.zeros(len(centers), np.bool_)
     for n in range(len(centers)):
-        size = maximum(maximum(axes[n, 0], axes[n, 1]), axes[n, 2])
+        a0, a1, a2 = axes[n, 0], axes[n, 1], axes[n, 2]  # by index: a row's view is counted in and out
+        size = np.nan if np.isnan(a0) or np.isnan(a1) or np.isnan(a2) else max(a0, a1, a2)
         for b in range(len(translations)):
             dx = centers[n, 0] - translations[b, 0]
             dy = centers[n, 1] - translations[b, 1]

@@ -172,7 +172,7 @@ def test_the_similarity_floor_is_numpys_gather_and_selection():
             got = match(similarity, config)
             np.testing.assert_array_equal(got[0], candidates[keep])
             assert got[0].dtype == np.int64 and got[0].shape == (keep.sum(), 2)
-            assert np.array_equal(got[1].view(np.int64), scores[keep].view(np.int64))
+            np.testing.assert_array_equal(got[1], scores[keep])  # gathered, not computed
             np.testing.assert_array_equal(got[2], np.zeros(keep.sum(), bool))
             assert got[2].dtype == np.bool_
 
@@ -214,7 +214,7 @@ def _kernel(num_classes, pairs):
 
 def _both(candidates, similarity, kernel, landmark_classes, observed_classes, per_class, observed_axes=None,
           landmark_axes=None, ratio=1.5):
-    """`with_lookalikes` and the reference on one case, checked equal to the bit; the compiled result."""
+    """`with_lookalikes` and the reference on one case, checked equal; the compiled result."""
     observed_axes = np.ones((len(similarity), 3)) if observed_axes is None else observed_axes
     landmark_axes = np.ones((similarity.shape[1], 3)) if landmark_axes is None else landmark_axes
     lookalikes = Lookalikes(groups=class_groups(landmark_classes, kernel, landmark_axes), classes=observed_classes,
@@ -347,7 +347,7 @@ def test_adaptive_matching_with_lookalikes_in_one_call_is_the_three_steps():
             keep = scores > config.min_similarity
         got = match(similarity, config, lookalikes)
         np.testing.assert_array_equal(got[0], candidates[keep])
-        assert np.array_equal(got[1].view(np.int64), scores[keep].view(np.int64))
+        np.testing.assert_array_equal(got[1], scores[keep])  # gathered, not computed
         np.testing.assert_array_equal(got[2], added[keep])
         assert got[0].dtype == np.int64 and got[2].dtype == np.bool_
 

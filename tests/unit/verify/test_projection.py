@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from numba import njit
 
 from clipclique.geometry import look_at, random_rotation
-from clipclique.numpybits import fma
 from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
+from tolerance import assert_close
 
 CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
 
@@ -82,7 +81,7 @@ def test_box_iou():
     assert box_iou(np.zeros(4), np.zeros(4)) == 0.0
 
 
-def test_pair_iou_is_box_iou_to_the_bit():
+def test_pair_iou_is_box_iou():
     """Overlapping, nested, disjoint, touching and empty boxes."""
     rng = np.random.default_rng(0)
     corners = np.round(rng.uniform(0, 60, (400, 2, 2)), 0)  # whole pixels: shared edges and empty boxes happen
@@ -91,30 +90,6 @@ def test_pair_iou_is_box_iou_to_the_bit():
     a, b = boxes[:200], boxes[200:]
     np.testing.assert_array_equal([pair_iou(x, y) for x, y in zip(a, b)], box_iou(a, b))
     assert box_iou(a, b).min() == 0.0 and 0.0 < box_iou(a, b).max() < 1.0
-
-
-def dgemm_chains(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a @ b (stacks broadcast) as OpenBLAS's AVX-512 dgemm adds a small product and the compiled products must:
-    each entry from +0, one fused multiply-add per term in order. Written out here, not taken from numpy's matmul,
-    whose order is the machine's (its AVX2 kernels add a few rows otherwise; clipclique.arithmetic pins them)."""
-    shape = np.broadcast_shapes(a.shape[:-2], b.shape[:-2])
-    stacks = int(np.prod(shape))
-    left = np.ascontiguousarray(np.broadcast_to(a, shape + a.shape[-2:])).reshape(stacks, *a.shape[-2:])
-    right = np.ascontiguousarray(np.broadcast_to(b, shape + b.shape[-2:])).reshape(stacks, *b.shape[-2:])
-    return _chained(left, right).reshape(*shape, a.shape[-2], b.shape[-1])
-
-
-@njit
-def _chained(left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    out = np.empty((len(left), left.shape[1], right.shape[2]))
-    for s in range(len(left)):
-        for i in range(left.shape[1]):
-            for j in range(right.shape[2]):
-                total = 0.0
-                for k in range(left.shape[2]):
-                    total = fma(left[s, i, k], right[s, k, j], total)
-                out[s, i, j] = total
-    return out
 
 
 def numpy_outline_boxes(conics: np.ndarray, depths: np.ndarray, camera: Camera):
@@ -133,7 +108,7 @@ def numpy_outline_boxes(conics: np.ndarray, depths: np.ndarray, camera: Camera):
     return boxes, visible, full_areas
 
 
-def test_the_compiled_boxes_are_the_numpy_passes_to_the_bit():
+def test_the_compiled_boxes_are_the_numpy_passes():
     """Landmarks in view, behind, around and beside the camera, cut by the image border, at the depth limit."""
     rng = np.random.default_rng(11)
     for trial in range(40):
@@ -147,27 +122,26 @@ def test_the_compiled_boxes_are_the_numpy_passes_to_the_bit():
         seen = project(ellipsoids, np.array([p.rotation for p in poses]), np.array([p.translation for p in poses]), camera)
         for ours, theirs in zip((seen.boxes, seen.visible, seen.full_areas),
                                 numpy_outline_boxes(seen.dual_conics, seen.depths, camera)):
-            assert ours.tobytes() == theirs.tobytes()
-        assert seen.dual_conics.tobytes() == numpy_dual_conics(ellipsoids, poses, camera).tobytes()
+            assert_close(ours, theirs)
+        assert_close(seen.dual_conics, numpy_dual_conics(ellipsoids, poses, camera))
 
 
 def numpy_dual_conics(ellipsoids: Ellipsoids, poses: list, camera: Camera) -> np.ndarray:
     """`project`'s dual conics as written with numpy passes, V M V^T - h h^T, before the subtraction was compiled
-    (the products as dgemm's chains)."""
+    (the products numpy's matmul)."""
     rotations, translations = np.array([p.rotation for p in poses]), np.array([p.translation for p in poses])
     shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
     spread = (shape @ shape.transpose(0, 2, 1)).reshape(-1, 9)
-    view = dgemm_chains(camera.intrinsics, rotations.transpose(0, 2, 1))
+    view = camera.intrinsics @ rotations.transpose(0, 2, 1)
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
-    centers = dgemm_chains(ellipsoids.centers[None] - translations[:, None], view.transpose(0, 2, 1))
-    terms = dgemm_chains(spread, kron.transpose(0, 2, 1))
+    centers = (ellipsoids.centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
+    terms = spread @ kron.transpose(0, 2, 1)
     return terms.reshape(*centers.shape, 3) - centers[..., :, None] * centers[..., None, :]
 
 
 def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations: np.ndarray, camera: Camera,
-                     product=dgemm_chains):
-    """`project`'s arrays as its numpy passes computed them before the kron was compiled and the map's spreads kept;
-    `product`: how V, h and vec(V M V^T) are multiplied (dgemm's chains, or numpy's matmul for one landmark)."""
+                     product=np.matmul):
+    """`project`'s arrays as its numpy passes computed them before the kron was compiled and the map's spreads kept."""
     from clipclique.verify.projection import _outline_boxes
 
     shape = ellipsoids.rotations * ellipsoids.axes[:, None, :]
@@ -180,7 +154,7 @@ def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations
     return conics, boxes, visible, centers[..., 2], full_areas
 
 
-def test_the_compiled_kron_is_einsums_outer_product_to_the_bit():
+def test_the_compiled_kron_is_einsums_outer_product():
     """`_kron` against np.einsum("bij,blk->biljk") on hand-made views (-0, NaN, infinities, subnormals, huge values
     whose products overflow) and random ones, and no views."""
     from clipclique.verify.projection import _kron
@@ -192,12 +166,12 @@ def test_the_compiled_kron_is_einsums_outer_product_to_the_bit():
         with np.errstate(invalid="ignore", over="ignore", under="ignore"):
             expected = np.einsum("bij,blk->biljk", views, views)
             got = _kron(views)
-        assert got.shape == expected.shape and got.flags.c_contiguous
-        assert got.tobytes() == expected.tobytes()
+        assert got.flags.c_contiguous
+        assert_close(got, expected)
 
 
 def test_a_maps_spreads_are_each_ellipsoids_own_whatever_the_others():
-    """The spreads `index_map` keeps for the whole map, gathered for the landmarks in range, are the bits the
+    """The spreads `index_map` keeps for the whole map, gathered for the landmarks in range, are the values the
     landmarks in range alone give (verification projects only those), single and empty subsets included."""
     from clipclique.verify.projection import spreads
 
@@ -209,10 +183,10 @@ def test_a_maps_spreads_are_each_ellipsoids_own_whatever_the_others():
     assert whole.shape == (count, 9) and whole.flags.c_contiguous
     for subset in (np.arange(count), rng.permutation(count)[:17], np.array([5]), np.zeros(0, np.int64),
                    np.sort(rng.choice(count, 31, replace=False))):
-        assert whole[subset].tobytes() == spreads(ellipsoids.subset(subset)).tobytes()
+        assert_close(whole[subset], spreads(ellipsoids.subset(subset)))
 
 
-def test_project_is_its_numpy_passes_to_the_bit():
+def test_project_is_its_numpy_passes():
     """The projection with the compiled kron and the spreads passed separately gives the arrays the numpy passes
     gave, every pose and landmark, landmarks behind, around and beyond the camera among them."""
     from clipclique.verify.projection import project_spreads, spreads
@@ -224,29 +198,26 @@ def test_project_is_its_numpy_passes_to_the_bit():
                                 np.array([random_rotation(rng) for _ in range(count)]).reshape(-1, 3, 3))
         cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(poses)]
         rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
-        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA,  # one landmark: numpy's products
-                                    product=np.matmul if count == 1 else dgemm_chains)
+        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA)
         for seen in (project(ellipsoids, rotations, translations, CAMERA),
                      project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)):
             got = (seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas)
             for ours, theirs in zip(got, expected):
-                assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
+                assert_close(ours, theirs)
 
 
 def numpy_products(centers, spread, rotations, translations, intrinsics):
-    """vec(V M V^T) and h by dgemm's chains, as `project_spreads` computed them with numpy's matmul on the machine
-    whose OpenBLAS kernels the compiled products were written to."""
-    view = dgemm_chains(intrinsics, rotations.transpose(0, 2, 1))
+    """vec(V M V^T) and h by numpy's matmul, as `project_spreads` computed them before they were compiled."""
+    view = intrinsics @ rotations.transpose(0, 2, 1)
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
-    return (dgemm_chains(spread, kron.transpose(0, 2, 1)),
-            dgemm_chains(centers[None] - translations[:, None], view.transpose(0, 2, 1)))
+    return spread @ kron.transpose(0, 2, 1), (centers[None] - translations[:, None]) @ view.transpose(0, 2, 1)
 
 
 @pytest.mark.parametrize("count", [0, 2, 3, 7, 40])
-def test_the_compiled_products_are_dgemms_chains_to_the_bit(count):
-    """`_projected`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) (one fused multiply-add per term from +0) against
-    dgemm's chains written out (`dgemm_chains`), through `_outline_boxes`, on random poses and on hand-made entries: -0, NaN, infinities, centres
-    on the camera (a zero offset), equal landmarks (ties) and no landmarks."""
+def test_the_compiled_products_are_numpys_matmul(count):
+    """`_projected`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) against numpy's matmul, through `_outline_boxes`,
+    on random poses and on hand-made entries: -0, NaN, infinities, centres on the camera (a zero offset), equal
+    landmarks (ties) and no landmarks."""
     from clipclique.verify.projection import _outline_boxes, _projected
 
     rng = np.random.default_rng(count)
@@ -266,38 +237,24 @@ def test_the_compiled_products_are_dgemms_chains_to_the_bit(count):
             terms, images = numpy_products(centers, spread, rotations, translations, intrinsics)
             expected = (*_outline_boxes(terms, images, 640.0, 480.0, 8.0), images)
             got = _projected(centers, spread, rotations, translations, intrinsics, 640.0, 480.0, 8.0)
-        for ours, theirs in zip((*got[:3], got[4], got[3]), expected):
-            assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
-
-
-def test_one_landmark_keeps_numpys_one_row_products():
-    """One landmark's products go through gemv in numpy, summed in another order than dgemm's: `project_spreads`
-    keeps those bits (the compiled products differ from them on many random poses, so this would catch a switch)."""
-    from clipclique.verify.projection import _projected, project_spreads, spreads
-
-    rng = np.random.default_rng(5)
-    differs = 0
-    for trial in range(60):
-        ellipsoids = Ellipsoids(rng.uniform(-4, 4, (1, 3)), rng.uniform(0.02, 1.5, (1, 3)),
-                                np.array([random_rotation(rng)]))
-        cameras = [look_at(rng.uniform(-5, 5, 3), rng.uniform(-1, 1, 3)) for _ in range(int(rng.integers(1, 8)))]
-        rotations, translations = np.array([p.rotation for p in cameras]), np.array([p.translation for p in cameras])
-        seen = project_spreads(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA)
-        expected = numpy_projection(ellipsoids, rotations, translations, CAMERA, product=np.matmul)
-        for ours, theirs in zip((seen.dual_conics, seen.boxes, seen.visible, seen.depths, seen.full_areas), expected):
-            assert ours.shape == theirs.shape and ours.tobytes() == theirs.tobytes()
-        compiled = _projected(ellipsoids.centers, spreads(ellipsoids), rotations, translations, CAMERA.intrinsics,
-                              640.0, 480.0, 8.0)
-        differs += compiled[0].tobytes() != seen.dual_conics.tobytes()
-    assert differs > 0
+        # The conics and h within rounding; the boxes (pixels) and areas (square pixels) of these random spreads, not
+        # positive definite, come from square roots of differences that cancel to 1e-8 of their terms.
+        # A visibility may differ only for a box thinner than that rounding (a sliver at the decision's edge).
+        boxes = got[1]
+        flipped = got[2] != expected[2]
+        thin = np.minimum(boxes[..., 2] - boxes[..., 0], boxes[..., 3] - boxes[..., 1]) < 1e-4
+        assert not (flipped & ~thin).any() and flipped.sum() <= 1
+        for ours, theirs, atol in zip((got[0], got[1], got[4], got[3]), (*expected[:2], *expected[3:]),
+                                      (None, 1e-4, 1e-2, None)):
+            assert_close(ours, theirs, atol)
 
 
 @pytest.mark.parametrize("count", [0, 1, 2, 7, 40])
-def test_visible_boxes_are_the_projections_where_visible_to_the_bit(count):
+def test_visible_boxes_are_the_projections_where_visible(count):
     """`visible_boxes` (the five conic entries a box reads, and only for landmarks in front within range) against
     `project_spreads`: the same visibility everywhere, the same boxes and full areas where visible and 0 elsewhere,
     on random poses facing every way and hand-made entries: -0, NaN, infinities, a landmark on the camera, equal
-    landmarks (ties), beyond the depth range, one landmark (numpy's gemv bits) and none."""
+    landmarks (ties), beyond the depth range, one landmark and none."""
     from clipclique.verify.projection import project_spreads, spreads, visible_boxes
 
     rng = np.random.default_rng(11 + count)
@@ -318,16 +275,15 @@ def test_visible_boxes_are_the_projections_where_visible_to_the_bit(count):
         with np.errstate(invalid="ignore", over="ignore"):
             seen = project_spreads(centers, spread, rotations, translations, CAMERA)
             boxes, visible, full_areas = visible_boxes(centers, spread, rotations, translations, CAMERA)
-        assert visible.dtype == np.bool_ and visible.tobytes() == seen.visible.tobytes()
-        expected_boxes = np.where(seen.visible[..., None], seen.boxes, 0.0)
-        assert boxes.shape == expected_boxes.shape and boxes.tobytes() == expected_boxes.tobytes()
-        assert full_areas.tobytes() == np.where(seen.visible, seen.full_areas, 0.0).tobytes()
+        assert_close(visible, seen.visible)
+        assert_close(boxes, np.where(seen.visible[..., None], seen.boxes, 0.0))
+        assert_close(full_areas, np.where(seen.visible, seen.full_areas, 0.0))
         visible_seen += int(visible.sum())
         hidden_seen += int((~visible).sum())
     assert count == 0 or (visible_seen > 0 and hidden_seen > 0)
 
 
-def test_the_boxes_of_flat_conic_entries_are_the_numpy_passes_to_the_bit():
+def test_the_boxes_of_flat_conic_entries_are_the_numpy_passes():
     """`_boxes_where_visible` (every box in one branch-free pass) against the numpy passes of the boxes, zeroed where
     not visible: entries in front, behind, grazing the camera (C*33 + depth^2 = 0), at the depth limit, -0, NaN and
     infinities, no landmark."""
@@ -353,13 +309,14 @@ def test_the_boxes_of_flat_conic_entries_are_the_numpy_passes_to_the_bit():
             got = _boxes_where_visible(entries, 640.0, 480.0, 4.0, count, size)
         expected = (np.where(visible[..., None], boxes, 0.0), visible, np.where(visible, full_areas, 0.0))
         for ours, theirs in zip(got, expected, strict=True):
-            assert ours.shape == theirs.shape and ours.dtype == theirs.dtype and ours.tobytes() == theirs.tobytes()
+            assert ours.dtype == theirs.dtype
+            assert_close(ours, theirs)
         visible_seen, hidden_seen = visible_seen + int(visible.sum()), hidden_seen + int((~visible).sum())
     assert visible_seen > 100 and hidden_seen > 100
 
 
-def test_corners_iou_is_box_iou_to_the_bit():
-    """`corners_iou` (the numbers of two boxes, as verification's loops hand them) against `box_iou`, byte for byte:
+def test_corners_iou_is_box_iou():
+    """`corners_iou` (the numbers of two boxes, as verification's loops hand them) against `box_iou`:
     overlapping, nested, disjoint, touching and empty boxes, corners of -0, NaN and infinity."""
     from clipclique.verify.projection import corners_iou
 
@@ -373,5 +330,5 @@ def test_corners_iou_is_box_iou_to_the_bit():
     with np.errstate(invalid="ignore"):
         expected = box_iou(a, b)
     got = np.array([corners_iou(*x, *y) for x, y in zip(a, b)])
-    assert got.tobytes() == expected.tobytes()
+    assert_close(got, expected)
     assert np.isnan(boxes).any() and (expected > 0).any() and (expected == 0).any()

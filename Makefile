@@ -59,7 +59,7 @@ $(CLUSTER_STAMP): $(STAMP)
 	touch $(CLUSTER_STAMP)
 
 test: $(CLUSTER_STAMP)
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile --durations=15
 
 # the core and pytest only: no torch, so a fresh clone is testing in a minute or two
 $(DEV_STAMP): $(CORE)

@@ -44,3 +44,19 @@ def test_a_run_imports_no_model_or_plotting_library_and_rerun_only_to_record(dem
     assert "numba" in modules and "clipclique" in modules  # the probe saw the run's own imports
     assert sorted(modules & NEVER) == []
     assert ("rerun" in modules) == record
+
+
+def test_a_recordings_start_imports_no_pyarrow_compute():
+    """A recording's start (the map and its annotation context logged) does not import pyarrow.compute (about
+    0.1 s of every recorded run)."""
+    script = ("import sys, tempfile, pathlib, numpy as np\n"
+              "from clipclique.types import Ellipsoids, Map\n"
+              "from clipclique.viz import LocalizationRecorder\n"
+              "map = Map(Ellipsoids(np.zeros((1, 3)), np.ones((1, 3)), np.eye(3)[None]), np.zeros(1, int), ['chair'],"
+              " ['a chair'], np.zeros(1, int))\n"
+              "with tempfile.TemporaryDirectory() as folder:\n"
+              "    with LocalizationRecorder(pathlib.Path(folder) / 'r.rrd', map, 'x'):\n"
+              "        pass\n"
+              "print('pyarrow.compute' in sys.modules)\n")
+    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert loaded.stdout.strip() == "False", loaded.stderr

@@ -117,12 +117,9 @@ def test_class_colors_follow_the_class_name_not_the_vocabulary():
     assert luminance.min() >= 0.49  # readable as label text on the viewer's dark background (no dark purple)
 
 
-def test_annotation_context_is_rerun_s_own_and_imports_no_pyarrow_compute():
-    """The context built as Arrow is the very array `rr.AnnotationContext(infos)` makes, and a recording's start (the
-    map and its context logged) no longer imports pyarrow.compute (about 0.1 s of every recorded run)."""
-    import subprocess
-    import sys
-
+def test_annotation_context_is_rerun_s_own():
+    """The context built as Arrow is the very array `rr.AnnotationContext(infos)` makes (without pyarrow.compute:
+    tests/integration/test_run_imports.py)."""
     from clipclique.viz.style import annotation_context
 
     names = ["chair", "Table", "potted plant", ""]
@@ -133,17 +130,6 @@ def test_annotation_context_is_rerun_s_own_and_imports_no_pyarrow_compute():
     assert annotation_context(names).context.as_arrow_array().equals(rr.AnnotationContext(infos).context.as_arrow_array())
     assert annotation_context([]).context.as_arrow_array().equals(
         rr.AnnotationContext(infos[:1]).context.as_arrow_array())
-    script = ("import sys, tempfile, pathlib, numpy as np\n"
-              "from clipclique.types import Ellipsoids, Map\n"
-              "from clipclique.viz import LocalizationRecorder\n"
-              "map = Map(Ellipsoids(np.zeros((1, 3)), np.ones((1, 3)), np.eye(3)[None]), np.zeros(1, int), ['chair'],"
-              " ['a chair'], np.zeros(1, int))\n"
-              "with tempfile.TemporaryDirectory() as folder:\n"
-              "    with LocalizationRecorder(pathlib.Path(folder) / 'r.rrd', map, 'x'):\n"
-              "        pass\n"
-              "print('pyarrow.compute' in sys.modules)\n")
-    loaded = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
-    assert loaded.stdout.strip() == "False", loaded.stderr
 
 
 def test_hsv_conversion_is_matplotlibs():

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 
 import numpy as np
 import pytest
@@ -195,17 +194,6 @@ def test_held_out_predictions_never_see_their_own_scene():
     assert not np.allclose(before[scene != "a"], after[scene != "a"])
     with pytest.raises(ClipcliqueError, match="two scenes or more"):
         calibration.held_out(rows.take(scene == "a"))
-
-
-def test_fit_confidence_needs_two_scenes(tmp_path, repository):
-    import subprocess
-
-    tool = repository / "tools" / "fit_confidence.py"
-    done = subprocess.run([sys.executable, str(tool), "demo", "--out", str(tmp_path / "m.json")], capture_output=True,
-                          text=True, cwd=tmp_path)
-    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
-        "fit_confidence: error: give two scenes or more: the model is measured on a scene it was not fitted on"]
-    assert not (tmp_path / "m.json").exists()
 
 
 def numpy_features(evidence: confidence.Evidence) -> dict[str, np.ndarray]:

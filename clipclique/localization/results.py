@@ -266,17 +266,23 @@ RESULTS_SCHEMA: dict[str, Any] = {
         **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
                                     "success@3", "success@5", "time_ms_median", "te_mean_m", "te_p90_m", "re_mean_deg",
                                     "localized")},
-        "success_within_m": {f"{t:g}": _NUMBER for t in SUCCESS_THRESHOLDS_M},
+        "success_within_m": {str: _NUMBER},  # any thresholds: a run from before 0.05, 0.1 and 5 m still reads
         "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
     },
 }
 
 
 def _schema_problem(value: Any, schema: Any, where: str = "") -> str | None:
-    """Where `value` departs from `schema` (a dict of keys, a one-item list, a type or a tuple of choices), or None."""
+    """Where `value` departs from `schema` (a dict of keys, `{str: part}` for any keys, a one-item list, a type or
+    a tuple of choices), or None."""
     if isinstance(schema, tuple) and any(isinstance(s, dict) for s in schema):
         problems = [_schema_problem(value, s, where) for s in schema]
         return None if None in problems else problems[0]
+    if isinstance(schema, dict) and list(schema) == [str]:
+        if not isinstance(value, dict):
+            return f"{where.removesuffix('.')} is not an object"
+        return next((p for key, item in value.items() if (p := _schema_problem(item, schema[str], f"{where}{key}."))),
+                    None)
     if isinstance(schema, dict):
         if not isinstance(value, dict):
             return f"{where or 'the document'} is not an object"

@@ -63,9 +63,9 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
-        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
+        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | simulated-yolo-sparse | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
              "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
-             "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+             "demo_desk, simulated-yolo-clutter on demo_clutter, simulated-yolo-sparse on demo_sparse, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     min_score: Annotated[Optional[float], typer.Option(
         min=0.0, max=1.0, help="drop detections scoring lower (file: and yolo detectors)", rich_help_panel=INPUTS)] = None,
     yolo_weights: Annotated[str, typer.Option(help="YOLO-seg checkpoint for --detector yolo",
@@ -82,8 +82,14 @@ def run(
                              "frame; ground truth scored only if it shares that frame)", rich_help_panel=INPUTS)] = False,
     window: Annotated[int, typer.Option(min=1, help="localize each frame with the K - 1 frames before it, fused by "
                                                "odometry", metavar="K", rich_help_panel=WINDOW)] = 1,
-    window_step: Annotated[int, typer.Option(min=1, help="the window takes every S-th frame back from the newest",
-                                             metavar="S", rich_help_panel=WINDOW)] = 1,
+    window_step: Annotated[Optional[int], typer.Option(min=1, help="the window takes every S-th frame back from the "
+                                                       "newest \\[default: 1]", metavar="S",
+                                                       rich_help_panel=WINDOW)] = None,
+    # --- window span (issue 37): K frames spread over SECONDS instead of every S-th ---
+    window_span: Annotated[Optional[float], typer.Option(
+        help="the window's K frames spread over this many seconds back from the newest (not with --window-step)",
+        metavar="SECONDS", rich_help_panel=WINDOW)] = None,
+    # --- end window span ---
     odometry: Annotated[Optional[str], typer.Option(
         help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or groundtruth "
              "(with --odometry-drift, simulated)", rich_help_panel=WINDOW)] = None,
@@ -107,6 +113,7 @@ def run(
 
         from clipclique.commands import rerun_hint
         from clipclique.config import method_key
+        from clipclique.errors import ClipcliqueError
         from clipclique.exits import user_errors
         from clipclique.localization.run import RunSettings, run_and_save
         from clipclique.localization.tables import make_console, print_documents, print_frames
@@ -120,7 +127,12 @@ def run(
     settings = RunSettings(sequence, method, config, overrides, map_path, data_root,
                            detector, encoder, yolo_weights, stride, max_frames, out,
                            record=not no_rrd, same_place=same_place, min_score=min_score or 0.0, window=window,
-                           window_step=window_step, odometry=odometry, odometry_drift=odometry_drift)
+                           window_step=window_step or 1, odometry=odometry, odometry_drift=odometry_drift,
+                           window_span=window_span)
+    if window_span is not None and window_step is not None:  # window span (issue 37): one or the other
+        with user_errors(TOOL):
+            raise ClipcliqueError(f"--window-span {window_span:g} and --window-step {window_step} are mutually "
+                                  "exclusive: give the span (seconds) or the step (frames)")
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         task = progress.add_task(escape(f"{sequence} / {method}"), total=None)

@@ -26,8 +26,9 @@ if TYPE_CHECKING:
 CLUTTER = {"detect_max": 0.62, "duplicate_rate": 0.1}
 # The sparse-view detector (demo_sparse): small objects detected more often than by demo_desk's (so that busy
 # views hit 8 or more mapped objects, as the real desk's well-localized frames: 10), and frames with at most 5
-# detected objects confused 2 times in 3 (the real desk's corners, issue 37).
-SPARSE = {"half_pixels": 1200.0, "sparse_objects": 5, "sparse_confusion": 2 / 3}
+# detected objects confused 2 times in 3 with 2 more false positives (the real desk's corners: 5 detections,
+# 3 of them hits; issue 37).
+SPARSE = {"half_pixels": 1200.0, "sparse_objects": 5, "sparse_confusion": 2 / 3, "sparse_false_positives": 2.0}
 DETECTORS = ("gt", "annotations", "simulated", "simulated-yolo", "simulated-yolo-clutter", "simulated-yolo-sparse",
              "yolo", "file:PATH")  # the `--detector` names
 

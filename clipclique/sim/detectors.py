@@ -136,7 +136,9 @@ class SimulatedYoloDetector:
     - Confused sparse views: in a frame where it detects at most `sparse_objects` true objects, each takes a
       look-alike with probability `sparse_confusion` (the look-alikes weighted as in the table) instead of
       the table's own: real detections of a desk corner with a handful of objects carry another class about
-      2 times in 3, against 1 in 3 elsewhere (issue 37). 0: off, and the draws are those without it.
+      2 times in 3, against 1 in 3 elsewhere (issue 37), and `sparse_false_positives` more false positives
+      are expected there (the real ones: 5 detections, 3 of them hits). 0: off, and the draws are those
+      without it.
     Seeded per frame. Named "simulated-yolo" everywhere ("simulated-yolo-clutter" with duplicates,
     "simulated-yolo-sparse" with confused sparse views).
     """
@@ -154,6 +156,7 @@ class SimulatedYoloDetector:
     duplicate_rate: float = 0.0
     sparse_objects: int = 0
     sparse_confusion: float = 0.0
+    sparse_false_positives: float = 0.0
     simulated: bool = True
     reads_instances: ClassVar[bool] = True
 
@@ -193,7 +196,8 @@ class SimulatedYoloDetector:
         kept = rng.random(len(true)) < chance
         sparse = 0 < kept.sum() <= self.sparse_objects
         class_ids = (self._confused_sparse if sparse else self._confused)(rng, true.class_ids[kept])
-        spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(self.false_positive_ratio * kept.sum()))
+        expected = self.false_positive_ratio * kept.sum() + (self.sparse_false_positives if sparse else 0.0)
+        spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(expected))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
         detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
         return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections

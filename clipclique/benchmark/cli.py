@@ -27,6 +27,7 @@ from clipclique.localization.inputs import (
     SamePlaceOption,
     StrictDetectionsOption,
     WindowOption,
+    WindowSpanOption,
     WindowStepOption,
 )
 
@@ -61,7 +62,8 @@ def main_command(
     labels: LabelsOption = None,
     strict_detections: StrictDetectionsOption = False,
     window: WindowOption = 1,
-    window_step: WindowStepOption = 1,
+    window_step: WindowStepOption = None,
+    window_span: WindowSpanOption = None,
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
     # --- end of the shared input options
@@ -93,9 +95,9 @@ def main_command(
     from clipclique.localization.tables import make_console, print_documents
 
     console = make_console()
-    inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
-                       odometry_drift)
     with user_errors(TOOL):
+        inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
+                           odometry_drift, window_span)
         if plan is not None:
             if scenes or grid or methods != "clipclique" or inputs != RunInputs():
                 raise PlanError(f"--plan {plan}: give the scenes, methods, grid and inputs in the plan file, not as well "

@@ -3,6 +3,8 @@
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
     .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md   (what `make docs` runs)
+    .venv/bin/python tools/scene_stats.py --results outputs/loc/demo_sparse/clipclique/results.json
+        (where a run loses its frames, beside the real desk's: clipclique.benchmark.failure_profile)
 
 Everything goes through the project's own code: the map from `clipclique.mapping.build.build_map`, the frames
 from the dataset reader, the detections from `clipclique.backends`, the observed ellipsoids from
@@ -30,8 +32,11 @@ from clipclique.perception.detectors import InstanceDetector
 from clipclique.descriptors.graph import semantic_graph
 from clipclique.perception.observations import ObservationParams, extract_observations
 from clipclique.resolve import default_detector, open_scene
-from clipclique.types import Detections, Frame, Map
+from clipclique.types import Map
+from clipclique.benchmark import failure_profile
+from clipclique.benchmark.failure_profile import hit_objects
 from clipclique.benchmark.report import update_readme
+from clipclique.exits import user_errors
 from clipclique.mapping.build import build_map
 
 NEAR_M = 3.5  # "objects in view within 3.5 m" (REAL_SCENES.md, desk)
@@ -100,19 +105,6 @@ def landmark_extent(sequence: Sequence, map: Map) -> np.ndarray:
     points = np.concatenate([i.points for i in sequence.instances() if i.instance_id in set(map.instance_ids.tolist())])
     points = points[np.isfinite(points).all(axis=1)]
     return points.max(axis=0) - points.min(axis=0)
-
-
-def hit_objects(frame: Frame, detections: Detections, mapped: np.ndarray) -> np.ndarray:
-    """(K,) the mapped object id covering at least half of each detection's mask, 0 for none."""
-    out = np.zeros(len(detections), int)
-    if frame.instances is None:
-        return out
-    for k, mask in enumerate(detections.masks):
-        ids, counts = np.unique(frame.instances[mask], return_counts=True)
-        best = int(np.argmax(counts)) if len(ids) else 0
-        if len(ids) and ids[best] in mapped and counts[best] >= 0.5 * mask.sum():
-            out[k] = ids[best]
-    return out
 
 
 def measure(sequence: Sequence, detector_kind: str | None = None, frames: int | None = None,
@@ -208,13 +200,22 @@ def markdown_table(scene: str, detector: str | None = None, frames: int | None =
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scenes", nargs="+", help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
+    parser.add_argument("scenes", nargs="*", help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
     parser.add_argument("--detector", help="detector whose faults are measured [default: the scene's]")
     parser.add_argument("--frames", type=int, help="frames spread over the sequence [default: all]")
     parser.add_argument("--data-root", type=Path)
     parser.add_argument("--readme", type=Path, help="write each table into this file's region "
                         "`<!-- figures:scene_stats_SCENE -->` instead of printing it")
+    parser.add_argument("--results", type=Path, action="append", default=[],
+                        help="a run's results.json: where it loses its frames, beside the real desk's (repeatable)")
     args = parser.parse_args(argv)
+    if not args.scenes and not args.results:
+        parser.error("name a scene, or a run's results.json with --results")
+    with user_errors("scene_stats"):
+        for path in args.results:
+            print(f"{path}:\n{failure_profile.table(failure_profile.measure(path, args.data_root))}")
+    if not args.scenes:
+        return 0
     tables = {f"scene_stats_{scene}": markdown_table(scene, args.detector, args.frames, args.data_root)
               for scene in args.scenes}
     if args.readme is None:

@@ -29,6 +29,7 @@ from clipclique.localization.inputs import (
     SamePlaceOption,
     StrictDetectionsOption,
     WindowOption,
+    WindowSpanOption,
     WindowStepOption,
 )
 
@@ -77,9 +78,9 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
-        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
+        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | simulated-yolo-sparse | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
              "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
-             "demo_desk, simulated-yolo-clutter on demo_clutter, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+             "demo_desk, simulated-yolo-clutter on demo_clutter, simulated-yolo-sparse on demo_sparse, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
     min_score: MinScoreOption = None,
     labels: LabelsOption = None,
     strict_detections: StrictDetectionsOption = False,
@@ -94,7 +95,8 @@ def run(
     max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
     same_place: SamePlaceOption = False,
     window: WindowOption = 1,
-    window_step: WindowStepOption = 1,
+    window_step: WindowStepOption = None,
+    window_span: WindowSpanOption = None,
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
     # ---- ROS bag options (clipclique.datasets.rosbag) ----
@@ -128,6 +130,7 @@ def run(
 
         from clipclique.commands import rerun_hint
         from clipclique.config import method_key
+        from clipclique.errors import ClipcliqueError
         from clipclique.exits import user_errors
         from clipclique.localization.run import RunSettings, run_and_save
         from clipclique.localization.tables import make_console, print_documents, print_frames
@@ -138,8 +141,9 @@ def run(
     overrides += [f"min_confidence={min_confidence}"] if min_confidence is not None else []
     with user_errors(TOOL):
         method = method_key(method)
-    inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
-                       odometry_drift)
+    with user_errors(TOOL):
+        inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
+                           odometry_drift, window_span)
     settings = RunSettings(sequence, method, config, overrides, data_root=data_root, detector=detector,
                            encoder=encoder, yolo_weights=yolo_weights, stride=stride, max_frames=max_frames, out=out,
                            record=not no_rrd, **inputs.settings(),

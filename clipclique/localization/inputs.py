@@ -13,6 +13,8 @@ from typing import Annotated, Any, Optional
 
 import typer
 
+from clipclique.errors import ClipcliqueError
+
 INPUTS, WINDOW = "Inputs", "Window of frames"
 
 MapOption = Annotated[Optional[Path], typer.Option(
@@ -32,9 +34,12 @@ StrictDetectionsOption = Annotated[bool, typer.Option(
 WindowOption = Annotated[int, typer.Option(
     "--window", min=1, help="localize each frame with the K - 1 frames before it, fused by odometry", metavar="K",
     rich_help_panel=WINDOW)]
-WindowStepOption = Annotated[int, typer.Option(
-    "--window-step", min=1, help="the window takes every S-th frame back from the newest", metavar="S",
+WindowStepOption = Annotated[Optional[int], typer.Option(
+    "--window-step", min=1, help="the window takes every S-th frame back from the newest \\[default: 1]", metavar="S",
     rich_help_panel=WINDOW)]
+WindowSpanOption = Annotated[Optional[float], typer.Option(
+    "--window-span", min=0.0, help="the window's K frames spread over this many seconds back from the newest (not "
+                                   "with --window-step)", metavar="SECONDS", rich_help_panel=WINDOW)]
 OdometryOption = Annotated[Optional[str], typer.Option(
     "--odometry", help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or "
                        "groundtruth (with --odometry-drift, simulated); on a ROS bag also tf:PARENT:CHILD (/tf) or "
@@ -54,15 +59,22 @@ class RunInputs:
     labels: str | None = None
     strict_detections: bool = False
     window: int = 1
-    window_step: int = 1
+    window_step: int | None = None  # None: 1, or what window_span makes of the span
     odometry: str | None = None
     odometry_drift: float = 0.0
+    window_span: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.window_span is not None and self.window_step is not None:
+            raise ClipcliqueError(f"--window-span {self.window_span:g} and --window-step {self.window_step} are "
+                                  "mutually exclusive: give the span (seconds) or the step (frames)")
 
     def settings(self) -> dict[str, Any]:
         """The `RunSettings` keyword arguments these inputs set."""
         fields = asdict(self)
         fields["map_path"] = fields.pop("map")
         fields["min_score"] = fields["min_score"] or 0.0
+        fields["window_step"] = fields["window_step"] or 1
         return fields
 
 
@@ -70,5 +82,5 @@ class RunInputs:
 PLAN_KEYS: dict[str, tuple[type, Any]] = {
     "map": (str, Path), "same_place": (bool, bool), "min_score": (float, float), "labels": (str, str),
     "strict_detections": (bool, bool), "window": (int, int), "window_step": (int, int), "odometry": (str, str),
-    "odometry_drift": (float, float),
+    "odometry_drift": (float, float), "window_span": (float, float),
 }

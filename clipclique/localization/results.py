@@ -76,7 +76,7 @@ def run_description(run: Run) -> dict[str, Any]:
         "name": settings.run_name(),
         "changed": changed_settings(run.config, make_config(settings.method)),
         **({} if run.odometry is None else {"window": {
-            "size": settings.window, "step": settings.window_step,
+            "size": settings.window, "step": settings.window_step, "span_s": settings.window_span,
             "odometry": {"name": run.odometry.name, "simulated": run.odometry.simulated,
                          "drift_percent": settings.odometry_drift if run.odometry.simulated else None}}}),
     }
@@ -252,7 +252,7 @@ def read_results(path: Path) -> dict[str, Any]:
     document = read_json(Path(path), "results file")
     if not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT or document.get("version") != RESULTS_VERSION:
         raise ClipcliqueError(f"{path}: not a version {RESULTS_VERSION} {RESULTS_FORMAT} file")
-    problem = _schema_problem(document, RESULTS_SCHEMA)
+    problem = schema_problem(document, RESULTS_SCHEMA)
     if problem:
         raise ClipcliqueError(f"{path}: malformed results: {problem}")
     return document
@@ -266,30 +266,36 @@ RESULTS_SCHEMA: dict[str, Any] = {
         **{key: _NUMBER for key in ("frames", "precision", "recall", "te_median_m", "re_median_deg", "success@1",
                                     "success@3", "success@5", "time_ms_median", "te_mean_m", "te_p90_m", "re_mean_deg",
                                     "localized")},
-        "success_within_m": {f"{t:g}": _NUMBER for t in SUCCESS_THRESHOLDS_M},
+        "success_within_m": {str: _NUMBER},  # any thresholds: a run from before 0.05, 0.1 and 5 m still reads
         "stage_ms_median": {stage: _NUMBER for stage in ALL_STAGES},
     },
 }
 
 
-def _schema_problem(value: Any, schema: Any, where: str = "") -> str | None:
-    """Where `value` departs from `schema` (a dict of keys, a one-item list, a type or a tuple of choices), or None."""
+def schema_problem(value: Any, schema: Any, where: str = "") -> str | None:
+    """Where `value` departs from `schema` (a dict of keys, `{str: part}` for any keys, a one-item list, a type or
+    a tuple of choices), or None."""
     if isinstance(schema, tuple) and any(isinstance(s, dict) for s in schema):
-        problems = [_schema_problem(value, s, where) for s in schema]
+        problems = [schema_problem(value, s, where) for s in schema]
         return None if None in problems else problems[0]
+    if isinstance(schema, dict) and list(schema) == [str]:
+        if not isinstance(value, dict):
+            return f"{where.removesuffix('.')} is not an object"
+        return next((p for key, item in value.items() if (p := schema_problem(item, schema[str], f"{where}{key}."))),
+                    None)
     if isinstance(schema, dict):
         if not isinstance(value, dict):
             return f"{where or 'the document'} is not an object"
         for key, part in schema.items():
             if key not in value:
                 return f"{where}{key} missing"
-            if problem := _schema_problem(value[key], part, f"{where}{key}."):
+            if problem := schema_problem(value[key], part, f"{where}{key}."):
                 return problem
         return None
     if isinstance(schema, list):
         if not isinstance(value, list):
             return f"{where.removesuffix('.')} is not a list"
-        return next((p for item in value if (p := _schema_problem(item, schema[0], where))), None)
+        return next((p for item in value if (p := schema_problem(item, schema[0], where))), None)
     if not isinstance(value, schema):
         return f"{where.removesuffix('.')} has the wrong type ({type(value).__name__})"
     return None

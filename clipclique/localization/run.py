@@ -8,13 +8,14 @@ Which detector and encoder ran, and whether they are simulated, travels with the
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import closing
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,7 +36,7 @@ from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localiz
 from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
 from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
-from clipclique.multiframe.window import WindowConfig, Windower
+from clipclique.multiframe.window import WindowConfig, Windower, span_step
 from clipclique.localization.runs import FrameOutcome, Run, RunSettings
 from clipclique.localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 from clipclique.interop.coco import reported_classes
@@ -95,8 +96,25 @@ def prepare(settings: RunSettings) -> Run:
     recorder = None
     if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
+    settings = with_window_span(settings, sequence)
     return Run(settings, config, sequence, map, detector, encoder, notes,
                detections_file=recorder, odometry=window_odometry(settings, sequence))
+
+
+def with_window_span(settings: RunSettings, sequence: Sequence) -> RunSettings:
+    """`--window-span SECONDS` as the window step that spreads the K frames over it (`span_step`); the settings
+    as they are without a span. A span and a step are mutually exclusive."""
+    span = settings.window_span
+    if span is None:
+        return settings
+    if settings.window_step != 1:
+        raise ClipcliqueError(f"--window-span {span:g} and --window-step {settings.window_step} are mutually "
+                              "exclusive: give the span (seconds) or the step (frames)")
+    if not math.isfinite(span) or span <= 0:
+        raise ClipcliqueError(f"--window-span {span:g}: expected a positive number of seconds")
+    if settings.window < 2:
+        raise ClipcliqueError(f"--window-span {span:g} needs --window K (K > 1)")
+    return replace(settings, window_step=span_step(span, settings.window, sequence.trajectory()[0]))
 
 
 def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | None:
@@ -353,7 +371,8 @@ def recording_description(run: Run) -> str:
         parts.append(f"- {role}: none" if part is None else
                      f"- {role}: {part['name']}{' — **simulated**' if part['simulated'] else ''}")
     if run.odometry is not None:
-        parts.append(f"- window: {run.settings.window} frames, step {run.settings.window_step}; odometry: "
+        span = "" if run.settings.window_span is None else f" (spread over {run.settings.window_span:g} s)"
+        parts.append(f"- window: {run.settings.window} frames, step {run.settings.window_step}{span}; odometry: "
                      f"{run.odometry.name}{' — **simulated**' if run.odometry.simulated else ''}")
     parts += [f"- note: {note}" for note in run.notes]
     changed = description["changed"]

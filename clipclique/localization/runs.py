@@ -47,6 +47,7 @@ class RunSettings:
     strict_detections: bool = False  # refuse a detection file with degenerate entries instead of skipping them
     window: int = 1  # K: localize each frame with the K - 1 before it (every window_step-th), fused by odometry
     window_step: int = 1
+    window_span: float | None = None  # seconds the K frames spread over (instead of window_step; run.with_window_span)
     odometry: str | None = None  # "groundtruth" or a TUM trajectory file; needed with window > 1
     odometry_drift: float = 0.0  # percent, simulated on ground truth
     bag: BagOptions | None = None  # how a ROS bag is read (topics, depth unit, ground truth); None: chosen
@@ -74,7 +75,8 @@ class RunSettings:
             given |= {"rgb": self.bag.rgb_topic, "depth": self.bag.depth_topic,
                       "depth_scale": self.bag.depth_scale}
         if self.window > 1:
-            given |= {"window": self.window, "window_step": self.window_step if self.window_step != 1 else None,
+            given |= {"window": self.window, "window_step": self.window_step if self.window_step != 1 and
+                      self.window_span is None else None, "window_span": self.window_span,
                       "odometry": Path(self.odometry).name if self.odometry else None,
                       "drift": self.odometry_drift or None}
         parts += [f"{key}={value}" for key, value in given.items() if value is not None]

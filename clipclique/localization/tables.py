@@ -36,12 +36,17 @@ def make_console() -> Console:
 
 def print_whole(console: Console, renderable: RenderableType) -> None:
     """Print `renderable`; into a file or pipe at its natural width when that exceeds the console's, so
-    that no cell is cut to `…` (a terminal keeps its own width)."""
-    width = None
-    if not console.is_terminal:
-        unbounded = console.options.update_width(1 << 16)
-        width = max(console.width, Measurement.get(console, unbounded, renderable).maximum)
-    console.print(renderable, width=width)
+    that no cell is cut to `…` (a terminal keeps its own width). The console is widened for the call: rich
+    caps `print(width=...)` at the console's width."""
+    if console.is_terminal:
+        console.print(renderable)
+        return
+    unbounded = console.options.update_width(1 << 16)
+    width, console.width = console.width, max(console.width, Measurement.get(console, unbounded, renderable).maximum)
+    try:
+        console.print(renderable)
+    finally:
+        console.width = width
 
 
 def _number(value: float | None, digits: int = 2, scale: float = 1.0) -> str:
@@ -105,7 +110,7 @@ def results_caption(documents: list[dict[str, Any]]) -> str:
               f"within the run's success threshold ({', '.join(f'{t:g}' for t in thresholds)} m: see the marks)")
     return (f"TE/RE: medians over frames with a pose (mean, p90: their mean and 90th percentile). Posed: frames with a "
             f"pose, scored or not; {', '.join(f'{t:g}' for t in SUCCESS_THRESHOLDS_M)}: its translation error within "
-            f"that many metres. Top-k [%]: frames "
+            f"that many metres (a terminal too narrow for them all drops the outer two). Top-k [%]: frames "
             f"with a pose {within} among the k best (frames without one count as failures). ms: matching + inliers + "
             "pose per query.")
 
@@ -128,22 +133,34 @@ def results_table(documents: list[dict[str, Any]], titles: list[str] | None = No
     return table
 
 
-def accuracy_table(documents: list[dict[str, Any]], titles: list[str] | None = None) -> Table:
+def accuracy_table(documents: list[dict[str, Any]], titles: list[str] | None = None,
+                   thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS_M) -> Table:
     """The top-1 pose of each run (runs of one sequence): the frames that got one (%, ground truth or not), its
-    success within each of the project's thresholds (%, frames without a pose count as failures) and the mean and
-    90th percentile of its translation error, the mean of its rotation error."""
+    success within each of `thresholds` (%, frames without a pose count as failures; '-' where a run from before
+    that threshold has none) and the mean and 90th percentile of its translation error, the mean of its rotation
+    error."""
     table = _compact("Top-1 pose [%], its errors")
     table.add_column("Method", no_wrap=True)
     table.add_column("Posed", justify="right", no_wrap=True)
-    for threshold in SUCCESS_THRESHOLDS_M:
+    for threshold in thresholds:
         table.add_column(f"{threshold:g}", justify="right", no_wrap=True)
     for column in ("TE mean", "TE p90", "RE mean"):
         table.add_column(column, justify="right", no_wrap=True)
     for document, method in zip(documents, titles or _marks(documents)[0]):
         summary = document["summary"]
         table.add_row(escape(method), _number(summary["localized"], 1, 100.0),
-                      *(_number(summary["success_within_m"][f"{t:g}"], 1, 100.0) for t in SUCCESS_THRESHOLDS_M),
+                      *(_number(summary["success_within_m"].get(f"{t:g}"), 1, 100.0) for t in thresholds),
                       _number(summary["te_mean_m"]), _number(summary["te_p90_m"]), _number(summary["re_mean_deg"], 1))
+    return table
+
+
+def fitting_accuracy_table(console: Console, documents: list[dict[str, Any]], titles: list[str]) -> Table:
+    """The accuracy table at every threshold, or on a terminal too narrow for it (80 columns) without the outer
+    two (0.05 and 5 m)."""
+    table = accuracy_table(documents, titles)
+    unbounded = console.options.update_width(1 << 16)
+    if console.is_terminal and Measurement.get(console, unbounded, table).maximum > console.width:
+        return accuracy_table(documents, titles, SUCCESS_THRESHOLDS_M[1:-1])
     return table
 
 
@@ -215,7 +232,7 @@ def print_documents(console: Console, documents: list[dict[str, Any]]) -> None:
         console.print()
         console.print(f"[bold]{escape(sequence)}[/]", highlight=False, soft_wrap=True)
         print_whole(console, results_table([documents[i] for i in rows], [titles[i] for i in rows]))
-        print_whole(console, accuracy_table([documents[i] for i in rows], [titles[i] for i in rows]))
+        print_whole(console, fitting_accuracy_table(console, [documents[i] for i in rows], [titles[i] for i in rows]))
         print_whole(console, stage_table([documents[i] for i in rows], [titles[i] for i in rows]))
         for i in rows:
             if line := failure_line(documents[i], titles[i]):

@@ -99,6 +99,16 @@ class Windower:
         return WindowQuery(fused, frames, poses, int(np.count_nonzero(~kept)))
 
 
+def span_step(span_s: float, size: int, timestamps: np.ndarray) -> int:
+    """The step S that spreads K = `size` frames over about `span_s` seconds at the median interval of
+    `timestamps` (at least 1): a window that reaches past a stretch of poor views whatever the frame rate."""
+    intervals = np.diff(np.asarray(timestamps, float))
+    interval = float(np.median(intervals)) if len(intervals) else 0.0
+    if size < 2 or not interval > 0:
+        return 1
+    return max(1, int(round(span_s / ((size - 1) * interval))))
+
+
 def window_frames(newest: int, config: WindowConfig) -> list[int]:
     """Indices of the window ending at frame `newest`, oldest first; the first frames have a shorter one."""
     first = newest - (config.size - 1) * config.step

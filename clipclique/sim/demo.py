@@ -66,7 +66,7 @@ class DemoSpec:
 class SceneSpec(DemoSpec):
     """A scene shaped like real data (clipclique.sim.scenes); the marker records it and its detector."""
 
-    scene: str = "apartment"  # "apartment" | "desk" | "clutter"
+    scene: str = "apartment"  # "apartment" | "desk" | "clutter" | "sparse"
     detector: str = "gt"  # the `clipclique-loc --detector` this scene gets unless asked
 
     def room(self) -> Room:
@@ -82,6 +82,9 @@ DEMO_SCENES: dict[str, DemoSpec] = {
     "demo_apartment": SceneSpec("scannet", seed=5, num_frames=60, scene="apartment", detector="gt"),
     "demo_desk": SceneSpec("tum", seed=3, num_frames=120, scene="desk", detector="simulated-yolo"),
     "demo_clutter": SceneSpec("tum", seed=17, num_frames=120, scene="clutter", detector="simulated-yolo-clutter"),
+    # 900 frames at 30 Hz: stretches of 1-3.4 s at a corner with a handful of confused objects (issue 37)
+    "demo_sparse": SceneSpec("tum", seed=23, num_frames=900, duration_s=30.0, scene="sparse",
+                             detector="simulated-yolo-sparse"),
 }
 
 
@@ -98,7 +101,7 @@ def first_use_notice(name: str, data_root: Path) -> str | None:
         return None
     spec = DEMO_SCENES[name]
     return (f"generating the {name} scene into {Path(data_root) / 'demo' / name} (first use only: {spec.num_frames} "
-            "frames rendered on the CPU, about a minute)")
+            f"frames rendered on the CPU, {'about a minute' if spec.num_frames <= 120 else 'several minutes'})")
 
 
 def ensure_scene(name: str, data_root: Path, progress: Progress | None = None) -> Path:

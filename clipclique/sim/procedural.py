@@ -376,15 +376,17 @@ class Walk:
     eyes: np.ndarray  # (K, 3)
     targets: np.ndarray  # (K, 3)
     shake: np.ndarray  # (18, 3) sinusoids (rad/s, phase, amplitude): 9 for position (m), 9 for rotation (rad)
+    monotone: bool = False  # PCHIP between the waypoints: no overshoot where a quick turn meets a held view
 
     def poses(self, times: np.ndarray) -> list[Pose]:
         """Camera-to-world poses at `times` (seconds): spline path and gaze, then hand shake."""
-        from scipy.interpolate import CubicSpline
+        from scipy.interpolate import CubicSpline, PchipInterpolator
         from scipy.spatial.transform import Rotation
 
         times = np.asarray(times, float)
-        eyes = CubicSpline(self.knots, self.eyes)(times)
-        targets = CubicSpline(self.knots, self.targets)(times)
+        spline = PchipInterpolator if self.monotone else CubicSpline
+        eyes = spline(self.knots, self.eyes)(times)
+        targets = spline(self.knots, self.targets)(times)
         waves = self.shake[:, 2] * np.sin(np.outer(times, self.shake[:, 0]) + self.shake[:, 1])
         wobble = waves.reshape(len(times), 2, -1, 3).sum(axis=2)  # (T, 2, 3): position, rotation vector
         shakes = Rotation.from_rotvec(wobble[:, 1]).as_matrix()

@@ -10,7 +10,10 @@
 
 Each comes with a hand-held walk (`apartment_walk`, `desk_walk`; `clutter_walk` keeps to the desk
 tops for demo_clutter, the desk seen closer and with a noisier detector): waypoints through the scene
-with seeded jitter. Layouts are fixed by hand where the statistics depend on them; the seed moves
+with seeded jitter. `make_sparse_desk` is the office with three corner groups of 3-5 objects each, and
+`sparse_walk` (demo_sparse) mostly looks at the desk tops but turns to a corner for stretches of 1-3 s:
+where real runs of failures are (issue 37).
+Layouts are fixed by hand where the statistics depend on them; the seed moves
 objects by a few centimetres and picks colours.
 """
 
@@ -133,8 +136,9 @@ def make_apartment(seed: int) -> Room:
     return b.build(size, [])
 
 
-def make_desk(seed: int) -> Room:
-    """The office: two desks end to end (3.4 m) crowded with things, chairs, and a side shelf."""
+def make_desk(seed: int, corners: bool = False) -> Room:
+    """The office: two desks end to end (3.4 m) crowded with things, chairs, and a side shelf; with `corners`
+    also `_corner_groups` (added after the rest, so that the desk's objects are the same)."""
     rng = np.random.default_rng(seed)
     size = np.array([7.0, 5.0, 2.6])
     b = RoomBuilder(rng, 0.04)
@@ -192,7 +196,31 @@ def make_desk(seed: int) -> Room:
     f.chair(np.array([5.75, 3.45, 0.0]), np.pi, color())
     f.cylinder_object("vase", np.array([0.55, 3.4, 0.0]), color(), 0.08, 0.4)
     _potted_plant(b, np.array([5.8, 1.2, 0.0]), color(), 0.15)
+    if corners:
+        _corner_groups(f, color)
     return b.build(size, [])
+
+
+def make_sparse_desk(seed: int) -> Room:
+    """The office with three corner groups of a handful of confusable objects (`_corner_groups`)."""
+    return make_desk(seed, corners=True)
+
+
+def _corner_groups(f: Furniture, color) -> None:
+    """Three groups of 3-5 objects, each seen from where no desk is in view: a side table right of the desks
+    (with the floor plant beside it), a low table by the left wall, and the spare chair's table at the back.
+    Every class here has look-alikes (detector_lookalikes.csv), as the confused real corners' have."""
+    top = f.table(np.array([6.35, 0.85, 0.0]), 0.0, color(), category="dining table", w=0.7, d=0.5, h=0.7)
+    f.cylinder_object("cup", np.array([6.2, 0.75, top]), color(), 0.045, 0.11)
+    f.block("book", np.array([6.5, 0.95, top]), 0.3, color(), (0.24, 0.17, 0.04))
+    f.cylinder_object("bottle", np.array([6.45, 0.7, top]), color(), 0.04, 0.26)
+    top = f.table(np.array([0.45, 2.0, 0.0]), np.pi / 2, color(), category="dining table", w=0.8, d=0.5, h=0.55)
+    f.cylinder_object("vase", np.array([0.4, 1.75, top]), color(), 0.06, 0.26)
+    f.cylinder_object("bowl", np.array([0.5, 2.2, top]), color(), 0.09, 0.07)
+    f.block("remote", np.array([0.45, 2.0, top]), 0.5, color(), (0.19, 0.05, 0.025))
+    top = f.table(np.array([6.3, 4.35, 0.0]), 0.0, color(), category="dining table", w=0.8, d=0.5, h=0.7)
+    f.block("laptop", np.array([6.2, 4.35, top]), 0.2, color(), (0.34, 0.24, 0.025))
+    f.cylinder_object("cup", np.array([6.55, 4.25, top]), color(), 0.045, 0.11)
 
 
 def _potted_plant(b: RoomBuilder, at: np.ndarray, color: str, radius: float) -> None:
@@ -286,6 +314,58 @@ def clutter_walk(room: Room, seed: int, num_frames: int, duration: float) -> Wal
     return _walk(np.random.default_rng(seed), route[:, :3], route[:, 3:], num_frames, duration, 0.06)
 
 
+# demo_sparse's walk: (seconds, eye, target) waypoints. Busy: along the desk tops at 1-1.6 m, as clutter_walk.
+# Sparse: held on a corner group (make_sparse_desk) for 1, 1.5 and 3 s, reached and left in 0.3 s turns.
+DESK_VIEWS = np.array([
+    [1.3, 1.75, 1.35, 1.9, 0.75, 0.74], [2.1, 1.85, 1.4, 2.4, 0.75, 0.74], [2.9, 1.7, 1.35, 3.0, 0.75, 0.74],
+    [3.9, 1.8, 1.4, 3.5, 0.75, 0.74], [3.6, 2.1, 1.5, 2.8, 0.8, 0.72], [2.4, 2.0, 1.45, 1.8, 0.8, 0.72],
+    [1.5, 2.0, 1.5, 2.6, 0.75, 0.72], [3.0, 1.9, 1.4, 3.6, 0.75, 0.74],
+])
+CORNER_VIEWS = {  # eye, target: one corner group in view, no desk
+    "right": [5.4, 1.45, 1.25, 6.4, 0.85, 0.8],
+    "left": [1.2, 2.4, 1.2, 0.45, 2.0, 0.6],
+    "back": [5.3, 3.3, 1.3, 6.1, 4.05, 0.6],
+}
+SPARSE_SCHEDULE = (  # (busy seconds before, corner, seconds held): 5.5 s of 30 held, 7.3 s with the turns
+    (3.0, "right", 1.0), (5.5, "left", 1.5), (6.5, "back", 3.0),
+)
+TURN_S = 0.3
+
+
+def sparse_walk(room: Room, seed: int, num_frames: int, duration: float) -> Walk:
+    """The desk tops (DESK_VIEWS, cycled) with a stretch at a corner group after each busy spell of
+    SPARSE_SCHEDULE, then the desk until `duration`; waypoints every 1.5 s on the desk, two per corner stretch.
+    PCHIP between them: a quick turn does not overshoot into the held view."""
+    del room
+    rng = np.random.default_rng(seed)
+    times, views, desk = [], [], 0
+    t = 0.0
+
+    def busy(until: float) -> None:  # a desk view every 1.5 s from t, and one at `until`
+        nonlocal t, desk
+        while True:
+            times.append(t)
+            views.append(DESK_VIEWS[desk % len(DESK_VIEWS)])
+            desk += 1
+            if t >= until - 1e-9:
+                return
+            t = min(t + 1.5, until)
+
+    for before, corner, held in SPARSE_SCHEDULE:
+        busy(t + before)
+        view = np.array(CORNER_VIEWS[corner])
+        t += TURN_S
+        times += [t, t + held]
+        views += [view, view + [0.08, -0.05, 0.02, 0.1, 0.05, 0.0]]  # a slow drift while held
+        t += held + TURN_S
+    busy(max(duration, t) + 1.5)  # the spline's last knot beyond the last frame
+    route = np.array(views)
+    eyes = route[:, :3] + rng.uniform(-0.04, 0.04, (len(route), 3)) * [1, 1, 0.5]
+    targets = route[:, 3:] + rng.uniform(-0.04, 0.04, (len(route), 3))
+    return Walk(np.linspace(0.0, duration, num_frames, endpoint=False), np.array(times), eyes, targets, hand_shake(rng),
+                monotone=True)
+
+
 # Scene name -> (room maker, walk maker), as `clipclique.sim.demo.SceneSpec.scene` names them.
 SCENES = {"apartment": (make_apartment, apartment_walk), "desk": (make_desk, desk_walk),
-          "clutter": (make_desk, clutter_walk)}
+          "clutter": (make_desk, clutter_walk), "sparse": (make_sparse_desk, sparse_walk)}

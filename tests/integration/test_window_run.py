@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -48,6 +49,19 @@ def test_simulated_odometry_windows_are_recorded_per_frame(map_path, tmp_path):
     assert (tmp_path / "w" / "recording.rrd").stat().st_size > 0
 
 
+def test_a_window_span_spreads_the_k_frames_over_that_many_seconds(map_path, tmp_path):
+    timestamps, _ = open_scene(SCENE, ROOT / "data").trajectory()
+    interval = float(np.median(np.diff(timestamps)))
+    span = 4 * interval  # K = 3 frames, every other one
+    document = run_and_save(settings(map_path, tmp_path / "w", window=3, window_span=span, odometry="groundtruth"))
+    assert document["run"]["window"]["step"] == 2 and document["run"]["window"]["span_s"] == span
+    assert [frame["window"]["frames"] for frame in document["frames"]] == [[0], [1], [0, 2], [1, 3], [0, 2, 4],
+                                                                           [1, 3, 5]]
+    assert f"window_span={span}" in document["run"]["name"] and "window_step" not in document["run"]["name"]
+    plain = run_and_save(settings(map_path, tmp_path / "k", window=3, odometry="groundtruth"))
+    assert plain["run"]["window"]["step"] == 1 and plain["run"]["window"]["span_s"] is None  # --window K alone
+
+
 def test_a_trajectory_file_matched_by_time_and_frames_without_odometry_counted(map_path, tmp_path):
     timestamps, truth = open_scene(SCENE, ROOT / "data").trajectory()
     lines = [tum_line(t, pose) for i, (t, pose) in enumerate(zip(timestamps, truth)) if i != 2]
@@ -65,6 +79,13 @@ def test_a_trajectory_file_matched_by_time_and_frames_without_odometry_counted(m
     (["--odometry", "groundtruth"], "need --window K"),
     (["--window", "3", "--odometry", "vo.tum", "--odometry-drift", "1"], "simulates drift on ground truth"),
     (["--window", "3", "--odometry", "missing.tum"], "missing.tum"),
+    (["--window", "3", "--window-span", "2", "--window-step", "1", "--odometry", "groundtruth"],
+     "--window-span 2 and --window-step 1 are mutually exclusive"),
+    (["--window", "3", "--window-span", "2", "--window-step", "4", "--odometry", "groundtruth"],
+     "mutually exclusive: give the span (seconds) or the step (frames)"),
+    (["--window-span", "2"], "--window-span 2 needs --window K"),
+    (["--window", "3", "--window-span", "0", "--odometry", "groundtruth"], "expected a positive number of seconds"),
+    (["--window", "3", "--window-span", "nan", "--odometry", "groundtruth"], "expected a positive number of seconds"),
 ])
 def test_window_refusals_are_one_line(map_path, tmp_path, arguments, message):
     (tmp_path / "vo.tum").write_text("0 0 0 0 0 0 0 1\n")

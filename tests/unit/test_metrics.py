@@ -80,8 +80,9 @@ def test_summarize_aggregates_as_documented():
     assert summary["time_ms_mean"] == pytest.approx(15.0) and summary["time_ms_median"] == pytest.approx(10.0)
     assert math.isnan(summarize([])["precision"])
     assert isinstance(summary["frames"], int)
-    # top-1 errors 0.2, 4.0, 0.4 and no pose: within 0.25 / 0.5 / 1 / 2 m of the 4 frames
-    assert summary["success_within_m"] == {"0.25": 0.25, "0.5": 0.5, "1": 0.5, "2": 0.5}
+    # top-1 errors 0.2, 4.0, 0.4 and no pose: within 0.05 / 0.1 / 0.25 / 0.5 / 1 / 2 / 5 m of the 4 frames
+    assert summary["success_within_m"] == {"0.05": 0.0, "0.1": 0.0, "0.25": 0.25, "0.5": 0.5, "1": 0.5, "2": 0.5,
+                                           "5": 0.75}
     assert summary["te_mean_m"] == pytest.approx(4.6 / 3) and summary["te_p90_m"] == pytest.approx(np.percentile([0.2, 4, 0.4], 90))
     assert summary["re_mean_deg"] == pytest.approx(np.degrees(0.2)) and summary["re_p75_deg"] == pytest.approx(np.degrees(0.25))
 

@@ -11,7 +11,8 @@ from clipclique.config import make_config
 from clipclique.geometry import look_at
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations, Pose
-from clipclique.multiframe.window import WindowConfig, Windower, fuse, fusion, relative_poses, window_frames
+from clipclique.multiframe.window import (WindowConfig, Windower, fuse, fusion, relative_poses, span_step,
+                                          window_frames)
 
 NAMES = ["cup", "bottle", "chair", "book"]
 CUP, BOTTLE, CHAIR, BOOK = range(4)
@@ -119,6 +120,18 @@ def test_window_frames():
     assert window_frames(10, WindowConfig(size=3, step=2)) == [6, 8, 10]
     assert window_frames(3, WindowConfig(size=5, step=2)) == [1, 3]
     assert window_frames(7, WindowConfig(size=1, step=4)) == [7]
+
+
+def test_a_span_is_the_step_that_spreads_the_window_over_it():
+    at_30_hz = 1_700_000_000.0 + np.arange(300) / 30.0 + np.random.default_rng(0).uniform(-0.002, 0.002, 300)
+    assert span_step(3.0, 10, at_30_hz) == 10  # 9 intervals of 10 frames: 3 s
+    assert span_step(6.0, 5, at_30_hz) == 45 and span_step(1.2, 5, at_30_hz) == 9
+    assert span_step(0.01, 5, at_30_hz) == 1  # never below every frame
+    assert span_step(3.0, 10, at_30_hz[::3]) == 3  # at 10 Hz
+    assert span_step(3.0, 1, at_30_hz) == 1 and span_step(3.0, 5, at_30_hz[:1]) == 1  # nothing to spread
+    frames = window_frames(299, WindowConfig(size=5, step=span_step(1.2, 5, at_30_hz)))
+    assert frames == [263, 272, 281, 290, 299]
+    assert 1.19 < at_30_hz[frames[-1]] - at_30_hz[frames[0]] < 1.21
 
 
 def test_frames_without_odometry_leave_the_window():

@@ -296,6 +296,38 @@ def test_clutter_detector_adds_cross_class_duplicates_of_a_tenth_of_its_hits():
     assert duplicates / hits == pytest.approx(clutter.duplicate_rate, abs=0.04)
 
 
+def test_sparse_detector_confuses_two_in_three_where_it_detects_few_objects():
+    sparse = make_detector("simulated-yolo-sparse", DESK_OBJECTS, DESK, seed=3)
+    assert sparse.name == "simulated-yolo-sparse" and sparse.sparse_objects == 5 and sparse.duplicate_rate == 0
+    classes = {1: 0, 2: 2, 3: 4, 4: 0}
+    runs = [sparse.detect(desk_frame(i)) for i in range(600)]  # 4 mapped objects: always sparse
+    pairs = Counter((classes[i], int(c)) for d in runs for i, c in zip(d.instance_ids, d.class_ids) if i > 0)
+    spurious = np.mean([(d.instance_ids < 0).sum() - sparse.false_positive_ratio * (d.instance_ids > 0).sum()
+                        for d in runs if (d.instance_ids > 0).any()])  # a frame that detects nothing is not sparse
+    assert spurious == pytest.approx(sparse.sparse_false_positives, abs=0.2)  # 2 more false positives a frame
+    for true, others in ((0, {1}), (2, {3}), (4, {0, 1, 2, 3})):  # cup -> bottle, book -> cell phone, the table
+        total = sum(n for (t, _), n in pairs.items() if t == true)  # (no look-alike in the map) -> any other
+        assert {c for t, c in pairs if t == true} == others | {true}
+        confused = sum(n for (t, c), n in pairs.items() if t == true and c != true)
+        assert confused / total == pytest.approx(2 / 3, abs=0.06)
+    tables = [n for (t, c), n in pairs.items() if t == 4 and c != 4]
+    assert min(tables) / max(tables) > 0.6  # the table's other classes drawn alike
+    # above sparse_objects detections a frame keeps the table's probabilities (cup -> bottle 0.5), and the
+    # misses are the plain detector's draws
+    busy = SimulatedYoloDetector(InstanceDetector(DESK_OBJECTS, DESK), seed=3, sparse_objects=1, sparse_confusion=1.0)
+    plain = SimulatedYoloDetector(InstanceDetector(DESK_OBJECTS, DESK), seed=3)
+    cups = confused = 0
+    for i in range(600):
+        d, p = busy.detect(desk_frame(i)), plain.detect(desk_frame(i))
+        hits = d.instance_ids > 0
+        np.testing.assert_array_equal(d.instance_ids[hits], p.instance_ids[p.instance_ids > 0])
+        if hits.sum() >= 2:
+            cup = np.isin(d.instance_ids, [1, 4])
+            cups += cup.sum()
+            confused += (d.class_ids[cup] == 1).sum()
+    assert confused / cups == pytest.approx(0.5, abs=0.08)
+
+
 def test_make_detector_rejects_unknown_and_missing_yolo_weights(monkeypatch, tmp_path):
     with pytest.raises(ClipcliqueError, match="--detector"):
         make_detector("sam", OBJECTS, CLASSES)

@@ -38,7 +38,7 @@ WindowStepOption = Annotated[Optional[int], typer.Option(
     "--window-step", min=1, help="the window takes every S-th frame back from the newest \\[default: 1]", metavar="S",
     rich_help_panel=WINDOW)]
 WindowSpanOption = Annotated[Optional[float], typer.Option(
-    "--window-span", min=0.0, help="the window's K frames spread over this many seconds back from the newest (not "
+    "--window-span", help="the window's K frames spread over this many seconds back from the newest (not "
                                    "with --window-step)", metavar="SECONDS", rich_help_panel=WINDOW)]
 OdometryOption = Annotated[Optional[str], typer.Option(
     "--odometry", help="FILE.tum (a metric VO/SLAM trajectory, matched by timestamp; not scale-free monocular) or "

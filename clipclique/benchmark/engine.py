@@ -220,7 +220,8 @@ def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dic
     map and models instead of loading them a second time (seconds for CLIP and YOLO)."""
     jobs, done = [], {}
     for settings in runs:
-        if settings.map_path is None:  # --map: the user's map, never built here
+        default = map_file(scene_name(settings.sequence))
+        if settings.map_path in (None, default):  # --map: the user's map, never built here (a bag's is its default)
             ensure_map(settings.sequence, settings.data_root)
         worker_settings = dataclasses.replace(settings, data_root=resolve_data_root(settings.data_root).resolve(),
                                               map_path=settings.resolved_map_path().resolve(), out=None)

@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import FailureKind
 from clipclique.localization.results import read_results
 from clipclique.localization.run import RunSettings, run_and_save
@@ -132,7 +133,11 @@ def test_two_ablations_keep_their_folders_and_compare_tells_them_apart(demo, tmp
     shown = CliRunner().invoke(app, ["compare", *map(str, folders)])
     assert shown.exit_code == 0
     assert "CLIP-Clique (a)" in shown.output and "\n(a) inliers.d_comp=0.6\n" in shown.output
-    assert max(len(line) for line in shown.output.splitlines()) <= 80  # piped: 80 columns
+    assert "…" not in shown.output  # piped: a table wider than 80 columns is printed whole, never cut
+    header = next(line.split() for line in shown.output.splitlines() if line.startswith("Method          Posed"))
+    assert header[2:2 + len(SUCCESS_THRESHOLDS_M)] == [f"{t:g}" for t in SUCCESS_THRESHOLDS_M]  # every threshold
+    prose = [line for line in shown.output.splitlines() if not line.startswith(("CLIP-Clique", "Method", "─", " "))]
+    assert max(len(line) for line in prose) <= 80  # the captions wrap at the pipe's 80 columns
 
 
 def test_a_second_run_is_identical(runs, demo, tmp_path):

@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from clipclique.datasets import open_sequence
 from clipclique.localization.cli import app as loc_app
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.mapping.cli import app
 
 RUNNER = CliRunner()
@@ -133,9 +134,10 @@ def test_another_recording_of_the_same_place_is_localized_with_same_place_and_re
     assert ran.exit_code == 0, ran.output
     text = " ".join(ran.output.split())
     assert f"note: the map is of {NAME}, another recording of this place (--same-place)" in text
-    row = next(line.split() for line in ran.output.splitlines() if line.startswith("CLIP-Clique") and "-" in line
-               and len(line.split()) == 10)
-    assert row[2] == "100.0" and row[3:7] == ["-"] * 4  # both annotated frames got a pose; nothing to score them by
+    thresholds = len(SUCCESS_THRESHOLDS_M)
+    row = next(line.split() for line in ran.output.splitlines() if line.startswith("CLIP-Clique (a) ")
+               and len(line.split()) == 3 + thresholds + 3)  # the pose table: name, posed, thresholds, TE and RE
+    assert row[2] == "100.0" and row[3:3 + thresholds] == ["-"] * thresholds  # both posed, nothing to score them by
 
 
 def two_hertz(folder) -> None:

@@ -130,7 +130,6 @@ def run(
 
         from clipclique.commands import rerun_hint
         from clipclique.config import method_key
-        from clipclique.errors import ClipcliqueError
         from clipclique.exits import user_errors
         from clipclique.localization.run import RunSettings, run_and_save
         from clipclique.localization.tables import make_console, print_documents, print_frames

@@ -87,7 +87,7 @@ def test_unknown_ids_wrong_sizes_and_existing_annotations_are_refused(tmp_path, 
 
 
 def test_one_scene_has_one_map_whichever_name_is_typed(tmp_path, monkeypatch, tum_sequence):
-    folder = tum_sequence(tmp_path, rounded=True)
+    tum_sequence(tmp_path, rounded=True)
     monkeypatch.chdir(tmp_path)
     built = RUNNER.invoke(app, ["build", "fr2", "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"])
     assert built.exit_code == 0, built.output
@@ -99,7 +99,7 @@ def test_one_scene_has_one_map_whichever_name_is_typed(tmp_path, monkeypatch, tu
 
 def test_frames_without_annotations_are_left_out_and_counted_not_failed(tmp_path, monkeypatch, tum_sequence):
     """The tiny sequence annotates one of its three frames: the run scores one, and says the other two are left out."""
-    folder = tum_sequence(tmp_path, rounded=True)
+    tum_sequence(tmp_path, rounded=True)
     monkeypatch.chdir(tmp_path)
     assert RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code == 0
     ran = RUNNER.invoke(loc_app, ["run", NAME, "--data-root", str(tmp_path), "--no-rrd"])

@@ -347,9 +347,8 @@ def landmark_histograms(
 
 @njit(cache=True)
 def _inverse_norms(pointers: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """(n,) 1 / the L2 norm of each row (0 for a row of norm 0 or NaN), exactly as `_l2_normalized` has scipy and
-    numpy compute it: np.add.reduceat of the squares (a row's first square plus numpy's pairwise sum of the
-    rest), np.sqrt, then `np.where(norms > 0, 1 / np.maximum(norms, 1e-300), 0)`; one pass instead of six calls."""
+    """(n,) 1 / the L2 norm of each row (0 for a row of norm 0 or NaN), the formula of `_l2_normalized` (squares
+    summed, np.sqrt, `np.where(norms > 0, 1 / np.maximum(norms, 1e-300), 0)`) in one pass instead of six calls."""
     n = len(pointers) - 1
     scale = np.zeros(n)
     for v in range(n):
@@ -359,71 +358,15 @@ def _inverse_norms(pointers: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _inverse_norm(values: np.ndarray, start: int, end: int) -> float:
-    """1 / the L2 norm of values[start:end] as `_inverse_norms` computes a row's (0 for an empty row, norm 0 or NaN)."""
-    if end > start:
-        norm = np.sqrt(values[start] * values[start] + _pairwise_squares(values, start + 1, end - start - 1))
-        if norm > 0:
-            return 1.0 / (norm if norm > 1e-300 else 1e-300)
+    """1 / the L2 norm of values[start:end] as `_inverse_norms` computes a row's (0 for an empty row, norm 0 or NaN);
+    the squares summed in order, within rounding of numpy's pairwise sum."""
+    total = 0.0
+    for i in range(start, end):
+        total += values[i] * values[i]
+    norm = np.sqrt(total)
+    if norm > 0:
+        return 1.0 / (norm if norm > 1e-300 else 1e-300)
     return 0.0
-
-
-@njit(cache=True)
-def _pairwise_squares(values: np.ndarray, start: int, count: int) -> float:
-    """The squares of values[start:start + count] summed as numpy's add reduction sums an array of them (pairwise_sum
-    in numpy's loops; squared as read, not stored: a map's array of squares cost more than the sums): blocks of at
-    most 128 terms by `_block_squares`, a longer run as the sum of its two halves (the first a multiple of 8), each
-    summed so in turn; the halving without recursion (numba's recursive calls cost more than the sums)."""
-    if count <= 128:
-        return _block_squares(values, start, count)
-    depth = 64
-    starts, counts, left = np.empty(depth, np.int64), np.empty(depth, np.int64), np.empty(depth)
-    stage = np.zeros(depth, np.int64)  # 0: left half next, 1: right half next, 2: both summed
-    starts[0], counts[0], top, returned = start, count, 1, 0.0
-    while top > 0:
-        at = top - 1
-        if counts[at] <= 128:
-            returned = _block_squares(values, starts[at], counts[at])
-            top -= 1
-            continue
-        half = counts[at] // 2
-        half -= half % 8
-        if stage[at] == 0:
-            stage[at] = 1
-            starts[top], counts[top], stage[top] = starts[at], half, 0
-            top += 1
-        elif stage[at] == 1:
-            stage[at], left[at] = 2, returned
-            starts[top], counts[top], stage[top] = starts[at] + half, counts[at] - half, 0
-            top += 1
-        else:
-            returned = left[at] + returned
-            top -= 1
-    return returned
-
-
-@njit(cache=True)
-def _block_squares(values: np.ndarray, start: int, count: int) -> float:
-    """numpy's pairwise_sum of at most 128 squares: in order below 8 terms, else in 8 interleaved partial sums."""
-    if count < 8:
-        total = -0.0
-        for i in range(start, start + count):
-            total += _square(values, i)
-        return total
-    p0, p1, p2, p3 = _square(values, start), _square(values, start + 1), _square(values, start + 2), _square(values, start + 3)
-    p4, p5, p6, p7 = _square(values, start + 4), _square(values, start + 5), _square(values, start + 6), _square(values, start + 7)
-    end = start + count - count % 8
-    for i in range(start + 8, end, 8):
-        p0, p1, p2, p3 = p0 + _square(values, i), p1 + _square(values, i + 1), p2 + _square(values, i + 2), p3 + _square(values, i + 3)
-        p4, p5, p6, p7 = p4 + _square(values, i + 4), p5 + _square(values, i + 5), p6 + _square(values, i + 6), p7 + _square(values, i + 7)
-    total = ((p0 + p1) + (p2 + p3)) + ((p4 + p5) + (p6 + p7))
-    for k in range(end, start + count):
-        total += _square(values, k)
-    return total
-
-
-@njit(cache=True)
-def _square(values: np.ndarray, i: int) -> float:
-    return values[i] * values[i]
 
 
 @njit(cache=True)

@@ -205,8 +205,8 @@ def test_landmark_histograms_store_the_sparse_paths_entries():
 
 def test_inverse_row_norms_are_numpys_formula():
     """`_inverse_norms` against what it replaced (np.add.reduceat of the squares of the non-empty rows, np.sqrt,
-    np.where/np.maximum) on rows of every length numpy's pairwise sum splits differently (1 to 4,099 entries), empty
-    rows, zeros and -0, NaN, infinities, and norms below 1e-300."""
+    np.where/np.maximum) within rounding, on rows of every length numpy's pairwise sum splits differently (1 to 4,099
+    entries), empty rows, zeros and -0, NaN, infinities, and norms below 1e-300."""
     from clipclique.descriptors.graph import _inverse_norms
 
     def reference(pointers, values):

@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-import clipclique
+from clipclique.version import __version__
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
 from clipclique.perception.encoders import Encoder
 from clipclique.errors import DatasetError
@@ -111,7 +111,7 @@ def build_map(
         "skipped": {reason: len(items) for reason, items in report.skipped.items()},
         "encoder_simulated": bool(encoder is not None and getattr(encoder, "simulated", False)),
         "tool": "clipclique-map",
-        "version": clipclique.__version__,
+        "version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
     map = Map(

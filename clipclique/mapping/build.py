@@ -93,7 +93,7 @@ def build_map(
         report.notes.append(f"{gap}; their annotations are not in the map")
     if not kept:
         cause = f"; {gap}" if gap else ""
-        raise DatasetError(f"{sequence.root}: no landmarks to map: {_nothing_kept(instances, report)}{cause}")
+        raise DatasetError(f"{sequence.root}: no landmarks to map: {_empty_map_reason(instances, report)}{cause}")
     class_names = sorted({i.class_name for i in kept})
     report.landmarks_per_class.update(i.class_name for i in kept)
 
@@ -127,7 +127,7 @@ def build_map(
     return map, report
 
 
-def _nothing_kept(instances: list[Instance], report: BuildReport) -> str:
+def _empty_map_reason(instances: list[Instance], report: BuildReport) -> str:
     """Why no instance of a scene became a landmark, for the error a user reads."""
     if not instances:
         return "the scene has no annotated objects (a TUM sequence needs annotations/objects.csv and annotations/instances/)"

@@ -112,7 +112,7 @@ _RUNS: OrderedDict[str, Run] = OrderedDict()
 _INDEXES: OrderedDict[str, MapIndex] = OrderedDict()
 
 
-def _kept(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
+def _memo(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
     """`store[key]`, made when missing; the least recently used beyond KEPT are dropped."""
     if key not in store:
         store[key] = make()
@@ -123,7 +123,7 @@ def _kept(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
 
 
 def _prepared(settings: RunSettings) -> Run:
-    return _kept(_RUNS, _run_key(settings), lambda: prepare(settings))
+    return _memo(_RUNS, _run_key(settings), lambda: prepare(settings))
 
 
 def _run_key(settings: RunSettings) -> str:
@@ -155,7 +155,7 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
     annotations for the detector is its name."""
     run = _prepared(settings)
     key = json.dumps([dataclasses.asdict(settings), run.config.to_dict()], default=str, sort_keys=True)
-    index = _kept(_INDEXES, key, lambda: index_map(run.map, run.config))
+    index = _memo(_INDEXES, key, lambda: index_map(run.map, run.config))
     windower = None if run.odometry is None else Windower(
         WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
     outcomes = []
@@ -226,7 +226,7 @@ def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dic
         worker_settings = dataclasses.replace(settings, data_root=resolve_data_root(settings.data_root).resolve(),
                                               map_path=settings.resolved_map_path().resolve(), out=None)
         run = prepare(settings)
-        _kept(_RUNS, _run_key(worker_settings),
+        _memo(_RUNS, _run_key(worker_settings),
               lambda run=run, worker_settings=worker_settings: dataclasses.replace(run, settings=worker_settings,
                                                                                    notes=list(run.notes), frames=[],
                                                                                    unannotated=[]))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-import clipclique
+from clipclique.version import __version__
 from clipclique.datasets import description_template
 from clipclique.datasets.tum import read_objects_table
 from clipclique.perception.encoders import Encoder
@@ -66,7 +66,7 @@ def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]
         "notes": notes,
         "encoder_simulated": bool(encoder is not None and getattr(encoder, "simulated", False)),
         "tool": "clipclique-map import",
-        "version": clipclique.__version__,
+        "version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
     return Map(imported.ellipsoids, class_ids, vocabulary, descriptions, np.array(imported.instance_ids, np.int64),

@@ -22,10 +22,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from clipclique.commands import command
-from clipclique.config import make_config
+from clipclique.config import LocalizationConfig, ObservationParams, make_config
 from clipclique.backends import load_encoder, make_detector
 from clipclique.datasets import Sequence, is_bag
 from clipclique.datasets.rosbag import NO_DETECTOR
+from clipclique.perception.detectors import Detector
 from clipclique.perception.encoders import Encoder
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.io.mapfile import load_map
@@ -68,10 +69,25 @@ def prepare(settings: RunSettings) -> Run:
     check_map_source(map, map_path, sequence.name, settings, notes)
     if gap := sequence.missing_poses():
         notes.append(f"{gap}; those frames cannot be scored")
+    detector = choose_detector(settings, sequence, map, notes)
+    encoder = choose_query_encoder(settings, config, map, sequence, notes)
+    check_encoder(config, encoder, map, str(map_path), settings.method, notes)
+    recorder = None
+    if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
+        recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
+    settings = with_window_span(settings, sequence)
+    return Run(settings, config, sequence, map, detector, encoder, notes,
+               detections_file=recorder, odometry=window_odometry(settings, sequence))
+
+
+def choose_detector(settings: RunSettings, sequence: Sequence, map: Map, notes: list[str]) -> Detector:
+    """The `--detector` asked, else the sequence's default (`default_detector`), made for the map's classes; a
+    detection file's coverage of the selected frames goes into `notes`."""
     detector_kind = settings.detector or default_detector(sequence)
     if detector_kind == NO_DETECTOR:
         raise ClipcliqueError(f"{settings.sequence}: a ROS bag has no annotations to detect from; pass --detector "
-                              "file:DETECTIONS.json (e.g. a TUM folder run's, matched by colour stamp) or --detector yolo")
+                              "file:DETECTIONS.json (e.g. a TUM folder run's, matched by colour stamp) "
+                              "or --detector yolo")
     detector = make_detector(detector_kind, sequence.object_classes(), map.class_names, settings.yolo_weights,
                              settings.seed, settings.min_score, settings.labels,
                              settings.strict_detections)
@@ -79,26 +95,30 @@ def prepare(settings: RunSettings) -> Run:
         notes += detector.check_coverage(sequence, frame_selection(settings, len(sequence)))
     elif settings.labels is not None:
         raise ClipcliqueError(f"--labels {settings.labels}: only a --detector file: reads category ids")
+    return detector
+
+
+def choose_query_encoder(settings: RunSettings, config: LocalizationConfig, map: Map, sequence: Sequence | None,
+                         notes: list[str]) -> Encoder | None:
+    """The encoder the query crops need (`choose_encoder`); none when the descriptor does not read CLIP."""
     if config.similarity.descriptor in ("clip", "fused"):
-        encoder = choose_encoder(settings.encoder, map, notes, sequence)
-    else:  # SH and X-View never read CLIP: no model to load, no crops to embed every frame
-        encoder = None
-        if settings.encoder not in (None, "none"):
-            notes.append(f"--encoder {settings.encoder} not used: the {config.similarity.descriptor} descriptor "
-                         "does not read CLIP")
+        return choose_encoder(settings.encoder, map, notes, sequence)
+    if settings.encoder not in (None, "none"):  # SH and X-View never read CLIP: no model to load, no crops to embed
+        notes.append(f"--encoder {settings.encoder} not used: the {config.similarity.descriptor} descriptor "
+                     "does not read CLIP")
+    return None
+
+
+def check_encoder(config: LocalizationConfig, encoder: Encoder | None, map: Map, map_name: str, method: str,
+                  notes: list[str]) -> None:
+    """Without CLIP embeddings on either side, "clip" is refused and "fused" falls back to SH (alpha = 0, noted)."""
     if config.similarity.descriptor == "clip" and (encoder is None or map.text_embeddings is None):
-        missing = "no encoder is available" if encoder is None else f"{map_path} has no text embeddings"
-        raise ModelUnavailableError(f"method {settings.method} ranks by CLIP alone but {missing}; pass --encoder "
+        missing = "no encoder is available" if encoder is None else f"{map_name} has no text embeddings"
+        raise ModelUnavailableError(f"method {method} ranks by CLIP alone but {missing}; pass --encoder "
                                     "(e.g. open_clip:ViT-L-14/openai) or choose --method clipclique / sh / xview")
     if config.similarity.descriptor == "fused" and (encoder is None or map.text_embeddings is None):
         config.similarity.alpha = 0.0
         notes.append("no CLIP embeddings: alpha = 0 (Semantic Histograms only)")
-    recorder = None
-    if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
-        recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
-    settings = with_window_span(settings, sequence)
-    return Run(settings, config, sequence, map, detector, encoder, notes,
-               detections_file=recorder, odometry=window_odometry(settings, sequence))
 
 
 def with_window_span(settings: RunSettings, sequence: Sequence) -> RunSettings:
@@ -176,18 +196,25 @@ class Seen:
 
 
 def observe(run: Run, frame: Frame) -> Seen:
-    """Detect, fit observed ellipsoids (`config.observations`), embed their crops."""
+    """Detect, fit observed ellipsoids (`config.observations`), embed their crops (`observe_with`)."""
+    return observe_with(run.detector, run.encoder, run.config.observations, frame, run.detections_file)
+
+
+def observe_with(detector: Detector, encoder: Encoder | None, params: ObservationParams, frame: Frame,
+                 detections_file: CocoRecorder | None = None) -> Seen:
+    """One frame detected, its observed ellipsoids fitted (`params`) and their crops embedded, each step timed;
+    the detections also go to `detections_file` when given."""
     timings: dict[str, float] = {}
     clock = time.perf_counter()
-    detections = run.detector.detect(frame)
+    detections = detector.detect(frame)
     timings["detector"] = time.perf_counter() - clock
-    if run.detections_file is not None:
-        run.detections_file.add(frame, detections)
+    if detections_file is not None:
+        detections_file.add(frame, detections)
     clock = time.perf_counter()
-    extraction = extract_observations(frame, detections, run.config.observations)
+    extraction = extract_observations(frame, detections, params)
     timings["observations"] = time.perf_counter() - clock
     clock = time.perf_counter()
-    observations = embed(extraction, run.encoder)
+    observations = embed(extraction, encoder)
     timings["encoder"] = time.perf_counter() - clock
     return Seen(detections, observations, extraction.dropped, timings)
 

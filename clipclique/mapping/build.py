@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-import clipclique
+from clipclique.version import __version__
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
 from clipclique.perception.encoders import Encoder
 from clipclique.errors import DatasetError
@@ -93,7 +93,7 @@ def build_map(
         report.notes.append(f"{gap}; their annotations are not in the map")
     if not kept:
         cause = f"; {gap}" if gap else ""
-        raise DatasetError(f"{sequence.root}: no landmarks to map: {_nothing_kept(instances, report)}{cause}")
+        raise DatasetError(f"{sequence.root}: no landmarks to map: {_empty_map_reason(instances, report)}{cause}")
     class_names = sorted({i.class_name for i in kept})
     report.landmarks_per_class.update(i.class_name for i in kept)
 
@@ -111,7 +111,7 @@ def build_map(
         "skipped": {reason: len(items) for reason, items in report.skipped.items()},
         "encoder_simulated": bool(encoder is not None and getattr(encoder, "simulated", False)),
         "tool": "clipclique-map",
-        "version": clipclique.__version__,
+        "version": __version__,
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }
     map = Map(
@@ -127,7 +127,7 @@ def build_map(
     return map, report
 
 
-def _nothing_kept(instances: list[Instance], report: BuildReport) -> str:
+def _empty_map_reason(instances: list[Instance], report: BuildReport) -> str:
     """Why no instance of a scene became a landmark, for the error a user reads."""
     if not instances:
         return "the scene has no annotated objects (a TUM sequence needs annotations/objects.csv and annotations/instances/)"

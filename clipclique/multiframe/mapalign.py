@@ -119,7 +119,7 @@ def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, 
     for hypothesis in result.hypotheses:
         if any(_same_transform(hypothesis.pose, c.pose, query_map) for c in candidates):
             continue
-        refined = _refined(hypothesis.pose, hypothesis.correspondences, query.observations, query.map, like,
+        refined = _refinement(hypothesis.pose, hypothesis.correspondences, query.observations, query.map, like,
                            result.similarity, query.config.inliers.d_comp)
         if not any(_same_transform(refined.pose, c.pose, query_map) for c in candidates):  # converged onto another
             candidates.append(refined)
@@ -171,7 +171,7 @@ def _same_transform(a: Pose, b: Pose, query_map: Map) -> bool:
             and math.degrees(rotation_angle(a.rotation.T @ b.rotation)) < DISTINCT_DEG)
 
 
-def _refined(pose: Pose, clique: np.ndarray, observations: Observations, map: Map, like: np.ndarray,
+def _refinement(pose: Pose, clique: np.ndarray, observations: Observations, map: Map, like: np.ndarray,
              similarity: np.ndarray, reach: float) -> Candidate:
     """Every query landmark within `reach` of a like map landmark under `pose` (nearest first, one-to-one),
     and the transform refit on them; the clique as it is when fewer than three are found."""

@@ -104,7 +104,7 @@ def fit_rigid_conditioned(
     if source.ndim != 3 or source.shape[2] != 3 or target.shape != source.shape or weights.shape != source.shape[:2]:
         raise ValueError(f"source {source.shape}, target {target.shape} and weights {weights.shape} must be "
                          "(B, P, 3) twice and (B, P)")  # the compiled pass reads them unchecked
-    return _fitted(np.ascontiguousarray(weights, np.float64), source, target)
+    return _fit(np.ascontiguousarray(weights, np.float64), source, target)
 
 
 @njit(cache=True)
@@ -112,12 +112,12 @@ def fit_rigid_sets(weights: np.ndarray, source: np.ndarray,
                    target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_batch` of C-contiguous float64 (B, P) weights and (B, P, 3) points for compiled callers (a
     refinement fits inside one compiled call, clipclique.pose.refine)."""
-    rotation, translation, ok, _ = _fitted(weights, source, target)
+    rotation, translation, ok, _ = _fit(weights, source, target)
     return rotation, translation, ok
 
 
 @njit(cache=True)
-def _fitted(weights: np.ndarray, source: np.ndarray,
+def _fit(weights: np.ndarray, source: np.ndarray,
             target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_conditioned` of checked, C-contiguous float64 arrays, set by set (`_fit_set`): a query fits a
     few batches of a few dozen sets each, so one compiled call per batch rather than a dozen numpy calls."""

@@ -297,8 +297,8 @@ def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, simil
         firsts = refits[firsts]
         rotation, translation, ok = _refit(pairs, starts[firsts], counts[firsts], observations, map, similarity,
                                            weights)
-        active = _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations,
-                        translations, sizes, origin, moved)
+        active = _survivors(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations,
+                            translations, sizes, origin, moved)
         found.append(pairs)
         offset += len(pairs)
     if not moved.any():
@@ -314,7 +314,8 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
     """`_refined_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
     stack's arrays) and which hypotheses moved. Each round as
     `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
-    `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and `_taken`."""
+    `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and
+    `_survivors`."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
     num_obs, (by_axis, axis, landmark_of) = len(centers), _along_widest_axis(landmark_centers)
     found = np.empty((len(pairs) + rounds * len(sizes) * min(num_obs, len(landmark_centers)), 2), np.int64)
@@ -338,8 +339,8 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
                                                    np.float64(similarity[0, 0]), centers, axes, landmark_centers,
                                                    landmark_axes, mode)
         rotation, translation, ok = fit_rigid_sets(w, source, target)
-        active = _taken(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts, offset,
-                        near_counts, rotations, translations, sizes, origin, moved)
+        active = _survivors(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts,
+                            offset, near_counts, rotations, translations, sizes, origin, moved)
         found[offset: offset + len(near)] = near
         offset += len(near)
     joined = np.empty((sizes.sum(), 2), np.int64)
@@ -398,8 +399,8 @@ def _gathered(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray,
 
 
 @njit(cache=True)
-def _taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations, translations, sizes,
-           origin, moved):
+def _survivors(rotation, translation, ok, fitted, refits, active, starts, offset, counts, rotations, translations,
+               sizes, origin, moved):
     """A round's refits taken where their set has a pose (`ok[fitted[r]]`): hypothesis `active[refits[r]]` gets the
     pose of its set, `counts[refits[r]]` pairs from `offset + starts[refits[r]]` on and is marked moved, in place; the
     hypotheses taken, in order (those still refining). numpy's masks and fancy assignments in one pass."""

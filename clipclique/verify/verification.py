@@ -117,11 +117,11 @@ def _verified(group, firsts, pairs, counts, rotations, translations, centers, ne
               explained_iou, full, missed_weight, share_from):
     """`verify_stack`'s figures (in `_PER_HYPOTHESIS`'s order) of the hypotheses `firsts` (their poses `rotations`,
     `translations`; the landmarks `nearby` projected under them), then given to each hypothesis of its `group`: the
-    pairs of the firsts (`_rows_pairs`), their landmarks' depths (`_depths_along`), `_figures`, the score less the
+    pairs of the firsts (`_rows_pairs`), their landmarks' depths (`_depths_along`), `_measures`, the score less the
     missed cost (`_missed_costs`)."""
     obs, lm, owner, sizes = _rows_pairs(pairs, counts, firsts)
     landmark_depths = _depths_along(centers, lm, translations, rotations, owner)
-    overlap, mean_iou, depth_error, missed, evidence, expected = _figures(
+    overlap, mean_iou, depth_error, missed, evidence, expected = _measures(
         obs, lm, owner, nearby, map_size, visible, projected, full_areas, boxes, observed_centers[:, 2],
         landmark_depths, class_ids, detected_classes, sizes, depth_tolerance, min_pixels, explained_iou, full)
     score = overlap - _missed_costs(evidence, expected, missed_weight, share_from)
@@ -165,9 +165,9 @@ def _depths_along(centers: np.ndarray, lm: np.ndarray, translations: np.ndarray,
 
 
 @njit(cache=True)
-def _figures(obs, lm, owner, nearby, map_size, visible, projected, full_areas, boxes, observed_depths, landmark_depths,
+def _measures(obs, lm, owner, nearby, map_size, visible, projected, full_areas, boxes, observed_depths, landmark_depths,
              class_ids, detected_classes, sizes, depth_tolerance, min_pixels, explained_iou, full):
-    """`_pair_figures` and `_missed_evidence` of the landmarks in range (`nearby`, projected in that order) in one
+    """`_pair_measures` and `_missed_evidence` of the landmarks in range (`nearby`, projected in that order) in one
     compiled call, with what they read: each landmark's column of the projection (-1 out of range) and each pair's
     depth gap |observed depth - landmark depth| (numpy's subtraction and absolute value): (B,) overlap, mean IoU,
     median depth gap, missed landmarks, missed and expected evidence."""
@@ -179,7 +179,7 @@ def _figures(obs, lm, owner, nearby, map_size, visible, projected, full_areas, b
     depth_gap = np.empty(len(obs))
     for m in range(len(obs)):
         depth_gap[m] = abs(observed_depths[obs[m]] - landmark_depths[m])
-    overlap, mean_iou, depth_error = _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
+    overlap, mean_iou, depth_error = _pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
                                                    depth_tolerance, sizes)
     missed, evidence, expected = _missed_evidence(projected, visible, full_areas, seen_classes, boxes, detected_classes,
                                                   min_pixels, explained_iou, full)
@@ -211,7 +211,7 @@ def _missed_costs(missed_evidence: np.ndarray, expected_evidence: np.ndarray, we
 
 
 @njit(cache=True)
-def _pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, depth_tolerance, sizes):
+def _pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, depth_tolerance, sizes):
     """(B,) overlap, mean IoU and median depth gap of each hypothesis's pairs (obs, lm, owner ascending, slot:
     each landmark's column of the projection, -1 out of range), in one pass as numpy's passes computed them:
     the IoU 0 out of view, agreement max(0, 1 - gap / tolerance), sums in pair order from 0 (np.bincount's)."""

@@ -202,7 +202,7 @@ def test_the_compiled_move_is_numpys_einsum():
 
 
 def test_the_compiled_round_bookkeeping_is_numpys():
-    """`_refitting`, `_gathered` and `_taken` against the numpy expressions they replace: no pose, one, fifty;
+    """`_refitting`, `_gathered` and `_survivors` against the numpy expressions they replace: no pose, one, fifty;
     empty sets, sets under 3 and under the hypothesis's own size, ties of sizes, sets that found no pose."""
     rng = np.random.default_rng(12)
     for trial in range(300):
@@ -227,7 +227,8 @@ def test_the_compiled_round_bookkeeping_is_numpys():
         state = [rng.normal(size=(hypotheses, 3, 3)), rng.normal(size=(hypotheses, 3)), rng.integers(0, 9, hypotheses),
                  rng.integers(0, 99, hypotheses), rng.random(hypotheses) < 0.5]
         expected_state = [a.copy() for a in state]
-        taken = refine_module._taken(rotation, translation, ok, fitted, refits, active, starts, offset, counts, *state)
+        taken = refine_module._survivors(rotation, translation, ok, fitted, refits, active, starts, offset, counts,
+                                         *state)
         kept = ok[fitted]
         kept_refits, kept_fitted = refits[kept], fitted[kept]
         expected_active = active[kept_refits]

@@ -242,7 +242,7 @@ def test_group_medians_are_numpys():
             assert_close(verification._group_medians(values, sizes), numpy_group_medians(values, groups, sizes))
 
 
-def numpy_pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, tolerance, sizes):
+def numpy_pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, tolerance, sizes):
     """Overlap, mean IoU and median depth gap per hypothesis as numpy passes computed them before they were compiled."""
     at = np.maximum(slot[lm], 0)
     in_view = (slot[lm] >= 0) & visible[owner, at]
@@ -271,8 +271,8 @@ def test_the_compiled_pair_figures_are_the_numpy_passes():
         depth_gap = np.round(rng.uniform(0, 1.2, len(owner)), 1)  # exactly at the tolerance (0.5), and ties
         if trial % 5 == 0 and len(depth_gap):
             depth_gap[rng.integers(len(depth_gap))] = np.nan
-        got = verification._pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes)
-        for ours, theirs in zip(got, numpy_pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
+        got = verification._pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes)
+        for ours, theirs in zip(got, numpy_pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap,
                                                         0.5, sizes)):
             assert_close(ours, theirs)
 
@@ -384,7 +384,7 @@ def test_the_missed_costs_are_the_numpy_passes():
 
 
 def test_the_verified_figures_are_the_kernels_passes():
-    """`_verified` against its passes one by one (`_rows_pairs`, `_depths_along`, `_figures`, the numpy missed cost)
+    """`_verified` against its passes one by one (`_rows_pairs`, `_depths_along`, `_measures`, the numpy missed cost)
     and each hypothesis given its group's figures: groups in any order, hypotheses without pairs, none."""
     from clipclique.geometry import random_rotation
 
@@ -416,7 +416,7 @@ def test_the_verified_figures_are_the_kernels_passes():
                                      *settings, weight, share_from)
         obs, lm, owner, sizes = verification._rows_pairs(pairs, counts, firsts)
         depths = verification._depths_along(centers, lm, translations, rotations, owner)
-        overlap, mean_iou, depth_error, missed, evidence, expected = verification._figures(
+        overlap, mean_iou, depth_error, missed, evidence, expected = verification._measures(
             obs, lm, owner, nearby, landmarks, visible, projected, full_areas, boxes, observed[:, 2], depths, class_ids,
             detected_classes, sizes, *settings)
         cost = weight * evidence
@@ -426,7 +426,7 @@ def test_the_verified_figures_are_the_kernels_passes():
 
 
 def test_the_figures_in_one_call_are_the_numpy_passes():
-    """`_figures` (the landmarks' columns, the depth gaps, then the pair figures and the missed landmarks in one
+    """`_measures` (the landmarks' columns, the depth gaps, then the pair figures and the missed landmarks in one
     compiled call) against the numpy passes: landmarks out of range, depth gaps of 0, NaN and exactly at the
     tolerance, boxes sharing edges or empty, hypotheses without a pair."""
     rng = np.random.default_rng(15)
@@ -451,13 +451,13 @@ def test_the_figures_in_one_call_are_the_numpy_passes():
             landmark_depths[rng.integers(len(owner))] = np.nan
         class_ids, detected_classes = rng.integers(0, 3, landmarks), rng.integers(0, 3, len(boxes))
         min_pixels, full = float(rng.choice([0.0, 100.0])), float(rng.choice([0.0, 900.0]))
-        got = verification._figures(obs, lm, owner, nearby, landmarks, visible, projected, full_areas, boxes,
+        got = verification._measures(obs, lm, owner, nearby, landmarks, visible, projected, full_areas, boxes,
                                     observed_depths, landmark_depths, class_ids, detected_classes, sizes, 0.5,
                                     min_pixels, 0.1, full)
         slot = np.full(landmarks, -1)
         slot[nearby] = np.arange(len(nearby))
         depth_gap = np.abs(observed_depths[obs] - landmark_depths)
-        expected = (*numpy_pair_figures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes),
+        expected = (*numpy_pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes),
                     *numpy_missed(projected, visible, full_areas, class_ids[nearby], boxes, detected_classes, min_pixels,
                                   0.1, full))
         for ours, theirs in zip(got, expected, strict=True):

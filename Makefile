@@ -74,7 +74,7 @@ bench: $(STAMP)
 
 docs: $(STAMP) demo
 	$(PY) tools/bench.py --docs
-	$(PY) tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md
+	$(PY) tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme docs/scenes.md
 	$(PY) tools/screenshot.py outputs/maps/demo.map.rrd docs/map_recording.png
 	$(PY) tools/screenshot.py outputs/loc/demo/clipclique/recording.rrd docs/localization_recording.png --frame 102
 

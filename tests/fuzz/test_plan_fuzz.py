@@ -80,10 +80,10 @@ def test_hostile_options_are_one_line_exit_2(args: list[str], named: str, tmp_pa
     assert not (tmp_path / "out").exists() and not (tmp_path / "cache").exists()
 
 
-def test_the_readme_plan_example_reads_as_its_runs(repository: Path, tmp_path: Path):
+def test_the_documented_plan_example_reads_as_its_runs(repository: Path, tmp_path: Path):
     from clipclique.benchmark.plan import read_plan, runs
 
-    readme = (repository / "README.md").read_text()
+    readme = (repository / "docs" / "cli.md").read_text()  # clipclique-bench's section
     example = readme.split("  ```toml\n", 1)[1].split("  ```", 1)[0]
     path = tmp_path / "plan.toml"
     path.write_text("\n".join(line.removeprefix("  ") for line in example.splitlines()))

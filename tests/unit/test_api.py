@@ -51,7 +51,7 @@ def test_the_library_page_example_prints_a_pose(demo, repository, tmp_path):
 
 
 def test_the_localizer_gives_what_the_pipeline_gives(demo):
-    """Same frame, same detector and encoder by hand: the pipeline's ranked poses, to the bit."""
+    """Same frame, same detector and encoder by hand: the pipeline's ranked poses, identical (one process, one path)."""
     from clipclique.config import make_config
     from clipclique.perception.observations import embed, extract_observations
     from clipclique.pipeline import index_map, localize

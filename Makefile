@@ -3,7 +3,8 @@
 #   make test   run the test suite (what CI runs)
 #   make test-fast   the unit tests only (tests/unit) on the core install and pytest: the quick loop while editing
 # and one regenerates every figure the repository commits:
-#   make docs   make demo, the benchmark into docs/benchmark/ and the README's figures, docs/*.png
+#   make docs   make demo, the benchmark into docs/benchmark/, the README's figures, the docs' printed
+#               examples (tools/docs_outputs.py) and docs/*.png
 # Each creates .venv with what it needs and the system libraries (open3d: libusb; headless
 # screenshots: Mesa's Vulkan driver): the demo runs only simulated parts, so `make demo` installs
 # the core alone (no torch: PyPI's Linux torch carries ~15 CUDA libraries, GPU or not); `make test`,
@@ -75,6 +76,7 @@ bench: $(STAMP)
 docs: $(STAMP) demo
 	$(PY) tools/bench.py --docs
 	$(PY) tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme docs/scenes.md
+	$(PY) tools/docs_outputs.py --write
 	$(PY) tools/screenshot.py outputs/maps/demo.map.rrd docs/map_recording.png
 	$(PY) tools/screenshot.py outputs/loc/demo/clipclique/recording.rrd docs/localization_recording.png --frame 102
 

@@ -59,6 +59,8 @@ SKIPPED = {
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
     "mkdir -p data/tum && curl -L https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":
         "downloads TUM fr2/desk and needs a published object map; the block after it runs the same commands on generated files",
+    "clipclique-map build demo_tum -q": "prints the example below it: test_printed_examples_are_current runs it on the "
+                                        "full scenes and compares",
     ".venv/bin/python tools/bench_window.py --step 1": "localizes both realistic scenes 40 times each (minutes); "
                                                        "tests/integration/test_bench_window.py runs it on a few frames",
 }
@@ -179,3 +181,23 @@ def test_evo_files_pair_up(workspace):
         done = subprocess.run(["evo_ape", "tum", folder / "groundtruth.tum", folder / "poses.tum"], capture_output=True,
                               text=True)
         assert done.returncode == 0, done.stderr
+
+
+def test_printed_examples_are_current():
+    """What the docs show a command printing is what it prints today (make docs rewrites it: tools/docs_outputs.py)."""
+    done = subprocess.run([sys.executable, str(ROOT / "tools" / "docs_outputs.py"), "--check"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_a_stale_printed_example_fails_the_check_and_a_timing_does_not(tmp_path):
+    page = tmp_path / "page.md"
+    tool = [sys.executable, str(ROOT / "tools" / "docs_outputs.py")]
+    example = "```sh\nprintf 'Method TE ms\\nsh 0.18 %s\\n' 0.7\n```\n\n<!-- printed by the block above -->\n\n"
+    page.write_text(example + "```text\nMethod TE ms\nsh 0.23 0.7\n```\n")
+    stale = subprocess.run([*tool, "--check", str(page)], capture_output=True, text=True, timeout=60)
+    assert stale.returncode == 1 and "-sh 0.23" in stale.stdout and "+sh 0.18" in stale.stdout, stale.stdout
+    assert subprocess.run([*tool, "--write", str(page)], capture_output=True, timeout=60).returncode == 0
+    assert page.read_text().endswith("```text\nMethod TE ms\nsh 0.18 0.7\n```\n")
+    page.write_text(page.read_text().replace("0.18 0.7", "0.18 1.4"))  # another run's timing: not a change
+    assert subprocess.run([*tool, "--check", str(page)], capture_output=True, timeout=60).returncode == 0

@@ -53,6 +53,13 @@ def is_bag(path: Path) -> bool:
     return (path.is_file() and path.suffix in BAG_SUFFIXES) or (path.is_dir() and (path / "metadata.yaml").is_file())
 
 
+def require_bag(path: Path) -> Path:
+    """`path`, or a DatasetError saying what a bag is (the commands that take only a bag: inspect, convert)."""
+    if not is_bag(path):
+        raise DatasetError(f"{path}: not a ROS bag (a .bag, .mcap or .db3 file, or a folder holding metadata.yaml)")
+    return Path(path)
+
+
 @dataclass
 class BagOptions:
     """What a user may tell the bag reader (`clipclique-loc run` options of the same names)."""

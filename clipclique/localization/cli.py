@@ -39,6 +39,19 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
 TOOL = "clipclique-loc"
 ALGORITHM, OUTPUT = "Algorithm", "Output"
 BAG = "ROS bag"
+# The ROS bag options of `run` and `convert` (clipclique.datasets.rosbag.BagOptions)
+RgbTopicOption = Annotated[Optional[str], typer.Option(help="colour topic \\[default: the only colour Image or "
+                                                            "CompressedImage topic]", rich_help_panel=BAG)]
+DepthTopicOption = Annotated[Optional[str], typer.Option(help="depth topic \\[default: the only 32FC1, 16UC1 or "
+                                                              "compressedDepth topic]", rich_help_panel=BAG)]
+CameraInfoTopicOption = Annotated[Optional[str], typer.Option(help="CameraInfo topic \\[default: the colour topic's "
+                                                                   "camera_info]", rich_help_panel=BAG)]
+DepthScaleOption = Annotated[Optional[float], typer.Option(help="metres per depth unit \\[default: 32FC1 1, 16UC1 "
+                                                                "0.001]", rich_help_panel=BAG)]
+GroundtruthOption = Annotated[Optional[Path], typer.Option(help="ground truth of a bag: a TUM trajectory file",
+                                                           rich_help_panel=BAG)]
+GtFramesOption = Annotated[Optional[str], typer.Option(help="ground truth of a bag from /tf: WORLD:CAMERA (static "
+                                                            "transforms applied)", rich_help_panel=BAG)]
 
 
 @app.callback()
@@ -100,18 +113,12 @@ def run(
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
     # ---- ROS bag options (clipclique.datasets.rosbag) ----
-    rgb_topic: Annotated[Optional[str], typer.Option(help="colour topic \\[default: the only colour Image or "
-                                                           "CompressedImage topic]", rich_help_panel=BAG)] = None,
-    depth_topic: Annotated[Optional[str], typer.Option(help="depth topic \\[default: the only 32FC1, 16UC1 or "
-                                                             "compressedDepth topic]", rich_help_panel=BAG)] = None,
-    camera_info_topic: Annotated[Optional[str], typer.Option(help="CameraInfo topic \\[default: the colour topic's "
-                                                                   "camera_info]", rich_help_panel=BAG)] = None,
-    depth_scale: Annotated[Optional[float], typer.Option(help="metres per depth unit \\[default: 32FC1 1, 16UC1 0.001]",
-                                                         rich_help_panel=BAG)] = None,
-    groundtruth: Annotated[Optional[Path], typer.Option(help="ground truth of a bag: a TUM trajectory file",
-                                                        rich_help_panel=BAG)] = None,
-    gt_frames: Annotated[Optional[str], typer.Option(help="ground truth of a bag from /tf: WORLD:CAMERA (static "
-                                                          "transforms applied)", rich_help_panel=BAG)] = None,
+    rgb_topic: RgbTopicOption = None,
+    depth_topic: DepthTopicOption = None,
+    camera_info_topic: CameraInfoTopicOption = None,
+    depth_scale: DepthScaleOption = None,
+    groundtruth: GroundtruthOption = None,
+    gt_frames: GtFramesOption = None,
     # ---- end of the ROS bag options ----
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
@@ -195,16 +202,55 @@ def inspect(path: Annotated[Path, typer.Argument(help="a ROS bag: .bag, a ROS 2 
     from clipclique.localization.tables import make_console, print_survey
 
     with user_errors(TOOL):
-        from clipclique.datasets.rosbag import BagOptions, BagReader, is_bag, survey
+        from clipclique.datasets.rosbag import BagOptions, BagReader, require_bag, survey
 
-        if not is_bag(path):
-            from clipclique.errors import DatasetError
-
-            raise DatasetError(f"{path}: not a ROS bag (a .bag, .mcap or .db3 file, or a folder holding metadata.yaml)")
-        found = survey(BagReader(path), BagOptions(rgb_topic, depth_topic, camera_info_topic))
+        found = survey(BagReader(require_bag(path)), BagOptions(rgb_topic, depth_topic, camera_info_topic))
     print_survey(make_console(), found)
     if found.problem:
         raise typer.Exit(1)
+
+
+@app.command()
+def convert(
+    path: Annotated[Path, typer.Argument(help="a ROS bag: .bag, a ROS 2 bag folder, .mcap or .db3")],
+    to_tum: Annotated[Path, typer.Option("--to-tum", help="the TUM RGB-D folder to write (new, or empty)",
+                                         show_default=False, rich_help_panel=OUTPUT)],
+    rgb_topic: RgbTopicOption = None,
+    depth_topic: DepthTopicOption = None,
+    camera_info_topic: CameraInfoTopicOption = None,
+    depth_scale: DepthScaleOption = None,
+    groundtruth: GroundtruthOption = None,
+    gt_frames: GtFramesOption = None,
+    stride: Annotated[int, typer.Option(min=1, help="write every N-th frame", rich_help_panel=INPUTS)] = 1,
+    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames",
+                                                      rich_help_panel=INPUTS)] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the folder is",
+                                        rich_help_panel=OUTPUT)] = False,
+) -> None:
+    """A bag as a TUM RGB-D folder (rgb/, depth/, rgb.txt, depth.txt, intrinsics.txt, groundtruth.txt) for any tool."""
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import Progress
+
+    from clipclique.exits import user_errors
+    from clipclique.localization.tables import make_console
+
+    console = make_console()
+    options = bag_options(rgb_topic, depth_topic, camera_info_topic, depth_scale, groundtruth, gt_frames)
+    with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
+        from clipclique.datasets.rosbag import BagSequence, require_bag
+        from clipclique.datasets.totum import check_target, write_tum_folder
+
+        check_target(to_tum)  # before the bag's pass over its messages
+        task = progress.add_task(escape(f"{path} -> {to_tum}"), total=None)
+        sequence = BagSequence(require_bag(path), options)
+        summary = write_tum_folder(sequence, to_tum, range(0, len(sequence), stride)[:max_frames],
+                                   lambda done, total: progress.update(task, completed=done, total=total))
+    for note in [] if quiet else [*sequence.notes(), sequence.missing_poses()]:
+        if note:
+            console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
+    console.print(escape(f"wrote {summary.frames} frames ({summary.poses} with ground truth) to {summary.out}/ "
+                         f"({', '.join(summary.files)})"), highlight=False, soft_wrap=True)
 
 
 @app.command()

@@ -68,7 +68,9 @@ def write_tum_folder(
     return ConversionSummary(len(indices), poses, out, files)
 
 
-def _write(sequence: BagSequence, folder: Path, indices: range, progress: Progress | None) -> tuple[int, tuple[str, ...]]:
+def _write(
+    sequence: BagSequence, folder: Path, indices: range, progress: Progress | None
+) -> tuple[int, tuple[str, ...]]:
     """Every file of the TUM folder into `folder` (the staging folder); (poses written, the files)."""
     from clipclique.localization.results import tum_line
 
@@ -94,8 +96,8 @@ def _write(sequence: BagSequence, folder: Path, indices: range, progress: Progre
     files = ["rgb/", "depth/", "rgb.txt", "depth.txt", "intrinsics.txt"]
     (folder / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (folder / "depth.txt").write_text("\n".join(depth_lines) + "\n")
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    (folder / "intrinsics.txt").write_text(f"# fx fy cx cy (pixels)\n{fx!r} {fy!r} {cx!r} {cy!r}\n")
+    values = (intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2])  # exact: repr round-trips
+    (folder / "intrinsics.txt").write_text("# fx fy cx cy (pixels)\n" + " ".join(repr(float(v)) for v in values) + "\n")
     if pose_lines:
         files.append("groundtruth.txt")
         text = "\n".join(["# timestamp tx ty tz qx qy qz qw (camera-to-world)", *pose_lines]) + "\n"

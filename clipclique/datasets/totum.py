@@ -55,17 +55,34 @@ def write_tum_folder(
     out = Path(out)
     check_target(out)
     indices = range(len(sequence)) if indices is None else indices
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
+    try:
+        staging = _staging_folder(out)
+    except OSError as error:
+        raise _unwritable(out, error) from None
     try:
         poses, files = _write(sequence, staging, indices, progress)
         os.replace(staging, out)  # replaces an empty folder; one that gained files meanwhile fails here
     except BaseException as error:
         shutil.rmtree(staging, ignore_errors=True)
         if isinstance(error, OSError):
-            raise DatasetError(f"{out}: cannot write the TUM folder ({error})") from None
+            raise _unwritable(out, error) from None
         raise
     return ConversionSummary(len(indices), poses, out, files)
+
+
+def _staging_folder(out: Path) -> Path:
+    """A new `OUT.partial-XXXX` beside `out`, with the permissions a folder made by mkdir would have (mkdtemp
+    makes it private to its owner)."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f"{out.name}.partial-", dir=out.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    staging.chmod(0o777 & ~umask)
+    return staging
+
+
+def _unwritable(out: Path, error: OSError) -> DatasetError:
+    return DatasetError(f"{out}: cannot write the TUM folder ({error})")
 
 
 def _write(

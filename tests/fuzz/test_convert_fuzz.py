@@ -96,3 +96,9 @@ def test_a_failure_half_way_leaves_nothing(bags, tmp_path, monkeypatch, failure,
     monkeypatch.setattr(BagSequence, "__getitem__", failing)
     refused(convert(bags["ros1"], tmp_path / "out", "-q"), text, code=code)
     assert left_behind(tmp_path / "out") == []
+
+
+def test_a_folder_under_a_file_is_one_line(bags, tmp_path):
+    (tmp_path / "a-file").write_text("mine\n")
+    refused(convert(bags["ros1"], tmp_path / "a-file" / "out", "-q"), f"{tmp_path / 'a-file' / 'out'}: cannot write")
+    assert (tmp_path / "a-file").read_text() == "mine\n"

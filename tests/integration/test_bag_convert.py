@@ -4,6 +4,7 @@ pixels, depth within one TUM unit (1/5000 m) with missing pixels missing, the Ca
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -91,6 +92,13 @@ def test_an_empty_folder_is_written_into(recording, tmp_path):
     convert(recording["bags"]["tum"], tmp_path / "empty", "-q")
     assert len(open_sequence(str(tmp_path / "empty"))) == 4
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty"]  # no staging folder left beside it
+    assert (tmp_path / "empty").stat().st_mode & 0o777 == 0o777 & ~current_umask()  # as mkdir makes it, not 0700
+
+
+def current_umask() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
 
 
 def test_depth_units_are_tum_units_with_nan_missing():

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.datasets.rosbag import BagSequence
-from clipclique.datasets.tum import DEPTH_FACTOR
+from clipclique.datasets.tum import DEPTH_FACTOR, tum_line
 from clipclique.errors import DatasetError
 from clipclique.types import Frame
 
@@ -89,7 +89,6 @@ def _write(
     sequence: BagSequence, folder: Path, indices: range, progress: Progress | None
 ) -> tuple[int, tuple[str, ...]]:
     """Every file of the TUM folder into `folder` (the staging folder); (poses written, the files)."""
-    from clipclique.localization.results import tum_line
 
     (folder / "rgb").mkdir()
     (folder / "depth").mkdir()

@@ -106,6 +106,14 @@ def read_trajectory(path: Path) -> tuple[np.ndarray, list[Pose]]:
     return table[:, 0], [Pose(r, t) for r, t in zip(rotations, table[:, 1:4])]
 
 
+def tum_line(timestamp: float, pose: Pose) -> str:
+    """One line of a TUM trajectory file, as `read_trajectory` reads it back (to the micrometre)."""
+    from scipy.spatial.transform import Rotation
+
+    quaternion = Rotation.from_matrix(pose.rotation).as_quat()  # x, y, z, w
+    return " ".join(f"{v:.6f}" for v in (timestamp, *pose.translation, *quaternion))
+
+
 def associate(times: np.ndarray, candidates: np.ndarray, max_diff: float = MAX_TIME_DIFF) -> np.ndarray:
     """Index of the candidate nearest in time to each of `times`, or -1 when none is within max_diff."""
     if len(candidates) == 0:

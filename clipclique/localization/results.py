@@ -21,16 +21,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
+from clipclique.datasets.tum import tum_line
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import ALL_STAGES
 from clipclique.io.safeio import read_json
 from clipclique.localization.runs import FrameOutcome, Run
-from clipclique.types import Pose
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1
@@ -226,11 +225,6 @@ def tum_ground_truth(frames: list[FrameOutcome]) -> str:
     lines = ["# timestamp tx ty tz qx qy qz qw (ground-truth camera-to-world pose of each frame that has one)"]
     lines += [tum_line(f.timestamp, f.gt_pose) for f in frames if f.gt_pose is not None]
     return "\n".join(lines) + "\n"
-
-
-def tum_line(timestamp: float, pose: Pose) -> str:
-    quaternion = Rotation.from_matrix(pose.rotation).as_quat()  # x, y, z, w
-    return " ".join(f"{v:.6f}" for v in (timestamp, *pose.translation, *quaternion))
 
 
 def results_files(path: Path) -> list[Path]:

@@ -12,7 +12,7 @@ from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
 from clipclique.localization.cli import app
-from clipclique.localization.results import tum_line
+from clipclique.datasets.tum import tum_line
 from clipclique.localization.run import RunSettings, run_and_save
 from clipclique.mapping.build import build_map
 

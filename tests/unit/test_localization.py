@@ -18,7 +18,8 @@ from clipclique.errors import ClipcliqueError
 from clipclique.types import Ellipsoids, Map, Pose
 from clipclique.localization.cli import app, imports_kept
 from clipclique.localization.run import choose_encoder, read_ahead
-from clipclique.localization.results import ALL_STAGES, json_safe, read_results, tum_line
+from clipclique.datasets.tum import tum_line
+from clipclique.localization.results import ALL_STAGES, json_safe, read_results
 from clipclique.localization.tables import results_table, run_banner
 
 RUNNER = CliRunner()

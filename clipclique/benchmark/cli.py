@@ -18,11 +18,17 @@ from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 from clipclique.io.outputs import BENCH_DIR, CACHE_DIR
 from clipclique.localization.inputs import (
+    CameraInfoTopicOption,
+    DepthScaleOption,
+    DepthTopicOption,
+    GroundtruthOption,
+    GtFramesOption,
     LabelsOption,
     MapOption,
     MinScoreOption,
     OdometryDriftOption,
     OdometryOption,
+    RgbTopicOption,
     RunInputs,
     SamePlaceOption,
     StrictDetectionsOption,
@@ -66,6 +72,12 @@ def main_command(
     window_span: WindowSpanOption = None,
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
+    rgb_topic: RgbTopicOption = None,
+    depth_topic: DepthTopicOption = None,
+    camera_info_topic: CameraInfoTopicOption = None,
+    depth_scale: DepthScaleOption = None,
+    groundtruth: GroundtruthOption = None,
+    gt_frames: GtFramesOption = None,
     # --- end of the shared input options
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
@@ -97,7 +109,8 @@ def main_command(
     console = make_console()
     with user_errors(TOOL):
         inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
-                           odometry_drift, window_span)
+                           odometry_drift, window_span, rgb_topic, depth_topic, camera_info_topic, depth_scale,
+                           groundtruth, gt_frames)
         if plan is not None:
             if scenes or grid or methods != "clipclique" or inputs != RunInputs():
                 raise PlanError(f"--plan {plan}: give the scenes, methods, grid and inputs in the plan file, not as well "

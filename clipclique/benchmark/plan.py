@@ -160,7 +160,7 @@ def runs(plan: Plan, out_root: Path, data_root: Path | None, record: bool) -> li
                           encoder=plan.encoder, stride=plan.stride, max_frames=plan.max_frames, record=record,
                           **plan.inputs.settings())
         run.out = out_root / scene_name(scene) / run.run_name()
-        if is_bag(Path(scene)):  # a bag holds no map: the benchmark reads the default one, as for every scene
+        if is_bag(Path(scene)) and run.map_path is None:  # a bag holds no map: the default one, as for every scene
             run.map_path = map_file(scene_name(scene))
         settings.setdefault(run.out, run)
     return list(settings.values())

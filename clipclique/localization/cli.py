@@ -19,18 +19,26 @@ import typer
 from clipclique.blas import one_blas_thread_by_default
 from clipclique.exits import version_option
 from clipclique.localization.inputs import (
+    BAG,
     INPUTS,
+    CameraInfoTopicOption,
+    DepthScaleOption,
+    DepthTopicOption,
+    GroundtruthOption,
+    GtFramesOption,
     LabelsOption,
     MapOption,
     MinScoreOption,
     OdometryDriftOption,
     OdometryOption,
+    RgbTopicOption,
     RunInputs,
     SamePlaceOption,
     StrictDetectionsOption,
     WindowOption,
     WindowSpanOption,
     WindowStepOption,
+    bag_options,
 )
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.splitlines()[0],
@@ -38,20 +46,6 @@ app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__.split
 
 TOOL = "clipclique-loc"
 ALGORITHM, OUTPUT = "Algorithm", "Output"
-BAG = "ROS bag"
-# The ROS bag options of `run` and `convert` (clipclique.datasets.rosbag.BagOptions)
-RgbTopicOption = Annotated[Optional[str], typer.Option(help="colour topic \\[default: the only colour Image or "
-                                                            "CompressedImage topic]", rich_help_panel=BAG)]
-DepthTopicOption = Annotated[Optional[str], typer.Option(help="depth topic \\[default: the only 32FC1, 16UC1 or "
-                                                              "compressedDepth topic]", rich_help_panel=BAG)]
-CameraInfoTopicOption = Annotated[Optional[str], typer.Option(help="CameraInfo topic \\[default: the colour topic's "
-                                                                   "camera_info]", rich_help_panel=BAG)]
-DepthScaleOption = Annotated[Optional[float], typer.Option(help="metres per depth unit \\[default: 32FC1 1, 16UC1 "
-                                                                "0.001]", rich_help_panel=BAG)]
-GroundtruthOption = Annotated[Optional[Path], typer.Option(help="ground truth of a bag: a TUM trajectory file",
-                                                           rich_help_panel=BAG)]
-GtFramesOption = Annotated[Optional[str], typer.Option(help="ground truth of a bag from /tf: WORLD:CAMERA (static "
-                                                            "transforms applied)", rich_help_panel=BAG)]
 
 
 @app.callback()
@@ -117,14 +111,12 @@ def run(
     window_span: WindowSpanOption = None,
     odometry: OdometryOption = None,
     odometry_drift: OdometryDriftOption = 0.0,
-    # ---- ROS bag options (clipclique.datasets.rosbag) ----
     rgb_topic: RgbTopicOption = None,
     depth_topic: DepthTopicOption = None,
     camera_info_topic: CameraInfoTopicOption = None,
     depth_scale: DepthScaleOption = None,
     groundtruth: GroundtruthOption = None,
     gt_frames: GtFramesOption = None,
-    # ---- end of the ROS bag options ----
     out: Annotated[Optional[Path], typer.Option(
         help="\\[default: outputs/loc/SEQUENCE/RUN, RUN = the method and the settings given, e.g. "
              "clipclique+inliers.d_comp=0.4]", rich_help_panel=OUTPUT)] = None,
@@ -154,16 +146,17 @@ def run(
         method = method_key(method)
     with user_errors(TOOL):
         inputs = RunInputs(map_path, same_place, min_score, labels, strict_detections, window, window_step, odometry,
-                           odometry_drift, window_span)
+                           odometry_drift, window_span, rgb_topic, depth_topic, camera_info_topic, depth_scale,
+                           groundtruth, gt_frames)
     settings = RunSettings(sequence, method, config, overrides, data_root=data_root, detector=detector,
                            encoder=encoder, yolo_weights=yolo_weights, stride=stride, max_frames=max_frames, out=out,
-                           record=not no_rrd, **inputs.settings(),
-                           bag=bag_options(rgb_topic, depth_topic, camera_info_topic, depth_scale, groundtruth,
-                                           gt_frames))
+                           record=not no_rrd, **inputs.settings())
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
-        task = progress.add_task(escape(f"{sequence} / {method}"), total=None)
-        document = run_and_save(settings, lambda done, total: progress.update(task, completed=done, total=total))
+        title = escape(f"{sequence} / {method}")
+        task = progress.add_task(title, total=None)
+        document = run_and_save(settings, lambda reached: progress.update(
+            task, completed=reached.done, total=reached.total, description=f"{title} {reached.describe()}".rstrip()))
     if verbose:
         print_frames(console, document)
     if not quiet:
@@ -184,17 +177,6 @@ def run(
     elif recording is not None and quiet:  # the notes above say it; under -q, this does (every time)
         print(f"clipclique-loc: warning: {folder / recording['file']} is an earlier run's and does not show these "
               "results (run without --no-rrd to replace it)", file=sys.stderr)
-
-
-def bag_options(rgb_topic: str | None, depth_topic: str | None, camera_info_topic: str | None,
-                depth_scale: float | None, groundtruth: Path | None, gt_frames: str | None):
-    """The ROS bag options given, None when none is (BagOptions is imported only then: --help stays instant)."""
-    given = (rgb_topic, depth_topic, camera_info_topic, depth_scale, groundtruth, gt_frames)
-    if all(value is None for value in given):
-        return None
-    from clipclique.datasets import BagOptions
-
-    return BagOptions(*given)
 
 
 @app.command()

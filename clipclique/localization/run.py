@@ -38,7 +38,7 @@ from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
 from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
 from clipclique.multiframe.window import WindowConfig, Windower, span_step
-from clipclique.localization.runs import FrameOutcome, Run, RunSettings
+from clipclique.localization.runs import FrameOutcome, Run, RunProgress, RunSettings
 from clipclique.localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder, FileDetector
@@ -268,7 +268,7 @@ def earlier_observations(run: Run, frame: Frame) -> Observations:
 
 
 def execute(run: Run, recorder: LocalizationRecorder | None = None,
-            progress: Callable[[int, int], None] | None = None) -> Run:
+            progress: Callable[[RunProgress], None] | None = None) -> Run:
     """Localize the selected frames (each with its window when asked); log each to `recorder` when given.
     Frames are read ahead on a thread (`read_ahead`), except with a window, whose earlier frames the loop reads too."""
     index = index_map(run.map, run.config)
@@ -276,13 +276,23 @@ def execute(run: Run, recorder: LocalizationRecorder | None = None,
     windower = None if run.odometry is None else Windower(
         WindowConfig(run.settings.window, run.settings.window_step), run.odometry.poses, run.map.class_names)
     frames = (run.sequence[i] for i in selected) if windower is not None else read_ahead(run.sequence, selected)
+    span = recording_span(run.sequence, selected)
     with closing(frames):
         for count, frame in enumerate(frames, start=1):
             localize_one(run, frame, index, windower, recorder)
             if progress is not None:
-                progress(count, len(selected))
+                progress(RunProgress(count, len(selected), span and (frame.timestamp - span[0], span[1] - span[0])))
     note_unannotated(run, len(selected))
     return run
+
+
+def recording_span(sequence: Sequence, selected: range) -> tuple[float, float] | None:
+    """A bag's first and last selected colour stamps (its index holds them); None for a folder, whose reader may
+    decode every frame to know them."""
+    if sequence.kind != "rosbag":
+        return None
+    stamps = sequence.trajectory()[0]
+    return float(stamps[selected[0]]), float(stamps[selected[-1]])
 
 
 def read_ahead(sequence: Sequence, selected: range, ahead: int = 2) -> Iterator[Frame]:
@@ -329,7 +339,7 @@ def note_unannotated(run: Run, selected: int) -> None:
                          f"{run.detector.name} detector: left out, not counted as failures ({shown})")
 
 
-def run_and_save(settings: RunSettings, progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+def run_and_save(settings: RunSettings, progress: Callable[[RunProgress], None] | None = None) -> dict[str, Any]:
     """Prepare, localize every selected frame, write results (and the .rrd) into
     `settings.out_dir(sequence name)`; the results document."""
     return save_run(prepare(settings), lambda run, recorder: execute(run, recorder, progress))

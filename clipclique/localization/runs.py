@@ -1,5 +1,6 @@
-"""What a run of `clipclique-loc run` is: what it was asked (`RunSettings`), what it carries (`Run`) and each
-frame's outcome (`FrameOutcome`). The runner (run.py) fills them; the results writer (results.py) reads them."""
+"""What a run of `clipclique-loc run` is: what it was asked (`RunSettings`), what it carries (`Run`), each
+frame's outcome (`FrameOutcome`) and how far it got (`RunProgress`). The runner (run.py) fills them; the
+results writer (results.py) reads them."""
 
 from __future__ import annotations
 
@@ -85,6 +86,19 @@ class RunSettings:
 
     def resolved_map_path(self) -> Path:
         return self.map_path or map_file(scene_name(self.sequence))
+
+
+@dataclass(frozen=True)
+class RunProgress:
+    """Frames done of the selected ones, and the recording time reached: a bag's progress is its time."""
+
+    done: int
+    total: int
+    bag_time: tuple[float, float] | None = None  # a bag's: seconds reached since its first frame selected, of span
+
+    def describe(self) -> str:
+        """`bag time 12.3 / 45.6 s` for a bag, else nothing (the bar counts the frames)."""
+        return "" if self.bag_time is None else f"bag time {self.bag_time[0]:.1f} / {self.bag_time[1]:.1f} s"
 
 
 @dataclass

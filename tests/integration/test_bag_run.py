@@ -52,7 +52,8 @@ def recording(demo_data, bag_tools, tmp_path_factory) -> dict[str, Path]:
     return found
 
 
-def localized(recording: dict[str, Path], sequence: Path, out: Path, bag: BagOptions | None = None, **given) -> dict:
+def localized(recording: dict[str, Path], sequence: Path, out: Path, bag: BagOptions | None = None, progress=None,
+              **given) -> dict:
     settings = RunSettings(
         str(sequence),
         map_path=recording["map"],
@@ -63,13 +64,30 @@ def localized(recording: dict[str, Path], sequence: Path, out: Path, bag: BagOpt
         bag=bag,
         **given,
     )
-    run_and_save(settings)
+    run_and_save(settings, progress)
     return read_results(out / "results.json")
 
 
 @pytest.fixture(scope="module")
 def folder_run(recording, tmp_path_factory) -> dict:
-    return localized(recording, recording["folder"], tmp_path_factory.mktemp("folder-run"))
+    reached = []
+    document = localized(recording, recording["folder"], tmp_path_factory.mktemp("folder-run"), progress=reached.append)
+    assert [(step.done, step.total, step.bag_time) for step in reached] == [(i, 8, None) for i in range(1, 9)]
+    return document
+
+
+def test_a_bag_run_reports_its_progress_in_bag_time(recording, tmp_path):
+    """The progress of a bag is its time since the first frame selected, of the selection's span (frames
+    seconds apart in demo_tum's walk); a folder's counts frames only (folder_run)."""
+    reached = []
+    localized(recording, recording["ros1"], tmp_path, progress=reached.append, stride=2)
+    stamps, _ = open_scene(str(recording["ros1"])).trajectory()
+    span = stamps[6] - stamps[0]
+    assert span > 30  # the walk's frames are seconds apart
+    assert [step.done for step in reached] == [1, 2, 3, 4] and {step.total for step in reached} == {4}
+    assert [step.bag_time[0] for step in reached] == pytest.approx([stamps[i] - stamps[0] for i in (0, 2, 4, 6)])
+    assert [step.bag_time[1] for step in reached] == pytest.approx([span] * 4)
+    assert reached[-1].describe() == f"bag time {span:.1f} / {span:.1f} s"
 
 
 @pytest.mark.parametrize("bag", ["ros1", "mcap"])
@@ -194,4 +212,31 @@ def test_the_benchmark_takes_a_bag_with_its_default_map(recording, folder_run, t
     (results,) = (tmp_path / "bench" / "demo_tum").glob("*/results.json")
     unscored = [frame | {"translation_error_m": None, "rotation_error_deg": None} for frame in decisions(folder_run)]
     comparison = compare(unscored, decisions(read_results(results)))
+    assert comparison.frames == 8 and comparison.differing == {}, comparison.report()
+
+
+@pytest.mark.parametrize("given", ["options", "plan"])
+def test_the_benchmark_takes_the_bag_options_of_a_run(recording, folder_run, tmp_path, monkeypatch, given):
+    """--gt-frames (and every other bag option) as clipclique-loc run takes it, on the command line or as a plan
+    file's key: the benchmark's bag run is scored, and decides every frame as the folder's run."""
+    from clipclique.benchmark.cli import app as bench
+
+    monkeypatch.chdir(tmp_path)
+    camera = f"world:{recording['frames']['tum']}"
+    inputs = {"detector": f"file:{recording['detections']}", "encoder": "none", "map": str(recording["map"]),
+              "gt_frames": camera, "rgb_topic": "/camera/rgb/image_color"}
+    if given == "options":
+        args = [str(recording["mcap"])] + [part for key, value in inputs.items()
+                                           for part in (f"--{key.replace('_', '-')}", value)]
+    else:
+        lines = [f"scenes = [{json.dumps(str(recording['mcap']))}]"]
+        lines += [f"{key} = {json.dumps(value)}" for key, value in inputs.items()]
+        (tmp_path / "plan.toml").write_text("\n".join(lines) + "\n")
+        args = ["--plan", "plan.toml"]
+    result = RUNNER.invoke(bench, [*args, "--out", "bench", "--cache", "cache", "-q"])
+    assert result.exit_code == 0, result.output
+    (results,) = (tmp_path / "bench" / "demo_tum").glob("*/results.json")
+    (key,) = (tmp_path / "cache").glob("*/key.json")  # the topic read keys the perception cache
+    assert json.loads(key.read_text())["bag_reading"] == ["/camera/rgb/image_color", None, None, None]
+    comparison = compare(decisions(folder_run), decisions(read_results(results)))
     assert comparison.frames == 8 and comparison.differing == {}, comparison.report()

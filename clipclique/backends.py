@@ -9,12 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.perception.detectors import Detector, InstanceDetector
 from clipclique.perception.encoders import CHECKPOINT_SUFFIXES, DEFAULT_MODEL, ClipEncoder, Encoder
-from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.perception.yolo import YoloDetector
 from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector
 from clipclique.sim.encoder import SIMULATED_NAME, SimulatedClipEncoder
-from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.datasets import Sequence as DatasetSequence

@@ -36,19 +36,19 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.spatial import cKDTree
 
+from clipclique.config import LocalizationConfig
 from clipclique.descriptors import graph, lookalikes, matching, similarity
+from clipclique.errors import ClipcliqueError
 from clipclique.inliers import cliquesearch, compatibility, consensus, regions
 from clipclique.inliers.cliquesearch import sort_span
 from clipclique.multiframe import mapalign
-from clipclique.pose import refine
-from clipclique.verify import confidence, projection, verification
-from clipclique.config import LocalizationConfig
-from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, LocalizationResult, Stage
+from clipclique.pose import refine
 from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
-from clipclique.verify.projection import pair_iou
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations
+from clipclique.verify import confidence, projection, verification
+from clipclique.verify.projection import pair_iou
 
 
 @dataclass(kw_only=True)

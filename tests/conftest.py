@@ -83,8 +83,8 @@ def full_size_maps(tmp_path_factory) -> FullSizeMaps:
     there on first use, as `make demo` does), built with the simulated encoder once per session."""
     from clipclique.backends import load_encoder
     from clipclique.io.mapfile import save_map
-    from clipclique.resolve import open_scene
     from clipclique.mapping.build import build_map
+    from clipclique.resolve import open_scene
 
     folder = tmp_path_factory.mktemp("full-size-maps")
     built: dict[str, Path] = {}

@@ -25,8 +25,8 @@ one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clip
 from clipclique.benchmark.engine import ensure_map, run_jobs  # noqa: E402
 from clipclique.benchmark.plan import Plan, runs  # noqa: E402
 from clipclique.config import METHOD_PRESETS  # noqa: E402
-from clipclique.sim import DEMO_SCENES  # noqa: E402
 from clipclique.localization.results import read_results  # noqa: E402
+from clipclique.sim import DEMO_SCENES  # noqa: E402
 
 
 class Quiet:

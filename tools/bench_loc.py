@@ -21,10 +21,9 @@ import numpy as np  # noqa: E402
 
 from clipclique.config import METHOD_PRESETS  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
+from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
 from clipclique.outcomes import ALGORITHM_STAGES, PIPELINE_STAGES, QUERY_STAGES  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
-from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
-
 
 
 def positive(text: str) -> int:

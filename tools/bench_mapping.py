@@ -26,10 +26,10 @@ def main() -> None:
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = str(args.threads)
 
-    from clipclique.sim.demo import write_scannet_mesh
-    from clipclique.sim.procedural import make_room
     from clipclique.datasets.scannet import ScanNetScene
     from clipclique.mapping.build import build_map
+    from clipclique.sim.demo import write_scannet_mesh
+    from clipclique.sim.procedural import make_room
 
     room = make_room(seed=7, spacing=args.spacing, boxes=6)
     with tempfile.TemporaryDirectory() as tmp:

@@ -32,10 +32,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from clipclique.perception.encoders import Crop  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
-from clipclique.perception.observations import Extraction, extract_observations  # noqa: E402
 from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+from clipclique.perception.encoders import Crop  # noqa: E402
+from clipclique.perception.observations import Extraction, extract_observations  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 BEFORE = "d350f9d"  # the last commit before the compiled window pass (README, Observation stage)

@@ -29,10 +29,10 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import expit, log_expit
 
-from clipclique.multiframe import mapalign
 from clipclique.config import make_config
-from clipclique.pipeline import align_maps
 from clipclique.geometry import random_rotation, rotation_angle
+from clipclique.multiframe import mapalign
+from clipclique.pipeline import align_maps
 from clipclique.sim.mappairs import detector_pair
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose

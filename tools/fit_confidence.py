@@ -31,11 +31,11 @@ one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas
 from clipclique.benchmark import calibration  # noqa: E402
 from clipclique.benchmark.engine import ensure_map  # noqa: E402
 from clipclique.benchmark.suite import cache_sequence  # noqa: E402
-from clipclique.verify import confidence# noqa: E402
-from clipclique.exits import user_errors  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
 from clipclique.io.outputs import Staging  # noqa: E402
 from clipclique.localization.results import json_safe  # noqa: E402
+from clipclique.verify import confidence  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -22,15 +22,13 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.resolve import open_scene
-from clipclique.interop.coco import COCO80_INDEX
-from clipclique.interop.coco import reported_classes
+from clipclique.backends import make_detector
+from clipclique.interop.coco import COCO80_INDEX, reported_classes
 from clipclique.interop.protowire import encode_field, encode_packed_floats, encode_packed_uints
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.io.mapfile import load_map
-from clipclique.backends import make_detector
-from clipclique.resolve import default_detector
 from clipclique.perception.yolo import coco_to_vocabulary
+from clipclique.resolve import default_detector, open_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 

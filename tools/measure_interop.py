@@ -29,17 +29,19 @@ one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas
 
 import numpy as np  # noqa: E402
 
-from clipclique.resolve import open_scene  # noqa: E402
 from clipclique.backends import load_encoder, make_detector  # noqa: E402
 from clipclique.interop.boxfit import BoxSegmentation, box_mask  # noqa: E402
 from clipclique.io.mapfile import save_map  # noqa: E402
+from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+from clipclique.mapping.build import build_map  # noqa: E402
 from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.perception.observations import embed, extract_observations  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
+from clipclique.resolve import (
+    default_detector,  # noqa: E402
+    open_scene,  # noqa: E402
+)
 from clipclique.types import Detections  # noqa: E402
-from clipclique.resolve import default_detector  # noqa: E402
-from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
-from clipclique.mapping.build import build_map  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 THRESHOLDS = (0.5, 1.0, 2.0)

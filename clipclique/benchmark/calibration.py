@@ -19,13 +19,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from clipclique.verify import confidence, verification
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations, Pose
+from clipclique.verify import confidence, verification
 
 BINS = 10  # reliability diagram and ECE: equal-width confidence bins
 METHODS = ("xview", "sh", "cliploc", "clipclique")  # Table I's four

@@ -151,8 +151,14 @@ class _Bar:
     """A progress bar over all tasks (done, running, failed, elapsed, remaining); a failed task is one line."""
 
     def __init__(self, console: Any, quiet: bool) -> None:
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.console = console
         self.progress = Progress(TextColumn("tasks"), BarColumn(), MofNCompleteColumn(),

@@ -32,12 +32,13 @@ from clipclique.benchmark import literal_reference
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.geometry import random_rotation
 from clipclique.inliers.compatibility import compatibility_graph
+from clipclique.inliers.reference_cliques import maximal_cliques
 from clipclique.outcomes import ALGORITHM_STAGES
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
-from clipclique.inliers.reference_cliques import maximal_cliques
 from clipclique.pose.fit import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
+
 
 def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int = 0) -> dict:
     """Median and 90th-percentile ms of matching + inliers + pose (and of the full query) for `method`."""

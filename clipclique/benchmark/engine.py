@@ -27,14 +27,23 @@ from clipclique.benchmark import perception
 from clipclique.datasets import is_bag, resolve_data_root, scene_name
 from clipclique.errors import ClipcliqueError, MapFileError, one_line
 from clipclique.io.outputs import map_file
+from clipclique.localization.results import read_results
+from clipclique.localization.run import (
+    FrameOutcome,
+    Run,
+    RunSettings,
+    localize_observed,
+    note_unannotated,
+    observe,
+    prepare,
+    save_run,
+    selected_frames,
+)
+from clipclique.mapping.run import run_build
 from clipclique.multiframe.window import WindowConfig, Windower, window_frames
 from clipclique.pipeline import MapIndex, index_map
 from clipclique.sim import DEMO_SCENES
 from clipclique.types import Ellipsoids, Observations
-from clipclique.localization.results import read_results
-from clipclique.localization.run import (FrameOutcome, Run, RunSettings, localize_observed, note_unannotated, observe, prepare,
-                              save_run, selected_frames)
-from clipclique.mapping.run import run_build
 
 CHUNK_FRAMES = 16  # frames per task: enough work to outweigh a task's overhead, small enough to spread
 RETRIES = 1

@@ -26,18 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.backends import make_detector
-from clipclique.config import GraphConfig
-from clipclique.datasets import Sequence
-from clipclique.perception.detectors import InstanceDetector
-from clipclique.descriptors.graph import semantic_graph
-from clipclique.perception.observations import ObservationParams, extract_observations
-from clipclique.resolve import default_detector, open_scene
-from clipclique.types import Map
 from clipclique.benchmark import failure_profile
 from clipclique.benchmark.failure_profile import hit_objects
 from clipclique.benchmark.report import update_readme
+from clipclique.config import GraphConfig
+from clipclique.datasets import Sequence
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.exits import user_errors
 from clipclique.mapping.build import build_map
+from clipclique.perception.detectors import InstanceDetector
+from clipclique.perception.observations import ObservationParams, extract_observations
+from clipclique.resolve import default_detector, open_scene
+from clipclique.types import Map
 
 NEAR_M = 3.5  # "objects in view within 3.5 m" (REAL_SCENES.md, desk)
 FAR_OFFSET_M = 0.3  # d_comp: offsets beyond it fail the rigid distance test

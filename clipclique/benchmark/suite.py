@@ -31,8 +31,8 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import partial
 from datetime import datetime, timezone
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -41,20 +41,20 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clipclique.benchmark import calibration, literal_reference, perception, report
-from clipclique.benchmark.engine import ensure_map, perceive_chunk
 from clipclique.benchmark.core import growth_exponent, scalability
+from clipclique.benchmark.engine import ensure_map, perceive_chunk
 from clipclique.benchmark.report import PAPER_LANDMARKS_AT_1S
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config
 from clipclique.datasets import resolve_data_root
 from clipclique.exits import user_errors
+from clipclique.io.outputs import BENCH_DIR, CACHE_DIR, map_file
+from clipclique.localization.run import Run, RunSettings, prepare, selected_frames
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage
 from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize
 from clipclique.sim import DEMO_SCENES
 from clipclique.sim.synthetic import duplicate_rooms
 from clipclique.types import Map, Observations, Pose
-from clipclique.io.outputs import BENCH_DIR, CACHE_DIR, map_file
-from clipclique.localization.run import Run, RunSettings, prepare, selected_frames
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"

@@ -27,8 +27,8 @@ from clipclique.exits import user_errors
 from clipclique.geometry import pose_errors
 from clipclique.metrics import SUCCESS_THRESHOLDS_M, success_within
 from clipclique.multiframe.odometry import drifting
-from clipclique.pipeline import index_map, localize
 from clipclique.multiframe.window import WindowConfig, Windower
+from clipclique.pipeline import index_map, localize
 
 TABLE_THRESHOLDS_M = (0.5, 1.0)  # the table's cells, per odometry: a subset of SUCCESS_THRESHOLDS_M
 CONFIGS = {"CLIP-Clique": [], "SH only (alpha=0)": ["similarity.alpha=0"]}

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.io import safeio
 from clipclique.errors import DatasetError
+from clipclique.io import safeio
 from clipclique.types import Frame, Pose
 
 # Room structure, not landmarks: left out of maps and ground-truth detections.

@@ -30,18 +30,18 @@ from clipclique.datasets.base import (
     Instance,
     Sequence,
     description_template,
+    intrinsics_for,
     is_demo,
     is_structure,
-    intrinsics_for,
     read_depth,
     read_image,
     read_instance_ids,
     read_json,
     resize_rgb,
 )
+from clipclique.errors import DatasetError
 from clipclique.io import safeio
 from clipclique.perception.raycast import MeshRaycaster
-from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 
 LABELS_TSV = "scannetv2-labels.combined.tsv"

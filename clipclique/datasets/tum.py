@@ -40,9 +40,9 @@ from clipclique.datasets.base import (
     read_instance_ids,
     resize_rgb,
 )
-from clipclique.io import safeio
 from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import backproject
+from clipclique.io import safeio
 from clipclique.types import Frame, Pose
 
 DEPTH_FACTOR = 5000.0

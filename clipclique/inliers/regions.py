@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from clipclique.config import InlierConfig
 from clipclique.descriptors import matching
 from clipclique.inliers import cliquesearch, compatibility
-from clipclique.config import InlierConfig
 from clipclique.outcomes import RegionSplit
 from clipclique.types import Ellipsoids
 

@@ -8,16 +8,16 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
+from clipclique.errors import ClipcliqueError
 from clipclique.interop.align import Alignment, AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
-from clipclique.errors import ClipcliqueError
 from clipclique.interop.errors import InteropError
-from clipclique.io.mapfile import load_map
 from clipclique.interop.labels import COCO, LabelSet, duplicate_note
 from clipclique.interop.maps import MAX_BINARY_BYTES, ImportedMap, MapFormat, map_input, read_map
-from clipclique.perception.encoders import Encoder
+from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import map_file
 from clipclique.io.safeio import read_bytes
+from clipclique.perception.encoders import Encoder
 from clipclique.types import Map
 
 

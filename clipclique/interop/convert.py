@@ -9,16 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.version import __version__
 from clipclique.datasets import description_template
 from clipclique.datasets.tum import read_objects_table
-from clipclique.perception.encoders import Encoder
 from clipclique.interop.coco import COCO80_INDEX
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import LANDMARKS_FORMAT, LANDMARKS_VERSION, ImportedMap
 from clipclique.interop.quadric import encode_dual_quadric
-from clipclique.types import Map
+from clipclique.perception.encoders import Encoder
 from clipclique.perception.yolo import COCO_TO_MAP
+from clipclique.types import Map
+from clipclique.version import __version__
 
 
 def read_objects(path: Path) -> dict[int, tuple[str, str]]:

@@ -17,9 +17,9 @@ from typing import Any
 
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.multiframe.mapalign import MapAlignment, g2o_edge
 from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import Staging
+from clipclique.multiframe.mapalign import MapAlignment, g2o_edge
 from clipclique.pipeline import align_maps
 from clipclique.types import Map
 

@@ -26,10 +26,10 @@ from scipy.spatial.transform import Rotation
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
-from clipclique.metrics import SUCCESS_THRESHOLDS_M
-from clipclique.outcomes import ALL_STAGES
 from clipclique.io.safeio import read_json
 from clipclique.localization.runs import FrameOutcome, Run
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
+from clipclique.outcomes import ALL_STAGES
 from clipclique.types import Pose
 
 RESULTS_FORMAT = "clipclique-loc results"

@@ -21,28 +21,36 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from clipclique.backends import load_encoder, make_detector
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, ObservationParams, make_config
-from clipclique.backends import load_encoder, make_detector
 from clipclique.datasets import Sequence, is_bag
 from clipclique.datasets.rosbag import NO_DETECTOR
+from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
+from clipclique.interop.coco import reported_classes
+from clipclique.interop.detections import CocoRecorder, FileDetector
+from clipclique.io.mapfile import load_map
+from clipclique.io.outputs import Staging
+from clipclique.localization.results import (
+    DETECTIONS_FILE,
+    IMAGES_FILE,
+    OUTPUT_FILES,
+    RECORDING,
+    earlier_recording,
+    run_description,
+    write_results,
+)
+from clipclique.localization.runs import FrameOutcome, Run, RunSettings
+from clipclique.metrics import FrameEvaluation, evaluate_frame
+from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
+from clipclique.multiframe.window import WindowConfig, Windower, span_step
 from clipclique.perception.detectors import Detector
 from clipclique.perception.encoders import Encoder
-from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
-from clipclique.io.mapfile import load_map
-from clipclique.metrics import FrameEvaluation, evaluate_frame
 from clipclique.perception.observations import embed, extract_observations
-from clipclique.io.outputs import Staging
+from clipclique.perception.yolo import YoloDetector
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
-from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
-from clipclique.multiframe.window import WindowConfig, Windower, span_step
-from clipclique.localization.runs import FrameOutcome, Run, RunSettings
-from clipclique.localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
-from clipclique.interop.coco import reported_classes
-from clipclique.interop.detections import CocoRecorder, FileDetector
-from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records

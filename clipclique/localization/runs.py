@@ -10,15 +10,15 @@ from pathlib import Path
 
 from clipclique.config import LocalizationConfig, changed_by_overrides
 from clipclique.datasets import BagOptions, Sequence, scene_name
-from clipclique.perception.detectors import Detector
-from clipclique.perception.encoders import Encoder
 from clipclique.interop.detections import CocoRecorder
+from clipclique.io.outputs import LOC_DIR, map_file
 from clipclique.metrics import FrameEvaluation, summarize
 from clipclique.multiframe.odometry import Odometry
-from clipclique.outcomes import LocalizationResult
-from clipclique.io.outputs import LOC_DIR, map_file
-from clipclique.types import Map, Pose
 from clipclique.multiframe.window import WindowQuery
+from clipclique.outcomes import LocalizationResult
+from clipclique.perception.detectors import Detector
+from clipclique.perception.encoders import Encoder
+from clipclique.types import Map, Pose
 
 MAX_RUN_NAME = 100  # characters of a run folder's name; longer ones end in a hash
 

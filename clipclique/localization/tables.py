@@ -15,8 +15,8 @@ from typing import Any
 
 from rich import box
 from rich.console import Console, RenderableType
-from rich.measure import Measurement
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 
 from clipclique.config import LocalizationConfig

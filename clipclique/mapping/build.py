@@ -18,13 +18,13 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from clipclique.version import __version__
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
-from clipclique.perception.encoders import Encoder
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.errors import DatasetError
 from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
-from clipclique.descriptors.graph import semantic_graph
+from clipclique.perception.encoders import Encoder
 from clipclique.types import Map
+from clipclique.version import __version__
 
 Progress = Callable[[int, int], None]
 

@@ -33,9 +33,9 @@ from clipclique.interop.labels import label_set
 from clipclique.interop.maps import MapFormat, map_input
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.io.outputs import Staging, map_file
+from clipclique.mapping.build import BuildReport, Progress, build_map
 from clipclique.resolve import first_use_notice, open_scene
 from clipclique.types import Map
-from clipclique.mapping.build import BuildReport, Progress, build_map
 
 Bars = Callable[[str], Progress]  # a stage's description -> its progress callback
 GENERATING = "generating the {scene} data (first use)"

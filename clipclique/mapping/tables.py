@@ -14,10 +14,10 @@ from rich.table import Table
 from clipclique.commands import command, rerun_hint
 from clipclique.config import GraphConfig
 from clipclique.datasets.tum import MAX_TIME_DIFF
-from clipclique.types import Map
-from clipclique.mapping.build import BuildReport, degree_histogram
 from clipclique.mapping.annotate import AnnotationReport
+from clipclique.mapping.build import BuildReport, degree_histogram
 from clipclique.mapping.run import Built, Exported, Imported
+from clipclique.types import Map
 
 
 def make_console() -> Console:

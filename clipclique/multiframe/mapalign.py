@@ -40,13 +40,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from clipclique.descriptors import lookalikes
 from clipclique.config import LocalizationConfig
+from clipclique.descriptors import lookalikes
 from clipclique.geometry import rotation_angle
 from clipclique.outcomes import Failure, LocalizationResult
 from clipclique.pose.fit import DegeneratePoseError, fit_rigid
 from clipclique.types import Map, Observations, Pose
-
 
 DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than this ...
 DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate

@@ -20,8 +20,15 @@ import numpy as np
 from numba import njit
 
 from clipclique.config import ObservationParams
+from clipclique.geometry import (
+    Oriented,
+    _box_parts,
+    _neighbour_pass,
+    finished_box,
+    fit_ellipsoid_depth,
+    stack_ellipsoids,
+)
 from clipclique.perception.encoders import Crop, Encoder
-from clipclique.geometry import Oriented, _box_parts, _neighbour_pass, finished_box, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Camera, Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from clipclique.errors import ModelUnavailableError
 from clipclique.perception.detectors import empty_detections, vocabulary_index
 from clipclique.perception.encoders import host_reachable
-from clipclique.errors import ModelUnavailableError
 from clipclique.types import Detections, Frame
 
 # The 80 COCO classes by their COCO-80 id (YOLO's class ids).

@@ -21,9 +21,9 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
-from typing import IO
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 

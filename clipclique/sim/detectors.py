@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
-from typing import ClassVar
 from functools import cached_property
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from numba import njit

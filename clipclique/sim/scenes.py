@@ -23,13 +23,13 @@ import numpy as np
 
 from clipclique.sim.procedural import (
     PALETTE,
-    Room,
-    Walk,
     Furniture,
+    Room,
     RoomBuilder,
-    yaw_offset,
+    Walk,
     add_shell,
     hand_shake,
+    yaw_offset,
 )
 
 WALL_SPACING = 0.12

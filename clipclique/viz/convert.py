@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 import rerun as rr
-from rerun.encodings import ChannelDatatype
 from PIL import Image
+from rerun.encodings import ChannelDatatype
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 

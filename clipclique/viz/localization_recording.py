@@ -13,8 +13,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from clipclique.config import GraphConfig
-from clipclique.verify.projection import box_iou, ellipse_outlines, project
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
+from clipclique.verify.projection import box_iou, ellipse_outlines, project
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import (
     box_fields,
@@ -41,8 +41,8 @@ from clipclique.viz.style import (
 
 if TYPE_CHECKING:
     from clipclique.metrics import FrameEvaluation
-    from clipclique.pipeline import LocalizationResult
     from clipclique.multiframe.window import WindowQuery
+    from clipclique.pipeline import LocalizationResult
 
 CAMERA = "world/camera/gt"  # holds the query image and overlays, so they hang in the ground-truth frustum
 DEPTH = "depth"  # outside `world`: subsampled (see convert), shown in its own 2D view, not projected

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clipclique.benchmark import report, suite as bench
+from clipclique.benchmark import report
+from clipclique.benchmark import suite as bench
 from clipclique.config import make_config
 from clipclique.sim.demo import DEMO_SCENES
 
@@ -85,8 +86,8 @@ def test_quick_report_matches_its_json(quick_run):
 
 
 def test_cached_observations_give_the_numbers_clipclique_loc_gives(quick_run):
-    from clipclique.sim.demo import DEMO_SCENES
     from clipclique.localization.run import RunSettings, execute, prepare
+    from clipclique.sim.demo import DEMO_SCENES
 
     settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz", data_root=ROOT / "data",
                            stride=DEMO_SCENES["demo"].num_frames // bench.QUICK_FRAMES, max_frames=bench.QUICK_FRAMES,

@@ -74,9 +74,9 @@ def test_text_round_trip_keeps_geometry_and_names_what_it_cannot_write(built, tm
 def test_a_yolo_run_writes_its_detections_and_a_file_rerun_reproduces_it(monkeypatch, built, tmp_path):
     """`--detector yolo` (a stand-in here: no weights) writes COCO results with RLE masks; `--detector file:` on
     them gives the same poses."""
+    from clipclique.interop.coco import reported_classes
     from clipclique.perception import yolo
     from clipclique.perception.detectors import InstanceDetector
-    from clipclique.interop.coco import reported_classes
     from clipclique.sim.detectors import SimulatedDetector
     from clipclique.types import Detections
 

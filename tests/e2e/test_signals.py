@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
 from clipclique.localization.cli import app
 from clipclique.mapping.build import build_map
+from clipclique.resolve import open_scene
 
 pytestmark = pytest.mark.slow
 LOC = Path(sys.executable).with_name("clipclique-loc")

@@ -17,14 +17,14 @@ from clipclique.datasets import open_sequence
 from clipclique.errors import DatasetError, MapFileError
 from clipclique.geometry import backproject, rotation_angle
 from clipclique.io.mapfile import validate_map
+from clipclique.io.outputs import MAP_DIR
+from clipclique.localization.cli import app as loc_app
+from clipclique.localization.run import RunSettings
+from clipclique.mapping.cli import app as map_app
 from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.fit import conditioning
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-from clipclique.localization.cli import app as loc_app
-from clipclique.io.outputs import MAP_DIR
-from clipclique.localization.run import RunSettings
-from clipclique.mapping.cli import app as map_app
 
 RUNNER = CliRunner()
 

@@ -16,9 +16,9 @@ import pytest
 from clipclique.benchmark import aggregate, engine, perception
 from clipclique.benchmark.engine import TaskFailure, run_jobs
 from clipclique.benchmark.plan import Plan, runs
-from clipclique.pipeline import localize
 from clipclique.localization.results import read_results
 from clipclique.localization.run import RunSettings, prepare, run_and_save
+from clipclique.pipeline import localize
 
 pytestmark = pytest.mark.slow
 SCENES = ["demo", "demo_tum"]

@@ -12,11 +12,11 @@ import pytest
 
 from clipclique.datasets import READERS, STRUCTURE_CLASSES, open_sequence
 from clipclique.errors import DatasetError
+from clipclique.geometry import backproject
+from clipclique.perception.raycast import MeshRaycaster
 from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, DemoSpec, ensure_scene, generate
 from clipclique.sim.procedural import PALETTE, make_room, make_walk
-from clipclique.perception.raycast import MeshRaycaster
-from clipclique.geometry import backproject
 
 SMALL = {name: dataclasses.replace(spec, num_frames=4, width=160, height=120) for name, spec in DEMO_SCENES.items()}
 

@@ -11,10 +11,10 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from clipclique.sim import demo
 from clipclique.localization.cli import app as loc_app
 from clipclique.localization.tables import print_frames
 from clipclique.mapping.cli import app as map_app
+from clipclique.sim import demo
 
 pytestmark = pytest.mark.slow
 RUNNER = CliRunner()

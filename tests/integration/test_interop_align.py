@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.resolve import open_scene
 from clipclique.datasets.tum import read_trajectory
 from clipclique.interop.align import AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.errors import InteropError
-from clipclique.pose.fit import Similarity
-from clipclique.types import Ellipsoids, Map, Pose
 from clipclique.mapping.build import build_map
+from clipclique.pose.fit import Similarity
+from clipclique.resolve import open_scene
+from clipclique.types import Ellipsoids, Map, Pose
 
 ROOT = Path(__file__).resolve().parents[2]
 GROUNDTRUTH = ROOT / "data" / "demo" / "demo_tum" / "groundtruth.txt"

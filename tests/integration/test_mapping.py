@@ -7,13 +7,13 @@ import pytest
 from typer.testing import CliRunner
 
 from clipclique.datasets import STRUCTURE_CLASSES, Instance
-from clipclique.resolve import open_scene
-from clipclique.sim.demo import DEMO_SCENES
-from clipclique.sim.procedural import make_room
 from clipclique.geometry import FitParams
 from clipclique.io.mapfile import load_map
 from clipclique.mapping.build import BuildReport, build_map, fit_landmarks
 from clipclique.mapping.cli import app
+from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES
+from clipclique.sim.procedural import make_room
 
 runner = CliRunner()
 

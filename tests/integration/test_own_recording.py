@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from clipclique.datasets import open_sequence
 from clipclique.localization.cli import app as loc_app
-from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.mapping.cli import app
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 
 RUNNER = CliRunner()
 NAME = "rgbd_dataset_freiburg2_desk"  # the tiny TUM sequence of tests/conftest.py (write_tum_sequence)

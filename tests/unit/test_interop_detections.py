@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clipclique.interop.boxfit import BoxSegmentation, box_mask, ellipse_region
-from clipclique.interop.coco import decode_rle, encode_rle
+from clipclique.interop.coco import decode_rle, encode_rle, reported_classes
 from clipclique.interop.detections import (
     CocoRecorder,
     FileDetector,
@@ -18,10 +18,9 @@ from clipclique.interop.detections import (
     merged_duplicates,
     read_detections,
 )
-from clipclique.interop.coco import reported_classes
 from clipclique.interop.errors import InteropError
-from clipclique.types import Detections, Frame
 from clipclique.perception.yolo import coco_to_vocabulary
+from clipclique.types import Detections, Frame
 
 INTRINSICS = np.array([[500.0, 0, 80], [0, 500.0, 60], [0, 0, 1]])
 CLASSES = ["book", "cup", "monitor"]

@@ -8,7 +8,15 @@ import json
 import pytest
 
 from clipclique.interop.errors import InteropError
-from clipclique.interop.labels import COCO, LVIS_TO_COCO, MAX_LABELS, class_lookup, duplicate_note, label_set, read_label_file
+from clipclique.interop.labels import (
+    COCO,
+    LVIS_TO_COCO,
+    MAX_LABELS,
+    class_lookup,
+    duplicate_note,
+    label_set,
+    read_label_file,
+)
 from clipclique.interop.maps import read_map
 from clipclique.perception.yolo import COCO_NAMES
 from tests.unit.test_interop_detections import CLASSES, detector, frame

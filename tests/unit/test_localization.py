@@ -9,17 +9,17 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from rich.text import Text
+from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from clipclique.geometry import random_rotation
 from clipclique.errors import ClipcliqueError
-from clipclique.types import Ellipsoids, Map, Pose
+from clipclique.geometry import random_rotation
 from clipclique.localization.cli import app, imports_kept
-from clipclique.localization.run import choose_encoder, read_ahead
 from clipclique.localization.results import ALL_STAGES, json_safe, read_results, tum_line
+from clipclique.localization.run import choose_encoder, read_ahead
 from clipclique.localization.tables import results_table, run_banner
+from clipclique.types import Ellipsoids, Map, Pose
 
 RUNNER = CliRunner()
 
@@ -131,11 +131,11 @@ def test_encoder_choice_follows_the_map():
 
 def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
     from clipclique.config import make_config
+    from clipclique.localization.results import frame_record
+    from clipclique.localization.run import FrameOutcome
     from clipclique.metrics import evaluate_frame
     from clipclique.pipeline import index_map, localize
     from clipclique.sim.synthetic import synthetic_map, synthetic_query
-    from clipclique.localization.results import frame_record
-    from clipclique.localization.run import FrameOutcome
 
     rng = np.random.default_rng(3)
     map = synthetic_map(rng)

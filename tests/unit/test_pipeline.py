@@ -199,7 +199,8 @@ def test_counts_and_thresholds_out_of_range_are_config_errors(override):
 
 
 def test_an_object_detected_twice_with_two_classes_never_enters_one_clique_twice():
-    from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose as TruePose
+    from clipclique.types import Camera, Ellipsoids, Map, Observations
+    from clipclique.types import Pose as TruePose
 
     # a cup and a bottle 3 cm apart on a desk, three other objects; the camera sees the cup twice
     # (once as "cup", once as "bottle": one box, two classes) and the three others

@@ -4,17 +4,17 @@ literal reading still available as the `clipclique-paper` preset."""
 import numpy as np
 import pytest
 
-from clipclique.benchmark import core as bench_core, literal_reference
+from clipclique.benchmark import core as bench_core
+from clipclique.benchmark import literal_reference
 from clipclique.config import make_config
-from clipclique.geometry import pose_errors, random_rotation
-from clipclique.inliers.compatibility import compatibility_graph, partial_view_slack
 from clipclique.descriptors.graph import semantic_graph, semantic_histograms
 from clipclique.descriptors.lookalikes import class_kernel
+from clipclique.geometry import pose_errors, random_rotation
+from clipclique.inliers.compatibility import compatibility_graph, partial_view_slack
 from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-
 
 SH_ONLY = {"similarity.descriptor": "sh"}
 

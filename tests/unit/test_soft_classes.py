@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from clipclique.config import make_config
+from clipclique.descriptors.similarity import soft_class_similarity
 from clipclique.errors import MapFileError
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.pipeline import index_map, localize
-from clipclique.descriptors.similarity import soft_class_similarity
 from clipclique.types import Ellipsoids, Map, Observations
 
 

@@ -10,6 +10,7 @@ from clipclique.datasets import open_sequence
 from clipclique.datasets.tum import INTRINSICS, TumSequence, associate
 from clipclique.errors import DatasetError
 
+
 def test_association_pairs_nearest_and_drops_unmatched():
     np.testing.assert_array_equal(associate(np.array([1.0, 2.0, 3.0, 4.0]), np.array([3.015, 0.99, 2.5, 4.03])), [1, -1, 0, -1])
     np.testing.assert_array_equal(associate(np.array([1.0]), np.array([])), [-1])

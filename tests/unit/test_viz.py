@@ -16,11 +16,10 @@ from clipclique.metrics import evaluate_frame
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
-from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, spread_labels, voxel_downsample
 from clipclique.viz.localization_recording import thinned
-from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
-from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
+from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
 
 
@@ -677,8 +676,8 @@ def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_enti
 
 
 def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path, run):
-    from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
     from clipclique.multiframe.window import WindowConfig, Windower
+    from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
 
     map, frames = run
     windower = Windower(WindowConfig(size=2), [f.frame.pose for f in frames], map.class_names)

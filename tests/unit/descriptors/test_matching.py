@@ -3,8 +3,20 @@ import pytest
 import scipy.sparse as sp
 
 from clipclique.config import MatchingConfig
-from clipclique.descriptors.matching import (FLAT, SELECTED_UP_TO, Lookalikes, adaptive_matches, best_rows, cap, class_groups,
-                                 knn_matches, match, mutual_best_matches, top_m, with_lookalikes)
+from clipclique.descriptors.matching import (
+    FLAT,
+    SELECTED_UP_TO,
+    Lookalikes,
+    adaptive_matches,
+    best_rows,
+    cap,
+    class_groups,
+    knn_matches,
+    match,
+    mutual_best_matches,
+    top_m,
+    with_lookalikes,
+)
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():

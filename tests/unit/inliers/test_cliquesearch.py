@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from clipclique.inliers.cliquesearch import clique_total, top_cliques
 from clipclique.config import make_config
+from clipclique.inliers.cliquesearch import clique_total, top_cliques
 from clipclique.inliers.compatibility import compatibility_graph
 from clipclique.inliers.reference_cliques import maximal_cliques, rank_cliques
 from clipclique.pipeline import LocalizationResult, _solve_cliques

@@ -4,10 +4,10 @@ ranked cliques as one search over the whole graph, copies of a room searched onc
 import numpy as np
 import pytest
 
+from clipclique.config import make_config
 from clipclique.inliers import regions
 from clipclique.inliers.cliquesearch import top_cliques
 from clipclique.inliers.compatibility import compatibility_graph
-from clipclique.config import make_config
 from clipclique.outcomes import CapHit, RegionSplit
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from clipclique.backends import load_encoder
-from clipclique.perception.encoders import ClipEncoder, Crop
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.perception.encoders import ClipEncoder, Crop
 
 
 def _crops(count: int, side: int = 120, seed: int = 0) -> list[Crop]:

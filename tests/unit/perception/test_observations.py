@@ -7,11 +7,18 @@ import math
 import numpy as np
 import pytest
 
-from clipclique.perception.detectors import mask_boxes
-from clipclique.types import Detections, Frame, Pose
 from clipclique.geometry import FitParams, _depth_points
-from clipclique.perception.observations import ObservationParams, _window_pixels, crop, embed, extract_observations, mask_pixels
+from clipclique.perception.detectors import mask_boxes
+from clipclique.perception.observations import (
+    ObservationParams,
+    _window_pixels,
+    crop,
+    embed,
+    extract_observations,
+    mask_pixels,
+)
 from clipclique.sim.encoder import SimulatedClipEncoder
+from clipclique.types import Detections, Frame, Pose
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
@@ -496,7 +503,7 @@ def test_frame_pass_gives_each_detection_its_own_fit():
     """The compiled frame pass: the same drops (every reason), areas, border counts and ellipsoids (within rounding),
     as each detection on its own, whether the masks are counted whole or in their windows, subsampled or not;
     an input the pass does not take (float32 intrinsics) goes detection by detection."""
-    from clipclique.perception.observations import _Outcome, _frame_pass, _plain
+    from clipclique.perception.observations import _frame_pass, _Outcome, _plain
 
     frame, sphere = sphere_frame()
     rng = np.random.default_rng(8)
@@ -549,7 +556,7 @@ def test_frame_pass_gives_each_detection_its_own_fit():
 def test_a_scatter_numba_refuses_is_left_to_numpy():
     """Intrinsics that send back-projected points to infinity: the frame pass leaves the detection to the
     detection-by-detection fit (numpy's eigh decides, as it always did)."""
-    from clipclique.perception.observations import _Outcome, _frame_pass
+    from clipclique.perception.observations import _frame_pass, _Outcome
 
     frame, sphere = sphere_frame()
     frame.intrinsics = frame.intrinsics.copy()

@@ -8,18 +8,16 @@ import numpy as np
 import pytest
 
 from clipclique.benchmark import calibration
-from clipclique.verify import confidence
-from clipclique.config import make_config
+from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.metrics import evaluate_frame, summarize
-from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.pipeline import index_map, localize
-from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.pose.stack import Stack
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Hypothesis, Pose
+from clipclique.verify import confidence
 from clipclique.verify.verification import Verification
-
 
 MISSED_WEIGHT = VerificationConfig().missed_weight
 

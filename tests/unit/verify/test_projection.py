@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerance import assert_close
 
 from clipclique.geometry import look_at, random_rotation
-from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
-from tolerance import assert_close
+from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 
 CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
 

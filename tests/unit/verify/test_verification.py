@@ -6,19 +6,19 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tolerance import assert_close
 
-from clipclique.inliers import consensus
-from clipclique.verify import verification
 from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
+from clipclique.inliers import consensus
 from clipclique.pipeline import index_map, localize
-from clipclique.verify.projection import box_area, box_iou, project
-from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.pose.stack import Stack
+from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
+from clipclique.verify import verification
+from clipclique.verify.projection import box_area, box_iou, project
 from clipclique.verify.verification import verify
-from tolerance import assert_close
 
 
 def room() -> tuple[Map, Pose, Observations]:

@@ -83,7 +83,8 @@ def load_encoder(spec: str = "auto", device: str | None = None, batch_size: int 
     if spec.startswith("open_clip:"):
         model_name, sep, pretrained = spec.removeprefix("open_clip:").partition("/")
         if not sep or not model_name or not pretrained:
-            raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. open_clip:ViT-L-14/openai")
+            raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. "
+                                  "open_clip:ViT-L-14/openai")
         return ClipEncoder.load(model_name, pretrained, device, batch_size)
     if Path(spec).suffix in CHECKPOINT_SUFFIXES:
         if not Path(spec).is_file():

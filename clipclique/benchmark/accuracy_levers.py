@@ -96,9 +96,11 @@ def main(argv: list[str] | None = None) -> int:
             if descriptor == "CLIP" and not sequence.has_clip:
                 continue
             for lever in args.levers:
-                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])), flush=True)
+                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])),
+                      flush=True)
             if args.reference:
-                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)), flush=True)
+                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)),
+                      flush=True)
                 print(row(scene, descriptor, "literal reference",
                           *top1_errors(sequence, "clipclique-paper", base, reference=True)), flush=True)
     return 0

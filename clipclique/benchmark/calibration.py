@@ -158,7 +158,8 @@ def measure(rows: Rows, probability: np.ndarray) -> dict[str, Any]:
                            "ece_answers": ece(best, right), "acceptance": acceptance(rows, probability),
                            "reliability": reliability(probability, rows.correct)}
     out["by_scene"] = {scene: {"ece": ece(probability[rows.scene == scene], rows.correct[rows.scene == scene]),
-                               "acceptance": acceptance(rows.take(rows.scene == scene), probability[rows.scene == scene])}
+                               "acceptance": acceptance(rows.take(rows.scene == scene),
+                                                        probability[rows.scene == scene])}
                        for scene in np.unique(rows.scene).tolist()}
     out["by_method"] = {m: acceptance(rows.take(rows.method == m), probability[rows.method == m])
                         for m in np.unique(rows.method).tolist()}

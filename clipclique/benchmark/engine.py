@@ -149,7 +149,8 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
             continue
         try:
             frame = run.sequence[i]
-            if run.detector.reads_instances and frame.instances is None:  # as clipclique-loc run: left out, not a failure
+            # as clipclique-loc run: left out, not a failure
+            if run.detector.reads_instances and frame.instances is None:
                 perception.save_unannotated(path, frame.index, frame.timestamp, frame.name)
             else:
                 perception.save(path, frame.index, frame.timestamp, frame.name, frame.pose, observe(run, frame))
@@ -159,7 +160,8 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
     return count
 
 
-def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path, *after: Any) -> list[FrameOutcome | str]:
+def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
+                   *after: Any) -> list[FrameOutcome | str]:
     """Localize and score the cached frames (`after`: the perception tasks they wait for); a frame without
     annotations for the detector is its name."""
     run = _prepared(settings)

@@ -50,7 +50,8 @@ def window_success(sequence: CachedSequence, config: LocalizationConfig, window:
                    drift: float, seed: int) -> dict[str, float]:
     """Top-1 success within each threshold over the frames with ground truth, and the mean observations per query."""
     frames = sequence.frames
-    windower = Windower(window, drifting([frame.gt_pose for frame in frames], drift, seed).poses, sequence.map.class_names)
+    windower = Windower(window, drifting([frame.gt_pose for frame in frames], drift, seed).poses,
+                        sequence.map.class_names)
     index = index_map(sequence.map, config)
     errors, sizes, dropped = [], [], 0
     for newest, frame in enumerate(frames):

@@ -115,7 +115,8 @@ def split(observed_centers: np.ndarray, landmarks: Ellipsoids, candidates: np.nd
     taken with the widest slack the settings allow (wider only joins regions: no clique is lost)."""
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     widest = np.array([settings.max_slack if settings.partial_slack > 0 else 0.0])
-    labels = region_labels(landmarks.centers[candidates[:, 1]], compatibility.pair_reach(observed, settings.d_comp, widest))
+    labels = region_labels(landmarks.centers[candidates[:, 1]],
+                           compatibility.pair_reach(observed, settings.d_comp, widest))
     sizes = np.bincount(labels)
     order = _grouped(labels, sizes)
     bounds = np.concatenate(([0], np.cumsum(sizes)))

@@ -104,4 +104,5 @@ def export_text(map: Map, format: ExportFormat) -> tuple[str, dict[str, str], li
 def default_export_path(map_path: Path, format: ExportFormat) -> Path:
     """Beside the map: map_objects_<name>.txt (OA-SLAM's naming) or <name>.landmarks.json."""
     name = map_path.name.removesuffix(".npz").removesuffix(".map")
-    return map_path.with_name(f"map_objects_{name}.txt" if format == ExportFormat.OASLAM_TXT else f"{name}.landmarks.json")
+    return map_path.with_name(f"map_objects_{name}.txt" if format == ExportFormat.OASLAM_TXT
+                              else f"{name}.landmarks.json")

@@ -281,7 +281,8 @@ class FileDetector:
                                        f"{detection.mask.shape[0]}, the image {width}x{height}")
                 masks[row] = detection.mask
             else:
-                masks[row] = box_mask(frame.depth, frame.intrinsics, detection.box, detection.ellipse, self.segmentation)
+                masks[row] = box_mask(frame.depth, frame.intrinsics, detection.box, detection.ellipse,
+                                      self.segmentation)
         return Detections(masks, boxes[keep], class_ids[keep], scores[keep], np.full(len(keep), -1, dtype=np.int64))
 
 

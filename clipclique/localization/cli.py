@@ -66,8 +66,10 @@ def run(
     method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc, or the name a "
                                              "table prints (CLIP-Clique, X-View, ...)",
                                         rich_help_panel=ALGORITHM)] = "clipclique",
-    top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
-    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters, or a run's config.json", rich_help_panel=ALGORITHM)] = None,
+    top_n: Annotated[Optional[int], typer.Option(help="poses kept per frame \\[default: 5]",
+                                                 rich_help_panel=ALGORITHM)] = None,
+    config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters, or a run's config.json",
+                                                   rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
                                                       rich_help_panel=ALGORITHM)] = None,
     min_confidence: Annotated[Optional[float], typer.Option(
@@ -78,9 +80,11 @@ def run(
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
     detector: Annotated[Optional[str], typer.Option(
-        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | simulated-yolo-sparse | file:PATH (a detection file: OA-SLAM/VOOM/GOReloc "
-             "JSON, or COCO results with ',images=LIST') \\[default: simulated on demo/demo_tum, simulated-yolo on "
-             "demo_desk, simulated-yolo-clutter on demo_clutter, simulated-yolo-sparse on demo_sparse, gt on demo_apartment and ScanNet, annotations on TUM]", rich_help_panel=INPUTS)] = None,
+        help="gt | annotations | yolo | simulated | simulated-yolo | simulated-yolo-clutter | simulated-yolo-sparse | "
+             "file:PATH (a detection file: OA-SLAM/VOOM/GOReloc JSON, or COCO results with ',images=LIST') \\[default: "
+             "simulated on demo/demo_tum, simulated-yolo on demo_desk, simulated-yolo-clutter on demo_clutter, "
+             "simulated-yolo-sparse on demo_sparse, gt on demo_apartment and ScanNet, annotations on TUM]",
+             rich_help_panel=INPUTS)] = None,
     min_score: MinScoreOption = None,
     labels: LabelsOption = None,
     strict_detections: StrictDetectionsOption = False,
@@ -92,7 +96,8 @@ def run(
              "SH only]",
         rich_help_panel=INPUTS)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
-    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
+    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames",
+                                                      rich_help_panel=INPUTS)] = None,
     same_place: SamePlaceOption = False,
     window: WindowOption = 1,
     window_step: WindowStepOption = None,
@@ -161,12 +166,14 @@ def run(
         console.print(f"not localized (no pose with confidence >= {min_confidence:g}): "
                       f"{int(summary['not_confident'])} of {int(summary['frames'])} frames")
     folder = settings.out_dir(document["run"]["sequence"])
-    console.print(f"results: {escape(str(folder))}/ (results.json, frames.csv, poses.tum, groundtruth.tum, config.json)",
+    console.print(f"results: {escape(str(folder))}/ (results.json, frames.csv, poses.tum, groundtruth.tum, "
+                  "config.json)",
                   highlight=False, soft_wrap=True)
     recording = document["run"]["recording"]
     if recording is not None and recording["matches"]:
         earlier = "" if settings.record else ", an earlier run's with the same results"
-        console.print(escape(f"recording: {folder / recording['file']} ({rerun_hint(folder / recording['file'])}{earlier})"),
+        console.print(escape(f"recording: {folder / recording['file']} "
+                             f"({rerun_hint(folder / recording['file'])}{earlier})"),
                       highlight=False, soft_wrap=True)
     elif recording is not None and quiet:  # the notes above say it; under -q, this does (every time)
         print(f"clipclique-loc: warning: {folder / recording['file']} is an earlier run's and does not show these "
@@ -187,7 +194,8 @@ def bag_options(rgb_topic: str | None, depth_topic: str | None, camera_info_topi
 @app.command()
 def inspect(path: Annotated[Path, typer.Argument(help="a ROS bag: .bag, a ROS 2 bag folder, .mcap or .db3")],
             rgb_topic: Annotated[Optional[str], typer.Option(help="colour topic to check", rich_help_panel=BAG)] = None,
-            depth_topic: Annotated[Optional[str], typer.Option(help="depth topic to check", rich_help_panel=BAG)] = None,
+            depth_topic: Annotated[Optional[str], typer.Option(help="depth topic to check",
+                                                               rich_help_panel=BAG)] = None,
             camera_info_topic: Annotated[Optional[str], typer.Option(help="CameraInfo topic to check",
                                                                      rich_help_panel=BAG)] = None) -> None:
     """A bag's topics (type, count, rate, encoding) and the colour, depth and CameraInfo topics a run would read."""
@@ -229,11 +237,13 @@ def align(
         show_default=False)] = None,
     method: Annotated[str, typer.Option(help="clipclique | clipclique-paper | sh | xview | cliploc (whose descriptors "
                                              "and matching align the maps)", rich_help_panel=ALGORITHM)] = "clipclique",
-    top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]", rich_help_panel=ALGORITHM)] = None,
+    top_n: Annotated[Optional[int], typer.Option(help="transforms kept \\[default: 5]",
+                                                 rich_help_panel=ALGORITHM)] = None,
     config: Annotated[Optional[Path], typer.Option(help="TOML file of parameters", rich_help_panel=ALGORITHM)] = None,
     set_: Annotated[Optional[list[str]], typer.Option("--set", help="override, e.g. inliers.d_comp=0.4",
                                                       rich_help_panel=ALGORITHM)] = None,
-    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/align/A_into_B]", rich_help_panel=OUTPUT)] = None,
+    out: Annotated[Optional[Path], typer.Option(help="\\[default: outputs/align/A_into_B]",
+                                                rich_help_panel=OUTPUT)] = None,
     no_rrd: Annotated[bool, typer.Option("--no-rrd", help="skip the Rerun recording", rich_help_panel=OUTPUT)] = False,
 ) -> None:
     """The transform taking MAP_A's coordinates into MAP_B's: JSON, a g2o edge and a recording of both maps."""
@@ -267,7 +277,8 @@ def align(
     out_dir = escape(str(settings.out_dir()))
     console.print(f"results: {out_dir}/ (alignment.json, alignment.g2o)", highlight=False, soft_wrap=True)
     if settings.record:
-        console.print(f"recording: {out_dir}/recording.rrd ({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
+        console.print(f"recording: {out_dir}/recording.rrd "
+                      f"({escape(rerun_hint(settings.out_dir() / 'recording.rrd'))})",
                       highlight=False, soft_wrap=True)
 
 
@@ -294,7 +305,8 @@ def _align_cycle(maps: list[Path], method: str, config: Optional[Path], override
             console.print(escape(f"{query} into {target}: {found}; results: {settings.out_dir()}/"), highlight=False,
                           soft_wrap=True)
         closure = cycle(documents, load_map(maps[0]).ellipsoids.centers)
-    console.print(escape(closure.line() if closure else "cycle not checked: a link found no transform"), highlight=False,
+    console.print(escape(closure.line() if closure else "cycle not checked: a link found no transform"),
+                  highlight=False,
                   soft_wrap=True)
 
 

@@ -148,7 +148,8 @@ def with_window_span(settings: RunSettings, sequence: Sequence) -> RunSettings:
 def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | None:
     """The odometry a window needs (None without a window); refusals say which option is missing."""
     if settings.window < 1 or settings.window_step < 1:
-        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: both must be 1 or more")
+        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: both must be 1 or "
+                              "more")
     if settings.window == 1:
         if settings.odometry is not None or settings.odometry_drift:
             raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")
@@ -316,7 +317,8 @@ def localize_one(run: Run, frame: Frame, index: MapIndex, windower: Windower | N
     if run.detector.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
         run.unannotated.append(frame.name)
         return
-    outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)
+    outcome, seen = (localize_frame(run, frame, index) if windower is None
+                     else localize_window(run, frame, index, windower))
     run.frames.append(outcome)
     if recorder is not None:
         observations = seen.observations if outcome.window is None else outcome.window.observations

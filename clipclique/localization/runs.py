@@ -33,7 +33,8 @@ class RunSettings:
     overrides: list[str] = field(default_factory=list)
     map_path: Path | None = None  # default outputs/maps/<SEQUENCE>.map.npz
     data_root: Path | None = None
-    detector: str | None = None  # default: the generated scene's (simulated, demo_desk: simulated-yolo), gt on ScanNet, annotations on TUM
+    # default: the generated scene's (simulated, demo_desk: simulated-yolo), gt on ScanNet, annotations on TUM
+    detector: str | None = None
     encoder: str | None = None  # default: the map's encoder (simulated on the demo) if here, else none
     yolo_weights: str = "yolov8x-seg.pt"
     stride: int = 1
@@ -81,7 +82,8 @@ class RunSettings:
                       "drift": self.odometry_drift or None}
         parts += [f"{key}={value}" for key, value in given.items() if value is not None]
         name = re.sub(r"[^\w.,=+-]", "_", "+".join(parts))
-        return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
+        return (name if len(name) <= MAX_RUN_NAME
+                else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}")
 
     def resolved_map_path(self) -> Path:
         return self.map_path or map_file(scene_name(self.sequence))

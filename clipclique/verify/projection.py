@@ -230,7 +230,8 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
                 for j in range(3):
                     conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
             (boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3], visible[b, n],
-             full_areas[b, n]) = _outline_box(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2], center[2],
+             full_areas[b, n]) = _outline_box(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2],
+                                              center[2],
                                               width, height, max_depth)
     return conics, boxes, visible, full_areas
 

@@ -382,7 +382,8 @@ def estimate_trajectory_columns(rows: list[tuple[np.ndarray, np.ndarray]]) -> li
     """The top-1 positions so far at each frame (positions, match_correctness codes), coloured by correctness."""
     positions, codes = zip(*rows)
     points = rr.Points3D.columns(positions=np.concatenate(positions),
-                                 colors=correctness_colors(np.concatenate(codes))).partition([len(p) for p in positions])
+                                 colors=correctness_colors(np.concatenate(codes))).partition([len(p)
+                                                                                              for p in positions])
     return [*points, *rr.Points3D.columns(radii=[rr.Radius.ui_points(4.0)] * len(rows))]
 
 

@@ -134,7 +134,8 @@ class ColumnsAtClose:
 
     def __init__(self) -> None:
         # (path, how rows become columns) -> [(frame, stamp, row)]
-        self._rows: dict[tuple[str, Callable[[list], Iterable[rr.ComponentColumn]]], list[tuple[int, float | None, object]]] = {}
+        self._rows: dict[tuple[str, Callable[[list], Iterable[rr.ComponentColumn]]],
+                         list[tuple[int, float | None, object]]] = {}
 
     def add(self, path: str, frame: int, timestamp: float | None, row: Row,
             columns: Callable[[list[Row]], Iterable[rr.ComponentColumn]]) -> None:

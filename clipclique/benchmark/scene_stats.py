@@ -2,7 +2,8 @@
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
-    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md   (what `make docs` runs)
+    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md
+        (what `make docs` runs)
     .venv/bin/python tools/scene_stats.py --results outputs/loc/demo_sparse/clipclique/results.json
         (where a run loses its frames, beside the real desk's: clipclique.benchmark.failure_profile)
 

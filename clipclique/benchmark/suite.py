@@ -4,8 +4,9 @@
     .venv/bin/python tools/bench.py --sequences demo --quick --out /tmp/bench
 
 Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
-are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four methods, the ablations, the alpha sweep)
-localizes the cached observations. The algorithm costs milliseconds per frame, the detector and
+are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four
+methods, the ablations, the alpha sweep) localizes the cached observations. The algorithm costs milliseconds per frame,
+the detector and
 the encoder far more, so this is what lets the suite finish in minutes.
 
 Stochastic configurations (RANSAC, PROSAC, X-View's random walks) run with three seeds; tables
@@ -283,7 +284,8 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
 
 
 def held_out_calibration(sequences: list[CachedSequence]) -> dict[str, Any]:
-    """The confidence model measured leaving one scene out at a time (clipclique/benchmark/calibration.py), or why not."""
+    """The confidence model measured leaving one scene out at a time (clipclique/benchmark/calibration.py), or why
+    not."""
     if len(sequences) < 2:
         return {"skipped": "a held-out measurement needs two sequences or more"}
     rows = calibration.collect(sequences)
@@ -498,7 +500,8 @@ def run_suite(args: argparse.Namespace) -> None:
                               if r["label"] == METHOD_TITLES["clipclique"])
             try:
                 results["gpu"] = run_gpu(first, clipclique)
-            except Exception as error:  # noqa: BLE001  a failed GPU section (out of memory, driver) must not lose the report
+            # a failed GPU section (out of memory, driver) must not lose the report
+            except Exception as error:  # noqa: BLE001
                 results["gpu"]["reason"] = f"it failed: {type(error).__name__}: {error}"
             progress.update(task, total=1, completed=1)
     results["wall_time_s"] = time.perf_counter() - started

@@ -221,8 +221,8 @@ def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, 
                                              settings.max_slack, settings.slack_min_deficit)
     kept = compatibility.affordable_candidates(observations.centers, points, local, scores[region],
                                                settings.d_comp, slack, max_pairs=settings.max_pairs)
-    graph = lambda d_comp: compatibility.compatibility_graph(observations.centers, points, local[kept], d_comp,  # noqa: E731
-                                                             slack[kept], objects)
+    graph = lambda d_comp: compatibility.compatibility_graph(  # noqa: E731
+        observations.centers, points, local[kept], d_comp, slack[kept], objects)
     close = check and len(graph(settings.d_comp + DECIDED_BY)) != len(graph(settings.d_comp - DECIDED_BY))
     return kept[graph(settings.d_comp)], len(kept) < len(region), close
 

@@ -49,7 +49,8 @@ class ImportReport:
 
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
                encoder: Encoder | None, labels: LabelSet = COCO) -> ImportReport:
-    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when asked."""
+    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when
+    asked."""
     path = map_input(path, format)
     imported = read_map(path, format, labels)
     imported.notes += duplicate_note(labels)

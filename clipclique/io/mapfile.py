@@ -5,8 +5,8 @@ directions as columns, `class_ids` (N,), `instance_ids` (N,), optionally `text_e
 (N, D) float32 L2-normalized and (schema 2) `class_distributions` (N, C) float64 rows summing
 to 1, and `header`, a JSON string:
 `{"format": "clipclique-map", "schema_version": 2, "class_names": [...], "descriptions": [...],
-"encoder": "...", "provenance": {...}}`. Schema 1 files (no class distributions) still load. Written to a temporary file and renamed, so a map file
-is either complete or absent; every field is checked on load.
+"encoder": "...", "provenance": {...}}`. Schema 1 files (no class distributions) still load. Written to a temporary file
+and renamed, so a map file is either complete or absent; every field is checked on load.
 """
 
 from __future__ import annotations
@@ -207,7 +207,8 @@ def validate_map(map: Map, where: str) -> None:
         return
     if map.encoder == "none":
         fail("text embeddings stored but encoder is 'none'")
-    if np.ndim(embeddings) != 2 or len(embeddings) != n or not 1 <= np.shape(embeddings)[1] <= MAX_EMBEDDING_DIM or np.asarray(embeddings).dtype.kind not in "fiu":
+    if (np.ndim(embeddings) != 2 or len(embeddings) != n or not 1 <= np.shape(embeddings)[1] <= MAX_EMBEDDING_DIM
+        or np.asarray(embeddings).dtype.kind not in "fiu"):
         fail(f"text_embeddings {np.asarray(embeddings).dtype} {np.shape(embeddings)} should be numbers, one row per "
              f"landmark ({n})")
     if not np.isfinite(embeddings).all() or (not np.allclose(np.linalg.norm(embeddings, axis=1), 1.0, atol=1e-3)):

@@ -2,8 +2,8 @@
 
 Each detection mask is eroded (depth at object edges mixes fore- and background), its valid
 depth back-projected with the frame's intrinsics, outliers cut (neighbours from the image
-window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are dropped
-and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
+window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are
+dropped and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
 """
 
 from __future__ import annotations

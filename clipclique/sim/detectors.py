@@ -204,7 +204,8 @@ class SimulatedYoloDetector:
 
     def _with_duplicates(self, rng: np.random.Generator, detections: Detections,
                          true_classes: np.ndarray) -> Detections:
-        """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the hits)."""
+        """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the
+        hits)."""
         targets, _ = self._confusions
         hits = len(true_classes)
         assigned = detections.class_ids[:hits]

@@ -155,8 +155,9 @@ class LocalizationRecorder:
 
     @queued
     def log_window(self, query: WindowQuery, placement: Pose | None) -> None:
-        """(Queued after the frame it belongs to, so it lands at that frame's time.) The fused window of the frame just logged: each source frame's observations moved into the newest
-        camera (newest brightest, older ones fading) and the odometry path of the window's cameras, placed by
+        """(Queued after the frame it belongs to, so it lands at that frame's time.) The fused window of the frame just
+        logged: each source frame's observations moved into the newest camera (newest brightest, older ones fading) and
+        the odometry path of the window's cameras, placed by
         `placement` (the ground truth, else the top-1 estimate)."""
         if placement is None:
             for path in (WINDOW_SOURCES, WINDOW_PATH):

@@ -79,7 +79,8 @@ def main() -> None:
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
         with get_task_stream(client) as stream:
-            result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(), client)
+            result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(),
+                              client)
     timings["cluster"] = time.perf_counter() - start
     busy = sum(part["stop"] - part["start"] for task in stream.data for part in task["startstops"]
                if part["action"] == "compute")

@@ -1,4 +1,5 @@
-"""clipclique.benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
+"""clipclique.benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a
+window helps."""
 
 from __future__ import annotations
 
@@ -40,4 +41,5 @@ def test_a_window_of_one_is_the_single_frame_result_and_a_longer_one_helps(desk)
     assert five["observations_mean"] > 2 * one["observations_mean"] and five["dropped_frames"] == 0
     rows = [{"scene": "demo_desk", "config": "SH", "K": k, "S": 1, "drift_percent": d, **figures}
             for k, d, figures in ((1, 0.0, one), (5, 1.0, five))]
-    assert f"| demo_desk | SH | 5 | - | {100 * five['within_0.5m']:.1f} / {100 * five['within_1m']:.1f} |" in table(rows)
+    assert (f"| demo_desk | SH | 5 | - | {100 * five['within_0.5m']:.1f} / {100 * five['within_1m']:.1f} |"
+            in table(rows))

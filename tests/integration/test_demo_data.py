@@ -30,7 +30,8 @@ def small_demo(root: Path, name: str) -> Path:
 
 
 def digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 @pytest.mark.parametrize("name", ["demo", "demo_tum", "demo_apartment", "demo_desk"])
@@ -86,7 +87,8 @@ def test_frames_agree_with_the_scene_geometry(tmp_path, name):
         ids = frame.instances[labelled]
         for object_id in np.unique(ids)[:8]:
             vertices = room.vertices[owner == object_id]
-            inside = np.all((points[ids == object_id] >= vertices.min(0) - 0.05) & (points[ids == object_id] <= vertices.max(0) + 0.05), axis=1)
+            inside = np.all((points[ids == object_id] >= vertices.min(0) - 0.05)
+                            & (points[ids == object_id] <= vertices.max(0) + 0.05), axis=1)
             assert inside.mean() > 0.95, (name, frame.name, object_id)
 
 

@@ -87,7 +87,8 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     import clipclique.localization.run as runner
     from clipclique.localization.run import RunSettings
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
+    monkeypatch.setattr(runner, "prepare",
+                        lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")
@@ -103,7 +104,8 @@ def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
     def interrupted(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
+    monkeypatch.setattr(runner, "prepare",
+                        lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", interrupted)
     (tmp_path / "kept").mkdir()
     for out in (tmp_path / "new" / "run", tmp_path / "kept"):
@@ -164,7 +166,8 @@ def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
     first = RunSettings("demo", config_file=config).run_name()
     config.write_text("[inliers]\nd_comp = 0.5\n")
     assert first.startswith("clipclique+my-") and RunSettings("demo", config_file=config).run_name() != first
-    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["confidence_model=x" + "9" * 200]).run_name()
+    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai",
+                      overrides=["confidence_model=x" + "9" * 200]).run_name()
     assert "/" not in odd and len(odd) == 100
     assert RunSettings("demo", out=tmp_path / "here").out_dir("demo") == tmp_path / "here"
 

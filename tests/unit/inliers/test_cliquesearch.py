@@ -222,7 +222,8 @@ def test_offer_keeps_the_plain_ranked_list():
         if trial % 5 == 0:
             weights[rng.integers(12)] = np.nan
         capacity = int(rng.integers(1, 7))
-        cliques = [rng.choice(12, int(rng.integers(1, 6)), replace=False).tolist() for _ in range(int(rng.integers(0, 15)))]
+        cliques = [rng.choice(12, int(rng.integers(1, 6)), replace=False).tolist()
+                   for _ in range(int(rng.integers(0, 15)))]
         cliques += [sorted(cliques[0])[:-1] or [0], cliques[0][::-1]] if cliques else []  # a prefix, the same again
         state = np.zeros(7, np.int64)
         total, size, slot, members = np.zeros(capacity), np.zeros(capacity, np.int64), np.arange(capacity), np.zeros(

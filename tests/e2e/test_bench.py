@@ -267,14 +267,13 @@ def test_readme_figures_are_the_committed_reports():
 
 def test_update_readme_replaces_only_its_regions():
     text = "a\n<!-- figures:benchmark -->\nold\n<!-- /figures -->\nb\n"
-    assert report.update_readme(text, {"benchmark": "new\n"}) == ("a\n<!-- figures:benchmark -->\nnew\n<!-- /figures "
-                                                                  "-->\nb\n")
+    assert (report.update_readme(text, {"benchmark": "new\n"})
+            == "a\n<!-- figures:benchmark -->\nnew\n<!-- /figures -->\nb\n")
     with pytest.raises(ValueError, match="do not match"):
         report.update_readme("no region\n", {"benchmark": "new\n"})
     other = text + "<!-- figures:scene_stats_demo_desk -->\n| x |\n<!-- /figures -->\n"  # another generator's region
-    assert report.update_readme(other,
-                                {"benchmark": "new\n"}).endswith("<!-- figures:scene_stats_demo_desk -->\n| x |\n"
-                                                                         "<!-- /figures -->\n")
+    assert report.update_readme(other, {"benchmark": "new\n"}).endswith(
+        "<!-- figures:scene_stats_demo_desk -->\n| x |\n<!-- /figures -->\n")
 
 
 def test_make_docs_regenerates_every_readme_region(tmp_path):

@@ -47,8 +47,8 @@ def main() -> None:
         run = prepare(RunSettings(args.sequence, args.method, overrides=args.set, max_frames=args.max_frames,
                                   record=False))
     index = index_map(run.map, run.config)
-    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm",
-                                                            "no detector")}
+    rows: dict[str, list[float]] = {stage: []
+                                    for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm", "no detector")}
     for i in selected_frames(run):
         seen = observe(run, run.sequence[i])
         results = [localize(seen.observations, index, run.config) for _ in range(args.repeat)]

@@ -202,8 +202,8 @@ def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
             "map": shapes(base.ellipsoids) | {"class_ids": base.class_ids.tolist(), "class_names": base.class_names,
                                               "descriptions": base.descriptions,
                                               "instance_ids": base.instance_ids.tolist()},
-            "queries": [shapes(q.ellipsoids) | {"class_ids": q.class_ids.tolist(),
-                                                "instance_ids": q.instance_ids.tolist()}
+            "queries": [shapes(q.ellipsoids)
+                        | {"class_ids": q.class_ids.tolist(), "instance_ids": q.instance_ids.tolist()}
                         for q in (desk_query(base, rng) for _ in range(queries))]}
 
 

@@ -132,8 +132,8 @@ def provenance(description: dict[str, Any]) -> str:
     data = (f"synthetic {description['kind']}-layout demo scene (procedural, ray-cast)" if description["synthetic"]
             else f"real {description['kind']} data")
     simulated = [f"{role} ({part['name']})" for role, part in (("detector", description["detector"]),
-                                                               ("CLIP", description["encoder"])) if part
-                 and part["simulated"]]
+                                                               ("CLIP", description["encoder"]))
+                 if part and part["simulated"]]
     clip = "no CLIP (Semantic Histograms only)" if description["encoder"] is None else ""
     parts = "; ".join(filter(None, [data, f"simulated: {', '.join(simulated)}" if simulated else "nothing simulated",
                                     clip]))
@@ -147,8 +147,8 @@ def data_section(results: dict[str, Any]) -> str:
     for name, d in results["sequences"].items():
         data = f"synthetic ({d['kind']} layout)" if d["synthetic"] else f"real ({d['kind']})"
         detector = d["detector"]["name"] + (" **(simulated)**" if d["detector"]["simulated"] else "")
-        encoder = ("none" if d["encoder"] is None else d["encoder"]["name"]
-                   + (" **(simulated)**" if d["encoder"]["simulated"] else ""))
+        encoder = ("none" if d["encoder"] is None
+                   else d["encoder"]["name"] + (" **(simulated)**" if d["encoder"]["simulated"] else ""))
         stages = " / ".join(f"{d['query_ms'][s]:.1f}" for s in ("detector", "observations", "encoder"))
         lines.append(f"| {name} | {data} | {d['frames']} of {d['sequence_frames']} (stride {d['stride']}) | "
                      f"{d['frames_with_3_mapped']} | {d['landmarks']} ({d['classes']} classes) | {detector} | "
@@ -173,8 +173,8 @@ def metric_row(record: dict[str, Any], first: list[str], extra: list[str] = ()) 
     """A table row of the paper's columns, or a row saying why the configuration did not run."""
     label = record["label"] + (" †" if record["stochastic"] else "")
     if "skipped" in record:
-        return "| " + " | ".join([*first, label, f"not run: {record['skipped']}",
-                                  *[""] * (len(COLUMNS) + len(extra))]) + " |"
+        return ("| " + " | ".join([*first, label, f"not run: {record['skipped']}", *[""] * (len(COLUMNS) + len(extra))])
+                + " |")
     summary = record["summary"]
     cells = [fmt(summary[key], style) for _, key, style in COLUMNS]
     spread = record.get("spread", {}).get("success@1")
@@ -456,8 +456,8 @@ def sequence_claims(results: dict[str, Any], name: str) -> list[tuple[str, str, 
         both, none = te["w_sim * w_com"], te["none"]
         out.append(("Pose weights lower the error (median TE, w_sim * w_com vs none)", f"{both:.3f} m vs {none:.3f} m",
                     verdict(-both, -none, resolution=5e-4)))
-    sims = {r["overrides"]["similarity.descriptor"]: r["summary"] for r in rows_of(results, name, "descriptors")
-            if "summary" in r}
+    sims = {r["overrides"]["similarity.descriptor"]: r["summary"]
+            for r in rows_of(results, name, "descriptors") if "summary" in r}
     if {"clip", "sh"} <= sims.keys():
         clip, sh = sims["clip"], sims["sh"]
         agrees = all(abs(sims[d]["similarity_true_p90"] - PAPER_SIMILARITY[d]) < 0.15 for d in PAPER_SIMILARITY)
@@ -477,8 +477,8 @@ def global_claims(results: dict[str, Any]) -> list[tuple[str, str, str]]:
     ours = f"{one_second(scene)}; exponent {scene['exponent_total']:.2f}"
     if near and quadratic:
         return [(CLAIM_SCALE, ours, "agrees")]
-    return [(CLAIM_SCALE, ours, "**disagrees**" + (" (ours is faster and grows more slowly)" if faster and not quadratic
-                                                   else ""))]
+    return [(CLAIM_SCALE, ours, "**disagrees**"
+             + (" (ours is faster and grows more slowly)" if faster and not quadratic else ""))]
 
 
 def verdict(ours: float, rival: float, resolution: float = 0.0) -> str:

@@ -181,8 +181,8 @@ def rows(stats: SceneStats, frames: int) -> list[tuple[str, str, str]]:
         ("false_positive_share", "detections hitting no mapped object", f"{stats.false_positive_share:.0%}"),
         ("duplicates_per_frame", "second detections of a hit object", f"{stats.duplicates / frames:.1f} per frame"),
         ("frames_three_hit", "frames hitting 3+ distinct mapped objects", f"{stats.frames_three_hit / frames:.0%}"),
-        ("confusion_share", "hits with another class", f"{stats.confusion_share:.0%}"
-         + (f" ({pairs})" if pairs else "")),
+        ("confusion_share", "hits with another class",
+         f"{stats.confusion_share:.0%}" + (f" ({pairs})" if pairs else "")),
     ]
 
 

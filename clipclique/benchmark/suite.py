@@ -110,8 +110,8 @@ def variants() -> list[Variant]:
              ("pose.refine_radius", 0.0, "without pose refinement"),
              ("inliers.duplicate_iou", 0.0, "without the duplicate rule"))
     return [
-        *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique-paper",
-                                                            "clipclique")),
+        *(Variant("methods", METHOD_TITLES[m], m)
+          for m in ("xview", "sh", "cliploc", "clipclique-paper", "clipclique")),
         Variant("methods", LITERAL_REFERENCE, "clipclique-paper", reference=True),
         Variant("fixes", "CLIP-Clique (all fixes)"),
         *(Variant("fixes", label, overrides=((key, value),)) for key, value, label in fixes),
@@ -120,8 +120,8 @@ def variants() -> list[Variant]:
         *one("inliers", "inliers.method", (("ransac", "RANSAC"), ("prosac", "PROSAC"), ("cliques", "Maximal cliques"))),
         *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"),
                                          ("both", "w_sim * w_com"))),
-        *one("matching", "matching.strategy", (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"),
-                                               ("adaptive", "Adaptive"))),
+        *one("matching", "matching.strategy",
+             (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"), ("adaptive", "Adaptive"))),
         *one("alpha", "similarity.alpha", tuple((a, f"{a:.1f}") for a in ALPHAS)),
         *(Variant("verification", f"{METHOD_TITLES[m]}, centre distances", m, (("inliers.verification", "centers"),))
           for m in BASELINES_SAMPLING),

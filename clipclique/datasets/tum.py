@@ -280,8 +280,8 @@ class TumSequence(Sequence):
             for object_id, chunk in zip(unique, np.split(points[order], starts[1:])):
                 clouds[int(object_id)].append(chunk)
         return [
-            Instance(object_id, name, description, np.concatenate(clouds[object_id]) if clouds[object_id]
-                     else np.zeros((0, 3)))
+            Instance(object_id, name, description,
+                     np.concatenate(clouds[object_id]) if clouds[object_id] else np.zeros((0, 3)))
             for object_id, (name, description) in self._objects.items()
         ]
 

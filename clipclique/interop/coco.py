@@ -43,8 +43,8 @@ def decode_rle(segmentation: object, where: str) -> np.ndarray:
     and 1s in column-major order, compressed (pycocotools' text form) or not; runs that do not fill
     exactly h * w pixels are refused."""
     if not (isinstance(segmentation, dict) and isinstance(segmentation.get("size"), list)
-            and len(segmentation["size"]) == 2 and all(isinstance(v, int) and 0 < v <= 1 << 15
-                                                       for v in segmentation["size"])
+            and len(segmentation["size"]) == 2
+            and all(isinstance(v, int) and 0 < v <= 1 << 15 for v in segmentation["size"])
             and isinstance(segmentation.get("counts"), (str, list))):
         raise InteropError(f"{where}: segmentation is not an RLE {{'size': [h, w], 'counts': ...}}")
     height, width = segmentation["size"]
@@ -134,8 +134,8 @@ def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
 
 
 def _numbers(value: object, count: int, where: str) -> list[float]:
-    if not (isinstance(value, list) and len(value) == count and all(isinstance(v, (int, float))
-                                                                    and not isinstance(v, bool) for v in value)
+    if not (isinstance(value, list) and len(value) == count
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
             and np.isfinite(value).all()):
         raise InteropError(f"{where} should be {count} finite numbers, got {str(value)[:80]}")
     return [float(v) for v in value]

@@ -372,8 +372,8 @@ def read_landmarks_json(path: Path) -> ImportedMap:
         instances.append(instance)
         classes.append(check_text(item.get("class"), f"{where}: class", InteropError).strip() or None)
         description = item.get("description")
-        descriptions.append(None if description is None else check_text(description, f"{where}: description",
-                                                                        InteropError))
+        descriptions.append(None if description is None
+                            else check_text(description, f"{where}: description", InteropError))
         distributions.append(_distribution(item.get("class_distribution"), where))
     frame = data.get("frame")
     frame = None if frame in (None, "unknown") else check_text(frame, f"{path}: frame", InteropError)

@@ -148,8 +148,8 @@ def _read_header(raw: np.ndarray, path: Path) -> dict:
         raise MapFileError(f"{path}: not a clipclique map (header format is not {FORMAT!r})")
     version = header.get("schema_version")
     if version not in READABLE_VERSIONS:
-        hint = ("newer than this clipclique reads; upgrade clipclique" if isinstance(version, int)
-                and version > SCHEMA_VERSION else "not supported")
+        hint = ("newer than this clipclique reads; upgrade clipclique"
+                if isinstance(version, int) and version > SCHEMA_VERSION else "not supported")
         raise MapFileError(f"{path}: map schema version {version!r} is {hint} (this version reads {SCHEMA_VERSION})")
     kinds = {"class_names": list, "descriptions": list, "encoder": str, "provenance": dict}
     for key, kind in kinds.items():

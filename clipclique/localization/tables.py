@@ -268,8 +268,8 @@ def print_survey(console: Console, survey: Any) -> None:
                   soft_wrap=True)
     for topic in survey.topics:
         parts = [topic.name, topic.msgtype, f"{topic.count} messages", f"{topic.rate_hz:.1f} Hz"]
-        parts += ([f"encoding {topic.encoding}"] * bool(topic.encoding) + [f"frame {topic.frame_id}"]
-                  * bool(topic.frame_id))
+        parts += ([f"encoding {topic.encoding}"] * bool(topic.encoding)
+                  + [f"frame {topic.frame_id}"] * bool(topic.frame_id))
         parts += [f"-> {topic.role}"] * bool(topic.role)
         console.print(escape("  " + "  ".join(parts)), highlight=False, soft_wrap=True)
     for reason in survey.reasons:

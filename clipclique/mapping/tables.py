@@ -81,8 +81,8 @@ def print_summary(console: Console, map: Map, report: BuildReport, spec: str) ->
                       highlight=False)
     print_graph(console, map)
     if report.structure:
-        console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}"
-                                                                   for name, n in sorted(report.structure.items()))))
+        console.print(escape("left out as structure: "
+                             + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
     for reason, items in report.skipped.items():
         console.print(escape(f"skipped {len(items)}, {reason}: {', '.join(items)}"), highlight=False)
     if map.encoder == "none":
@@ -145,8 +145,8 @@ def print_import(console: Console, imported: Imported, quiet: bool = False) -> N
 def print_export(console: Console, exported: Exported) -> None:
     console.print(f"wrote {exported.written} landmarks to {escape(str(exported.out))}", highlight=False)
     if exported.renamed:
-        console.print("written as their COCO class: " + escape(", ".join(f"{a} as {b}"
-                                                                         for a, b in exported.renamed.items())),
+        console.print("written as their COCO class: "
+                      + escape(", ".join(f"{a} as {b}" for a, b in exported.renamed.items())),
                       highlight=False)
     if exported.unwritable:
         console.print(f"left out {exported.left_out} landmarks of classes an OA-SLAM map cannot hold (not COCO): "

@@ -206,8 +206,9 @@ def write_scannet_mesh(folder: Path, scene: str, room: Room) -> None:
 
     categories = sorted({o.category for o in room.objects})
     label_of = np.array([categories.index(o.category) + 1 for o in room.objects], dtype=np.uint16)
-    vertex = np.empty(len(room.vertices), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"),
-                                                 ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
+    vertex = np.empty(len(room.vertices),
+                      dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                             ("alpha", "u1"), ("label", "u2")])
     for k, axis in enumerate("xyz"):
         vertex[axis] = room.vertices[:, k]
     for k, channel in enumerate(("red", "green", "blue")):
@@ -216,8 +217,8 @@ def write_scannet_mesh(folder: Path, scene: str, room: Room) -> None:
     vertex["label"] = label_of[room.segment_objects[room.vertex_segments]]
     face = np.empty(len(room.faces), dtype=[("vertex_indices", "i4", (3,))])
     face["vertex_indices"] = room.faces
-    PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face",
-                                                                        len_types={"vertex_indices": "u1"})]).write(
+    PlyData([PlyElement.describe(vertex, "vertex"),
+             PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
         str(folder / f"{scene}_vh_clean_2.labels.ply")
     )
     segs_name = f"{scene}_vh_clean_2.0.010000.segs.json"
@@ -283,8 +284,8 @@ class TumWriter:
         fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
         (self.folder / "intrinsics.txt").write_text(f"# fx fy cx cy (pixels)\n{fx:.4f} {fy:.4f} {cx:.4f} {cy:.4f}\n")
         rows = ["id,class,description"] + [
-            f'{o.object_id + 1},{o.category},"{o.description}"' for o in self.room.objects
-            if self.annotated[o.object_id]
+            f'{o.object_id + 1},{o.category},"{o.description}"'
+            for o in self.room.objects if self.annotated[o.object_id]
         ]
         (self.folder / "annotations" / "objects.csv").write_text("\n".join(rows) + "\n")
 

@@ -51,9 +51,8 @@ def test_region_labels_join_points_within_reach_numbered_by_first_point():
     points = np.array([[40, 0, 0], [0, 0, 0], [0.9, 0, 0], [41.5, 0, 0], [1.8, 0, 0], [20, 0, 0.0]])
     np.testing.assert_array_equal(regions.region_labels(points, 1.0), [0, 1, 1, 2, 1, 3])  # 0.9 apart join, 1.5 not
     np.testing.assert_array_equal(regions.region_labels(points, 2.0), [0, 1, 1, 0, 1, 2])
-    # keys would
+    # keys would overflow: one region (a coarser split loses no clique)
     np.testing.assert_array_equal(regions.region_labels(np.array([[0, 0, 0], [1e7, 1e7, 1e7]]), 1e-6), [0, 0])
-    # overflow: one region (a coarser split loses no clique)
 
 
 def test_three_identical_rooms_are_one_layout_searched_once_and_ranked_by_rows():

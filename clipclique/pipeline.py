@@ -599,8 +599,8 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
     kept = None
     if config.inliers.rerank != "none":
         if config.inliers.rerank == "confidence" and probability is None:
-            raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this "
-                                  "build)")
+            raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is "
+                                  "shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
         kept = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[: config.top_n]
     result.hypotheses = pool.hypotheses(kept, checked.score, probability)

@@ -43,8 +43,8 @@ def main() -> None:
             times.append(time.perf_counter() - start)
             fits.append(report.timings["fit"])
     print(f"scene: {len(room.vertices):,} vertices, {len(room.objects)} objects -> {len(landmarks)} landmarks "
-          f"({sum(report.structure.values())} structure left out, {sum(len(v) for v in report.skipped.values())} "
-          "skipped)")
+          f"({sum(report.structure.values())} structure left out, "
+          f"{sum(len(v) for v in report.skipped.values())} skipped)")
     print(f"map build (read + fit, encoder excluded), {args.repeats} runs, {args.threads} threads: "
           f"median {statistics.median(times):.2f} s, min {min(times):.2f} s, max {max(times):.2f} s "
           f"(fit alone: median {statistics.median(fits):.2f} s)")

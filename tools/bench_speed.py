@@ -379,8 +379,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*", default=["demo_desk", "demo_apartment", "demo"])
     parser.add_argument("--rev", default=None, help="git revision timed beside the working tree "
-                                                    "(default: the merge base with main; 'none': the working tree "
-                                                    "alone)")
+                                                    "(default: the merge base with main; 'none': "
+                                                    "the working tree alone)")
     parser.add_argument("--max-frames", type=int, default=40)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--clutter", type=int, nargs="*", default=[], metavar="LANDMARKS")

@@ -83,8 +83,8 @@ def markdown(results: dict[str, Any], plots: list[str]) -> str:
 
 def header(results: dict[str, Any]) -> str:
     host = results["machine"]
-    quick = (" **Quick mode: a handful of frames per sequence; numbers are a smoke test, not "
-             "results.**") if results["quick"] else ""
+    quick = (" **Quick mode: a handful of frames per sequence; numbers are a "
+             "smoke test, not results.**") if results["quick"] else ""
     return (
         "# CLIP-Clique benchmark: the paper's experiments on the available sequences\n\n"
         f"Generated {results['created']} by `{results['command']}` (commit {host['commit']}) on "
@@ -387,8 +387,8 @@ def calibration_text(measured: dict[str, Any] | None, plotted: bool) -> str:
         "- With `--min-confidence 0.95` (and `inliers.rerank = confidence`): "
         f"{accepted['at_min_confidence']['accepted']} frames answered, "
         f"{fmt(accepted['at_min_confidence']['precision'], percent_of)} of them right, "
-        f"{fmt(accepted['at_min_confidence']['share_of_reachable'], percent_of)} of the frames with a correct "
-        "hypothesis.\n",
+        f"{fmt(accepted['at_min_confidence']['share_of_reachable'], percent_of)} of the frames with "
+        "a correct hypothesis.\n",
         "| Held-out scene | ECE | Frames with a correct hypothesis | Accepted at 95% precision | Threshold |",
         "|---|---|---|---|---|"]
     for scene, data in measured["by_scene"].items():

@@ -216,8 +216,8 @@ class ScanNetScene(Sequence):
     def _projector(self) -> tuple[MeshRaycaster, np.ndarray]:
         """Ray caster of the labelled mesh and the instance id of each face (by its first vertex)."""
         if "face" not in self._ply:
-            raise DatasetError(f"{self.mesh_path}: no faces, cannot project objects into frames (unzip the 2D "
-                               "instances)")
+            raise DatasetError(f"{self.mesh_path}: no faces, cannot project objects into frames "
+                               "(unzip the 2D instances)")
         corners = self._ply["face"].data["vertex_indices"]  # (F, 3) when read as triangles, else one array per face
         faces = (np.vstack(corners) if corners.dtype == object else corners).astype(np.int32)
         ids, _, owner = self._grouping

@@ -95,8 +95,8 @@ def read_trajectory(path: Path) -> tuple[np.ndarray, list[Pose]]:
                 raise ValueError
             row = [float(p) for p in parts]
         except ValueError:
-            raise DatasetError(f"{path}, line {number}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got "
-                               f"{line!r}") from None
+            raise DatasetError(f"{path}, line {number}: expected 8 numbers 'timestamp tx ty tz qx "
+                               f"qy qz qw', got {line!r}") from None
         if not np.isfinite(row).all() or np.linalg.norm(row[4:]) < 1e-6:
             raise DatasetError(f"{path}, line {number}: not a finite pose with a unit quaternion: {line!r}")
         rows.append(row)

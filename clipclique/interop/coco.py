@@ -194,8 +194,8 @@ def read_coco_annotations(path: Path) -> list[CocoObjectMask]:
     data = read_json(path, "COCO annotation file", InteropError)
     if not (isinstance(data, dict) and all(isinstance(data.get(k), list)
                                            for k in ("images", "categories", "annotations"))):
-        raise InteropError(f"{path}: a COCO annotation file is an object with 'images', 'categories' and 'annotations' "
-                           "lists")
+        raise InteropError(f"{path}: a COCO annotation file is an object with 'images', 'categories' "
+                           "and 'annotations' lists")
     images = {}
     for index, image in enumerate(data["images"]):
         if not (isinstance(image, dict) and isinstance(image.get("id"), int) and isinstance(image.get("file_name"), str)

@@ -90,8 +90,8 @@ def map_input(path: Path, format: MapFormat | None) -> Path:
             return yamls[0]
         held = (f"it holds {len(yamls)} .yaml files "
                 f"({', '.join(p.name for p in yamls[:3])})") if yamls else "it holds no .yaml"
-        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap map_*.yaml, a .json): "
-                           f"{held}")
+        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap "
+                           f"map_*.yaml, a .json): {held}")
     if path.suffix.lower() in OSMAP_BINARIES:
         raise InteropError(f"{path}: one of an Osmap map's binary files (protobuf); pass the map_*.yaml that names it")
     return path

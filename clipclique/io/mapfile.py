@@ -222,8 +222,8 @@ def _validate_distributions(map: Map, fail: Callable[[str], None]) -> None:
         return
     shape = (len(map.class_ids), len(map.class_names))
     if np.shape(distributions) != shape or np.asarray(distributions).dtype.kind not in "fiu":
-        fail(f"class_distributions {np.asarray(distributions).dtype} {np.shape(distributions)} should be numbers of "
-             f"shape {shape}")
+        fail(f"class_distributions {np.asarray(distributions).dtype} {np.shape(distributions)} should be "
+             f"numbers of shape {shape}")
     if not np.isfinite(distributions).all() or (np.asarray(distributions) < 0).any():
         fail("class_distributions must be finite and non-negative")
     if not np.allclose(np.sum(distributions, axis=1), 1.0, atol=1e-3):

@@ -54,8 +54,8 @@ def decode_text(data: bytes, where: str, error: type[ClipcliqueError] = Clipcliq
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as problem:
         line = data[: problem.start].count(b"\n") + 1
-        raise error(f"{where}, line {line}: not UTF-8 text (byte 0x{data[problem.start]:02x}); save it as "
-                    "UTF-8") from None
+        raise error(f"{where}, line {line}: not UTF-8 text (byte "
+                    f"0x{data[problem.start]:02x}); save it as UTF-8") from None
     if "\0" in text:
         line = text[: text.index("\0")].count("\n") + 1
         raise error(f"{where}, line {line}: holds a NUL byte; is this a text file?")
@@ -140,6 +140,6 @@ def read_single_channel(path: Path, what: str, error: type[ClipcliqueError] = Cl
     image = read_image(path, error=error)
     if image.ndim != 2 or image.dtype.kind not in "ui":
         channels = 1 if image.ndim == 2 else image.shape[2]
-        raise error(f"{path}: expected a single-channel integer {what} image, got {channels} channel(s) of "
-                    f"{image.dtype}")
+        raise error(f"{path}: expected a single-channel integer {what} image, got {channels} "
+                    f"channel(s) of {image.dtype}")
     return image

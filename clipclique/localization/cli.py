@@ -166,8 +166,8 @@ def run(
         console.print(f"not localized (no pose with confidence >= {min_confidence:g}): "
                       f"{int(summary['not_confident'])} of {int(summary['frames'])} frames")
     folder = settings.out_dir(document["run"]["sequence"])
-    console.print(f"results: {escape(str(folder))}/ (results.json, frames.csv, poses.tum, groundtruth.tum, "
-                  "config.json)",
+    console.print(f"results: {escape(str(folder))}/ (results.json, frames.csv, poses.tum, "
+                  "groundtruth.tum, config.json)",
                   highlight=False, soft_wrap=True)
     recording = document["run"]["recording"]
     if recording is not None and recording["matches"]:

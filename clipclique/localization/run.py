@@ -148,8 +148,8 @@ def with_window_span(settings: RunSettings, sequence: Sequence) -> RunSettings:
 def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | None:
     """The odometry a window needs (None without a window); refusals say which option is missing."""
     if settings.window < 1 or settings.window_step < 1:
-        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: both must be 1 or "
-                              "more")
+        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: "
+                              "both must be 1 or more")
     if settings.window == 1:
         if settings.odometry is not None or settings.odometry_drift:
             raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")

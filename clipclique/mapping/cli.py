@@ -32,8 +32,8 @@ def _tool(version: Annotated[bool, typer.Option("--version", callback=version_op
 @app.command()
 def build(
     scene: Annotated[str,
-                     typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, demo_desk, or a "
-                                         "scene folder", show_default=False)],
+                     typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, "
+                                         "demo_desk, or a scene folder", show_default=False)],
     data_root: Annotated[
         Path | None,
         typer.Option("--data-root",
@@ -84,11 +84,11 @@ def import_map(
                     typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map",
                                    show_default=False)],
     format: Annotated[str | None, typer.Option("--format",
-                                               help="oaslam-txt | osmap | msgloc | json \\[default: from the file "
-                                                    "name]", rich_help_panel=DATA_PANEL)] = None,
+                                               help="oaslam-txt | osmap | msgloc | json \\[default: from the file name]",
+                                               rich_help_panel=DATA_PANEL)] = None,
     objects: Annotated[Path | None, typer.Option("--objects",
-                                                 help="objects.csv (id,class,description): classes and descriptions by "
-                                                      "object id", rich_help_panel=DATA_PANEL)] = None,
+                                                 help="objects.csv (id,class,description): classes and "
+                                                      "descriptions by object id", rich_help_panel=DATA_PANEL)] = None,
     labels: Annotated[str | None, typer.Option("--labels",
                                                help="coco | lvis | FILE (one class name per line, the 0-based line the "
                                                     "id): the label set of the map's category ids \\[default: coco]",
@@ -172,8 +172,8 @@ def export(
 @app.command()
 def annotate(
     sequence: Annotated[str,
-                        typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the data root, or its "
-                                            "folder",
+                        typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the "
+                                            "data root, or its folder",
                                             show_default=False)],
     masks: Annotated[Path | None, typer.Option("--masks",
                                                help="folder of instance-id PNGs, each named after its colour "

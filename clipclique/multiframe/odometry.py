@@ -88,8 +88,8 @@ def bag_odometry(source: str, sequence: Sequence | None) -> Odometry:
     if kind == "tf":
         poses = sequence.tf_poses(rest, "--odometry tf:")
         if not any(pose is not None for pose in poses):
-            raise DatasetError(f"{sequence.root}: --odometry {source}: /tf has no transform within {MAX_TIME_DIFF} s "
-                               "of any frame")
+            raise DatasetError(f"{sequence.root}: --odometry {source}: /tf has no transform within "
+                               f"{MAX_TIME_DIFF} s of any frame")
         return Odometry(poses, source, simulated=False)
     times, poses = sequence.odometry_track(rest)
     return matched(times, poses, sequence.timestamps, f"{sequence.root}, {rest}", source)

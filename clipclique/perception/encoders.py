@@ -156,8 +156,8 @@ def check_checkpoint(path: Path) -> None:
                 parse_json(handle.read(size), f"{path}: safetensors header", ModelUnavailableError)
                 return
         if not zipfile.is_zipfile(path):
-            raise ModelUnavailableError(f"{path}: not a torch checkpoint (not torch's zip format; raw pickles are "
-                                        "refused)")
+            raise ModelUnavailableError(f"{path}: not a torch checkpoint (not torch's zip format; "
+                                        "raw pickles are refused)")
         with zipfile.ZipFile(path) as archive:
             pickles = [name for name in archive.namelist() if name.endswith("/data.pkl")]
             if len(pickles) != 1:

@@ -94,8 +94,8 @@ class YoloDetector:
         except Exception as error:  # download and unpickling failures come in many types
             raise ModelUnavailableError(f"--yolo-weights {weights}: cannot load ({error})") from None
         if model.task != "segment":
-            raise ModelUnavailableError(f"--yolo-weights {weights}: a {model.task} model; instance masks need a -seg "
-                                        "model")
+            raise ModelUnavailableError(f"--yolo-weights {weights}: a {model.task} model; instance "
+                                        "masks need a -seg model")
         return cls(model, class_names, confidence, device)
 
     def detect(self, frame: Frame) -> Detections:

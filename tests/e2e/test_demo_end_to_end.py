@@ -172,8 +172,8 @@ def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys, reposit
     with pytest.raises(SystemExit) as exit_info:
         tool.main()
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err == ("demo: error: --out outputs/loc/demo/clipclique: cannot create the folder (Not "
-                                       "a directory)\n")
+    assert capsys.readouterr().err == ("demo: error: --out outputs/loc/demo/clipclique: cannot create the "
+                                       "folder (Not a directory)\n")
 
 
 def test_results_carry_each_hypothesis_verification_and_confidence(runs):

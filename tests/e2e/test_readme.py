@@ -58,8 +58,8 @@ SKIPPED = {
     "pip install dask-jobqueue": "starts a SLURM cluster (none here); the local cluster is tested in "
                                  "tests/integration/test_bench_engine.py",
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
-    "mkdir -p data/tum && curl -L https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar "
-    "xz -C data/tum":
+    "mkdir -p data/tum && curl -L "
+    "https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":
         "downloads TUM fr2/desk and needs a published object map; the block after it runs the same commands on "
         "generated files",
     "clipclique-map build demo_tum -q": "prints the example below it: test_printed_examples_are_current runs it on the "

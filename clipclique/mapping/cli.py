@@ -84,7 +84,8 @@ def import_map(
                     typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map",
                                    show_default=False)],
     format: Annotated[str | None, typer.Option("--format",
-                                               help="oaslam-txt | osmap | msgloc | json \\[default: from the file name]",
+                                               help="oaslam-txt | osmap | msgloc | json "
+                                                    "\\[default: from the file name]",
                                                rich_help_panel=DATA_PANEL)] = None,
     objects: Annotated[Path | None, typer.Option("--objects",
                                                  help="objects.csv (id,class,description): classes and "

@@ -1,7 +1,8 @@
 # Two commands set up everything on a fresh machine:
 #   make demo   build the demo maps, localize the demo sequences with all four methods
-#   make test   run the test suite (what CI runs)
-#   make test-fast   the unit tests only (tests/unit) on the core install and pytest: the quick loop while editing
+#   make test   ruff check, then the test suite (what CI runs)
+#   make test-fast   ruff check, then the unit tests only (tests/unit) on the core install, pytest and ruff: the quick
+#                    loop while editing
 # and one regenerates every figure the repository commits:
 #   make docs   make demo, the benchmark into docs/benchmark/, the README's figures, the docs' printed
 #               examples (tools/docs_outputs.py) and docs/*.png
@@ -60,14 +61,16 @@ $(CLUSTER_STAMP): $(STAMP)
 	touch $(CLUSTER_STAMP)
 
 test: $(CLUSTER_STAMP)
+	$(PY) -m ruff check .
 	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile --durations=15
 
-# the core and pytest only: no torch, so a fresh clone is testing in a minute or two
+# the core, pytest and ruff only: no torch, so a fresh clone is testing in a minute or two
 $(DEV_STAMP): $(CORE)
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(DEV_STAMP)
 
 test-fast: $(DEV_STAMP)
+	$(PY) -m ruff check .
 	$(PY) -m pytest -q tests/unit -m "not models" --durations=15
 
 bench: $(STAMP)

@@ -9,12 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.perception.detectors import Detector, InstanceDetector
 from clipclique.perception.encoders import CHECKPOINT_SUFFIXES, DEFAULT_MODEL, ClipEncoder, Encoder
-from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.perception.yolo import YoloDetector
 from clipclique.sim.detectors import SimulatedDetector, SimulatedYoloDetector
 from clipclique.sim.encoder import SIMULATED_NAME, SimulatedClipEncoder
-from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.datasets import Sequence as DatasetSequence
@@ -83,7 +83,8 @@ def load_encoder(spec: str = "auto", device: str | None = None, batch_size: int 
     if spec.startswith("open_clip:"):
         model_name, sep, pretrained = spec.removeprefix("open_clip:").partition("/")
         if not sep or not model_name or not pretrained:
-            raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. open_clip:ViT-L-14/openai")
+            raise ClipcliqueError(f"--encoder {spec!r}: expected open_clip:MODEL/PRETRAINED, e.g. "
+                                  "open_clip:ViT-L-14/openai")
         return ClipEncoder.load(model_name, pretrained, device, batch_size)
     if Path(spec).suffix in CHECKPOINT_SUFFIXES:
         if not Path(spec).is_file():

@@ -26,7 +26,8 @@ from clipclique.config import FitParams
 from clipclique.types import Ellipsoids, Pose
 
 
-def fit_ellipsoid(points: np.ndarray, params: FitParams = FitParams()) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def fit_ellipsoid(points: np.ndarray,
+                  params: FitParams = FitParams()) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(center, semi-axes, rotation) of the PCA box around `points` after outlier removal.
 
     Returns None when too few points remain or the shape is degenerate (a semi-axis below

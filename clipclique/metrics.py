@@ -83,7 +83,8 @@ def evaluate_frame(
     )
 
 
-def success_within(errors: list[float | None], thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS_M) -> dict[str, float]:
+def success_within(errors: list[float | None],
+                   thresholds: tuple[float, ...] = SUCCESS_THRESHOLDS_M) -> dict[str, float]:
     """Per threshold (keyed `"0.25"`, `"1"`, ...), the fraction of `errors` (one per frame with ground truth; None:
     no pose, a failure) below it; NaN without frames."""
     return {f"{t:g}": _mean([float(e is not None and e < t) for e in errors]) for t in thresholds}
@@ -110,7 +111,8 @@ def summarize(evaluations: list[FrameEvaluation]) -> dict[str, object]:
         summary[f"success@{k}"] = _mean([float(e.success[k]) for e in evaluations if e.has_ground_truth])
     summary["success_within_m"] = success_within([e.translation_error for e in evaluations if e.has_ground_truth])
     summary["localized"] = _mean([float(e.failure is None) for e in evaluations])
-    summary["not_confident"] = int(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT for e in evaluations))
+    summary["not_confident"] = int(sum(e.failure is not None and e.failure.kind is FailureKind.NOT_CONFIDENT
+                                       for e in evaluations))
     summary["failures"] = failure_counts(evaluations)
     summary["precision"] = _mean([e.precision for e in evaluations if e.precision is not None])
     summary["recall"] = _mean([e.recall for e in evaluations if e.num_in_map > 0])

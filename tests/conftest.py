@@ -37,7 +37,8 @@ SMALL_SIZE = (160, 120)  # width, height of the small demo scenes most tests rea
 
 def pytest_addoption(parser) -> None:
     parser.addoption("--force-regen", action="store_true", default=False,
-                     help="rewrite tests/golden/ from this tree's results and print what moved (tests/e2e/test_golden.py)")
+                     help="rewrite tests/golden/ from this tree's results and print what moved "
+                          "(tests/e2e/test_golden.py)")
 
 
 @pytest.fixture(scope="session")
@@ -67,7 +68,8 @@ def demo_data(tmp_path_factory) -> DemoData:
             if folder.is_dir():
                 continue
             folder.mkdir(parents=True)
-            changes = ({"num_frames": frames} if frames else {}) | ({"width": size[0], "height": size[1]} if size else {})
+            changes = (({"num_frames": frames} if frames else {})
+                       | ({"width": size[0], "height": size[1]} if size else {}))
             generate(folder, name, dataclasses.replace(DEMO_SCENES[name], **changes))
         return root
 
@@ -83,8 +85,8 @@ def full_size_maps(tmp_path_factory) -> FullSizeMaps:
     there on first use, as `make demo` does), built with the simulated encoder once per session."""
     from clipclique.backends import load_encoder
     from clipclique.io.mapfile import save_map
-    from clipclique.resolve import open_scene
     from clipclique.mapping.build import build_map
+    from clipclique.resolve import open_scene
 
     folder = tmp_path_factory.mktemp("full-size-maps")
     built: dict[str, Path] = {}
@@ -103,7 +105,8 @@ def full_size_maps(tmp_path_factory) -> FullSizeMaps:
 
 SCANNET_SCENE = "scene0007_00"
 TSV_HEADER = "id\traw_category\tcategory\tcount\tnyu40id\teigen13id\tnyuClass\tnyu40class\teigen13class"
-TSV_ROWS = ["2\tchair\tchair\t4646\t5\t4\tchair\tchair\tChair", "10\toffice chair\toffice chair\t1113\t5\t4\tchair\tchair\tChair",
+TSV_ROWS = ["2\tchair\tchair\t4646\t5\t4\tchair\tchair\tChair",
+            "10\toffice chair\toffice chair\t1113\t5\t4\tchair\tchair\tChair",
             "1\twall\twall\t8277\t1\t12\twall\twall\tWall"]
 
 
@@ -121,24 +124,29 @@ def write_scannet_scene(root: Path, tsv: bool = False, descriptions: bool = True
         "wall": rng.uniform([0, 3, 0], [4, 3.05, 2.5], (300, 3)),
     }
     xyz = np.concatenate(list(parts.values()))
-    vertex = np.zeros(len(xyz), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
+    vertex = np.zeros(len(xyz), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"),
+                                       ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
     vertex["x"], vertex["y"], vertex["z"] = xyz.T
     vertex["red"] = 200
     vertex["label"] = np.repeat([10, 2, 1], [200, 150, 300])
     face = np.zeros(2, dtype=[("vertex_indices", "i4", (3,))])
     face["vertex_indices"] = [[0, 1, 2], [3, 4, 5]]
-    PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
+    PlyData([PlyElement.describe(vertex, "vertex"),
+             PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
         str(folder / f"{SCANNET_SCENE}_vh_clean_2.labels.ply"))
     # Segment ids as ScanNet's over-segmentation writes them: arbitrary integers, several per object,
     # one segment (9) in no group.
     segments = np.concatenate([np.repeat([1001, 17], 100), np.repeat([512, 9], [140, 10]), np.full(300, 3)])
-    (folder / f"{SCANNET_SCENE}_vh_clean_2.0.010000.segs.json").write_text(json.dumps({"sceneId": SCANNET_SCENE, "segIndices": segments.tolist()}))
+    (folder / f"{SCANNET_SCENE}_vh_clean_2.0.010000.segs.json").write_text(
+        json.dumps({"sceneId": SCANNET_SCENE, "segIndices": segments.tolist()}))
     groups = [
         {"id": 0, "objectId": 0, "segments": [1001, 17], "label": "office chair"},
         {"id": 1, "objectId": 1, "segments": [512], "label": "chair"},
         {"id": 2, "objectId": 2, "segments": [3], "label": "wall"},
     ]
-    (folder / f"{SCANNET_SCENE}.aggregation.json").write_text(json.dumps({"sceneId": f"scannet.{SCANNET_SCENE}", "appId": "Aggregator.v2", "segGroups": groups}))
+    (folder / f"{SCANNET_SCENE}.aggregation.json").write_text(json.dumps({"sceneId": f"scannet.{SCANNET_SCENE}",
+                                                                          "appId": "Aggregator.v2",
+                                                                          "segGroups": groups}))
     if tsv:
         (root / "scannet" / "scannetv2-labels.combined.tsv").write_text("\n".join([TSV_HEADER, *TSV_ROWS]) + "\n")
     if descriptions:
@@ -196,7 +204,8 @@ def write_tum_sequence(root: Path, annotations: bool = True, rounded: bool = Fal
     (folder / "groundtruth.txt").write_text("\n".join(gt) + "\n")
     if annotations:
         (folder / "annotations" / "instances").mkdir(parents=True)
-        (folder / "annotations" / "objects.csv").write_text('id,class,description\n4,monitor,"a black monitor, wide"\n9,cup,\n')
+        (folder / "annotations" / "objects.csv").write_text('id,class,description\n4,monitor,"a black monitor, '
+                                                            'wide"\n9,cup,\n')
         ids = np.zeros((480, 640), np.uint16)
         ids[200:280, 300:340] = 4
         ids[200:280, 340:380] = 9

@@ -1,4 +1,5 @@
-"""`python tools/bench.py ...`: the benchmark suite (clipclique.benchmark.suite), the command `make bench` and `make docs` run; see its docstring for the options."""
+"""`python tools/bench.py ...`: the benchmark suite (clipclique.benchmark.suite), the command `make bench` and `make
+docs` run; see its docstring for the options."""
 
 from clipclique.blas import one_blas_thread_by_default
 

@@ -25,8 +25,8 @@ one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clip
 from clipclique.benchmark.engine import ensure_map, run_jobs  # noqa: E402
 from clipclique.benchmark.plan import Plan, runs  # noqa: E402
 from clipclique.config import METHOD_PRESETS  # noqa: E402
-from clipclique.sim import DEMO_SCENES  # noqa: E402
 from clipclique.localization.results import read_results  # noqa: E402
+from clipclique.sim import DEMO_SCENES  # noqa: E402
 
 
 class Quiet:
@@ -79,7 +79,8 @@ def main() -> None:
     with LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
         with get_task_stream(client) as stream:
-            result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(), client)
+            result = run_jobs(runs(plan, args.out / "cluster", None, False), args.out / "cache-cluster", Quiet(),
+                              client)
     timings["cluster"] = time.perf_counter() - start
     busy = sum(part["stop"] - part["start"] for task in stream.data for part in task["startstops"]
                if part["action"] == "compute")

@@ -8,8 +8,9 @@ vertical spread drawn log-uniformly from 1 mm to 1 m, seen by a camera 1 to 4 m 
 observed centres carry Gaussian noise (0.1 m per axis: a median offset of 0.15 m, near the
 0.18 m measured on a real ScanNet scan, docs/REAL_SCENES.md) and every correspondence is
 correct, so all the error comes from the layout. The table bins layouts by the smaller
-`clipclique.pose.fit.conditioning` of the observed and the map centres (as the pipeline judges) and gives, per bin, the median camera position and rotation
-errors and the share of poses off by more than 1 m (the success threshold): the figure behind
+`clipclique.pose.fit.conditioning` of the observed and the map centres (as the pipeline judges) and gives, per bin, the
+median camera position and rotation errors and the share of poses off by more than 1 m (the success threshold): the
+figure behind
 the default `pose.min_conditioning`.
 """
 
@@ -19,8 +20,8 @@ import argparse
 
 import numpy as np
 
-from clipclique.geometry import random_rotation
 from clipclique.config import PoseConfig
+from clipclique.geometry import random_rotation
 from clipclique.pose.fit import conditioning, fit_rigid_batch
 
 EDGES = (0.0, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
@@ -41,7 +42,8 @@ def trial(rng: np.random.Generator, count: int, points: int, noise: float) -> tu
     rotations = np.stack([random_rotation(rng) for _ in range(count)])
     cameras = targets.mean(axis=1) + rng.uniform(1.0, 4.0, (count, 1)) * _unit(rng.standard_normal((count, 3)))
     # camera-frame observations: x_cam = R^T (x_map - t), plus centre noise
-    sources = np.einsum("bji,bpj->bpi", rotations, targets - cameras[:, None]) + noise * rng.standard_normal(targets.shape)
+    sources = (np.einsum("bji,bpj->bpi", rotations, targets - cameras[:, None])
+               + noise * rng.standard_normal(targets.shape))
     estimated, translation, ok = fit_rigid_batch(sources, targets)
     position_error = np.linalg.norm(translation - cameras, axis=1)
     relative = np.einsum("bji,bjk->bik", estimated, rotations)

@@ -1,4 +1,5 @@
-"""`python tools/bench_core.py ...`: the algorithm's own benchmarks on simulated maps (clipclique.benchmark.core); see its docstring for the options."""
+"""`python tools/bench_core.py ...`: the algorithm's own benchmarks on simulated maps (clipclique.benchmark.core); see
+its docstring for the options."""
 
 from clipclique.blas import one_blas_thread_by_default
 

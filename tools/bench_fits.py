@@ -22,13 +22,12 @@ from clipclique.blas import one_blas_thread_by_default
 one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clipclique.blas)
 
 import numpy as np  # noqa: E402
+from bench_speed import fastest  # noqa: E402  (this directory's: ms of the fastest of `repeat` calls)
 
 import clipclique.pipeline as pipeline  # noqa: E402
 import clipclique.pose.refine as refine  # noqa: E402
-from clipclique.pose.fit import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
 from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
-
-from bench_speed import fastest  # noqa: E402  (this directory's: ms of the fastest of `repeat` calls)
+from clipclique.pose.fit import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
 
 Batch = tuple[Callable, np.ndarray, np.ndarray, np.ndarray]  # the fit called, source, target, weights
 

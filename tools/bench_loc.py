@@ -21,10 +21,9 @@ import numpy as np  # noqa: E402
 
 from clipclique.config import METHOD_PRESETS  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
+from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
 from clipclique.outcomes import ALGORITHM_STAGES, PIPELINE_STAGES, QUERY_STAGES  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
-from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
-
 
 
 def positive(text: str) -> int:
@@ -48,7 +47,8 @@ def main() -> None:
         run = prepare(RunSettings(args.sequence, args.method, overrides=args.set, max_frames=args.max_frames,
                                   record=False))
     index = index_map(run.map, run.config)
-    rows: dict[str, list[float]] = {stage: [] for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm", "no detector")}
+    rows: dict[str, list[float]] = {stage: []
+                                    for stage in (*QUERY_STAGES, *PIPELINE_STAGES, "algorithm", "no detector")}
     for i in selected_frames(run):
         seen = observe(run, run.sequence[i])
         results = [localize(seen.observations, index, run.config) for _ in range(args.repeat)]
@@ -56,7 +56,8 @@ def main() -> None:
         for stage, seconds in (seen.timings | fastest.timings).items():
             rows[stage].append(1e3 * seconds)
         rows["algorithm"].append(1e3 * sum(fastest.timings[s] for s in ALGORITHM_STAGES))
-        rows["no detector"].append(1e3 * (sum(seen.timings.values()) - seen.timings["detector"] + sum(fastest.timings.values())))
+        rows["no detector"].append(1e3 * (sum(seen.timings.values()) - seen.timings["detector"]
+                                          + sum(fastest.timings.values())))
 
     print(f"{args.method} on {args.sequence}: {len(rows['algorithm'])} frames, {os.cpu_count()} cores "
           "(a shared machine gives noisy timings)")

@@ -26,10 +26,10 @@ def main() -> None:
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[name] = str(args.threads)
 
-    from clipclique.sim.demo import write_scannet_mesh
-    from clipclique.sim.procedural import make_room
     from clipclique.datasets.scannet import ScanNetScene
     from clipclique.mapping.build import build_map
+    from clipclique.sim.demo import write_scannet_mesh
+    from clipclique.sim.procedural import make_room
 
     room = make_room(seed=7, spacing=args.spacing, boxes=6)
     with tempfile.TemporaryDirectory() as tmp:
@@ -43,7 +43,8 @@ def main() -> None:
             times.append(time.perf_counter() - start)
             fits.append(report.timings["fit"])
     print(f"scene: {len(room.vertices):,} vertices, {len(room.objects)} objects -> {len(landmarks)} landmarks "
-          f"({sum(report.structure.values())} structure left out, {sum(len(v) for v in report.skipped.values())} skipped)")
+          f"({sum(report.structure.values())} structure left out, "
+          f"{sum(len(v) for v in report.skipped.values())} skipped)")
     print(f"map build (read + fit, encoder excluded), {args.repeats} runs, {args.threads} threads: "
           f"median {statistics.median(times):.2f} s, min {min(times):.2f} s, max {max(times):.2f} s "
           f"(fit alone: median {statistics.median(fits):.2f} s)")

@@ -32,10 +32,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from clipclique.perception.encoders import Crop  # noqa: E402
 from clipclique.exits import user_errors  # noqa: E402
-from clipclique.perception.observations import Extraction, extract_observations  # noqa: E402
 from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+from clipclique.perception.encoders import Crop  # noqa: E402
+from clipclique.perception.observations import Extraction, extract_observations  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 BEFORE = "d350f9d"  # the last commit before the compiled window pass (README, Observation stage)
@@ -43,7 +43,8 @@ CROWDED = 15  # detections: the frames of the target, 15 objects in 15 ms (issue
 
 
 def load_revision(rev: str, directory: Path) -> ModuleType:
-    """`clipclique.perception.observations` as of `rev`, importing that revision's `clipclique.geometry` and `.encoders`."""
+    """`clipclique.perception.observations` as of `rev`, importing that revision's `clipclique.geometry` and
+    `.encoders`."""
     def load(name: str) -> ModuleType:
         source = subprocess.run(["git", "show", f"{rev}:clipclique/{name}.py"], cwd=ROOT, capture_output=True,
                                 text=True, check=True).stdout
@@ -74,7 +75,8 @@ def difference(new: Extraction, old) -> float:
             and np.array_equal(new.observations.mask_areas, old.observations.mask_areas)
             and len(new.crops) == len(theirs)
             and all(crop.truncated == truncated and shares(crop) in (None, contents)
-                    and np.array_equal(crop.pixels, pixels) for crop, (pixels, truncated, contents) in zip(new.crops, theirs)))
+                    and np.array_equal(crop.pixels, pixels)
+                    for crop, (pixels, truncated, contents) in zip(new.crops, theirs)))
     if not same:
         raise AssertionError("the two versions keep, drop, crop or count differently")
     if not len(new.observations):

@@ -196,11 +196,14 @@ def clutter_scene(queries: int = 100, seed: int = 0) -> dict:
 
     base = desk_map(np.random.default_rng(seed))
     rng = np.random.default_rng(seed + 1)
-    shapes = lambda e: {"centers": e.centers.tolist(), "axes": e.axes.tolist(), "rotations": e.rotations.tolist()}  # noqa: E731
+    shapes = lambda e: {"centers": e.centers.tolist(), "axes": e.axes.tolist(),  # noqa: E731
+                        "rotations": e.rotations.tolist()}
     return {"gap": ROOM_SPACING - float(np.ptp(base.ellipsoids.centers[:, 0])),
             "map": shapes(base.ellipsoids) | {"class_ids": base.class_ids.tolist(), "class_names": base.class_names,
-                                              "descriptions": base.descriptions, "instance_ids": base.instance_ids.tolist()},
-            "queries": [shapes(q.ellipsoids) | {"class_ids": q.class_ids.tolist(), "instance_ids": q.instance_ids.tolist()}
+                                              "descriptions": base.descriptions,
+                                              "instance_ids": base.instance_ids.tolist()},
+            "queries": [shapes(q.ellipsoids)
+                        | {"class_ids": q.class_ids.tolist(), "instance_ids": q.instance_ids.tolist()}
                         for q in (desk_query(base, rng) for _ in range(queries))]}
 
 
@@ -211,7 +214,8 @@ def clutter_rooms(count: int, scene: dict) -> tuple:
     from clipclique.sim.synthetic import duplicate_rooms
     from clipclique.types import Ellipsoids, Map, Observations
 
-    ellipsoids = lambda d: Ellipsoids(*(np.array(d[key], float) for key in ("centers", "axes", "rotations")))  # noqa: E731
+    ellipsoids = lambda d: Ellipsoids(  # noqa: E731
+        *(np.array(d[key], float) for key in ("centers", "axes", "rotations")))
     desk = scene["map"]
     base = Map(ellipsoids(desk), np.array(desk["class_ids"]), desk["class_names"], desk["descriptions"],
                np.array(desk["instance_ids"]), provenance={"simulated": True})
@@ -261,7 +265,8 @@ def query_times(call, repeat: int) -> dict:
         if seconds < best:
             best, timings, cap = seconds, result.timings, result.cap_hit
     return {f"{stage} ms": 1e3 * value for stage, value in timings.items()} | {"localize ms": 1e3 * best,
-                                                                                "cap": None if cap is None else str(cap)}
+                                                                                "cap": None if cap is None
+                                                                               else str(cap)}
 
 
 def table(rows: dict[str, list[dict]], keys: list[str]) -> None:
@@ -343,13 +348,15 @@ def compare_whole_runs(scene: str, trees: dict[str, Path], runs: int, directory:
     print(f"whole `clipclique-loc run {scene}` processes, seconds (median of {runs}, trees alternating, "
           "numba cache warm):")
     seconds: dict[tuple[str, bool], list[float]] = {}
-    processor: dict[tuple[str, bool], list[float]] = {}  # CPU seconds, user + system: what a loaded machine leaves alone
+    # CPU seconds, user + system: what a loaded machine leaves alone
+    processor: dict[tuple[str, bool], list[float]] = {}
     for attempt in range(runs + 1):
         for label, tree in trees.items():
             for record in (True, False):
                 # -P: `python -c` puts the working directory (this tree) ahead of PYTHONPATH; without it "before"
                 # ran this tree's code too
-                entry = ("from clipclique.localization.cli import main; main()" if (tree / "clipclique" / "localization").is_dir()
+                entry = ("from clipclique.localization.cli import main; main()"
+                         if (tree / "clipclique" / "localization").is_dir()
                          else "from localization.cli import main; main()")  # a tree from before the move
                 command = [sys.executable, "-P", "-c", entry, "run", scene,
                            "--out", str(directory / f"run-{label}")] + ([] if record else ["--no-rrd"])
@@ -372,7 +379,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("scenes", nargs="*", default=["demo_desk", "demo_apartment", "demo"])
     parser.add_argument("--rev", default=None, help="git revision timed beside the working tree "
-                                                    "(default: the merge base with main; 'none': the working tree alone)")
+                                                    "(default: the merge base with main; 'none': "
+                                                    "the working tree alone)")
     parser.add_argument("--max-frames", type=int, default=40)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--clutter", type=int, nargs="*", default=[], metavar="LANDMARKS")

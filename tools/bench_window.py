@@ -1,4 +1,5 @@
-"""`python tools/bench_window.py ...`: window localization measured (clipclique.benchmark.window); see its docstring for the options."""
+"""`python tools/bench_window.py ...`: window localization measured (clipclique.benchmark.window); see its docstring for
+the options."""
 
 from clipclique.blas import one_blas_thread_by_default
 

@@ -47,12 +47,13 @@ def run_demo() -> None:
             folders[sequence, method] = settings.out_dir(documents[-1]["run"]["sequence"])
     console.rule("CLIP-Clique and the baselines on the demo")
     print_documents(console, documents)
-    console.print(f"\nfinished in {time.perf_counter() - start:.0f} s; recordings (open with `{command('rerun')} FILE`, "
-                  "several at once to compare):", highlight=False, soft_wrap=True)
+    console.print(f"\nfinished in {time.perf_counter() - start:.0f} s; recordings (open with `{command('rerun')} "
+                  "FILE`, several at once to compare):", highlight=False, soft_wrap=True)
     for sequence in SEQUENCES:
         console.print(f"  {'map':<12}{MAP_DIR / f'{sequence}.map.rrd'}", highlight=False, soft_wrap=True)
         for method in METHODS:
-            console.print(f"  {method:<12}{folders[sequence, method] / 'recording.rrd'}", highlight=False, soft_wrap=True)
+            console.print(f"  {method:<12}{folders[sequence, method] / 'recording.rrd'}", highlight=False,
+                          soft_wrap=True)
     example = folders["demo_tum", "clipclique"]
     console.print("beside each recording: results.json, config.json, poses.tum and groundtruth.tum (TUM format; "
                   f"score with evo: `evo_ape tum {example / 'groundtruth.tum'} {example / 'poses.tum'}`)",

@@ -7,7 +7,8 @@ A page shows what a command prints by an `sh` block, the marker line below, and 
 `--write` runs every such `sh` block as a new user would (in a scratch folder that looks like the repository root,
 with the full generated scenes of data/) and puts what it printed into the `text` block after the marker;
 `--check` runs them the same way and exits 1, printing a diff, where a page shows something else. Timings vary
-from run to run, so a table column headed `ms`, a table titled `... [ms]` and a line starting `time: ` are left out of the comparison.
+from run to run, so a table column headed `ms`, a table titled `... [ms]` and a line starting `time: ` are left out of
+the comparison.
 
     .venv/bin/python tools/docs_outputs.py --write     # make docs
     .venv/bin/python tools/docs_outputs.py --check     # tests/e2e/test_readme.py

@@ -1,4 +1,5 @@
-"""Fit the map-to-map alignment confidence (clipclique.multiframe.mapalign) on generated cases, measured on held-out ones.
+"""Fit the map-to-map alignment confidence (clipclique.multiframe.mapalign) on generated cases, measured on held-out
+ones.
 
     .venv/bin/python tools/fit_align_confidence.py            # prints the constants and their calibration
 
@@ -29,10 +30,10 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import expit, log_expit
 
-from clipclique.multiframe import mapalign
 from clipclique.config import make_config
-from clipclique.pipeline import align_maps
 from clipclique.geometry import random_rotation, rotation_angle
+from clipclique.multiframe import mapalign
+from clipclique.pipeline import align_maps
 from clipclique.sim.mappairs import detector_pair
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
@@ -53,7 +54,8 @@ def cases(seed: int) -> Iterator[tuple[str, Map, Map, Pose | None]]:
     keep = lambda index: index[rng.random(len(index)) > 0.15]  # noqa: E731
     query = moved(room.subset(keep(np.flatnonzero(x < cut + band))), truth, rng)
     yield "split", query, room.subset(keep(np.flatnonzero(x > cut - band))), truth
-    near = np.argsort(np.linalg.norm(room.ellipsoids.centers - room.ellipsoids.centers[rng.integers(len(room))], axis=1))
+    near = np.argsort(np.linalg.norm(room.ellipsoids.centers - room.ellipsoids.centers[rng.integers(len(room))],
+                                     axis=1))
     yield "submap", moved(room.subset(near[:8]), truth, rng), room, truth
     yield "unrelated", query, synthetic_map(rng, 40), None
     yield "copies", moved(room.subset(near[:12]), truth, rng), duplicate_rooms(room, 10), truth

@@ -31,11 +31,11 @@ one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas
 from clipclique.benchmark import calibration  # noqa: E402
 from clipclique.benchmark.engine import ensure_map  # noqa: E402
 from clipclique.benchmark.suite import cache_sequence  # noqa: E402
-from clipclique.verify import confidence# noqa: E402
-from clipclique.exits import user_errors  # noqa: E402
 from clipclique.errors import ClipcliqueError  # noqa: E402
+from clipclique.exits import user_errors  # noqa: E402
 from clipclique.io.outputs import Staging  # noqa: E402
 from clipclique.localization.results import json_safe  # noqa: E402
+from clipclique.verify import confidence  # noqa: E402
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -67,7 +67,8 @@ def fit(args: argparse.Namespace) -> None:
     rows = calibration.collect(sequences)
     measured = calibration.measure(rows, calibration.held_out(rows))
     args.report.mkdir(parents=True, exist_ok=True)
-    calibration.plot_reliability(measured["reliability"], "Confidence on held-out scenes", args.report / "reliability.png")
+    calibration.plot_reliability(measured["reliability"], "Confidence on held-out scenes",
+                                 args.report / "reliability.png")
     provenance = {"command": " ".join(["tools/fit_confidence.py", *sys.argv[1:]]),
                   "scenes": {s.name: len(s.frames) for s in sequences}, "hypotheses": len(rows),
                   "correct": int(rows.correct.sum()),
@@ -75,7 +76,8 @@ def fit(args: argparse.Namespace) -> None:
     model = confidence.fit(rows.features, rows.correct, rows.scene, provenance=json_safe(provenance))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with Staging() as staging:  # the model and its held-out measurement replace the old ones together
-        staging.path(args.report / "held_out.json").write_text(json.dumps(json_safe(measured), indent=1, allow_nan=False))
+        staging.path(args.report / "held_out.json").write_text(json.dumps(json_safe(measured), indent=1,
+                                                                          allow_nan=False))
         staging.path(args.out).write_text(json.dumps(json_safe(model.to_json()), indent=1, allow_nan=False) + "\n")
         staging.commit()
     accepted = measured["acceptance"]

@@ -7,8 +7,8 @@ writes, for the scene's map (built with `clipclique-map build` first) and its de
 - `map_desk.yaml` + `map_desk.objects`: a GOReloc Osmap map, ellipsoids as dual quadrics in the
   SLAM frame (the first keyframe's camera), COCO-80 classes, class counts from the scene's
   detector (seed 1) over every frame; landmarks whose class has no COCO name are left out;
-- `keyframes_poses_desk_tum.txt`: the ground-truth pose of every frame (`--keyframe-every N`: every Nth) in that SLAM frame, with
-  5 mm of noise (a SLAM system's keyframes);
+- `keyframes_poses_desk_tum.txt`: the ground-truth pose of every frame (`--keyframe-every N`: every Nth) in that SLAM
+  frame, with 5 mm of noise (a SLAM system's keyframes);
 - `detections.json`: the OA-SLAM / VOOM / GOReloc detection JSON, boxes only, of the scene's
   detector (seed 0) on every frame, COCO-80 ids, file names with the `rgb/` prefix.
 """
@@ -22,15 +22,13 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from clipclique.resolve import open_scene
-from clipclique.interop.coco import COCO80_INDEX
-from clipclique.interop.coco import reported_classes
+from clipclique.backends import make_detector
+from clipclique.interop.coco import COCO80_INDEX, reported_classes
 from clipclique.interop.protowire import encode_field, encode_packed_floats, encode_packed_uints
 from clipclique.interop.quadric import encode_dual_quadric
 from clipclique.io.mapfile import load_map
-from clipclique.backends import make_detector
-from clipclique.resolve import default_detector
 from clipclique.perception.yolo import coco_to_vocabulary
+from clipclique.resolve import default_detector, open_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -80,7 +78,8 @@ def main() -> None:
         center = slam.apply(map.ellipsoids.centers[i])
         quadric = encode_dual_quadric(center, map.ellipsoids.axes[i], slam.rotation @ map.ellipsoids.rotations[i])
         body = (encode_field(1, encode_packed_floats(1, quadric.ravel().tolist())) + encode_field(2, instance)
-                + encode_packed_uints(3, [COCO80_INDEX[c] for c in tally]) + encode_packed_uints(4, list(tally.values())))
+                + encode_packed_uints(3, [COCO80_INDEX[c] for c in tally])
+                + encode_packed_uints(4, list(tally.values())))
         objects += encode_field(1, body)
         written += 1
     (args.out / "map_desk.objects").write_bytes(objects)
@@ -88,8 +87,8 @@ def main() -> None:
         f'%YAML:1.0\n---\nobjectsFile: "map_desk.objects"\nnObjects: {written}\n')
     (args.out / "keyframes_poses_desk_tum.txt").write_text("\n".join(keyframes) + "\n")
     (args.out / "detections.json").write_text(json.dumps(entries))
-    print(f"wrote {args.out}/: map_desk.yaml, map_desk.objects, keyframes_poses_desk_tum.txt ({len(keyframes)} keyframes), "
-          f"detections.json ({len(entries)} frames)")
+    print(f"wrote {args.out}/: map_desk.yaml, map_desk.objects, keyframes_poses_desk_tum.txt ({len(keyframes)} "
+          f"keyframes), detections.json ({len(entries)} frames)")
 
 
 if __name__ == "__main__":

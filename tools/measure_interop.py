@@ -1,6 +1,7 @@
 """Side-by-side measurements of issue 17 on the generated scenes, one process, same frames.
 
-    .venv/bin/python tools/measure_interop.py box-only [demo_desk demo_apartment] [--max-frames N] [--set min_mode_share=0.6]
+    .venv/bin/python tools/measure_interop.py box-only [demo_desk demo_apartment] [--max-frames N] \\
+        [--set min_mode_share=0.6]
     .venv/bin/python tools/measure_interop.py soft-classes [demo demo_tum demo_apartment demo_desk]
 
 box-only: each frame's detections (the scene's own detector) fitted twice, from their masks and
@@ -29,17 +30,16 @@ one_blas_thread_by_default()  # before numpy loads, as the CLIs (clipclique.blas
 
 import numpy as np  # noqa: E402
 
-from clipclique.resolve import open_scene  # noqa: E402
 from clipclique.backends import load_encoder, make_detector  # noqa: E402
 from clipclique.interop.boxfit import BoxSegmentation, box_mask  # noqa: E402
 from clipclique.io.mapfile import save_map  # noqa: E402
+from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
+from clipclique.mapping.build import build_map  # noqa: E402
 from clipclique.metrics import evaluate_frame  # noqa: E402
 from clipclique.perception.observations import embed, extract_observations  # noqa: E402
 from clipclique.pipeline import index_map, localize  # noqa: E402
+from clipclique.resolve import default_detector, open_scene  # noqa: E402
 from clipclique.types import Detections  # noqa: E402
-from clipclique.resolve import default_detector  # noqa: E402
-from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
-from clipclique.mapping.build import build_map  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 THRESHOLDS = (0.5, 1.0, 2.0)
@@ -67,7 +67,8 @@ def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: Box
     for i in selected_frames(run):
         frame = run.sequence[i]
         detections = run.detector.detect(frame)
-        boxed = Detections(np.array([box_mask(frame.depth, frame.intrinsics, b, params=segmentation) for b in detections.boxes]).reshape(detections.masks.shape),
+        boxed = Detections(np.array([box_mask(frame.depth, frame.intrinsics, b, params=segmentation)
+                                     for b in detections.boxes]).reshape(detections.masks.shape),
                            detections.boxes, detections.class_ids, detections.scores, detections.instance_ids)
         fitted = {}
         for variant, dets in (("mask", detections), ("box", boxed)):
@@ -83,8 +84,8 @@ def box_only(scene: str, folder: Path, max_frames: int | None, segmentation: Box
             fitted[variant] = dict(zip(observations.detection_index.tolist(), observations.ellipsoids.centers))
             kept[variant] += len(observations)
         apart += [float(np.linalg.norm(c - fitted["mask"][k])) for k, c in fitted["box"].items() if k in fitted["mask"]]
-    print(f"{scene}: {len(errors['mask'])} frames, detector {run.detector.name}; observations kept: mask {kept['mask']}, "
-          f"box-only {kept['box']}")
+    print(f"{scene}: {len(errors['mask'])} frames, detector {run.detector.name}; observations kept: mask "
+          f"{kept['mask']}, box-only {kept['box']}")
     print(f"  box-only centre vs the mask fit of the same detection: median {100 * np.median(apart):.1f} cm")
     for variant in ("mask", "box"):
         print(f"  {variant:>4}: median centre error vs the landmark {100 * np.median(centre_errors[variant]):5.1f} cm; "
@@ -105,7 +106,8 @@ def counted_map(scene: str, folder: Path) -> Path:
     never = counts.sum(axis=1) == 0
     counts[never, run.map.class_ids[never]] = 1
     distributions = counts / counts.sum(axis=1, keepdims=True)
-    map = dataclasses.replace(run.map, class_ids=counts.argmax(axis=1).astype(np.int64), class_distributions=distributions)
+    map = dataclasses.replace(run.map, class_ids=counts.argmax(axis=1).astype(np.int64),
+                              class_distributions=distributions)
     path = folder / f"{scene}.counted.map.npz"
     save_map(map, path)
     unsure = distributions.max(axis=1) < 1
@@ -128,8 +130,10 @@ def soft_classes(scene: str, folder: Path) -> None:
                 detections = run.detector.detect(frame)
                 observations = embed(extract_observations(frame, detections, run.config.observations), run.encoder)
                 result = localize(observations, index, run.config)
-                errors.append(evaluate_frame(result, observations, run.map, frame.pose, run.config, frame.index).translation_error)
-            print(f"  {method:>10} soft_classes={'on ' if soft else 'off'}: top-1 within 0.5 / 1 / 2 m: {success(errors)} %")
+                errors.append(evaluate_frame(result, observations, run.map, frame.pose, run.config,
+                                             frame.index).translation_error)
+            print(f"  {method:>10} soft_classes={'on ' if soft else 'off'}: top-1 within 0.5 / 1 / 2 m: "
+                  f"{success(errors)} %")
 
 
 def main() -> None:

@@ -1,4 +1,5 @@
-"""`python tools/scene_stats.py ...`: how much a scene looks like real data (clipclique.benchmark.scene_stats); see its docstring for the options."""
+"""`python tools/scene_stats.py ...`: how much a scene looks like real data (clipclique.benchmark.scene_stats); see its
+docstring for the options."""
 
 from clipclique.blas import one_blas_thread_by_default
 

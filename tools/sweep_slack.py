@@ -12,9 +12,12 @@ from clipclique.benchmark import suite as bench
 
 SETTINGS = {
     "none": {"inliers.partial_slack": 0.0},
-    "deficit >= 0.3 m, x1.0, cap 0.6 m": {"inliers.slack_min_deficit": 0.3, "inliers.partial_slack": 1.0, "inliers.max_slack": 0.6},
-    "deficit >= 0.15 m, x1.5, cap 0.8 m": {"inliers.slack_min_deficit": 0.15, "inliers.partial_slack": 1.5, "inliers.max_slack": 0.8},
-    "deficit >= 0.2 m, x1.5, cap 0.8 m": {"inliers.slack_min_deficit": 0.2, "inliers.partial_slack": 1.5, "inliers.max_slack": 0.8},
+    "deficit >= 0.3 m, x1.0, cap 0.6 m": {"inliers.slack_min_deficit": 0.3, "inliers.partial_slack": 1.0,
+                                          "inliers.max_slack": 0.6},
+    "deficit >= 0.15 m, x1.5, cap 0.8 m": {"inliers.slack_min_deficit": 0.15, "inliers.partial_slack": 1.5,
+                                           "inliers.max_slack": 0.8},
+    "deficit >= 0.2 m, x1.5, cap 0.8 m": {"inliers.slack_min_deficit": 0.2, "inliers.partial_slack": 1.5,
+                                          "inliers.max_slack": 0.8},
 }
 
 

@@ -1,8 +1,10 @@
 """Accuracy levers side by side: each a config key, on the same cached observations of every realistic scene.
 
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers                  # every lever, both descriptors, all scenes
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers --scenes demo_clutter --frames 40 --levers before "defaults (after)"
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers --reference     # with the paper preset and the literal reference
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers               # every lever, both descriptors, all scenes
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --scenes demo_clutter --frames 40 \\
+        --levers before "defaults (after)"
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --reference   # with the paper preset and the literal
+                                                                           # reference
 
 Each scene's frames go through the detector, the observation fit and the (simulated) CLIP once
 (clipclique.benchmark.suite's cache); every lever then localizes those observations, once with Semantic
@@ -96,9 +98,11 @@ def main(argv: list[str] | None = None) -> int:
             if descriptor == "CLIP" and not sequence.has_clip:
                 continue
             for lever in args.levers:
-                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])), flush=True)
+                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])),
+                      flush=True)
             if args.reference:
-                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)), flush=True)
+                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)),
+                      flush=True)
                 print(row(scene, descriptor, "literal reference",
                           *top1_errors(sequence, "clipclique-paper", base, reference=True)), flush=True)
     return 0

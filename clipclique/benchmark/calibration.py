@@ -19,13 +19,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from clipclique.verify import confidence, verification
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations, Pose
+from clipclique.verify import confidence, verification
 
 BINS = 10  # reliability diagram and ECE: equal-width confidence bins
 METHODS = ("xview", "sh", "cliploc", "clipclique")  # Table I's four
@@ -158,7 +158,8 @@ def measure(rows: Rows, probability: np.ndarray) -> dict[str, Any]:
                            "ece_answers": ece(best, right), "acceptance": acceptance(rows, probability),
                            "reliability": reliability(probability, rows.correct)}
     out["by_scene"] = {scene: {"ece": ece(probability[rows.scene == scene], rows.correct[rows.scene == scene]),
-                               "acceptance": acceptance(rows.take(rows.scene == scene), probability[rows.scene == scene])}
+                               "acceptance": acceptance(rows.take(rows.scene == scene),
+                                                        probability[rows.scene == scene])}
                        for scene in np.unique(rows.scene).tolist()}
     out["by_method"] = {m: acceptance(rows.take(rows.method == m), probability[rows.method == m])
                         for m in np.unique(rows.method).tolist()}

@@ -47,9 +47,11 @@ WHAT, INPUTS, ENGINE, OUTPUT = "What to run", "Inputs", "Where to run", "Output"
 @app.command()
 def main_command(
     scenes: Annotated[Optional[list[str]], typer.Argument(
-        help="scene names (demo, demo_tum, scene0002_00, fr2, ...), folders or globs (quoted: 'data/scannet/scans/scene*')",
+        help="scene names (demo, demo_tum, scene0002_00, fr2, ...), folders or globs (quoted: "
+             "'data/scannet/scans/scene*')",
         show_default=False)] = None,
-    methods: Annotated[str, typer.Option(help="comma-separated presets: clipclique, clipclique-paper, sh, xview, cliploc",
+    methods: Annotated[str,
+                       typer.Option(help="comma-separated presets: clipclique, clipclique-paper, sh, xview, cliploc",
                                          rich_help_panel=WHAT)] = "clipclique",
     grid: Annotated[Optional[list[str]], typer.Option(
         help="KEY=V1,V2,...: one run per value (several --grid: every combination), e.g. inliers.d_comp=0.2,0.3",
@@ -58,9 +60,12 @@ def main_command(
                                                       "detector, encoder); instead of the above",
                                                  rich_help_panel=WHAT)] = None,
     stride: Annotated[int, typer.Option(min=1, help="use every N-th frame", rich_help_panel=INPUTS)] = 1,
-    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames", rich_help_panel=INPUTS)] = None,
-    detector: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --detector", rich_help_panel=INPUTS)] = None,
-    encoder: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --encoder", rich_help_panel=INPUTS)] = None,
+    max_frames: Annotated[Optional[int], typer.Option(min=1, help="stop after N frames",
+                                                      rich_help_panel=INPUTS)] = None,
+    detector: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --detector",
+                                                    rich_help_panel=INPUTS)] = None,
+    encoder: Annotated[Optional[str], typer.Option(help="as clipclique-loc run --encoder",
+                                                   rich_help_panel=INPUTS)] = None,
     # --- the input options shared with clipclique-loc run (clipclique.localization.inputs, issue 38)
     map_path: MapOption = None,
     same_place: SamePlaceOption = False,
@@ -81,16 +86,20 @@ def main_command(
     # --- end of the shared input options
     data_root: Annotated[Optional[Path], typer.Option(help="datasets folder \\[default: $CLIPCLIQUE_DATA or ./data]",
                                                       rich_help_panel=INPUTS)] = None,
-    workers: Annotated[Optional[int], typer.Option(min=1, help="a local Dask cluster of N worker processes (127.0.0.1 only)",
+    workers: Annotated[Optional[int], typer.Option(min=1,
+                                                   help="a local Dask cluster of N worker processes (127.0.0.1 only)",
                                                    rich_help_panel=ENGINE)] = None,
     scheduler: Annotated[Optional[str], typer.Option(help="join a running Dask cluster, e.g. tcp://head:8786",
                                                      rich_help_panel=ENGINE)] = None,
     out: Annotated[Path, typer.Option(help="OUT/SCENE/RUN/ per run (as clipclique-loc run writes), and "
-                                           "OUT/report.md, summary.json, success.png", rich_help_panel=OUTPUT)] = BENCH_DIR,
+                                           "OUT/report.md, summary.json, success.png",
+                                      rich_help_panel=OUTPUT)] = BENCH_DIR,
     cache: Annotated[Path, typer.Option(help="perception cache (observations and embeddings per frame)",
                                         rich_help_panel=OUTPUT)] = CACHE_DIR,
-    record: Annotated[bool, typer.Option("--record", help="also write each run's Rerun recording", rich_help_panel=OUTPUT)] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the results are", rich_help_panel=OUTPUT)] = False,
+    record: Annotated[bool, typer.Option("--record", help="also write each run's Rerun recording",
+                                         rich_help_panel=OUTPUT)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the results are",
+                                        rich_help_panel=OUTPUT)] = False,
     verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print the tables of every run",
                                           rich_help_panel=OUTPUT)] = False,
     version: Annotated[bool, typer.Option("--version", callback=version_option(TOOL), is_eager=True,
@@ -113,8 +122,8 @@ def main_command(
                            groundtruth, gt_frames)
         if plan is not None:
             if scenes or grid or methods != "clipclique" or inputs != RunInputs():
-                raise PlanError(f"--plan {plan}: give the scenes, methods, grid and inputs in the plan file, not as well "
-                                "on the command line")
+                raise PlanError(f"--plan {plan}: give the scenes, methods, grid and inputs in the plan file, not as "
+                                "well on the command line")
             chosen = read_plan(plan)
         elif not scenes:
             raise PlanError("no scenes: name some (e.g. demo demo_tum) or pass --plan FILE.toml")
@@ -164,8 +173,14 @@ class _Bar:
     """A progress bar over all tasks (done, running, failed, elapsed, remaining); a failed task is one line."""
 
     def __init__(self, console: Any, quiet: bool) -> None:
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
         self.console = console
         self.progress = Progress(TextColumn("tasks"), BarColumn(), MofNCompleteColumn(),

@@ -32,12 +32,13 @@ from clipclique.benchmark import literal_reference
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
 from clipclique.geometry import random_rotation
 from clipclique.inliers.compatibility import compatibility_graph
+from clipclique.inliers.reference_cliques import maximal_cliques
 from clipclique.outcomes import ALGORITHM_STAGES
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
-from clipclique.inliers.reference_cliques import maximal_cliques
 from clipclique.pose.fit import DegeneratePoseError, correspondence_weights, fit_rigid
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
+
 
 def single_query(method: str, landmarks: int = 50, frames: int = 50, seed: int = 0) -> dict:
     """Median and 90th-percentile ms of matching + inliers + pose (and of the full query) for `method`."""
@@ -130,7 +131,8 @@ def desk_map(rng: np.random.Generator) -> Map:
     )
 
 
-def desk_query(map: Map, rng: np.random.Generator, reach: float = 3.5, half_fov_deg: float = 40.0, noise: float = 0.08) -> Observations:
+def desk_query(map: Map, rng: np.random.Generator, reach: float = 3.5, half_fov_deg: float = 40.0,
+               noise: float = 0.08) -> Observations:
     """What a camera 1-2 m from a random object sees of the desk: every object within `reach`
     metres and `half_fov_deg` of its optical axis (about 25), centres with `noise` metres of noise."""
     centers = map.ellipsoids.centers
@@ -146,19 +148,23 @@ def desk_query(map: Map, rng: np.random.Generator, reach: float = 3.5, half_fov_
     return Observations(seen, map.class_ids[visible], None, map.instance_ids[visible], np.arange(len(visible)))
 
 
-def previous_solve(observations: Observations, map: Map, result: LocalizationResult, config: LocalizationConfig) -> tuple[float, int, str | None]:
+def previous_solve(observations: Observations, map: Map, result: LocalizationResult,
+                   config: LocalizationConfig) -> tuple[float, int, str | None]:
     """The implementation before the branch-and-bound search, for comparison: igraph enumerates
     every maximal clique, Python sums and sorts them, one pose per clique until top_n.
     Returns (seconds, maximal cliques, cap)."""
     settings = config.inliers
     start = time.perf_counter()
-    edges = compatibility_graph(observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates, settings.d_comp)
-    cliques, cap = maximal_cliques(edges, len(result.candidates), settings.min_clique_size, settings.max_cliques, settings.time_limit_s)
+    edges = compatibility_graph(observations.ellipsoids.centers, map.ellipsoids.centers, result.candidates,
+                                settings.d_comp)
+    cliques, cap = maximal_cliques(edges, len(result.candidates), settings.min_clique_size, settings.max_cliques,
+                                   settings.time_limit_s)
     totals = np.array([result.candidate_scores[c].sum() for c in cliques])
     poses = 0
     for index in np.argsort(-totals, kind="stable"):
         pairs = result.candidates[cliques[index]]
-        weights = correspondence_weights(result.candidate_scores[cliques[index]], observations.ellipsoids.axes[pairs[:, 0]],
+        weights = correspondence_weights(result.candidate_scores[cliques[index]],
+                                         observations.ellipsoids.axes[pairs[:, 0]],
                                          map.ellipsoids.axes[pairs[:, 1]], config.pose.weights)
         try:
             fit_rigid(observations.ellipsoids.centers[pairs[:, 0]], map.ellipsoids.centers[pairs[:, 1]], weights)
@@ -170,12 +176,14 @@ def previous_solve(observations: Observations, map: Map, result: LocalizationRes
     return time.perf_counter() - start, len(cliques), cap
 
 
-def desk_rooms(counts: list[int], config: LocalizationConfig, seed: int) -> Iterator[tuple[Map, Map, MapIndex, np.random.Generator]]:
+def desk_rooms(counts: list[int],
+               config: LocalizationConfig, seed: int) -> Iterator[tuple[Map, Map, MapIndex, np.random.Generator]]:
     """Per landmark count: the desk scene, its copies in rooms ROOM_SPACING apart, their index, and
     the generator of the queries (the same queries at every count)."""
     base = desk_map(np.random.default_rng(seed))
     for count in counts:
-        map = duplicate_rooms(base, max(1, count // len(base)), gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
+        map = duplicate_rooms(base, max(1, count // len(base)),
+                              gap=ROOM_SPACING - np.ptp(base.ellipsoids.centers[:, 0]))
         yield base, map, index_map(map, config), np.random.default_rng(seed + 1)
 
 
@@ -219,7 +227,8 @@ def literal_comparison(counts: list[int], frames: int = 10, seed: int = 0) -> li
             start = time.perf_counter()
             literal_reference.localize(observations, map, alpha=0.0)
             literal.append(1e3 * (time.perf_counter() - start))
-        rows.append({"landmarks": len(map), "project_ms": float(np.median(project)), "literal_ms": float(np.median(literal))})
+        rows.append({"landmarks": len(map), "project_ms": float(np.median(project)),
+                     "literal_ms": float(np.median(literal))})
     return rows
 
 
@@ -231,7 +240,8 @@ def degenerate(count: int) -> LocalizationResult:
     rng = np.random.default_rng(0)
     base = synthetic_map(rng, num_landmarks=1, num_classes=1)
     map = duplicate_rooms(base, count, gap=-np.ptp(base.ellipsoids.centers[:, 0]))  # all at one spot
-    observations, _ = synthetic_query(synthetic_map(rng, num_landmarks=12, num_classes=1), rng, num_visible=12, num_outliers=0)
+    observations, _ = synthetic_query(synthetic_map(rng, num_landmarks=12, num_classes=1), rng, num_visible=12,
+                                      num_outliers=0)
     return localize(observations, index_map(map, config), config)
 
 
@@ -245,9 +255,11 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="also write the tables here (scalability plot data)")
     parser.add_argument("--plot", type=Path, help="also draw the scalability plot here (PNG)")
     parser.add_argument("--degenerate", type=int, metavar="N",
-                        help="only localize one query against N identical overlapping landmarks (peak memory: run under /usr/bin/time -v)")
+                        help="only localize one query against N identical overlapping landmarks (peak memory: run "
+                             "under /usr/bin/time -v)")
     parser.add_argument("--literal", type=int, nargs="+", metavar="COUNT",
-                        help="only compare whole desk queries with clipclique/benchmark/literal_reference.py at these landmark counts")
+                        help="only compare whole desk queries with clipclique/benchmark/literal_reference.py at these "
+                             "landmark counts")
     args = parser.parse_args()
     if args.literal:
         print(f"whole query on the desk scene, SH only, {args.desk_frames} queries each (median ms)")

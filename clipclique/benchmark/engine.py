@@ -27,14 +27,23 @@ from clipclique.benchmark import perception
 from clipclique.datasets import is_bag, resolve_data_root, scene_name
 from clipclique.errors import ClipcliqueError, MapFileError, one_line
 from clipclique.io.outputs import map_file
+from clipclique.localization.results import read_results
+from clipclique.localization.run import (
+    FrameOutcome,
+    Run,
+    RunSettings,
+    localize_observed,
+    note_unannotated,
+    observe,
+    prepare,
+    save_run,
+    selected_frames,
+)
+from clipclique.mapping.run import run_build
 from clipclique.multiframe.window import WindowConfig, Windower, window_frames
 from clipclique.pipeline import MapIndex, index_map
 from clipclique.sim import DEMO_SCENES
 from clipclique.types import Ellipsoids, Observations
-from clipclique.localization.results import read_results
-from clipclique.localization.run import (FrameOutcome, Run, RunSettings, localize_observed, note_unannotated, observe, prepare,
-                              save_run, selected_frames)
-from clipclique.mapping.run import run_build
 
 CHUNK_FRAMES = 16  # frames per task: enough work to outweigh a task's overhead, small enough to spread
 RETRIES = 1
@@ -140,7 +149,8 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
             continue
         try:
             frame = run.sequence[i]
-            if run.detector.reads_instances and frame.instances is None:  # as clipclique-loc run: left out, not a failure
+            # as clipclique-loc run: left out, not a failure
+            if run.detector.reads_instances and frame.instances is None:
                 perception.save_unannotated(path, frame.index, frame.timestamp, frame.name)
             else:
                 perception.save(path, frame.index, frame.timestamp, frame.name, frame.pose, observe(run, frame))
@@ -150,7 +160,8 @@ def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path)
     return count
 
 
-def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path, *after: Any) -> list[FrameOutcome | str]:
+def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
+                   *after: Any) -> list[FrameOutcome | str]:
     """Localize and score the cached frames (`after`: the perception tasks they wait for); a frame without
     annotations for the detector is its name."""
     run = _prepared(settings)

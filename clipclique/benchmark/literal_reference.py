@@ -69,9 +69,10 @@ def compatibility_graph(pairs, observed: np.ndarray, mapped: np.ndarray, d_comp:
     graph.add_nodes_from(range(len(pairs)))
     for a in range(len(pairs)):
         for b in range(a + 1, len(pairs)):
-            (i, j, _), (k, l, _) = pairs[a], pairs[b]
-            if i != k and j != l:
-                gap = abs(np.linalg.norm(observed[i] - observed[k]) - np.linalg.norm(mapped[j] - mapped[l]))
+            (obs_a, lm_a, _), (obs_b, lm_b, _) = pairs[a], pairs[b]
+            if obs_a != obs_b and lm_a != lm_b:
+                gap = abs(np.linalg.norm(observed[obs_a] - observed[obs_b])
+                          - np.linalg.norm(mapped[lm_a] - mapped[lm_b]))
                 if gap < d_comp:
                     graph.add_edge(a, b)
     return graph

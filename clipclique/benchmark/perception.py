@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from clipclique.errors import ClipcliqueError
-from clipclique.types import Camera, Ellipsoids, Observations, Pose
 from clipclique.localization.run import Run, Seen
+from clipclique.types import Camera, Ellipsoids, Observations, Pose
 
 PACKAGE = Path(__file__).resolve().parents[1]  # clipclique/
 CACHE_FORMAT = 2  # what a frame file holds; 2: the detector's scores too (a folder of format 1 is not read)

@@ -26,10 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from clipclique.config import METHOD_PRESETS, MAX_CONFIG_BYTES, ConfigError, make_config
+from clipclique.config import MAX_CONFIG_BYTES, METHOD_PRESETS, ConfigError, make_config
 from clipclique.datasets import is_bag, scene_name
-from clipclique.io.outputs import map_file
 from clipclique.errors import ClipcliqueError
+from clipclique.io.outputs import map_file
 from clipclique.io.safeio import read_text
 from clipclique.localization.inputs import PLAN_KEYS, RunInputs
 from clipclique.localization.run import RunSettings

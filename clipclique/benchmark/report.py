@@ -71,9 +71,11 @@ def write(results: dict[str, Any], out: Path) -> None:
 
 
 def markdown(results: dict[str, Any], plots: list[str]) -> str:
-    sections = [header(results), summary_section(results), data_section(results), table_one(results), ablations(results),
+    sections = [header(results), summary_section(results), data_section(results), table_one(results),
+                ablations(results),
                 alpha_section(results, "alpha.png" in plots), scalability_section(results, "scalability.png" in plots),
-                gpu_section(results), verification_section(results, "reliability.png" in plots), claims_section(results)]
+                gpu_section(results), verification_section(results, "reliability.png" in plots),
+                claims_section(results)]
     if "methods.png" in plots:
         sections.insert(4, "![Top-k success of the four methods](methods.png)\n")
     return "\n".join(sections)
@@ -81,7 +83,8 @@ def markdown(results: dict[str, Any], plots: list[str]) -> str:
 
 def header(results: dict[str, Any]) -> str:
     host = results["machine"]
-    quick = " **Quick mode: a handful of frames per sequence; numbers are a smoke test, not results.**" if results["quick"] else ""
+    quick = (" **Quick mode: a handful of frames per sequence; numbers are a "
+             "smoke test, not results.**") if results["quick"] else ""
     return (
         "# CLIP-Clique benchmark: the paper's experiments on the available sequences\n\n"
         f"Generated {results['created']} by `{results['command']}` (commit {host['commit']}) on "
@@ -117,7 +120,8 @@ def summary_section(results: dict[str, Any]) -> str:
         lines.append(f"- **{name}** ({simulated_tag(description)}): {headline}.")
     verdicts = [v for name in results["sequences"] for _, _, v in sequence_claims(results, name)]
     verdicts += [v for _, _, v in global_claims(results)]
-    counts = {word: sum(v.removeprefix("**").startswith(word) for v in verdicts) for word in ("agrees", "disagrees", "ties")}
+    counts = {word: sum(v.removeprefix("**").startswith(word) for v in verdicts)
+              for word in ("agrees", "disagrees", "ties")}
     lines.append(f"- The paper's claims, checked in the last section: agree {counts['agrees']}, "
                  f"**disagree {counts['disagrees']}**, tie {counts['ties']} (of {len(verdicts)} checks).")
     return "\n".join(lines) + "\n"
@@ -128,23 +132,29 @@ def provenance(description: dict[str, Any]) -> str:
     data = (f"synthetic {description['kind']}-layout demo scene (procedural, ray-cast)" if description["synthetic"]
             else f"real {description['kind']} data")
     simulated = [f"{role} ({part['name']})" for role, part in (("detector", description["detector"]),
-                                                               ("CLIP", description["encoder"])) if part and part["simulated"]]
+                                                               ("CLIP", description["encoder"]))
+                 if part and part["simulated"]]
     clip = "no CLIP (Semantic Histograms only)" if description["encoder"] is None else ""
-    parts = "; ".join(filter(None, [data, f"simulated: {', '.join(simulated)}" if simulated else "nothing simulated", clip]))
+    parts = "; ".join(filter(None, [data, f"simulated: {', '.join(simulated)}" if simulated else "nothing simulated",
+                                    clip]))
     return f"{description['sequence']}: {description['frames']} frames, {description['landmarks']} landmarks; {parts}"
 
 
 def data_section(results: dict[str, Any]) -> str:
-    lines = ["## Data\n", "| Sequence | Data | Frames used | Frames seeing 3+ mapped objects | Landmarks | Detector | CLIP encoder | "
-             "Detector / fit / encoder [ms per frame] |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["## Data\n",
+             "| Sequence | Data | Frames used | Frames seeing 3+ mapped objects | Landmarks | Detector | CLIP encoder "
+             "| Detector / fit / encoder [ms per frame] |", "|---|---|---|---|---|---|---|---|"]
     for name, d in results["sequences"].items():
         data = f"synthetic ({d['kind']} layout)" if d["synthetic"] else f"real ({d['kind']})"
         detector = d["detector"]["name"] + (" **(simulated)**" if d["detector"]["simulated"] else "")
-        encoder = "none" if d["encoder"] is None else d["encoder"]["name"] + (" **(simulated)**" if d["encoder"]["simulated"] else "")
+        encoder = ("none" if d["encoder"] is None
+                   else d["encoder"]["name"] + (" **(simulated)**" if d["encoder"]["simulated"] else ""))
         stages = " / ".join(f"{d['query_ms'][s]:.1f}" for s in ("detector", "observations", "encoder"))
         lines.append(f"| {name} | {data} | {d['frames']} of {d['sequence_frames']} (stride {d['stride']}) | "
-                     f"{d['frames_with_3_mapped']} | {d['landmarks']} ({d['classes']} classes) | {detector} | {encoder} | {stages} |")
-    lines += ["", "A frame needs at least three observations of mapped objects to fix a correct pose, so the fourth column "
+                     f"{d['frames_with_3_mapped']} | {d['landmarks']} ({d['classes']} classes) | {detector} | "
+                     f"{encoder} | {stages} |")
+    lines += ["",
+              "A frame needs at least three observations of mapped objects to fix a correct pose, so the fourth column "
               "bounds, in practice, every method's success rate."]
     if results["skipped_sequences"]:
         lines += ["", "Left out: " + "; ".join(results["skipped_sequences"]) + "."]
@@ -163,7 +173,8 @@ def metric_row(record: dict[str, Any], first: list[str], extra: list[str] = ()) 
     """A table row of the paper's columns, or a row saying why the configuration did not run."""
     label = record["label"] + (" †" if record["stochastic"] else "")
     if "skipped" in record:
-        return "| " + " | ".join([*first, label, f"not run: {record['skipped']}", *[""] * (len(COLUMNS) + len(extra))]) + " |"
+        return ("| " + " | ".join([*first, label, f"not run: {record['skipped']}", *[""] * (len(COLUMNS) + len(extra))])
+                + " |")
     summary = record["summary"]
     cells = [fmt(summary[key], style) for _, key, style in COLUMNS]
     spread = record.get("spread", {}).get("success@1")
@@ -182,20 +193,22 @@ def paper_table(columns: tuple[str, ...], rows: dict[str, dict[str, tuple]], tit
     lines = [f"*{title} (published; {paper_tables.NOTE}):*\n", "| Sequence | Setting | " + " | ".join(columns) + " |",
              "|---|---|" + "---|" * len(columns)]
     for sequence, settings in rows.items():
-        lines += [f"| {sequence} | {label} | " + " | ".join(map(style, values)) + " |" for label, values in settings.items()]
+        lines += [f"| {sequence} | {label} | " + " | ".join(map(style, values)) + " |"
+                  for label, values in settings.items()]
     return "\n".join(lines) + "\n"
 
 
 def table_one(results: dict[str, Any]) -> str:
     parts = ["## Table I: CLIP-Clique and the baselines\n",
              "CLIP-Clique (paper) is the same pipeline with the paper's literal settings (no class term, exact labels, "
-             "the rigid 0.3 m test); the literal reference is `clipclique/benchmark/literal_reference.py`, an independent networkx "
-             "reading of the paper that shares no code with the library, run on the same cached observations. The "
-             "paper's Table I follows ours.\n"]
+             "the rigid 0.3 m test); the literal reference is `clipclique/benchmark/literal_reference.py`, an "
+             "independent networkx reading of the paper that shares no code with the library, run on the same cached "
+             "observations. The paper's Table I follows ours.\n"]
     for name, description in results["sequences"].items():
         records = rows_of(results, name, "methods")
         parts += [f"**{provenance(description)}.**\n", table_head(["Method"], ["Pose [%]"])]
-        parts += [metric_row(r, [], [fmt(r["summary"]["localized"], lambda v: f"{100 * v:.1f}")] if "summary" in r else [""])
+        parts += [metric_row(r, [], [fmt(r["summary"]["localized"], lambda v: f"{100 * v:.1f}")] if "summary" in r
+                             else [""])
                   for r in records]
         parts += ["", "Frames without a pose, by reason: " + "; ".join(
             f"{r['label']}: " + (", ".join(f"{reason} ({count})" for reason, count in r["failures"].items()) or "none")
@@ -213,7 +226,8 @@ def ablations(results: dict[str, Any]) -> str:
         parts += [f"### {title}\n", table_head(["Sequence", "Setting"], extra)]
         for name in results["sequences"]:
             for record in rows_of(results, name, group):
-                values = similarity_cells(record["summary"]) if similarity and "summary" in record else [""] * len(extra)
+                values = (similarity_cells(record["summary"]) if similarity and "summary" in record
+                          else [""] * len(extra))
                 parts.append(metric_row(record, [name], values))
         parts.append("")
         if group in paper_tables.ABLATIONS:
@@ -235,7 +249,8 @@ def alpha_section(results: dict[str, Any], plotted: bool) -> str:
              "| alpha | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
     per_sequence = {n: rows_of(results, n, "alpha") for n in names}
     for i, alpha in enumerate(r["label"] for r in per_sequence[names[0]]):
-        cells = [fmt(per_sequence[n][i].get("summary", {}).get("success@1", math.nan), lambda v: f"{100 * v:.1f}") for n in names]
+        cells = [fmt(per_sequence[n][i].get("summary", {}).get("success@1", math.nan), lambda v: f"{100 * v:.1f}")
+                 for n in names]
         lines.append(f"| {alpha} | " + " | ".join(cells) + " |")
     if plotted:
         lines += ["", "![Top-1 success against alpha](alpha.png)"]
@@ -247,12 +262,13 @@ def scalability_section(results: dict[str, Any], plotted: bool) -> str:
     lines = [
         "## Scalability\n",
         "CLIP-Clique's latency per query as the map grows from 50 to 5,000 landmarks, two ways. Copies are placed as "
-        "separate rooms side by side along x, 2 m apart (`clipclique.sim.synthetic.duplicate_rooms`, copy j's object ids "
-        "offset so none repeats); copies stacked in one place would make every mix of copies a clique. Since every "
+        "separate rooms side by side along x, 2 m apart (`clipclique.sim.synthetic.duplicate_rooms`, copy j's object "
+        "ids offset so none repeats); copies stacked in one place would make every mix of copies a clique. Since every "
         "copy looks alike, each query's candidates and cliques multiply with the copies.\n",
         f"- **Scene copies (the paper's set-up)**: the {scene['sequence']} map ({scene['room_landmarks']} landmarks; "
-        f"{provenance(results['sequences'][scene['sequence']])}) copied round(count / {scene['room_landmarks']}) times, "
-        f"queried with {scene['frames_per_count']} of its cached frames (each the fastest of {scene['fastest_of']} runs).",
+        f"{provenance(results['sequences'][scene['sequence']])}) copied round(count / {scene['room_landmarks']}) "
+        f"times, queried with {scene['frames_per_count']} of its cached frames (each the fastest of "
+        f"{scene['fastest_of']} runs).",
         f"- **Synthetic rooms**: a **simulated** room of {synthetic['room_landmarks']} random labelled ellipsoids "
         "(5 x 5 x 1.5 m, 8 classes, simulated CLIP), queried with 10 of its landmarks plus 2 false detections "
         f"(`clipclique.sim.synthetic`, `tools/bench_core.py`), {synthetic['frames_per_count']} queries per count.\n",
@@ -266,15 +282,16 @@ def scalability_section(results: dict[str, Any], plotted: bool) -> str:
                   f"{r['median_total_ms']:.2f} | {r['cap_hits']} |" for r in data["rows"]]
     lines.append("")
     for title, data in (("Scene copies", scene), ("Synthetic rooms", synthetic)):
-        lines.append(f"- {title}: fitted growth exponent (log-log slope) **{data['exponent_total']:.2f}** for the whole "
-                     f"query ({data['exponent_total_tail']:.2f} over the last three counts), "
+        lines.append(f"- {title}: fitted growth exponent (log-log slope) **{data['exponent_total']:.2f}** for the "
+                     f"whole query ({data['exponent_total_tail']:.2f} over the last three counts), "
                      f"{data['exponent_algorithm']:.2f} for matching + inliers + pose "
                      f"({data['exponent_algorithm_tail']:.2f}); {one_second(data)}.")
-    lines += ["", f"The paper reports about {PAPER_LANDMARKS_AT_1S} landmarks localized within 1 s, growing quadratically."]
+    lines += ["",
+              f"The paper reports about {PAPER_LANDMARKS_AT_1S} landmarks localized within 1 s, growing quadratically."]
     if scene["exponent_total"] < 1.6:
         lines[-1] += (" Ours grows far more slowly: the compatibility graph is built from a KD-tree's reach instead of "
-                      "testing all pairs of candidates (`clipclique/inliers/compatibility.py`), and at these sizes fixed per-query "
-                      "costs still weigh heavily.")
+                      "testing all pairs of candidates (`clipclique/inliers/compatibility.py`), and at these sizes "
+                      "fixed per-query costs still weigh heavily.")
     if plotted:
         lines += ["", "![Latency per query against landmark count, log-log](scalability.png)"]
     return "\n".join(lines) + "\n"
@@ -298,9 +315,9 @@ def gpu_section(results: dict[str, Any]) -> str:
     stages = dict(gpu["stage_ms"])
     total = sum(stages.values())
     lines += [f"On {gpu['device']}, {gpu['frames']} frames of {gpu['sequence']} after {gpu['warmup']} warm-up frames, "
-              f"with {' and '.join(gpu['models'])}. **Random weights** serve for timing only: YOLO's output is discarded and the "
-              "observation fit and the encoder work on the sequence's own (simulated) detections. The algorithm row is "
-              "CLIP-Clique's median matching + inliers + pose from Table I (CPU).\n",
+              f"with {' and '.join(gpu['models'])}. **Random weights** serve for timing only: YOLO's output is "
+              "discarded and the observation fit and the encoder work on the sequence's own (simulated) detections. "
+              "The algorithm row is CLIP-Clique's median matching + inliers + pose from Table I (CPU).\n",
               "| Stage | Median [ms per frame] |", "|---|---|"]
     lines += [f"| {stage} | {ms:.1f} |" for stage, ms in stages.items()]
     lines += [f"| **total** | **{total:.1f}** ({1000 / total:.1f} frames per second) |"]
@@ -334,8 +351,10 @@ def verification_section(results: dict[str, Any], plotted: bool) -> str:
                 parts.append(f"| {name} | {plain['label']} | not run | | |")
                 continue
             parts.append(f"| {name} | {plain['label']} | {fmt(plain['summary']['success@1'], percent)} | "
-                         f"**{fmt(record['summary']['success@1'], percent)}** | {fmt(record['summary']['success@5'], percent)} |")
-    parts += ["", "Re-ranking reorders the same top-N poses, so Top-5 does not change; stochastic methods give the best "
+                         f"**{fmt(record['summary']['success@1'], percent)}** | "
+                         f"{fmt(record['summary']['success@5'], percent)} |")
+    parts += ["",
+              "Re-ranking reorders the same top-N poses, so Top-5 does not change; stochastic methods give the best "
               "of three seeds in each column.", "", calibration_text(results.get("calibration"), plotted)]
     return "\n".join(parts) + "\n"
 
@@ -348,14 +367,16 @@ def first_by_method(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
 def calibration_text(measured: dict[str, Any] | None, plotted: bool) -> str:
     lines = ["### Confidence: calibration on held-out scenes\n"]
     if not measured or "skipped" in measured:
-        return "\n".join(lines + [f"Not measured: {(measured or {}).get('skipped', 'no calibration in these results')}."])
+        return "\n".join(lines
+                         + [f"Not measured: {(measured or {}).get('skipped', 'no calibration in these results')}."])
     accepted = measured["acceptance"]
     share = accepted["share_of_reachable"]
     lines += [
         f"Every hypothesis of the four methods on {', '.join(measured['sequences'])} ({measured['hypotheses']} in all) "
-        "scored by a confidence model fitted on the other scenes only (leave one scene out; `clipclique/benchmark/calibration.py`). "
-        "The shipped model (`clipclique/data/confidence.json`, `tools/fit_confidence.py`) is fitted on all of them; "
-        "these figures measure how that recipe transfers to a scene it has not seen.\n",
+        "scored by a confidence model fitted on the other scenes only (leave one scene out; "
+        "`clipclique/benchmark/calibration.py`). The shipped model (`clipclique/data/confidence.json`, "
+        "`tools/fit_confidence.py`) is fitted on all of them; these figures measure how that recipe transfers to a "
+        "scene it has not seen.\n",
         f"- Expected calibration error (10 bins): **{measured['ece']:.3f}** over hypotheses, "
         f"{measured['ece_answers']:.3f} over each frame's answer (its most confident pose); goal < 0.05: "
         f"**{'met' if measured['ece'] < 0.05 else 'not met'}**.",
@@ -363,9 +384,11 @@ def calibration_text(measured: dict[str, Any] | None, plotted: bool) -> str:
         f"{fmt(accepted['threshold'], lambda v: f'{v:.2f}')}): {accepted['accepted_correct']} of the "
         f"{accepted['frames_with_correct']} frames that have a correct hypothesis are accepted correctly, "
         f"**{fmt(share, percent_of)}**; goal 80%: **{'met' if share >= 0.8 else 'not met'}**.",
-        f"- With `--min-confidence 0.95` (and `inliers.rerank = confidence`): {accepted['at_min_confidence']['accepted']} "
-        f"frames answered, {fmt(accepted['at_min_confidence']['precision'], percent_of)} of them right, "
-        f"{fmt(accepted['at_min_confidence']['share_of_reachable'], percent_of)} of the frames with a correct hypothesis.\n",
+        "- With `--min-confidence 0.95` (and `inliers.rerank = confidence`): "
+        f"{accepted['at_min_confidence']['accepted']} frames answered, "
+        f"{fmt(accepted['at_min_confidence']['precision'], percent_of)} of them right, "
+        f"{fmt(accepted['at_min_confidence']['share_of_reachable'], percent_of)} of the frames with "
+        "a correct hypothesis.\n",
         "| Held-out scene | ECE | Frames with a correct hypothesis | Accepted at 95% precision | Threshold |",
         "|---|---|---|---|---|"]
     for scene, data in measured["by_scene"].items():
@@ -433,7 +456,8 @@ def sequence_claims(results: dict[str, Any], name: str) -> list[tuple[str, str, 
         both, none = te["w_sim * w_com"], te["none"]
         out.append(("Pose weights lower the error (median TE, w_sim * w_com vs none)", f"{both:.3f} m vs {none:.3f} m",
                     verdict(-both, -none, resolution=5e-4)))
-    sims = {r["overrides"]["similarity.descriptor"]: r["summary"] for r in rows_of(results, name, "descriptors") if "summary" in r}
+    sims = {r["overrides"]["similarity.descriptor"]: r["summary"]
+            for r in rows_of(results, name, "descriptors") if "summary" in r}
     if {"clip", "sh"} <= sims.keys():
         clip, sh = sims["clip"], sims["sh"]
         agrees = all(abs(sims[d]["similarity_true_p90"] - PAPER_SIMILARITY[d]) < 0.15 for d in PAPER_SIMILARITY)
@@ -453,7 +477,8 @@ def global_claims(results: dict[str, Any]) -> list[tuple[str, str, str]]:
     ours = f"{one_second(scene)}; exponent {scene['exponent_total']:.2f}"
     if near and quadratic:
         return [(CLAIM_SCALE, ours, "agrees")]
-    return [(CLAIM_SCALE, ours, "**disagrees**" + (" (ours is faster and grows more slowly)" if faster and not quadratic else ""))]
+    return [(CLAIM_SCALE, ours, "**disagrees**"
+             + (" (ours is faster and grows more slowly)" if faster and not quadratic else ""))]
 
 
 def verdict(ours: float, rival: float, resolution: float = 0.0) -> str:
@@ -480,7 +505,8 @@ def plot_methods(results: dict[str, Any], path: Path) -> bool:
         rows = [r for r in rows_of(results, name, "methods") if "summary" in r]
         x = np.arange(len(rows))
         for offset, k in zip((-0.27, 0.0, 0.27), (1, 3, 5)):
-            axis.bar(x + offset, [100 * np.nan_to_num(r["summary"][f"success@{k}"]) for r in rows], 0.26, label=f"Top-{k}")
+            axis.bar(x + offset, [100 * np.nan_to_num(r["summary"][f"success@{k}"]) for r in rows], 0.26,
+                     label=f"Top-{k}")
         axis.set_xticks(x, [r["label"] for r in rows])
         axis.set_title(f"{name} ({simulated_tag(results['sequences'][name])})", fontsize=9)
         axis.set_ylim(0, 100)
@@ -512,7 +538,8 @@ def plot_alpha(results: dict[str, Any], path: Path) -> bool:
 def plot_scalability(results: dict[str, Any], path: Path) -> bool:
     """Whole-query latency of both set-ups on log axes, with the paper's quadratic for reference."""
     figure, axis = plt.subplots(figsize=(6, 4))
-    for key, label in (("scene", f"{results['scalability']['scene']['sequence']} copies"), ("synthetic", "synthetic rooms (simulated)")):
+    for key, label in (("scene", f"{results['scalability']['scene']['sequence']} copies"),
+                       ("synthetic", "synthetic rooms (simulated)")):
         data = results["scalability"][key]
         n = [r["landmarks"] for r in data["rows"]]
         axis.loglog(n, [r["median_total_ms"] for r in data["rows"]], marker="o",

@@ -2,7 +2,8 @@
 
     .venv/bin/python tools/scene_stats.py demo_apartment
     .venv/bin/python tools/scene_stats.py demo_desk [--detector simulated-yolo] [--frames 40]
-    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md   (what `make docs` runs)
+    .venv/bin/python tools/scene_stats.py demo_apartment demo_desk demo_clutter --readme README.md
+        (what `make docs` runs)
     .venv/bin/python tools/scene_stats.py --results outputs/loc/demo_sparse/clipclique/results.json
         (where a run loses its frames, beside the real desk's: clipclique.benchmark.failure_profile)
 
@@ -26,18 +27,18 @@ from pathlib import Path
 import numpy as np
 
 from clipclique.backends import make_detector
-from clipclique.config import GraphConfig
-from clipclique.datasets import Sequence
-from clipclique.perception.detectors import InstanceDetector
-from clipclique.descriptors.graph import semantic_graph
-from clipclique.perception.observations import ObservationParams, extract_observations
-from clipclique.resolve import default_detector, open_scene
-from clipclique.types import Map
 from clipclique.benchmark import failure_profile
 from clipclique.benchmark.failure_profile import hit_objects
 from clipclique.benchmark.report import update_readme
+from clipclique.config import GraphConfig
+from clipclique.datasets import Sequence
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.exits import user_errors
 from clipclique.mapping.build import build_map
+from clipclique.perception.detectors import InstanceDetector
+from clipclique.perception.observations import ObservationParams, extract_observations
+from clipclique.resolve import default_detector, open_scene
+from clipclique.types import Map
 
 NEAR_M = 3.5  # "objects in view within 3.5 m" (REAL_SCENES.md, desk)
 FAR_OFFSET_M = 0.3  # d_comp: offsets beyond it fail the rigid distance test
@@ -172,14 +173,16 @@ def rows(stats: SceneStats, frames: int) -> list[tuple[str, str, str]]:
          f"{per_frame.min()} to {per_frame.max()}, median {np.median(per_frame):.0f}"),
         ("observations_near", f"... of them within {NEAR_M} m", f"median {np.median(stats.observations_near):.0f}"),
         ("isolated_observations", "observations isolated in the query graph", f"{stats.isolated_observations:.0%}"),
-        ("offset_percentiles", "centre offset 50 / 75 / 90 / 95th pct (m)", " / ".join(f"{v:.2f}" for v in percentiles)),
+        ("offset_percentiles", "centre offset 50 / 75 / 90 / 95th pct (m)",
+         " / ".join(f"{v:.2f}" for v in percentiles)),
         ("offsets_far", f"centre offsets > {FAR_OFFSET_M} m", f"{np.mean(stats.offsets > FAR_OFFSET_M):.0%}"),
         ("detections_per_frame", f"detections per frame ({stats.detector})", f"{stats.detections / frames:.1f}"),
         ("miss_rate", "mapped objects in view missed", f"{stats.miss_rate:.0%}"),
         ("false_positive_share", "detections hitting no mapped object", f"{stats.false_positive_share:.0%}"),
         ("duplicates_per_frame", "second detections of a hit object", f"{stats.duplicates / frames:.1f} per frame"),
         ("frames_three_hit", "frames hitting 3+ distinct mapped objects", f"{stats.frames_three_hit / frames:.0%}"),
-        ("confusion_share", "hits with another class", f"{stats.confusion_share:.0%}" + (f" ({pairs})" if pairs else "")),
+        ("confusion_share", "hits with another class",
+         f"{stats.confusion_share:.0%}" + (f" ({pairs})" if pairs else "")),
     ]
 
 
@@ -200,7 +203,8 @@ def markdown_table(scene: str, detector: str | None = None, frames: int | None =
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("scenes", nargs="*", help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
+    parser.add_argument("scenes", nargs="*",
+                        help="demo_apartment, demo_desk, demo, demo_tum, or any sequence name / folder")
     parser.add_argument("--detector", help="detector whose faults are measured [default: the scene's]")
     parser.add_argument("--frames", type=int, help="frames spread over the sequence [default: all]")
     parser.add_argument("--data-root", type=Path)

@@ -4,8 +4,9 @@
     .venv/bin/python tools/bench.py --sequences demo --quick --out /tmp/bench
 
 Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
-are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four methods, the ablations, the alpha sweep)
-localizes the cached observations. The algorithm costs milliseconds per frame, the detector and
+are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four
+methods, the ablations, the alpha sweep) localizes the cached observations. The algorithm costs milliseconds per frame,
+the detector and
 the encoder far more, so this is what lets the suite finish in minutes.
 
 Stochastic configurations (RANSAC, PROSAC, X-View's random walks) run with three seeds; tables
@@ -31,8 +32,8 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import partial
 from datetime import datetime, timezone
+from functools import partial
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -41,20 +42,20 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from clipclique.benchmark import calibration, literal_reference, perception, report
-from clipclique.benchmark.engine import ensure_map, perceive_chunk
 from clipclique.benchmark.core import growth_exponent, scalability
+from clipclique.benchmark.engine import ensure_map, perceive_chunk
 from clipclique.benchmark.report import PAPER_LANDMARKS_AT_1S
 from clipclique.config import LITERAL, METHOD_TITLES, LocalizationConfig, make_config
 from clipclique.datasets import resolve_data_root
 from clipclique.exits import user_errors
+from clipclique.io.outputs import BENCH_DIR, CACHE_DIR, map_file
+from clipclique.localization.run import Run, RunSettings, prepare, selected_frames
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import ALGORITHM_STAGES, QUERY_STAGES, Failure, FailureKind, Stage
 from clipclique.pipeline import LocalizationResult, MapIndex, index_key, index_map, localize
 from clipclique.sim import DEMO_SCENES
 from clipclique.sim.synthetic import duplicate_rooms
 from clipclique.types import Map, Observations, Pose
-from clipclique.io.outputs import BENCH_DIR, CACHE_DIR, map_file
-from clipclique.localization.run import Run, RunSettings, prepare, selected_frames
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "benchmark"
 README = DOCS.parents[1] / "README.md"
@@ -78,7 +79,8 @@ class Variant:
     label: str
     method: str = "clipclique"
     overrides: tuple[tuple[str, Any], ...] = ()
-    reference: bool = False  # clipclique/benchmark/literal_reference.py instead of the pipeline (config: its alpha only)
+    # clipclique/benchmark/literal_reference.py instead of the pipeline (config: its alpha only)
+    reference: bool = False
 
     def config(self, seed: int = 0) -> LocalizationConfig:
         return make_config(self.method, overrides={**dict(self.overrides), "inliers.seed": seed,
@@ -108,15 +110,18 @@ def variants() -> list[Variant]:
              ("pose.refine_radius", 0.0, "without pose refinement"),
              ("inliers.duplicate_iou", 0.0, "without the duplicate rule"))
     return [
-        *(Variant("methods", METHOD_TITLES[m], m) for m in ("xview", "sh", "cliploc", "clipclique-paper", "clipclique")),
+        *(Variant("methods", METHOD_TITLES[m], m)
+          for m in ("xview", "sh", "cliploc", "clipclique-paper", "clipclique")),
         Variant("methods", LITERAL_REFERENCE, "clipclique-paper", reference=True),
         Variant("fixes", "CLIP-Clique (all fixes)"),
         *(Variant("fixes", label, overrides=((key, value),)) for key, value, label in fixes),
         Variant("fixes", "CLIP-Clique (paper: none)", overrides=tuple(LITERAL.items())),
         *one("descriptors", "similarity.descriptor", (("sh", "SH"), ("clip", "CLIP"), ("fused", "SH + CLIP"))),
         *one("inliers", "inliers.method", (("ransac", "RANSAC"), ("prosac", "PROSAC"), ("cliques", "Maximal cliques"))),
-        *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"), ("both", "w_sim * w_com"))),
-        *one("matching", "matching.strategy", (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"), ("adaptive", "Adaptive"))),
+        *one("weights", "pose.weights", (("none", "none"), ("sim", "w_sim"), ("com", "w_com"),
+                                         ("both", "w_sim * w_com"))),
+        *one("matching", "matching.strategy",
+             (("one_to_one", "1-to-1"), ("knn", "kNN (k = 3)"), ("adaptive", "Adaptive"))),
         *one("alpha", "similarity.alpha", tuple((a, f"{a:.1f}") for a in ALPHAS)),
         *(Variant("verification", f"{METHOD_TITLES[m]}, centre distances", m, (("inliers.verification", "centers"),))
           for m in BASELINES_SAMPLING),
@@ -161,7 +166,8 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     """The demos, plus every real ScanNet scene / TUM sequence under the data root whose map exists;
     and the real ones left out, with why."""
     names, skipped = list(DEMO_SCENES), []
-    for folder in sorted([*(data_root / "scannet" / "scans").glob("scene*_*"), *(data_root / "tum").glob("rgbd_dataset_*")]):
+    for folder in sorted([*(data_root / "scannet" / "scans").glob("scene*_*"),
+                          *(data_root / "tum").glob("rgbd_dataset_*")]):
         if map_file(folder.name).is_file():
             names.append(folder.name)
         else:
@@ -169,7 +175,8 @@ def available_sequences(data_root: Path) -> tuple[list[str], list[str]]:
     return names, skipped
 
 
-def cache_sequence(name: str, data_root: Path | None, frames: int | None, tick: Callable[[int], None]) -> CachedSequence:
+def cache_sequence(name: str, data_root: Path | None, frames: int | None,
+                   tick: Callable[[int], None]) -> CachedSequence:
     """The selected frames detected, fitted and embedded once, through clipclique-bench's perception
     cache (outputs/cache: a rerun reads them back); `frames` spreads that many over the sequence."""
     run = prepare(RunSettings(name, data_root=data_root, record=False))
@@ -216,7 +223,8 @@ def evaluate(sequence: CachedSequence, config: LocalizationConfig, reference: bo
         evaluations, true, other, notes, failures = [], [], [], {}, Counter()
         for frame in sequence.frames:
             result = localizer(frame.observations)
-            evaluations.append(evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config, frame.index))
+            evaluations.append(evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config,
+                                              frame.index))
             same = mapped_pairs(frame.observations, sequence.map)
             true.append(result.similarity[same])
             other.append(result.similarity[~same])
@@ -264,7 +272,8 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
         runs.append(evaluate(sequence, variant.config(seed), variant.reference))
         tick()
     summaries = [run.summary for run in runs]
-    best = max(range(len(runs)), key=lambda i: tuple(np.nan_to_num(summaries[i][f"success@{k}"], nan=-1.0) for k in (1, 3, 5)))
+    best = max(range(len(runs)), key=lambda i: tuple(np.nan_to_num(summaries[i][f"success@{k}"], nan=-1.0)
+                                                     for k in (1, 3, 5)))
     record |= {"seeds": list(seeds), "best_seed": seeds[best], "summary": summaries[best], "notes": runs[best].notes,
                "failures": runs[best].failures}
     if len(runs) > 1:
@@ -275,7 +284,8 @@ def run_variant(sequence: CachedSequence, variant: Variant, tick: Tick) -> dict[
 
 
 def held_out_calibration(sequences: list[CachedSequence]) -> dict[str, Any]:
-    """The confidence model measured leaving one scene out at a time (clipclique/benchmark/calibration.py), or why not."""
+    """The confidence model measured leaving one scene out at a time (clipclique/benchmark/calibration.py), or why
+    not."""
     if len(sequences) < 2:
         return {"skipped": "a held-out measurement needs two sequences or more"}
     rows = calibration.collect(sequences)
@@ -291,7 +301,8 @@ def run_scalability(counts: tuple[int, ...], frames: int, scene: CachedSequence,
         tick()
     return {
         "scene": curve(scene_scalability(scene, counts, frames, tick)) | {
-            "sequence": scene.name, "room_landmarks": len(scene.map), "frames_per_count": min(frames, len(scene.frames)),
+            "sequence": scene.name, "room_landmarks": len(scene.map),
+            "frames_per_count": min(frames, len(scene.frames)),
             "fastest_of": SCENE_REPEAT},
         "synthetic": curve(rows) | {"room_landmarks": 50, "frames_per_count": frames},
     }
@@ -356,7 +367,8 @@ def gpu_stages(run: Run, frames: int, device: str = "cuda", warmup: int = 3, cli
 
     torch.manual_seed(0)  # the random weights, so what YOLO detects (and NMS costs) repeats
     model, _, preprocess = open_clip.create_model_and_transforms(clip_model, pretrained=None, device=device)
-    encoder = ClipEncoder(model, preprocess, open_clip.get_tokenizer(clip_model), f"open_clip:{clip_model}/random", device)
+    encoder = ClipEncoder(model, preprocess, open_clip.get_tokenizer(clip_model), f"open_clip:{clip_model}/random",
+                          device)
     yolo = YoloDetector(YOLO(yolo_config), run.map.class_names, device=device)
     synchronize = torch.cuda.synchronize if device.startswith("cuda") else (lambda: None)
     times: dict[str, list[float]] = {"detector": [], "observations": [], "encoder": []}
@@ -423,8 +435,10 @@ def spread(values: list[float]) -> list[float]:
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--sequences", nargs="+", help="default: the four demo scenes and every real sequence with a map")
-    parser.add_argument("--quick", action="store_true", help=f"{QUICK_FRAMES} frames per sequence, small scalability run, no GPU")
+    parser.add_argument("--sequences", nargs="+",
+                        help="default: the four demo scenes and every real sequence with a map")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"{QUICK_FRAMES} frames per sequence, small scalability run, no GPU")
     parser.add_argument("--frames", type=int, help="frames per sequence, spread evenly [default: all]")
     parser.add_argument("--data-root", type=Path, help="datasets folder [default: $CLIPCLIQUE_DATA or ./data]")
     parser.add_argument("--out", type=Path, help="report folder [default: outputs/bench/<UTC timestamp>]")
@@ -482,10 +496,12 @@ def run_suite(args: argparse.Namespace) -> None:
         results["gpu"] = {"ran": False, "reason": reason}
         if reason is None:
             task = progress.add_task("GPU: ViT-L-14 + YOLOv8x-seg", total=None)
-            clipclique = next(r for r in results["experiments"][first.name] if r["label"] == METHOD_TITLES["clipclique"])
+            clipclique = next(r for r in results["experiments"][first.name]
+                              if r["label"] == METHOD_TITLES["clipclique"])
             try:
                 results["gpu"] = run_gpu(first, clipclique)
-            except Exception as error:  # noqa: BLE001  a failed GPU section (out of memory, driver) must not lose the report
+            # a failed GPU section (out of memory, driver) must not lose the report
+            except Exception as error:  # noqa: BLE001
                 results["gpu"]["reason"] = f"it failed: {type(error).__name__}: {error}"
             progress.update(task, total=1, completed=1)
     results["wall_time_s"] = time.perf_counter() - started

@@ -27,8 +27,8 @@ from clipclique.exits import user_errors
 from clipclique.geometry import pose_errors
 from clipclique.metrics import SUCCESS_THRESHOLDS_M, success_within
 from clipclique.multiframe.odometry import drifting
-from clipclique.pipeline import index_map, localize
 from clipclique.multiframe.window import WindowConfig, Windower
+from clipclique.pipeline import index_map, localize
 
 TABLE_THRESHOLDS_M = (0.5, 1.0)  # the table's cells, per odometry: a subset of SUCCESS_THRESHOLDS_M
 CONFIGS = {"CLIP-Clique": [], "SH only (alpha=0)": ["similarity.alpha=0"]}
@@ -50,7 +50,8 @@ def window_success(sequence: CachedSequence, config: LocalizationConfig, window:
                    drift: float, seed: int) -> dict[str, float]:
     """Top-1 success within each threshold over the frames with ground truth, and the mean observations per query."""
     frames = sequence.frames
-    windower = Windower(window, drifting([frame.gt_pose for frame in frames], drift, seed).poses, sequence.map.class_names)
+    windower = Windower(window, drifting([frame.gt_pose for frame in frames], drift, seed).poses,
+                        sequence.map.class_names)
     index = index_map(sequence.map, config)
     errors, sizes, dropped = [], [], 0
     for newest, frame in enumerate(frames):

@@ -58,7 +58,8 @@ def resolve_data_root(cli_value: Path | None = None) -> Path:
 
 def open_sequence(name: str, data_root: Path | None = None, bag: BagOptions | None = None) -> Sequence:
     """A scene or sequence by short name ("scene0002_00", "fr2", "fr3"), folder path or ROS bag (read with the
-    `bag` options); never generates one (the generated scenes' names are resolved by `clipclique.resolve.open_scene`)."""
+    `bag` options); never generates one (the generated scenes' names are resolved by
+    `clipclique.resolve.open_scene`)."""
     if is_bag(Path(name)):
         return BagSequence(Path(os.path.abspath(name)), bag)
     root = resolve_data_root(data_root)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.io import safeio
 from clipclique.errors import DatasetError
+from clipclique.io import safeio
 from clipclique.types import Frame, Pose
 
 # Room structure, not landmarks: left out of maps and ground-truth detections.
@@ -48,7 +48,8 @@ class Sequence(ABC):
     kind: str  # "scannet" | "tum" | "rosbag"
     root: Path
     synthetic: bool  # True for the generated demo scenes (their ground truth is exact)
-    default_detector: str  # the `--detector` its frames get unless asked (a generated scene's own comes from clipclique.sim)
+    # the `--detector` its frames get unless asked (a generated scene's own comes from clipclique.sim)
+    default_detector: str
 
     @staticmethod
     @abstractmethod
@@ -137,7 +138,8 @@ def read_instance_ids(path: Path) -> np.ndarray:
     return safeio.read_single_channel(path, "instance", error=DatasetError).astype(np.int32)
 
 
-def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path, source: str = "the depth intrinsics") -> np.ndarray:
+def intrinsics_for(intrinsics: np.ndarray, shape: tuple[int, int], path: Path,
+                   source: str = "the depth intrinsics") -> np.ndarray:
     """The depth intrinsics (read from `source`) rescaled to the depth image `path` of `shape` (H, W).
 
     The principal point lies near the image centre, so a matrix whose (cx, cy) sits at twice

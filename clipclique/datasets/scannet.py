@@ -30,18 +30,18 @@ from clipclique.datasets.base import (
     Instance,
     Sequence,
     description_template,
+    intrinsics_for,
     is_demo,
     is_structure,
-    intrinsics_for,
     read_depth,
     read_image,
     read_instance_ids,
     read_json,
     resize_rgb,
 )
+from clipclique.errors import DatasetError
 from clipclique.io import safeio
 from clipclique.perception.raycast import MeshRaycaster
-from clipclique.errors import DatasetError
 from clipclique.types import Frame, Pose
 
 LABELS_TSV = "scannetv2-labels.combined.tsv"
@@ -76,7 +76,8 @@ class ScanNetScene(Sequence):
     def _read_poses(self) -> tuple[list[int], list[Pose]]:
         """Frames with a finite pose, in frame-number order (none when frames are not exported)."""
         pose_dir = self.root / "pose"
-        files = sorted(pose_dir.glob("*.txt"), key=lambda p: int(p.stem) if p.stem.isdigit() else -1) if pose_dir.is_dir() else []
+        files = (sorted(pose_dir.glob("*.txt"), key=lambda p: int(p.stem) if p.stem.isdigit() else -1)
+                 if pose_dir.is_dir() else [])
         numbers, poses = [], []
         for path in files:
             if not path.stem.isdigit():
@@ -113,7 +114,8 @@ class ScanNetScene(Sequence):
         n = self.frame_numbers[i]
         depth_path = self.root / "depth" / f"{n}.png"
         depth = read_depth(depth_path, DEPTH_FACTOR)
-        intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path, str(self.root / "intrinsic" / "intrinsic_depth.txt"))
+        intrinsics = intrinsics_for(self.intrinsics, depth.shape, depth_path,
+                                    str(self.root / "intrinsic" / "intrinsic_depth.txt"))
         rgb = resize_rgb(read_image(self.root / "color" / f"{n}.jpg", "RGB"), depth.shape)
         instance_path = self.root / "instance-filt" / f"{n}.png"
         if instance_path.exists():
@@ -127,7 +129,8 @@ class ScanNetScene(Sequence):
             instances = self.project_instances(self.poses[i], depth, intrinsics)
         return Frame(i, float(n), rgb, depth, intrinsics, self.poses[i], instances, name=str(n))
 
-    def project_instances(self, pose: Pose, depth: np.ndarray, intrinsics: np.ndarray, tolerance: float = 0.1) -> np.ndarray:
+    def project_instances(self, pose: Pose, depth: np.ndarray, intrinsics: np.ndarray,
+                          tolerance: float = 0.1) -> np.ndarray:
         """Object ids of the labelled mesh rendered into a frame, kept where the measured depth agrees.
 
         Stands in for the 2D instance images when `<scene>_2d-instance-filt.zip` is not unzipped.
@@ -179,7 +182,8 @@ class ScanNetScene(Sequence):
         segments = integer_array(read_json(self.segs_path).get("segIndices"), f"{self.segs_path}: segIndices")
         if len(segments) != len(self._vertices):
             raise DatasetError(
-                f"{self.segs_path}: {len(segments)} segIndices for {len(self._vertices)} vertices of {self.mesh_path.name}"
+                f"{self.segs_path}: {len(segments)} segIndices for {len(self._vertices)} vertices of "
+                f"{self.mesh_path.name}"
             )
         groups = read_json(self.aggregation_path).get("segGroups")
         if not isinstance(groups, list) or not all(isinstance(g, dict) for g in groups):
@@ -212,7 +216,8 @@ class ScanNetScene(Sequence):
     def _projector(self) -> tuple[MeshRaycaster, np.ndarray]:
         """Ray caster of the labelled mesh and the instance id of each face (by its first vertex)."""
         if "face" not in self._ply:
-            raise DatasetError(f"{self.mesh_path}: no faces, cannot project objects into frames (unzip the 2D instances)")
+            raise DatasetError(f"{self.mesh_path}: no faces, cannot project objects into frames "
+                               "(unzip the 2D instances)")
         corners = self._ply["face"].data["vertex_indices"]  # (F, 3) when read as triangles, else one array per face
         faces = (np.vstack(corners) if corners.dtype == object else corners).astype(np.int32)
         ids, _, owner = self._grouping
@@ -225,13 +230,15 @@ class ScanNetScene(Sequence):
         if not path.exists():
             return {}
         try:
-            return {int(key) + 1: safeio.check_text(text, f"{path}: description") for key, text in read_json(path).items()}
+            return {int(key) + 1: safeio.check_text(text, f"{path}: description")
+                    for key, text in read_json(path).items()}
         except ValueError:
             raise DatasetError(f'{path}: keys must be ScanNet objectIds, e.g. {{"0": "a red office chair"}}') from None
 
     def instances(self) -> list[Instance]:
         return [
-            Instance(object_id, class_name, self._descriptions.get(object_id, description_template(class_name)), self._xyz[vertices])
+            Instance(object_id, class_name, self._descriptions.get(object_id, description_template(class_name)),
+                     self._xyz[vertices])
             for object_id, _, class_name, vertices in self._objects
         ]
 
@@ -245,7 +252,8 @@ class ScanNetScene(Sequence):
     def scene_cloud(self) -> tuple[np.ndarray, np.ndarray]:
         vertex = self._vertices
         names = vertex.dtype.names
-        rgb = np.column_stack([vertex[c] for c in ("red", "green", "blue")]) if "red" in names else np.full((len(vertex), 3), 180)
+        rgb = (np.column_stack([vertex[c] for c in ("red", "green", "blue")]) if "red" in names
+               else np.full((len(vertex), 3), 180))
         return self._xyz, rgb.astype(np.uint8)
 
 
@@ -292,7 +300,8 @@ def check_rigid(matrix: np.ndarray, path: Path, tolerance: float = 1e-3) -> None
         or not np.allclose(rotation.T @ rotation, np.eye(3), atol=tolerance)
         or np.linalg.det(rotation) < 0
     ):
-        raise DatasetError(f"{path}: not a rigid camera pose (the rotation is not orthonormal with det +1, or the last row is not 0 0 0 1)")
+        raise DatasetError(f"{path}: not a rigid camera pose (the rotation is not orthonormal with det +1, or the last "
+                           "row is not 0 0 0 1)")
 
 
 def integer_array(values: object, where: str) -> np.ndarray:

@@ -40,9 +40,9 @@ from clipclique.datasets.base import (
     read_instance_ids,
     resize_rgb,
 )
-from clipclique.io import safeio
 from clipclique.errors import ClipcliqueError, DatasetError
 from clipclique.geometry import backproject
+from clipclique.io import safeio
 from clipclique.types import Frame, Pose
 
 DEPTH_FACTOR = 5000.0
@@ -95,7 +95,8 @@ def read_trajectory(path: Path) -> tuple[np.ndarray, list[Pose]]:
                 raise ValueError
             row = [float(p) for p in parts]
         except ValueError:
-            raise DatasetError(f"{path}, line {number}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got {line!r}") from None
+            raise DatasetError(f"{path}, line {number}: expected 8 numbers 'timestamp tx ty tz qx "
+                               f"qy qz qw', got {line!r}") from None
         if not np.isfinite(row).all() or np.linalg.norm(row[4:]) < 1e-6:
             raise DatasetError(f"{path}, line {number}: not a finite pose with a unit quaternion: {line!r}")
         rows.append(row)
@@ -120,7 +121,8 @@ def associate(times: np.ndarray, candidates: np.ndarray, max_diff: float = MAX_T
         return np.full(len(times), -1)
     order = np.argsort(candidates)
     sorted_c = candidates[order]
-    right = np.clip(np.searchsorted(sorted_c, times), 1, len(sorted_c) - 1) if len(sorted_c) > 1 else np.zeros(len(times), int)
+    right = (np.clip(np.searchsorted(sorted_c, times), 1, len(sorted_c) - 1) if len(sorted_c) > 1
+             else np.zeros(len(times), int))
     left = np.maximum(right - 1, 0)
     nearest = np.where(np.abs(sorted_c[left] - times) <= np.abs(sorted_c[right] - times), left, right)
     return np.where(np.abs(sorted_c[nearest] - times) <= max_diff, order[nearest], -1)
@@ -176,7 +178,8 @@ class TumSequence(Sequence):
         to_pose = associate(rgb_times, gt_times)
         keep = np.flatnonzero(to_depth >= 0)
         if not len(keep):
-            raise DatasetError(f"{self.root}: no colour image of rgb.txt has a depth image of depth.txt within {MAX_TIME_DIFF} s")
+            raise DatasetError(f"{self.root}: no colour image of rgb.txt has a depth image of depth.txt within "
+                               f"{MAX_TIME_DIFF} s")
         self.timestamps = rgb_times[keep]
         self.rgb_files = [rgb_files[k] for k in keep]
         self.depth_files = [depth_files[to_depth[k]] for k in keep]
@@ -257,7 +260,8 @@ class TumSequence(Sequence):
         depth = self._depth(i)
         rgb = resize_rgb(read_image(self.root / self.rgb_files[i], "RGB"), depth.shape)
         intrinsics = intrinsics_for(self.intrinsics, depth.shape, self.root / self.depth_files[i])
-        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i], self._annotation(i, depth.shape), name=self.frame_name(i))
+        return Frame(i, float(self.timestamps[i]), rgb, depth, intrinsics, self.poses[i],
+                     self._annotation(i, depth.shape), name=self.frame_name(i))
 
     @cached_property
     def _objects(self) -> dict[int, tuple[str, str]]:
@@ -284,7 +288,8 @@ class TumSequence(Sequence):
             for object_id, chunk in zip(unique, np.split(points[order], starts[1:])):
                 clouds[int(object_id)].append(chunk)
         return [
-            Instance(object_id, name, description, np.concatenate(clouds[object_id]) if clouds[object_id] else np.zeros((0, 3)))
+            Instance(object_id, name, description,
+                     np.concatenate(clouds[object_id]) if clouds[object_id] else np.zeros((0, 3)))
             for object_id, (name, description) in self._objects.items()
         ]
 

@@ -1,1 +1,2 @@
-"""What makes an observation and a landmark alike: graph descriptors, similarity, look-alike classes, adaptive matching."""
+"""What makes an observation and a landmark alike: graph descriptors, similarity, look-alike classes, adaptive
+matching."""

@@ -132,7 +132,8 @@ def adaptive_matches(similarity: np.ndarray, m: int) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     if m <= SELECTED_UP_TO:
         return _adaptive_few(similarity, m)
-    return _before_largest_gap(similarity, np.ascontiguousarray(_best_first(similarity, m)))  # one compiled layout: one cache load
+    # one compiled layout: one cache load
+    return _before_largest_gap(similarity, np.ascontiguousarray(_best_first(similarity, m)))
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ Bron-Kerbosch with Tomita pivoting, vertices taken one at a time, the most promi
 most a clique through it can weigh; each vertex `v` explores the cliques whose first vertex in
 that order is `v`: P = its later neighbours, X = its earlier ones), run on bitsets of `v`'s
 neighbourhood. A branch is cut when the weight of its clique plus the most its candidates can
-still add cannot reach the current N-th best. Vertices carry a group (for the compatibility graph: the observation), no edge joins
-two vertices of one group, so a clique holds at most one vertex per group and "the most it can
+still add cannot reach the current N-th best. Vertices carry a group (for the compatibility graph: the observation), no
+edge joins two vertices of one group, so a clique holds at most one vertex per group and "the most it can
 still add" is the sum over groups of each group's heaviest positive candidate: much tighter than
 the sum of all candidates when an observation has several.
 

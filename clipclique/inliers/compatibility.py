@@ -21,7 +21,6 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-
 KD_LEAF_SIZE = 16  # cKDTree's default leafsize: up to this many points, its tree is a single leaf
 
 

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from clipclique.config import InlierConfig
 from clipclique.descriptors import matching
 from clipclique.inliers import cliquesearch, compatibility
-from clipclique.config import InlierConfig
 from clipclique.outcomes import RegionSplit
 from clipclique.types import Ellipsoids
 
@@ -115,7 +115,8 @@ def split(observed_centers: np.ndarray, landmarks: Ellipsoids, candidates: np.nd
     taken with the widest slack the settings allow (wider only joins regions: no clique is lost)."""
     observed = np.linalg.norm(observed_centers[:, None] - observed_centers[None], axis=-1)
     widest = np.array([settings.max_slack if settings.partial_slack > 0 else 0.0])
-    labels = region_labels(landmarks.centers[candidates[:, 1]], compatibility.pair_reach(observed, settings.d_comp, widest))
+    labels = region_labels(landmarks.centers[candidates[:, 1]],
+                           compatibility.pair_reach(observed, settings.d_comp, widest))
     sizes = np.bincount(labels)
     order = _grouped(labels, sizes)
     bounds = np.concatenate(([0], np.cumsum(sizes)))
@@ -220,8 +221,8 @@ def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, 
                                              settings.max_slack, settings.slack_min_deficit)
     kept = compatibility.affordable_candidates(observations.centers, points, local, scores[region],
                                                settings.d_comp, slack, max_pairs=settings.max_pairs)
-    graph = lambda d_comp: compatibility.compatibility_graph(observations.centers, points, local[kept], d_comp,  # noqa: E731
-                                                             slack[kept], objects)
+    graph = lambda d_comp: compatibility.compatibility_graph(  # noqa: E731
+        observations.centers, points, local[kept], d_comp, slack[kept], objects)
     close = check and len(graph(settings.d_comp + DECIDED_BY)) != len(graph(settings.d_comp - DECIDED_BY))
     return kept[graph(settings.d_comp)], len(kept) < len(region), close
 

@@ -43,7 +43,8 @@ def decode_rle(segmentation: object, where: str) -> np.ndarray:
     and 1s in column-major order, compressed (pycocotools' text form) or not; runs that do not fill
     exactly h * w pixels are refused."""
     if not (isinstance(segmentation, dict) and isinstance(segmentation.get("size"), list)
-            and len(segmentation["size"]) == 2 and all(isinstance(v, int) and 0 < v <= 1 << 15 for v in segmentation["size"])
+            and len(segmentation["size"]) == 2
+            and all(isinstance(v, int) and 0 < v <= 1 << 15 for v in segmentation["size"])
             and isinstance(segmentation.get("counts"), (str, list))):
         raise InteropError(f"{where}: segmentation is not an RLE {{'size': [h, w], 'counts': ...}}")
     height, width = segmentation["size"]
@@ -98,7 +99,8 @@ def read_image_list(path: Path) -> dict[int, str]:
         raise InteropError(f"{path}: expected a COCO annotation file with an 'images' list")
     out = {}
     for index, image in enumerate(images):
-        if not (isinstance(image, dict) and isinstance(image.get("id"), int) and isinstance(image.get("file_name"), str)):
+        if not (isinstance(image, dict) and isinstance(image.get("id"), int)
+                and isinstance(image.get("file_name"), str)):
             raise InteropError(f"{path}: images[{index}] needs an integer 'id' and a 'file_name'")
         out[image["id"]] = image["file_name"]
     return out
@@ -132,7 +134,8 @@ def read_coco_results(path: Path, images: dict[int, str]) -> list[CocoResult]:
 
 
 def _numbers(value: object, count: int, where: str) -> list[float]:
-    if not (isinstance(value, list) and len(value) == count and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if not (isinstance(value, list) and len(value) == count
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
             and np.isfinite(value).all()):
         raise InteropError(f"{where} should be {count} finite numbers, got {str(value)[:80]}")
     return [float(v) for v in value]
@@ -189,8 +192,10 @@ def read_coco_annotations(path: Path) -> list[CocoObjectMask]:
     object id across images in `track_id`, `instance_id` or `object_id` (top level or under `attributes`,
     as CVAT writes it). COCO's own per-annotation `id` names a mask, not an object, so it is not used."""
     data = read_json(path, "COCO annotation file", InteropError)
-    if not (isinstance(data, dict) and all(isinstance(data.get(k), list) for k in ("images", "categories", "annotations"))):
-        raise InteropError(f"{path}: a COCO annotation file is an object with 'images', 'categories' and 'annotations' lists")
+    if not (isinstance(data, dict) and all(isinstance(data.get(k), list)
+                                           for k in ("images", "categories", "annotations"))):
+        raise InteropError(f"{path}: a COCO annotation file is an object with 'images', 'categories' "
+                           "and 'annotations' lists")
     images = {}
     for index, image in enumerate(data["images"]):
         if not (isinstance(image, dict) and isinstance(image.get("id"), int) and isinstance(image.get("file_name"), str)

@@ -8,16 +8,16 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
+from clipclique.errors import ClipcliqueError
 from clipclique.interop.align import Alignment, AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.convert import landmarks_json, read_objects, text_map, to_map
-from clipclique.errors import ClipcliqueError
 from clipclique.interop.errors import InteropError
-from clipclique.io.mapfile import load_map
 from clipclique.interop.labels import COCO, LabelSet, duplicate_note
 from clipclique.interop.maps import MAX_BINARY_BYTES, ImportedMap, MapFormat, map_input, read_map
-from clipclique.perception.encoders import Encoder
+from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import map_file
 from clipclique.io.safeio import read_bytes
+from clipclique.perception.encoders import Encoder
 from clipclique.types import Map
 
 
@@ -49,7 +49,8 @@ class ImportReport:
 
 def import_map(path: Path, format: MapFormat | None, objects: Path | None, request: AlignmentRequest,
                encoder: Encoder | None, labels: LabelSet = COCO) -> ImportReport:
-    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when asked."""
+    """The clipclique map of another system's map file (category ids in `labels`), aligned to ground truth when
+    asked."""
     path = map_input(path, format)
     imported = read_map(path, format, labels)
     imported.notes += duplicate_note(labels)
@@ -104,4 +105,5 @@ def export_text(map: Map, format: ExportFormat) -> tuple[str, dict[str, str], li
 def default_export_path(map_path: Path, format: ExportFormat) -> Path:
     """Beside the map: map_objects_<name>.txt (OA-SLAM's naming) or <name>.landmarks.json."""
     name = map_path.name.removesuffix(".npz").removesuffix(".map")
-    return map_path.with_name(f"map_objects_{name}.txt" if format == ExportFormat.OASLAM_TXT else f"{name}.landmarks.json")
+    return map_path.with_name(f"map_objects_{name}.txt" if format == ExportFormat.OASLAM_TXT
+                              else f"{name}.landmarks.json")

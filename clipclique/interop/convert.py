@@ -9,16 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from clipclique.version import __version__
 from clipclique.datasets import description_template
 from clipclique.datasets.tum import read_objects_table
-from clipclique.perception.encoders import Encoder
 from clipclique.interop.coco import COCO80_INDEX
 from clipclique.interop.errors import InteropError
 from clipclique.interop.maps import LANDMARKS_FORMAT, LANDMARKS_VERSION, ImportedMap
 from clipclique.interop.quadric import encode_dual_quadric
-from clipclique.types import Map
+from clipclique.perception.encoders import Encoder
 from clipclique.perception.yolo import COCO_TO_MAP
+from clipclique.types import Map
+from clipclique.version import __version__
 
 
 def read_objects(path: Path) -> dict[int, tuple[str, str]]:
@@ -33,11 +33,13 @@ def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]
     input's digest, lets a later import of the same file replace this map (`clipclique.mapping.run`)."""
     objects = objects or {}
     classes, descriptions = [], []
-    for index, (object_id, name, description) in enumerate(zip(imported.object_ids, imported.classes, imported.descriptions)):
+    for index, (object_id, name, description) in enumerate(zip(imported.object_ids, imported.classes,
+                                                               imported.descriptions)):
         if object_id in objects:
             name, description = objects[object_id]
         if name is None:
-            hint = "; give classes with --objects objects.csv" if not objects else f" (id {object_id} is not in --objects)"
+            hint = "; give classes with --objects objects.csv" if not objects else (f" (id {object_id} is not in "
+                                                                                    "--objects)")
             raise InteropError(f"{where}: object {index} (id {object_id}) has no class{hint}")
         classes.append(name)
         descriptions.append(description or description_template(name))
@@ -126,4 +128,5 @@ def landmarks_json(map: Map) -> str:
             item["class_distribution"] = {map.class_names[c]: float(row[c]) for c in np.flatnonzero(row)}
         landmarks.append(item)
     return json.dumps({"format": LANDMARKS_FORMAT, "version": LANDMARKS_VERSION,
-                       "frame": map.provenance.get("source", {}).get("name", "unknown"), "landmarks": landmarks}, indent=1)
+                       "frame": map.provenance.get("source", {}).get("name", "unknown"), "landmarks": landmarks},
+                      indent=1)

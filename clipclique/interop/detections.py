@@ -17,9 +17,9 @@ names frames by number.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, ClassVar
 from functools import cached_property
 from pathlib import Path, PurePosixPath
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
@@ -281,7 +281,8 @@ class FileDetector:
                                        f"{detection.mask.shape[0]}, the image {width}x{height}")
                 masks[row] = detection.mask
             else:
-                masks[row] = box_mask(frame.depth, frame.intrinsics, detection.box, detection.ellipse, self.segmentation)
+                masks[row] = box_mask(frame.depth, frame.intrinsics, detection.box, detection.ellipse,
+                                      self.segmentation)
         return Detections(masks, boxes[keep], class_ids[keep], scores[keep], np.full(len(keep), -1, dtype=np.int64))
 
 

@@ -88,8 +88,10 @@ def map_input(path: Path, format: MapFormat | None) -> Path:
         yamls = sorted(p for p in path.iterdir() if p.suffix.lower() in (".yaml", ".yml") and p.is_file())
         if len(yamls) == 1 and format in (None, MapFormat.OSMAP):
             return yamls[0]
-        held = f"it holds {len(yamls)} .yaml files ({', '.join(p.name for p in yamls[:3])})" if yamls else "it holds no .yaml"
-        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap map_*.yaml, a .json): {held}")
+        held = (f"it holds {len(yamls)} .yaml files "
+                f"({', '.join(p.name for p in yamls[:3])})") if yamls else "it holds no .yaml"
+        raise InteropError(f"{path}: a folder; pass a map file (map_objects_*.txt, an Osmap "
+                           f"map_*.yaml, a .json): {held}")
     if path.suffix.lower() in OSMAP_BINARIES:
         raise InteropError(f"{path}: one of an Osmap map's binary files (protobuf); pass the map_*.yaml that names it")
     return path
@@ -266,7 +268,8 @@ def _read_voom(path: Path) -> ImportedMap:
         fits.append(_ellipsoid(element, where))
         ids.append(single_uint(element, 2, where, default=index))
     return ImportedMap(SourceSystem.VOOM, _stack(fits), ids, [None] * len(ids), [None] * len(ids),
-                       notes=["a VOOM map holds no classes: give them with --objects objects.csv (id,class,description)"])
+                       notes=["a VOOM map holds no classes: give them with --objects objects.csv "
+                              "(id,class,description)"])
 
 
 def _numbers(value: object, count: int, where: str) -> np.ndarray:
@@ -291,7 +294,8 @@ def _label_distribution(value: object, where: str, with_colour: bool, labels: La
             raise InteropError(f"{where}: key {key!r} is not a class id") from None
         if not number.is_integer():
             raise InteropError(f"{where}: key {key!r} is not a whole class id")
-        if not (isinstance(entry, list) and entry and isinstance(entry[0], (int, float)) and not isinstance(entry[0], bool)
+        if not (isinstance(entry, list) and entry and isinstance(entry[0], (int, float))
+                and not isinstance(entry[0], bool)
                 and math.isfinite(entry[0]) and 0 <= entry[0] <= 1 + 1e-6):
             raise InteropError(f"{where}[{key!r}] should start with a probability in [0, 1]")
         if with_colour and len(entry) > 1 and not (isinstance(entry[1], list) and len(entry[1]) == 3):
@@ -346,7 +350,8 @@ def read_landmarks_json(path: Path) -> ImportedMap:
     if not isinstance(data, dict) or data.get("format") != LANDMARKS_FORMAT:
         raise InteropError(f"{path}: not a clipclique landmark list (\"format\": \"{LANDMARKS_FORMAT}\" missing)")
     if data.get("version") != LANDMARKS_VERSION:
-        raise InteropError(f"{path}: landmark list version {data.get('version')!r} not supported (this reads {LANDMARKS_VERSION})")
+        raise InteropError(f"{path}: landmark list version {data.get('version')!r} not supported (this reads "
+                           f"{LANDMARKS_VERSION})")
     if not isinstance(data.get("landmarks"), list):
         raise InteropError(f"{path}: 'landmarks' should be a list")
     fits, ids, classes, distributions, descriptions, instances = [], [], [], [], [], []
@@ -367,11 +372,13 @@ def read_landmarks_json(path: Path) -> ImportedMap:
         instances.append(instance)
         classes.append(check_text(item.get("class"), f"{where}: class", InteropError).strip() or None)
         description = item.get("description")
-        descriptions.append(None if description is None else check_text(description, f"{where}: description", InteropError))
+        descriptions.append(None if description is None
+                            else check_text(description, f"{where}: description", InteropError))
         distributions.append(_distribution(item.get("class_distribution"), where))
     frame = data.get("frame")
     frame = None if frame in (None, "unknown") else check_text(frame, f"{path}: frame", InteropError)
-    return ImportedMap(SourceSystem.JSON, _stack(fits), ids, classes, distributions, descriptions, instances, frame=frame)
+    return ImportedMap(SourceSystem.JSON, _stack(fits), ids, classes, distributions, descriptions, instances,
+                       frame=frame)
 
 
 def _rotation(value: object, where: str) -> np.ndarray:

@@ -39,7 +39,8 @@ def decode_dual_quadric(quadric: np.ndarray, where: str) -> tuple[np.ndarray, np
     shape = q[:3, :3] + np.outer(center, center)
     squares, rotation = np.linalg.eigh(shape)
     if squares.min() <= 0:
-        raise InteropError(f"{where}: the dual quadric is not an ellipsoid (a squared semi-axis of {squares.min():.3g})")
+        raise InteropError(f"{where}: the dual quadric is not an ellipsoid (a squared semi-axis of "
+                           f"{squares.min():.3g})")
     if np.linalg.det(rotation) < 0:
         rotation[:, 2] *= -1
     return center, np.sqrt(squares), rotation

@@ -5,8 +5,8 @@ directions as columns, `class_ids` (N,), `instance_ids` (N,), optionally `text_e
 (N, D) float32 L2-normalized and (schema 2) `class_distributions` (N, C) float64 rows summing
 to 1, and `header`, a JSON string:
 `{"format": "clipclique-map", "schema_version": 2, "class_names": [...], "descriptions": [...],
-"encoder": "...", "provenance": {...}}`. Schema 1 files (no class distributions) still load. Written to a temporary file and renamed, so a map file
-is either complete or absent; every field is checked on load.
+"encoder": "...", "provenance": {...}}`. Schema 1 files (no class distributions) still load. Written to a temporary file
+and renamed, so a map file is either complete or absent; every field is checked on load.
 """
 
 from __future__ import annotations
@@ -148,7 +148,8 @@ def _read_header(raw: np.ndarray, path: Path) -> dict:
         raise MapFileError(f"{path}: not a clipclique map (header format is not {FORMAT!r})")
     version = header.get("schema_version")
     if version not in READABLE_VERSIONS:
-        hint = "newer than this clipclique reads; upgrade clipclique" if isinstance(version, int) and version > SCHEMA_VERSION else "not supported"
+        hint = ("newer than this clipclique reads; upgrade clipclique"
+                if isinstance(version, int) and version > SCHEMA_VERSION else "not supported")
         raise MapFileError(f"{path}: map schema version {version!r} is {hint} (this version reads {SCHEMA_VERSION})")
     kinds = {"class_names": list, "descriptions": list, "encoder": str, "provenance": dict}
     for key, kind in kinds.items():
@@ -168,7 +169,8 @@ def validate_map(map: Map, where: str) -> None:
     if not 1 <= n <= MAX_LANDMARKS:
         fail(f"{n} landmarks; a map holds 1 to {MAX_LANDMARKS}")
     if np.shape(e.centers) != (n, 3) or np.shape(e.axes) != (n, 3) or np.shape(e.rotations) != (n, 3, 3):
-        fail(f"ellipsoid arrays disagree: centers {np.shape(e.centers)}, axes {np.shape(e.axes)}, rotations {np.shape(e.rotations)}")
+        fail(f"ellipsoid arrays disagree: centers {np.shape(e.centers)}, axes {np.shape(e.axes)}, rotations "
+             f"{np.shape(e.rotations)}")
     for name, values in (("class_ids", map.class_ids), ("instance_ids", map.instance_ids)):
         if np.shape(values) != (n,) or np.asarray(values).dtype.kind not in "iu":
             fail(f"{name} should be {n} integers, got {np.asarray(values).dtype} {np.shape(values)}")
@@ -205,8 +207,10 @@ def validate_map(map: Map, where: str) -> None:
         return
     if map.encoder == "none":
         fail("text embeddings stored but encoder is 'none'")
-    if np.ndim(embeddings) != 2 or len(embeddings) != n or not 1 <= np.shape(embeddings)[1] <= MAX_EMBEDDING_DIM or np.asarray(embeddings).dtype.kind not in "fiu":
-        fail(f"text_embeddings {np.asarray(embeddings).dtype} {np.shape(embeddings)} should be numbers, one row per landmark ({n})")
+    if (np.ndim(embeddings) != 2 or len(embeddings) != n or not 1 <= np.shape(embeddings)[1] <= MAX_EMBEDDING_DIM
+        or np.asarray(embeddings).dtype.kind not in "fiu"):
+        fail(f"text_embeddings {np.asarray(embeddings).dtype} {np.shape(embeddings)} should be numbers, one row per "
+             f"landmark ({n})")
     if not np.isfinite(embeddings).all() or (not np.allclose(np.linalg.norm(embeddings, axis=1), 1.0, atol=1e-3)):
         fail("text embeddings must be finite and L2-normalized")
 
@@ -218,7 +222,8 @@ def _validate_distributions(map: Map, fail: Callable[[str], None]) -> None:
         return
     shape = (len(map.class_ids), len(map.class_names))
     if np.shape(distributions) != shape or np.asarray(distributions).dtype.kind not in "fiu":
-        fail(f"class_distributions {np.asarray(distributions).dtype} {np.shape(distributions)} should be numbers of shape {shape}")
+        fail(f"class_distributions {np.asarray(distributions).dtype} {np.shape(distributions)} should be "
+             f"numbers of shape {shape}")
     if not np.isfinite(distributions).all() or (np.asarray(distributions) < 0).any():
         fail("class_distributions must be finite and non-negative")
     if not np.allclose(np.sum(distributions, axis=1), 1.0, atol=1e-3):

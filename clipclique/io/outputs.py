@@ -42,7 +42,8 @@ class Staging:
         """Where to write `target` for now; refuses, before any work, a target that cannot be replaced."""
         target = Path(target)
         if target.is_dir():
-            raise ClipcliqueError(f"{target}: is a folder; cannot write the output there (remove it or choose another path)")
+            raise ClipcliqueError(f"{target}: is a folder; cannot write the output there (remove it "
+                                  "or choose another path)")
         partial = target.with_name(target.name + PARTIAL_SUFFIX)
         self._moves.append((partial, target))
         return partial
@@ -85,7 +86,8 @@ class Staging:
                     signal.signal(signum, self._stop)
         return self
 
-    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None) -> None:
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 trace: TracebackType | None) -> None:
         try:
             self.discard()
         finally:

@@ -54,7 +54,8 @@ def decode_text(data: bytes, where: str, error: type[ClipcliqueError] = Clipcliq
         text = data.decode("utf-8-sig")
     except UnicodeDecodeError as problem:
         line = data[: problem.start].count(b"\n") + 1
-        raise error(f"{where}, line {line}: not UTF-8 text (byte 0x{data[problem.start]:02x}); save it as UTF-8") from None
+        raise error(f"{where}, line {line}: not UTF-8 text (byte "
+                    f"0x{data[problem.start]:02x}); save it as UTF-8") from None
     if "\0" in text:
         line = text[: text.index("\0")].count("\n") + 1
         raise error(f"{where}, line {line}: holds a NUL byte; is this a text file?")
@@ -82,7 +83,8 @@ def read_text(path: Path, what: str = "text file", error: type[ClipcliqueError] 
 def json_depth(data: bytes) -> int:
     """How deep arrays and objects nest in a JSON document (brackets inside strings ignored)."""
     outside = np.frombuffer(_JSON_STRING.sub(b'""', data), dtype=np.uint8)
-    steps = (outside == ord("[")).astype(np.int64) + (outside == ord("{")) - (outside == ord("]")) - (outside == ord("}"))
+    steps = ((outside == ord("[")).astype(np.int64) + (outside == ord("{")) - (outside == ord("]"))
+             - (outside == ord("}")))
     return int(np.cumsum(steps).max(initial=0))
 
 
@@ -125,7 +127,8 @@ def decode_image(source: Path | bytes, where: str, mode: str | None = None,
             width, height = image.size
             if width * height > max_pixels:
                 raise error(f"{where}: image declares {width} x {height} pixels, more than the {max_pixels} allowed")
-            return np.asarray(image.convert(mode) if mode and image.mode != mode else image)  # convert copies even to its own mode
+            # convert copies even to its own mode
+            return np.asarray(image.convert(mode) if mode and image.mode != mode else image)
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as problem:
         raise error(f"{where}: unreadable image ({problem})") from None
     except ImportError:  # once ultralytics is imported, its patched Image.open tries an optional HEIF plugin on failure
@@ -137,5 +140,6 @@ def read_single_channel(path: Path, what: str, error: type[ClipcliqueError] = Cl
     image = read_image(path, error=error)
     if image.ndim != 2 or image.dtype.kind not in "ui":
         channels = 1 if image.ndim == 2 else image.shape[2]
-        raise error(f"{path}: expected a single-channel integer {what} image, got {channels} channel(s) of {image.dtype}")
+        raise error(f"{path}: expected a single-channel integer {what} image, got {channels} "
+                    f"channel(s) of {image.dtype}")
     return image

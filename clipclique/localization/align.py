@@ -17,9 +17,9 @@ from typing import Any
 
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.multiframe.mapalign import MapAlignment, g2o_edge
 from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import Staging
+from clipclique.multiframe.mapalign import MapAlignment, g2o_edge
 from clipclique.pipeline import align_maps
 from clipclique.types import Map
 
@@ -112,7 +112,7 @@ def recording_description(document: dict[str, Any]) -> str:
              f"- landmarks: {document['landmarks']['query_map']} (query map), {document['landmarks']['map']} (map)",
              f"- ambiguous: {document['ambiguous']}" + (f" (competitors: ranks {document['competitors']})"
                                                         if document["ambiguous"] else "")]
-    lines += [f"- candidate {c['rank']}: confidence {c['confidence']:.2f}, {len(c['correspondences'])} correspondences, "
-              f"rms {c['rms_m']:.3f} m" for c in document["candidates"]]
+    lines += [f"- candidate {c['rank']}: confidence {c['confidence']:.2f}, {len(c['correspondences'])} "
+              f"correspondences, rms {c['rms_m']:.3f} m" for c in document["candidates"]]
     lines += [f"- note: {note}" for note in document["notes"]]
     return "\n".join(lines)

@@ -26,8 +26,6 @@ from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_conf
 from clipclique.datasets.tum import tum_line
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
-from clipclique.metrics import SUCCESS_THRESHOLDS_M
-from clipclique.outcomes import ALL_STAGES
 from clipclique.io.safeio import read_json
 from clipclique.localization.runs import FrameOutcome, Run
 
@@ -104,7 +102,8 @@ def results_document(run: Run, earlier_recording: str | None = None) -> dict[str
                          "leaves it as it is; run without --no-rrd to replace it)")
     description = run_description(run) | {
         "results_digest": digest,
-        "recording": None if shown is None else {"file": RECORDING, "results_digest": shown, "matches": shown == digest},
+        "recording": None if shown is None else {"file": RECORDING, "results_digest": shown,
+                                                 "matches": shown == digest},
     }
     return json_safe({
         "format": RESULTS_FORMAT,
@@ -171,7 +170,8 @@ def frame_record(outcome: FrameOutcome) -> dict[str, Any]:
         "hypotheses": hypotheses,
         "evaluation": {
             "translation_error_m": evaluation.translation_error,
-            "rotation_error_deg": None if evaluation.rotation_error is None else math.degrees(evaluation.rotation_error),
+            "rotation_error_deg": None if evaluation.rotation_error is None
+            else math.degrees(evaluation.rotation_error),
             "success": {str(k): v for k, v in evaluation.success.items()} if evaluation.has_ground_truth else None,
             "precision": evaluation.precision,
             "recall": evaluation.recall,
@@ -244,7 +244,8 @@ def results_files(path: Path) -> list[Path]:
 def read_results(path: Path) -> dict[str, Any]:
     """A results.json, checked to hold everything the tables read."""
     document = read_json(Path(path), "results file")
-    if not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT or document.get("version") != RESULTS_VERSION:
+    if (not isinstance(document, dict) or document.get("format") != RESULTS_FORMAT
+        or document.get("version") != RESULTS_VERSION):
         raise ClipcliqueError(f"{path}: not a version {RESULTS_VERSION} {RESULTS_FORMAT} file")
     problem = schema_problem(document, RESULTS_SCHEMA)
     if problem:

@@ -21,18 +21,33 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from clipclique.backends import load_encoder, make_detector
 from clipclique.commands import command
 from clipclique.config import LocalizationConfig, ObservationParams, make_config
-from clipclique.backends import load_encoder, make_detector
 from clipclique.datasets import Sequence, is_bag
 from clipclique.datasets.rosbag import NO_DETECTOR
+from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
+from clipclique.interop.coco import reported_classes
+from clipclique.interop.detections import CocoRecorder, FileDetector
+from clipclique.io.mapfile import load_map
+from clipclique.io.outputs import Staging
+from clipclique.localization.results import (
+    DETECTIONS_FILE,
+    IMAGES_FILE,
+    OUTPUT_FILES,
+    RECORDING,
+    earlier_recording,
+    run_description,
+    write_results,
+)
+from clipclique.localization.runs import FrameOutcome, Run, RunSettings
+from clipclique.metrics import FrameEvaluation, evaluate_frame
+from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
+from clipclique.multiframe.window import WindowConfig, Windower, span_step
 from clipclique.perception.detectors import Detector
 from clipclique.perception.encoders import Encoder
-from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
-from clipclique.io.mapfile import load_map
-from clipclique.metrics import FrameEvaluation, evaluate_frame
 from clipclique.perception.observations import embed, extract_observations
-from clipclique.io.outputs import Staging
+from clipclique.perception.yolo import YoloDetector
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
@@ -140,7 +155,8 @@ def with_window_span(settings: RunSettings, sequence: Sequence) -> RunSettings:
 def window_odometry(settings: RunSettings, sequence: Sequence) -> Odometry | None:
     """The odometry a window needs (None without a window); refusals say which option is missing."""
     if settings.window < 1 or settings.window_step < 1:
-        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: both must be 1 or more")
+        raise ClipcliqueError(f"--window {settings.window} --window-step {settings.window_step}: "
+                              "both must be 1 or more")
     if settings.window == 1:
         if settings.odometry is not None or settings.odometry_drift:
             raise ClipcliqueError("--odometry and --odometry-drift need --window K (K > 1)")
@@ -318,7 +334,8 @@ def localize_one(run: Run, frame: Frame, index: MapIndex, windower: Windower | N
     if run.detector.reads_instances and frame.instances is None:  # not annotated: nothing to detect, not a failure
         run.unannotated.append(frame.name)
         return
-    outcome, seen = localize_frame(run, frame, index) if windower is None else localize_window(run, frame, index, windower)
+    outcome, seen = (localize_frame(run, frame, index) if windower is None
+                     else localize_window(run, frame, index, windower))
     run.frames.append(outcome)
     if recorder is not None:
         observations = seen.observations if outcome.window is None else outcome.window.observations

@@ -11,15 +11,15 @@ from pathlib import Path
 
 from clipclique.config import LocalizationConfig, changed_by_overrides
 from clipclique.datasets import BagOptions, Sequence, scene_name
-from clipclique.perception.detectors import Detector
-from clipclique.perception.encoders import Encoder
 from clipclique.interop.detections import CocoRecorder
+from clipclique.io.outputs import LOC_DIR, map_file
 from clipclique.metrics import FrameEvaluation, summarize
 from clipclique.multiframe.odometry import Odometry
-from clipclique.outcomes import LocalizationResult
-from clipclique.io.outputs import LOC_DIR, map_file
-from clipclique.types import Map, Pose
 from clipclique.multiframe.window import WindowQuery
+from clipclique.outcomes import LocalizationResult
+from clipclique.perception.detectors import Detector
+from clipclique.perception.encoders import Encoder
+from clipclique.types import Map, Pose
 
 MAX_RUN_NAME = 100  # characters of a run folder's name; longer ones end in a hash
 
@@ -34,7 +34,8 @@ class RunSettings:
     overrides: list[str] = field(default_factory=list)
     map_path: Path | None = None  # default outputs/maps/<SEQUENCE>.map.npz
     data_root: Path | None = None
-    detector: str | None = None  # default: the generated scene's (simulated, demo_desk: simulated-yolo), gt on ScanNet, annotations on TUM
+    # default: the generated scene's (simulated, demo_desk: simulated-yolo), gt on ScanNet, annotations on TUM
+    detector: str | None = None
     encoder: str | None = None  # default: the map's encoder (simulated on the demo) if here, else none
     yolo_weights: str = "yolov8x-seg.pt"
     stride: int = 1
@@ -82,7 +83,8 @@ class RunSettings:
                       "drift": self.odometry_drift or None}
         parts += [f"{key}={value}" for key, value in given.items() if value is not None]
         name = re.sub(r"[^\w.,=+-]", "_", "+".join(parts))
-        return name if len(name) <= MAX_RUN_NAME else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}"
+        return (name if len(name) <= MAX_RUN_NAME
+                else f"{name[:MAX_RUN_NAME - 9]}-{hashlib.sha1(name.encode()).hexdigest()[:8]}")
 
     def resolved_map_path(self) -> Path:
         return self.map_path or map_file(scene_name(self.sequence))

@@ -15,8 +15,8 @@ from typing import Any
 
 from rich import box
 from rich.console import Console, RenderableType
-from rich.measure import Measurement
 from rich.markup import escape
+from rich.measure import Measurement
 from rich.table import Table
 
 from clipclique.config import LocalizationConfig
@@ -100,7 +100,8 @@ def _marks(documents: list[dict[str, Any]]) -> tuple[list[str], list[str]]:
 
 def _threshold(document: dict[str, Any]) -> float:
     """The translation error under which the run counted a pose as a success (metres)."""
-    return float(document["run"].get("changed", {}).get("success_threshold_m", LocalizationConfig().success_threshold_m))
+    return float(document["run"].get("changed", {}).get("success_threshold_m",
+                                                        LocalizationConfig().success_threshold_m))
 
 
 def results_caption(documents: list[dict[str, Any]]) -> str:
@@ -206,7 +207,8 @@ def run_banner(document: dict[str, Any]) -> str:
     encoder = run["encoder"]
     lines = [
         f"detector: {detector['name']}{' (SIMULATED)' if detector['simulated'] else ''}",
-        "encoder: none" if encoder is None else f"encoder: {encoder['name']}{' (SIMULATED)' if encoder['simulated'] else ''}",
+        "encoder: none" if encoder is None
+        else f"encoder: {encoder['name']}{' (SIMULATED)' if encoder['simulated'] else ''}",
     ]
     if "window" in run:
         window = run["window"]
@@ -252,7 +254,8 @@ def print_frames(console: Console, document: dict[str, Any]) -> None:
         error = frame["evaluation"]["translation_error_m"]
         outcome = (f"no pose: {frame['failure']}" if frame["failure"] is not None else
                    "pose (no ground truth)" if error is None else f"TE {error:.2f} m")
-        name = "" if frame["name"] == str(frame["index"]) else f" (image {escape(frame['name'])})"  # ScanNet: the number
+        # ScanNet: the number
+        name = "" if frame["name"] == str(frame["index"]) else f" (image {escape(frame['name'])})"
         count = frame["observations"]
         console.print(f"frame {frame['index']}{name}: {count} observation{'' if count == 1 else 's'}, "
                       f"{escape(outcome)}", highlight=False, soft_wrap=True)
@@ -265,7 +268,8 @@ def print_survey(console: Console, survey: Any) -> None:
                   soft_wrap=True)
     for topic in survey.topics:
         parts = [topic.name, topic.msgtype, f"{topic.count} messages", f"{topic.rate_hz:.1f} Hz"]
-        parts += [f"encoding {topic.encoding}"] * bool(topic.encoding) + [f"frame {topic.frame_id}"] * bool(topic.frame_id)
+        parts += ([f"encoding {topic.encoding}"] * bool(topic.encoding)
+                  + [f"frame {topic.frame_id}"] * bool(topic.frame_id))
         parts += [f"-> {topic.role}"] * bool(topic.role)
         console.print(escape("  " + "  ".join(parts)), highlight=False, soft_wrap=True)
     for reason in survey.reasons:

@@ -77,8 +77,8 @@ def annotate_coco(sequence: TumSequence, coco: Path, table: Path | None) -> Anno
             raise DatasetError(f"{coco}: object id {mask.object_id} ({mask.image}) is not in {table}")
         entry = named.get(mask.object_id) or (mask.class_name, description_template(mask.class_name))
         if objects.setdefault(mask.object_id, entry)[0] != entry[0]:
-            raise DatasetError(f"{coco}: object id {mask.object_id} is a {objects[mask.object_id][0]} in one image and a "
-                               f"{entry[0]} in {mask.image}")
+            raise DatasetError(f"{coco}: object id {mask.object_id} is a {objects[mask.object_id][0]} in one image and "
+                               f"a {entry[0]} in {mask.image}")
     names = sorted({mask.image for mask in masks})
     frames = dict(zip(names, frames_of(sequence, [Path(name).stem for name in names],
                                        [f"{coco}: image {name}" for name in names])))
@@ -104,7 +104,8 @@ def check_mask(sequence: TumSequence, frame: int, ids: np.ndarray, where: str) -
                            f"{depth_shape[1]} x {depth_shape[0]}")
 
 
-def write_annotations(sequence: TumSequence, images: dict[int, np.ndarray], objects: dict[int, tuple[str, str]]) -> AnnotationReport:
+def write_annotations(sequence: TumSequence, images: dict[int, np.ndarray],
+                      objects: dict[int, tuple[str, str]]) -> AnnotationReport:
     """annotations/objects.csv and annotations/instances/<rgb stem>.png, appearing whole or not at all."""
     target = sequence.root / "annotations"
     staging = Path(tempfile.mkdtemp(prefix=".annotations-", dir=sequence.root))

@@ -18,13 +18,13 @@ from datetime import datetime, timezone
 
 import numpy as np
 
-from clipclique.version import __version__
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
-from clipclique.perception.encoders import Encoder
+from clipclique.descriptors.graph import semantic_graph
 from clipclique.errors import DatasetError
 from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
-from clipclique.descriptors.graph import semantic_graph
+from clipclique.perception.encoders import Encoder
 from clipclique.types import Map
+from clipclique.version import __version__
 
 Progress = Callable[[int, int], None]
 
@@ -105,7 +105,8 @@ def build_map(
         report.timings["encode"] = time.perf_counter() - start
 
     provenance = {
-        "source": {"name": sequence.name, "kind": sequence.kind, "root": str(sequence.root), "synthetic": sequence.synthetic},
+        "source": {"name": sequence.name, "kind": sequence.kind, "root": str(sequence.root),
+                   "synthetic": sequence.synthetic},
         "parameters": dataclasses.asdict(params),
         "structure_left_out": sorted(STRUCTURE_CLASSES),
         "skipped": {reason: len(items) for reason, items in report.skipped.items()},
@@ -130,7 +131,8 @@ def build_map(
 def _empty_map_reason(instances: list[Instance], report: BuildReport) -> str:
     """Why no instance of a scene became a landmark, for the error a user reads."""
     if not instances:
-        return "the scene has no annotated objects (a TUM sequence needs annotations/objects.csv and annotations/instances/)"
+        return ("the scene has no annotated objects (a TUM sequence needs annotations/objects.csv and "
+                "annotations/instances/)")
     parts = [f"{sum(report.structure.values())} left out as structure"] if report.structure else []
     parts += [f"{len(items)} skipped, {reason}" for reason, items in report.skipped.items()]
     return f"none of its {len(instances)} objects could be fitted ({'; '.join(parts)})"

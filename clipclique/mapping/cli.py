@@ -31,13 +31,18 @@ def _tool(version: Annotated[bool, typer.Option("--version", callback=version_op
 
 @app.command()
 def build(
-    scene: Annotated[str, typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, demo_desk, or a scene folder", show_default=False)],
+    scene: Annotated[str,
+                     typer.Argument(help="scene0002_00, fr2, fr3, demo, demo_tum, demo_apartment, "
+                                         "demo_desk, or a scene folder", show_default=False)],
     data_root: Annotated[
         Path | None,
-        typer.Option("--data-root", help="folder holding scannet/scans/, tum/, demo/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
+        typer.Option("--data-root",
+                     help="folder holding scannet/scans/, tum/, demo/ \\[default: $CLIPCLIQUE_DATA or ./data]",
+                     rich_help_panel=DATA_PANEL),
     ] = None,
     out: Annotated[
-        Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<SCENE>.map.npz]", rich_help_panel=OUTPUT_PANEL)
+        Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<SCENE>.map.npz]",
+                                  rich_help_panel=OUTPUT_PANEL)
     ] = None,
     encoder: Annotated[
         str | None,
@@ -48,9 +53,12 @@ def build(
             rich_help_panel=DATA_PANEL,
         ),
     ] = None,
-    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark", rich_help_panel=OUTPUT_PANEL)] = False,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording",
+                                         rich_help_panel=OUTPUT_PANEL)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is",
+                                        rich_help_panel=OUTPUT_PANEL)] = False,
+    verbose: Annotated[bool, typer.Option("--verbose", "-v", help="also print every landmark",
+                                          rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Build the landmark map of SCENE: one ellipsoid per object (walls, floors, ceilings left out)."""
     from rich.markup import escape
@@ -72,22 +80,51 @@ def build(
 
 @app.command("import")
 def import_map(
-    path: Annotated[Path, typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map", show_default=False)],
-    format: Annotated[str | None, typer.Option("--format", help="oaslam-txt | osmap | msgloc | json \\[default: from the file name]", rich_help_panel=DATA_PANEL)] = None,
-    objects: Annotated[Path | None, typer.Option("--objects", help="objects.csv (id,class,description): classes and descriptions by object id", rich_help_panel=DATA_PANEL)] = None,
-    labels: Annotated[str | None, typer.Option("--labels", help="coco | lvis | FILE (one class name per line, the 0-based line the id): the label set of the map's category ids \\[default: coco]", rich_help_panel=DATA_PANEL)] = None,
-    align_to: Annotated[str | None, typer.Option("--align-to", help="fit the keyframe trajectory to this TUM sequence's groundtruth.txt", rich_help_panel=ALIGN_PANEL)] = None,
-    trajectory: Annotated[Path | None, typer.Option("--trajectory", help="keyframe trajectory, TUM text \\[default: the one saved beside the map]", rich_help_panel=ALIGN_PANEL)] = None,
-    groundtruth: Annotated[Path | None, typer.Option("--groundtruth", help="ground truth, TUM text (instead of --align-to)", rich_help_panel=ALIGN_PANEL)] = None,
-    scale: Annotated[bool, typer.Option("--scale", help="fit a scale too (monocular maps)", rich_help_panel=ALIGN_PANEL)] = False,
-    min_keyframes: Annotated[int, typer.Option("--min-keyframes", min=3, help="refuse a fit over fewer matched keyframes", rich_help_panel=ALIGN_PANEL)] = 10,
-    max_rmse: Annotated[float, typer.Option("--max-rmse", min=0.0, help="refuse a fit with a larger RMSE (metres)", rich_help_panel=ALIGN_PANEL)] = 0.05,
-    data_root: Annotated[Path | None, typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL)] = None,
-    out: Annotated[Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<file name>.map.npz]", rich_help_panel=OUTPUT_PANEL)] = None,
-    encoder: Annotated[str, typer.Option("--encoder", help="text encoder: auto | simulated | none | open_clip:MODEL/TAG | checkpoint file", rich_help_panel=DATA_PANEL)] = "auto",
-    force: Annotated[bool, typer.Option("--force", help="replace a map at --out that came from another source (an import of the same file replaces its own)", rich_help_panel=OUTPUT_PANEL)] = False,
-    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording", rich_help_panel=OUTPUT_PANEL)] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is", rich_help_panel=OUTPUT_PANEL)] = False,
+    path: Annotated[Path,
+                    typer.Argument(help="map_objects_*.txt, an Osmap map_*.yaml, an MSG-Loc or clipclique JSON map",
+                                   show_default=False)],
+    format: Annotated[str | None, typer.Option("--format",
+                                               help="oaslam-txt | osmap | msgloc | json "
+                                                    "\\[default: from the file name]",
+                                               rich_help_panel=DATA_PANEL)] = None,
+    objects: Annotated[Path | None, typer.Option("--objects",
+                                                 help="objects.csv (id,class,description): classes and "
+                                                      "descriptions by object id", rich_help_panel=DATA_PANEL)] = None,
+    labels: Annotated[str | None, typer.Option("--labels",
+                                               help="coco | lvis | FILE (one class name per line, the 0-based line the "
+                                                    "id): the label set of the map's category ids \\[default: coco]",
+                                               rich_help_panel=DATA_PANEL)] = None,
+    align_to: Annotated[str | None, typer.Option("--align-to",
+                                                 help="fit the keyframe trajectory to this TUM sequence's "
+                                                      "groundtruth.txt", rich_help_panel=ALIGN_PANEL)] = None,
+    trajectory: Annotated[Path | None, typer.Option("--trajectory",
+                                                    help="keyframe trajectory, TUM text \\[default: the one saved "
+                                                         "beside the map]", rich_help_panel=ALIGN_PANEL)] = None,
+    groundtruth: Annotated[Path | None, typer.Option("--groundtruth",
+                                                     help="ground truth, TUM text (instead of --align-to)",
+                                                     rich_help_panel=ALIGN_PANEL)] = None,
+    scale: Annotated[bool, typer.Option("--scale", help="fit a scale too (monocular maps)",
+                                        rich_help_panel=ALIGN_PANEL)] = False,
+    min_keyframes: Annotated[int, typer.Option("--min-keyframes", min=3,
+                                               help="refuse a fit over fewer matched keyframes",
+                                               rich_help_panel=ALIGN_PANEL)] = 10,
+    max_rmse: Annotated[float, typer.Option("--max-rmse", min=0.0, help="refuse a fit with a larger RMSE (metres)",
+                                            rich_help_panel=ALIGN_PANEL)] = 0.05,
+    data_root: Annotated[Path | None, typer.Option("--data-root",
+                                                   help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]",
+                                                   rich_help_panel=DATA_PANEL)] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="map file \\[default: outputs/maps/<file name>.map.npz]",
+                                             rich_help_panel=OUTPUT_PANEL)] = None,
+    encoder: Annotated[str, typer.Option("--encoder",
+                                         help="text encoder: auto | simulated | none | open_clip:MODEL/TAG | "
+                                              "checkpoint file", rich_help_panel=DATA_PANEL)] = "auto",
+    force: Annotated[bool, typer.Option("--force",
+                                        help="replace a map at --out that came from another source (an import of the "
+                                             "same file replaces its own)", rich_help_panel=OUTPUT_PANEL)] = False,
+    no_rrd: Annotated[bool, typer.Option("--no-rrd", help="do not write the .rrd recording",
+                                         rich_help_panel=OUTPUT_PANEL)] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="print only where the map is",
+                                        rich_help_panel=OUTPUT_PANEL)] = False,
 ) -> None:
     """Import an object map of OA-SLAM, VOOM, GOReloc or MSG-Loc (or a clipclique JSON landmark list), optionally
     aligned to a sequence's ground truth: the same map file and .rrd as build."""
@@ -103,7 +140,8 @@ def import_map(
     with user_errors(TOOL):
         if format is not None and format not in set(MapFormat):
             raise InteropError(f"--format {format!r}: choose {', '.join(MapFormat)}")
-        request = AlignmentRequest(trajectory=trajectory, with_scale=scale, limits=AlignmentLimits(min_keyframes, max_rmse))
+        request = AlignmentRequest(trajectory=trajectory, with_scale=scale,
+                                   limits=AlignmentLimits(min_keyframes, max_rmse))
         imported = run_import(path, MapFormat(format) if format else None, objects, align_to, groundtruth, request,
                               data_root, out, encoder, not no_rrd, labels, force)
     print_import(console, imported, quiet)
@@ -111,9 +149,12 @@ def import_map(
 
 @app.command()
 def export(
-    map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a clipclique map file (.map.npz)", show_default=False)],
+    map_path: Annotated[Path, typer.Argument(metavar="MAP", help="a clipclique map file (.map.npz)",
+                                             show_default=False)],
     format: Annotated[str, typer.Option("--format", help="oaslam-txt | json", show_default=False)],
-    out: Annotated[Path | None, typer.Option("--out", help="\\[default: beside the map: map_objects_<name>.txt or <name>.landmarks.json]", rich_help_panel=OUTPUT_PANEL)] = None,
+    out: Annotated[Path | None, typer.Option("--out",
+                                             help="\\[default: beside the map: map_objects_<name>.txt or "
+                                                  "<name>.landmarks.json]", rich_help_panel=OUTPUT_PANEL)] = None,
 ) -> None:
     """Write a map as an OA-SLAM text map or a clipclique JSON landmark list (what import reads back)."""
     from clipclique.exits import user_errors
@@ -131,11 +172,16 @@ def export(
 
 @app.command()
 def annotate(
-    sequence: Annotated[str, typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the data root, or its folder",
+    sequence: Annotated[str,
+                        typer.Argument(help="a TUM-format sequence: rgbd_dataset_... under the "
+                                            "data root, or its folder",
                                             show_default=False)],
-    masks: Annotated[Path | None, typer.Option("--masks", help="folder of instance-id PNGs, each named after its colour "
-                                               "image (file stem or timestamp); 0 = no object", show_default=False)] = None,
-    coco: Annotated[Path | None, typer.Option("--coco", help="a COCO annotation file of instance masks (RLE or polygons, "
+    masks: Annotated[Path | None, typer.Option("--masks",
+                                               help="folder of instance-id PNGs, each named after its colour "
+                                               "image (file stem or timestamp); 0 = no object",
+                                               show_default=False)] = None,
+    coco: Annotated[Path | None, typer.Option("--coco",
+                                              help="a COCO annotation file of instance masks (RLE or polygons, "
                                               "each with its object's track_id / instance_id / object_id), instead of "
                                               "--masks", show_default=False)] = None,
     objects: Annotated[Path | None, typer.Option("--objects", help="CSV table 'id,class,description' of the object ids "
@@ -143,7 +189,8 @@ def annotate(
                                                  show_default=False)] = None,
     data_root: Annotated[
         Path | None,
-        typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]", rich_help_panel=DATA_PANEL),
+        typer.Option("--data-root", help="folder holding tum/ \\[default: $CLIPCLIQUE_DATA or ./data]",
+                     rich_help_panel=DATA_PANEL),
     ] = None,
 ) -> None:
     """Write SEQUENCE's annotations/ (to build its map) from instance masks made with another tool: a folder of

@@ -33,9 +33,9 @@ from clipclique.interop.labels import label_set
 from clipclique.interop.maps import MapFormat, map_input
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.io.outputs import Staging, map_file
+from clipclique.mapping.build import BuildReport, Progress, build_map
 from clipclique.resolve import first_use_notice, open_scene
 from clipclique.types import Map
-from clipclique.mapping.build import BuildReport, Progress, build_map
 
 Bars = Callable[[str], Progress]  # a stage's description -> its progress callback
 GENERATING = "generating the {scene} data (first use)"
@@ -79,7 +79,8 @@ def run_build(scene: str, data_root: Path | None = None, out: Path | None = None
             from clipclique.viz import write_map_recording  # rerun is imported only when a build records
 
             cloud = sequence.scene_cloud()
-            write_map_recording(staged_recording, map, *(cloud or (None, None)), description=describe(map, sequence.name))
+            write_map_recording(staged_recording, map, *(cloud or (None, None)),
+                                description=describe(map, sequence.name))
         stale = recording if staged_recording is None and recording.is_file() and not shows_map(out, map) else None
         staging.commit()
     report.timings["total"] = time.perf_counter() - started
@@ -103,7 +104,8 @@ def describe(map: Map, scene: str) -> str:
     """The recording's text document: what the map is and what made it (an imported map: which file, which
     system); classes counted only where they hold a landmark."""
     source = map.provenance.get("source", {})
-    simulated = " (simulated CLIP: a stand-in for real CLIP on synthetic data)" if map.provenance.get("encoder_simulated") else ""
+    simulated = (" (simulated CLIP: a stand-in for real CLIP on synthetic data)"
+                 if map.provenance.get("encoder_simulated") else "")
     if source.get("kind") == "import":
         origin = f"imported from {source.get('file', '?')} ({source.get('format', '?')})"
     else:
@@ -144,7 +146,8 @@ def run_import(path: Path, format: MapFormat | None = None, objects: Path | None
         if sequence.kind != "tum":
             raise InteropError(f"--align-to {align_to}: a {sequence.kind} scene; alignment needs a TUM sequence's "
                                "groundtruth.txt (or --groundtruth FILE)")
-        request = dataclasses.replace(request, groundtruth=sequence.root / "groundtruth.txt", sequence_name=sequence.name)
+        request = dataclasses.replace(request, groundtruth=sequence.root / "groundtruth.txt",
+                                      sequence_name=sequence.name)
     elif groundtruth is not None:
         request = dataclasses.replace(request, groundtruth=groundtruth)
     path = map_input(path, format)  # a folder's one Osmap .yaml

@@ -14,10 +14,10 @@ from rich.table import Table
 from clipclique.commands import command, rerun_hint
 from clipclique.config import GraphConfig
 from clipclique.datasets.tum import MAX_TIME_DIFF
-from clipclique.types import Map
-from clipclique.mapping.build import BuildReport, degree_histogram
 from clipclique.mapping.annotate import AnnotationReport
+from clipclique.mapping.build import BuildReport, degree_histogram
 from clipclique.mapping.run import Built, Exported, Imported
+from clipclique.types import Map
 
 
 def make_console() -> Console:
@@ -42,7 +42,8 @@ def print_build(console: Console, built: Built, verbosity: int = 0) -> None:
 
 def print_annotated(console: Console, done: AnnotationReport, sequence: str) -> None:
     """What `clipclique-map annotate` wrote, which annotations the map cannot use, and the next command."""
-    console.print(escape(f"annotations: {done.folder}/ ({done.frames} frames, {done.objects} objects)"), highlight=False)
+    console.print(escape(f"annotations: {done.folder}/ ({done.frames} frames, {done.objects} objects)"),
+                  highlight=False)
     if done.without_pose:
         console.print(escape(f"{len(done.without_pose)} annotated frames have no ground-truth pose within "
                              f"{MAX_TIME_DIFF} s, so the map cannot use them: {', '.join(done.without_pose[:5])}"
@@ -80,7 +81,8 @@ def print_summary(console: Console, map: Map, report: BuildReport, spec: str) ->
                       highlight=False)
     print_graph(console, map)
     if report.structure:
-        console.print(escape("left out as structure: " + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
+        console.print(escape("left out as structure: "
+                             + ", ".join(f"{name} x{n}" for name, n in sorted(report.structure.items()))))
     for reason, items in report.skipped.items():
         console.print(escape(f"skipped {len(items)}, {reason}: {', '.join(items)}"), highlight=False)
     if map.encoder == "none":
@@ -123,8 +125,8 @@ def print_import(console: Console, imported: Imported, quiet: bool = False) -> N
             console.print(f"note: {escape(note)}", highlight=False)
         if report.alignment is not None:
             fit = report.alignment
-            console.print(f"aligned to {escape(report.sequence_name or 'the ground truth')}: {fit.matched} keyframes matched, "
-                          f"RMSE {fit.rmse_m * 100:.2f} cm, scale {fit.transform.scale:.4f} "
+            console.print(f"aligned to {escape(report.sequence_name or 'the ground truth')}: {fit.matched} keyframes "
+                          f"matched, RMSE {fit.rmse_m * 100:.2f} cm, scale {fit.transform.scale:.4f} "
                           f"({'similarity' if fit.with_scale else 'rigid'})", highlight=False)
         elif report.sequence_name is not None:
             console.print(f"in the frame of {escape(report.sequence_name)}, as the file says", highlight=False)
@@ -143,7 +145,8 @@ def print_import(console: Console, imported: Imported, quiet: bool = False) -> N
 def print_export(console: Console, exported: Exported) -> None:
     console.print(f"wrote {exported.written} landmarks to {escape(str(exported.out))}", highlight=False)
     if exported.renamed:
-        console.print("written as their COCO class: " + escape(", ".join(f"{a} as {b}" for a, b in exported.renamed.items())),
+        console.print("written as their COCO class: "
+                      + escape(", ".join(f"{a} as {b}" for a, b in exported.renamed.items())),
                       highlight=False)
     if exported.unwritable:
         console.print(f"left out {exported.left_out} landmarks of classes an OA-SLAM map cannot hold (not COCO): "

@@ -40,13 +40,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from clipclique.descriptors import lookalikes
 from clipclique.config import LocalizationConfig
+from clipclique.descriptors import lookalikes
 from clipclique.geometry import rotation_angle
 from clipclique.outcomes import Failure, LocalizationResult
 from clipclique.pose.fit import DegeneratePoseError, fit_rigid
 from clipclique.types import Map, Observations, Pose
-
 
 DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than this ...
 DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
@@ -111,7 +110,8 @@ def as_query(query_map: Map, map: Map, config: LocalizationConfig) -> AlignmentQ
     return AlignmentQuery(observations, replace(map, class_names=names), settings, vocabulary, notes)
 
 
-def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, config: LocalizationConfig) -> MapAlignment:
+def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map,
+             config: LocalizationConfig) -> MapAlignment:
     """The pipeline's hypotheses as distinct, refined, ranked candidates with confidences (module docstring)."""
     kernel = lookalikes.class_kernel(query.map.class_names, 1.0)
     like = kernel[query.observations.class_ids][:, query.map.class_ids].toarray() > 0  # (query, map) classes alike
@@ -126,12 +126,14 @@ def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map, 
     candidates.sort(key=lambda c: -c.score)
     _confidences(candidates, map_scale(query.map))
     best = candidates[0].score if candidates else 0.0
-    competitors = [i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates else []
+    competitors = ([i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates
+                   else [])
     return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
                         query.vocabulary, result.failure, query.notes + result.notes)
 
 
-def shared_vocabulary(query_names: list[str], map_names: list[str]) -> tuple[list[str], np.ndarray, dict[str, str | None]]:
+def shared_vocabulary(query_names: list[str],
+                      map_names: list[str]) -> tuple[list[str], np.ndarray, dict[str, str | None]]:
     """The map's vocabulary extended by the query classes it lacks; (names, query class id -> id in
     names, query class name -> the map class it matched or None)."""
     names = list(map_names)
@@ -187,10 +189,12 @@ def _refinement(pose: Pose, clique: np.ndarray, observations: Observations, map:
             used_m.add(m)
     correspondences = np.array(sorted(chosen), np.int64).reshape(-1, 2)
     try:
-        pose = fit_rigid(observations.ellipsoids.centers[correspondences[:, 0]], map.ellipsoids.centers[correspondences[:, 1]])
+        pose = fit_rigid(observations.ellipsoids.centers[correspondences[:, 0]],
+                         map.ellipsoids.centers[correspondences[:, 1]])
     except DegeneratePoseError:
         correspondences = clique
-    residual = pose.apply(observations.ellipsoids.centers[correspondences[:, 0]]) - map.ellipsoids.centers[correspondences[:, 1]]
+    residual = (pose.apply(observations.ellipsoids.centers[correspondences[:, 0]])
+                - map.ellipsoids.centers[correspondences[:, 1]])
     score = float(np.clip(similarity[correspondences[:, 0], correspondences[:, 1]], 0.0, None).sum())
     points = observations.ellipsoids.centers[correspondences[:, 0]]
     spread = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))

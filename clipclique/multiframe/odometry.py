@@ -82,14 +82,14 @@ def matched(times: np.ndarray, poses: list[Pose], timestamps: np.ndarray, where:
 def bag_odometry(source: str, sequence: Sequence | None) -> Odometry:
     """`tf:PARENT:CHILD` or `topic:/odom` of the bag `sequence` (a ClipcliqueError when it is no bag)."""
     if not isinstance(sequence, BagSequence):
-        raise ClipcliqueError(f"--odometry {source}: tf: and topic: read a ROS bag's messages; this sequence is not a bag "
-                              "(give FILE.tum or groundtruth)")
+        raise ClipcliqueError(f"--odometry {source}: tf: and topic: read a ROS bag's messages; this sequence is not a "
+                              "bag (give FILE.tum or groundtruth)")
     kind, _, rest = source.partition(":")
     if kind == "tf":
         poses = sequence.tf_poses(rest, "--odometry tf:")
         if not any(pose is not None for pose in poses):
-            raise DatasetError(f"{sequence.root}: --odometry {source}: /tf has no transform within {MAX_TIME_DIFF} s of "
-                               "any frame")
+            raise DatasetError(f"{sequence.root}: --odometry {source}: /tf has no transform within "
+                               f"{MAX_TIME_DIFF} s of any frame")
         return Odometry(poses, source, simulated=False)
     times, poses = sequence.odometry_track(rest)
     return matched(times, poses, sequence.timestamps, f"{sequence.root}, {rest}", source)

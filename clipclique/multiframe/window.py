@@ -172,7 +172,8 @@ def _radii(rotations: np.ndarray, axes: np.ndarray, directions: np.ndarray) -> n
     return 1.0 / np.sqrt(np.einsum("nmj,nmj->nm", local, local))
 
 
-def _assign(frame: int, observations: list[Observations], moved: list[Ellipsoids], clusters: list[list[tuple[int, int]]],
+def _assign(frame: int, observations: list[Observations], moved: list[Ellipsoids],
+            clusters: list[list[tuple[int, int]]],
             same: sp.csr_matrix, overlap: float) -> None:
     """Add each observation of `frame` to the nearest overlapping fused object of a like class that has none
     of this frame (nearest pairs first), or start a new object."""
@@ -204,7 +205,8 @@ def _assign(frame: int, observations: list[Observations], moved: list[Ellipsoids
     clusters.extend([(frame, k)] for k in range(count) if k not in taken_obs)
 
 
-def _merge(observations: list[Observations], moved: list[Ellipsoids], clusters: list[list[tuple[int, int]]]) -> Observations:
+def _merge(observations: list[Observations], moved: list[Ellipsoids],
+           clusters: list[list[tuple[int, int]]]) -> Observations:
     newest_frame = len(observations) - 1
     newest = observations[newest_frame]
     centers, axes, rotations = [], [], []
@@ -224,9 +226,11 @@ def _merge(observations: list[Observations], moved: list[Ellipsoids], clusters: 
             embeddings.append(mean / max(np.linalg.norm(mean), 1e-12))
     seen = len(newest)  # clusters seeded by the newest frame come first, in its order
     unseen = len(clusters) - seen
-    dimension = next((frame.image_embeddings.shape[1] for frame in observations if frame.image_embeddings is not None), 0)
+    dimension = next((frame.image_embeddings.shape[1] for frame in observations if frame.image_embeddings is not None),
+                     0)
     return Observations(
-        ellipsoids=Ellipsoids(np.reshape(centers, (-1, 3)), np.reshape(axes, (-1, 3)), np.reshape(rotations, (-1, 3, 3))),
+        ellipsoids=Ellipsoids(np.reshape(centers, (-1, 3)), np.reshape(axes, (-1, 3)),
+                              np.reshape(rotations, (-1, 3, 3))),
         class_ids=np.array(class_ids, np.int64),
         image_embeddings=np.reshape(embeddings, (-1, dimension)).astype(np.float32) if with_embeddings else None,
         instance_ids=np.array(instance_ids, np.int64),

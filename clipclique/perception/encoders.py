@@ -33,7 +33,8 @@ MAX_SAFETENSORS_HEADER = 100 * 2**20
 # What torch.save writes for tensors, parameters and (ordered) dicts; nothing that runs code.
 SAFE_PICKLE_GLOBALS = frozenset(
     {"collections OrderedDict", "torch._utils _rebuild_tensor_v2", "torch._utils _rebuild_parameter"}
-    | {f"torch {kind}Storage" for kind in ("Float", "Double", "Half", "BFloat16", "Long", "Int", "Short", "Char", "Byte", "Bool")}
+    | {f"torch {kind}Storage" for kind in ("Float", "Double", "Half", "BFloat16", "Long", "Int", "Short", "Char",
+                                           "Byte", "Bool")}
 )
 
 
@@ -105,7 +106,8 @@ class ClipEncoder:
             _check_weights(open_clip, model_name, pretrained)
         device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         try:
-            model, _, preprocess = open_clip.create_model_and_transforms(model_name, pretrained=pretrained, device=device)
+            model, _, preprocess = open_clip.create_model_and_transforms(model_name, pretrained=pretrained,
+                                                                         device=device)
         except Exception as error:  # open_clip and torch raise many types for weights that do not fit the model
             if not Path(pretrained).is_file():
                 raise
@@ -131,7 +133,8 @@ class ClipEncoder:
         chunks = [np.zeros((0, self.dim), np.float32)]
         with torch.inference_mode():
             for start in range(0, len(crops), self.batch_size):
-                batch = torch.stack([self.preprocess(Image.fromarray(c.pixels)) for c in crops[start:start + self.batch_size]])
+                batch = torch.stack([self.preprocess(Image.fromarray(c.pixels))
+                                     for c in crops[start:start + self.batch_size]])
                 chunks.append(self.model.encode_image(batch.to(self.device)).float().cpu().numpy())
         return normalize(np.concatenate(chunks))
 
@@ -153,7 +156,8 @@ def check_checkpoint(path: Path) -> None:
                 parse_json(handle.read(size), f"{path}: safetensors header", ModelUnavailableError)
                 return
         if not zipfile.is_zipfile(path):
-            raise ModelUnavailableError(f"{path}: not a torch checkpoint (not torch's zip format; raw pickles are refused)")
+            raise ModelUnavailableError(f"{path}: not a torch checkpoint (not torch's zip format; "
+                                        "raw pickles are refused)")
         with zipfile.ZipFile(path) as archive:
             pickles = [name for name in archive.namelist() if name.endswith("/data.pkl")]
             if len(pickles) != 1:

@@ -2,8 +2,8 @@
 
 Each detection mask is eroded (depth at object edges mixes fore- and background), its valid
 depth back-projected with the frame's intrinsics, outliers cut (neighbours from the image
-window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are dropped
-and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
+window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are
+dropped and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
 """
 
 from __future__ import annotations
@@ -20,8 +20,15 @@ import numpy as np
 from numba import njit
 
 from clipclique.config import ObservationParams
+from clipclique.geometry import (
+    Oriented,
+    _box_parts,
+    _neighbour_pass,
+    finished_box,
+    fit_ellipsoid_depth,
+    stack_ellipsoids,
+)
 from clipclique.perception.encoders import Crop, Encoder
-from clipclique.geometry import Oriented, _box_parts, _neighbour_pass, finished_box, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.types import Camera, Detections, Frame, Observations
 
 DROP_REASONS = ("tiny mask", "border sliver", "invalid depth", "degenerate fit")
@@ -36,7 +43,8 @@ class Extraction:
     dropped: dict[str, int]  # detections lost, by reason (keys: DROP_REASONS)
 
 
-def extract_observations(frame: Frame, detections: Detections, params: ObservationParams = ObservationParams()) -> Extraction:
+def extract_observations(frame: Frame, detections: Detections,
+                         params: ObservationParams = ObservationParams()) -> Extraction:
     """Fit one camera-frame ellipsoid per usable detection: the whole frame in one compiled pass (`_frame_pass`)
     where its input is plain, a detection the pass leaves to numpy (`Oriented.NOT_FINITE`) and every detection
     of an unusual input (`_plain`) one at a time (`_fit_detection`)."""
@@ -72,7 +80,8 @@ def extract_observations(frame: Frame, detections: Detections, params: Observati
                                 np.array(areas, int), Camera(frame.intrinsics, width, height, params.max_depth),
                                 scores=detections.scores[index].astype(float))
     corners = np.asarray(detections.boxes).tolist()  # Python numbers: `crop`'s floor and ceil without numpy scalars
-    crops = [Crop(crop(frame.rgb, corners[k]), None if frame.instances is None else crop(frame.instances, corners[k]), cut)
+    crops = [Crop(crop(frame.rgb, corners[k]), None if frame.instances is None else crop(frame.instances, corners[k]),
+                  cut)
              for k, cut in zip(kept, truncated)]
     return Extraction(observations, crops, dict(dropped))
 
@@ -152,7 +161,8 @@ def _compiled_frame_pass(k: int, radius: int):
         count = len(boxes)
         height, width = depth.shape
         outcomes = np.full(count, _Outcome.LEFT.value, np.int64)
-        pixels_of, in_band_of, oriented = np.zeros(count, np.int64), np.zeros(count, np.int64), np.zeros(count, np.int64)
+        pixels_of, in_band_of, oriented = (np.zeros(count, np.int64), np.zeros(count, np.int64),
+                                           np.zeros(count, np.int64))
         axes, means, middles = np.zeros((count, 3)), np.zeros((count, 3)), np.zeros((count, 3))
         rotations, eigenvectors = np.zeros((count, 3, 3)), np.zeros((count, 3, 3))
         pad = erode_px + 1
@@ -189,7 +199,8 @@ def _compiled_frame_pass(k: int, radius: int):
             if parts[0] == Oriented.NOT_FINITE.value:
                 continue  # LEFT
             outcomes[j], oriented[j] = _Outcome.BOXED.value, parts[0]
-            axes[j], rotations[j], means[j], middles[j], eigenvectors[j] = parts[1], parts[2], parts[3], parts[4], parts[5]
+            axes[j], rotations[j], means[j], middles[j], eigenvectors[j] = (parts[1], parts[2], parts[3], parts[4],
+                                                                            parts[5])
         return outcomes, pixels_of, in_band_of, oriented, axes, rotations, means, middles, eigenvectors
 
     return frame_pass

@@ -39,8 +39,10 @@ class MeshRaycaster:
         h, w = shape
         fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
         v, u = np.mgrid[0:h, 0:w].astype(np.float32)
-        directions = np.stack(((u - cx) / fx, (v - cy) / fy, np.ones_like(u)), axis=-1) @ pose.rotation.T.astype(np.float32)
-        rays = np.concatenate((np.broadcast_to(pose.translation.astype(np.float32), directions.shape), directions), axis=-1)
+        directions = (np.stack(((u - cx) / fx,
+                                (v - cy) / fy, np.ones_like(u)), axis=-1) @ pose.rotation.T.astype(np.float32))
+        rays = np.concatenate((np.broadcast_to(pose.translation.astype(np.float32), directions.shape), directions),
+                              axis=-1)
         hits = self.scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32)))
         t_hit = hits["t_hit"].numpy()  # distance in units of the (unnormalized) direction = camera z
         hit = np.isfinite(t_hit)

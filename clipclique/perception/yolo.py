@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from clipclique.errors import ModelUnavailableError
 from clipclique.perception.detectors import empty_detections, vocabulary_index
 from clipclique.perception.encoders import host_reachable
-from clipclique.errors import ModelUnavailableError
 from clipclique.types import Detections, Frame
 
 # The 80 COCO classes by their COCO-80 id (YOLO's class ids).
@@ -94,7 +94,8 @@ class YoloDetector:
         except Exception as error:  # download and unpickling failures come in many types
             raise ModelUnavailableError(f"--yolo-weights {weights}: cannot load ({error})") from None
         if model.task != "segment":
-            raise ModelUnavailableError(f"--yolo-weights {weights}: a {model.task} model; instance masks need a -seg model")
+            raise ModelUnavailableError(f"--yolo-weights {weights}: a {model.task} model; instance "
+                                        "masks need a -seg model")
         return cls(model, class_names, confidence, device)
 
     def detect(self, frame: Frame) -> Detections:

@@ -14,8 +14,14 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import PoseWeights
-from clipclique.pose.fit import (WEIGHT_MODES, compiled_weighted_sets, fit_rigid_batch, fit_rigid_sets, nonzero_counts,
-                             weighted_sets)
+from clipclique.pose.fit import (
+    WEIGHT_MODES,
+    compiled_weighted_sets,
+    fit_rigid_batch,
+    fit_rigid_sets,
+    nonzero_counts,
+    weighted_sets,
+)
 from clipclique.pose.stack import Stack, alike, alike_spans
 from clipclique.types import Hypothesis, Map, Observations, Pose
 

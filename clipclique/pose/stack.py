@@ -83,14 +83,17 @@ class Stack:
                      conditioning=np.concatenate([s.conditioning for s in stacks] or [np.zeros(0)]))
 
 
-def alike(poses: np.ndarray, pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def alike(poses: np.ndarray, pairs: np.ndarray,
+          starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which of R items are identical (the same float bits, so -0 and +0 differ): item r is row r of `poses` (R, P)
     float (P = 0: pairs alone) and the pairs[starts[r]: starts[r] + counts[r]] of `pairs` (M, 2) or (M,) int. (R,)
-    each item's group, numbered in order of first appearance, and (G,) each group's first item: the work of each group done once (`alike_spans`)."""
+    each item's group, numbered in order of first appearance, and (G,) each group's first item: the work of each group
+    done once (`alike_spans`)."""
     bits = np.ascontiguousarray(poses, np.float64).view(np.int64)
     values = np.ascontiguousarray(pairs, np.int64)
     width = values.shape[1] if values.ndim == 2 else 1  # the pairs' numbers one after another
-    return alike_spans(bits, values.reshape(-1), width * np.asarray(starts, np.int64), width * np.asarray(counts, np.int64))
+    return alike_spans(bits, values.reshape(-1), width * np.asarray(starts, np.int64),
+                       width * np.asarray(counts, np.int64))
 
 
 @njit(cache=True)

@@ -21,9 +21,9 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
-from typing import IO
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -206,7 +206,9 @@ def write_scannet_mesh(folder: Path, scene: str, room: Room) -> None:
 
     categories = sorted({o.category for o in room.objects})
     label_of = np.array([categories.index(o.category) + 1 for o in room.objects], dtype=np.uint16)
-    vertex = np.empty(len(room.vertices), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"), ("alpha", "u1"), ("label", "u2")])
+    vertex = np.empty(len(room.vertices),
+                      dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                             ("alpha", "u1"), ("label", "u2")])
     for k, axis in enumerate("xyz"):
         vertex[axis] = room.vertices[:, k]
     for k, channel in enumerate(("red", "green", "blue")):
@@ -215,17 +217,22 @@ def write_scannet_mesh(folder: Path, scene: str, room: Room) -> None:
     vertex["label"] = label_of[room.segment_objects[room.vertex_segments]]
     face = np.empty(len(room.faces), dtype=[("vertex_indices", "i4", (3,))])
     face["vertex_indices"] = room.faces
-    PlyData([PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
+    PlyData([PlyElement.describe(vertex, "vertex"),
+             PlyElement.describe(face, "face", len_types={"vertex_indices": "u1"})]).write(
         str(folder / f"{scene}_vh_clean_2.labels.ply")
     )
     segs_name = f"{scene}_vh_clean_2.0.010000.segs.json"
-    segs = {"params": {"kThresh": "0.0001", "segMinVerts": "20", "minPoints": "750", "maxPoints": "30000", "thinThresh": "0.05", "flatThresh": "0.001", "minLength": "0.02", "maxLength": "1"}, "sceneId": scene, "segIndices": room.vertex_segments.tolist()}
+    segs = {"params": {"kThresh": "0.0001", "segMinVerts": "20", "minPoints": "750", "maxPoints": "30000",
+                       "thinThresh": "0.05", "flatThresh": "0.001", "minLength": "0.02", "maxLength": "1"},
+            "sceneId": scene, "segIndices": room.vertex_segments.tolist()}
     (folder / segs_name).write_text(json.dumps(segs))
     groups = [
-        {"id": o.object_id, "objectId": o.object_id, "segments": np.flatnonzero(room.segment_objects == o.object_id).tolist(), "label": o.category}
+        {"id": o.object_id, "objectId": o.object_id,
+         "segments": np.flatnonzero(room.segment_objects == o.object_id).tolist(), "label": o.category}
         for o in room.objects
     ]
-    aggregation = {"sceneId": f"scannet.{scene}", "appId": "Aggregator.v2", "segGroups": groups, "segmentsFile": f"scannet.{segs_name}"}
+    aggregation = {"sceneId": f"scannet.{scene}", "appId": "Aggregator.v2", "segGroups": groups,
+                   "segmentsFile": f"scannet.{segs_name}"}
     (folder / f"{scene}.aggregation.json").write_text(json.dumps(aggregation))
     descriptions = {str(o.object_id): o.description for o in room.objects if o.category not in STRUCTURE_CLASSES}
     (folder / f"{scene}_descriptions.json").write_text(json.dumps(descriptions, indent=1) + "\n")
@@ -243,7 +250,8 @@ class ScanNetWriter:
         write_scannet_mesh(self.folder, self.scene, self.room)
         matrix = np.eye(4)
         matrix[:3, :3] = intrinsics
-        for stem, value in (("intrinsic_depth", matrix), ("intrinsic_color", matrix), ("extrinsic_depth", np.eye(4)), ("extrinsic_color", np.eye(4))):
+        for stem, value in (("intrinsic_depth", matrix), ("intrinsic_color", matrix), ("extrinsic_depth", np.eye(4)),
+                            ("extrinsic_color", np.eye(4))):
             np.savetxt(self.folder / "intrinsic" / f"{stem}.txt", value, fmt="%f")
 
     def frame(self, i: int, t: float, rgb: np.ndarray, depth: np.ndarray, objects: np.ndarray, pose: Pose) -> None:
@@ -276,7 +284,8 @@ class TumWriter:
         fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
         (self.folder / "intrinsics.txt").write_text(f"# fx fy cx cy (pixels)\n{fx:.4f} {fy:.4f} {cx:.4f} {cy:.4f}\n")
         rows = ["id,class,description"] + [
-            f'{o.object_id + 1},{o.category},"{o.description}"' for o in self.room.objects if self.annotated[o.object_id]
+            f'{o.object_id + 1},{o.category},"{o.description}"'
+            for o in self.room.objects if self.annotated[o.object_id]
         ]
         (self.folder / "annotations" / "objects.csv").write_text("\n".join(rows) + "\n")
 
@@ -285,7 +294,8 @@ class TumWriter:
         rgb_stamp = f"{self.START + t + self.rng.uniform(0.0, 0.004):.6f}"
         depth_stamp = f"{self.START + t + self.rng.uniform(0.006, 0.014):.6f}"
         _save_png(self.folder / "rgb" / f"{rgb_stamp}.png", rgb)
-        _save_png(self.folder / "depth" / f"{depth_stamp}.png", np.clip(np.round(depth * 5000), 0, 65535).astype(np.uint16))
+        _save_png(self.folder / "depth" / f"{depth_stamp}.png",
+                  np.clip(np.round(depth * 5000), 0, 65535).astype(np.uint16))
         ids = np.where((objects >= 0) & self.annotated[np.maximum(objects, 0)], objects + 1, 0)
         _save_png(self.folder / "annotations" / "instances" / f"{rgb_stamp}.png", ids.astype(np.uint16))
         self.rgb_lines.append(f"{rgb_stamp} rgb/{rgb_stamp}.png")
@@ -298,7 +308,8 @@ class TumWriter:
         (self.folder / "rgb.txt").write_text(header.format("color images") + "\n".join(self.rgb_lines) + "\n")
         (self.folder / "depth.txt").write_text(header.format("depth maps") + "\n".join(self.depth_lines) + "\n")
         times = np.arange(-0.2, self.spec.duration_s + 0.2, 0.01) + 0.0023  # 100 Hz motion capture, own clock phase
-        lines = ["# ground truth trajectory", "# file: 'clipclique demo (synthetic)'", "# timestamp tx ty tz qx qy qz qw"]
+        lines = ["# ground truth trajectory", "# file: 'clipclique demo (synthetic)'",
+                 "# timestamp tx ty tz qx qy qz qw"]
         for t, pose in zip(times, self.walk.poses(times)):
             q = Rotation.from_matrix(pose.rotation).as_quat()  # x y z w, TUM's order
             lines.append(f"{self.START + t:.4f} " + " ".join(f"{v:.4f}" for v in (*pose.translation, *q)))

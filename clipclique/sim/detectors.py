@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass, field
-from typing import ClassVar
 from functools import cached_property
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from numba import njit
@@ -202,8 +202,10 @@ class SimulatedYoloDetector:
         detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
         return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections
 
-    def _with_duplicates(self, rng: np.random.Generator, detections: Detections, true_classes: np.ndarray) -> Detections:
-        """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the hits)."""
+    def _with_duplicates(self, rng: np.random.Generator, detections: Detections,
+                         true_classes: np.ndarray) -> Detections:
+        """`detections` followed by a second box of another class on some of its first `len(true_classes)` (the
+        hits)."""
         targets, _ = self._confusions
         hits = len(true_classes)
         assigned = detections.class_ids[:hits]
@@ -274,7 +276,8 @@ class SimulatedYoloDetector:
         elif self._mapped_table is None:
             mapped = np.isin(frame.instances, list(self.truth.mapped_ids))
         else:
-            return _free_pixels(np.ascontiguousarray(frame.instances), np.ascontiguousarray(frame.depth), self._mapped_table)
+            return _free_pixels(np.ascontiguousarray(frame.instances), np.ascontiguousarray(frame.depth),
+                                self._mapped_table)
         return mapped, np.flatnonzero((frame.depth > 0) & ~mapped)
 
 

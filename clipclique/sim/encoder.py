@@ -63,7 +63,8 @@ class SimulatedClipEncoder:
         self.truncated_visibility = truncated_visibility
         self.seed = seed
         self._shared = self._direction("<shared>")
-        self._texts: dict[str, np.ndarray] = {}  # text -> embedding: a run embeds the map's few descriptions again and again
+        # text -> embedding: a run embeds the map's few descriptions again and again
+        self._texts: dict[str, np.ndarray] = {}
 
     def _direction(self, key: str) -> np.ndarray:
         rng = np.random.default_rng(_seed(str(self.seed), key))

@@ -96,7 +96,8 @@ def _grid_box(size: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]
     for axis in range(3):
         b, c = [a for a in range(3) if a != axis]
         nb, nc = (max(1, int(np.ceil(size[k] / spacing))) for k in (b, c))
-        gb, gc = np.meshgrid(np.linspace(-0.5, 0.5, nb + 1) * size[b], np.linspace(-0.5, 0.5, nc + 1) * size[c], indexing="ij")
+        gb, gc = np.meshgrid(np.linspace(-0.5, 0.5, nb + 1) * size[b], np.linspace(-0.5, 0.5, nc + 1) * size[c],
+                             indexing="ij")
         idx = np.arange((nb + 1) * (nc + 1)).reshape(nb + 1, nc + 1)
         quads = np.stack((idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]), axis=-1).reshape(-1, 4)
         tris = np.concatenate((quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]))
@@ -292,7 +293,8 @@ def add_shell(b: RoomBuilder, size: np.ndarray, walls: list[tuple[float, float, 
               spacing=spacing)
 
 
-def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05, boxes: int = 0) -> Room:
+def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spacing: float = 0.05,
+              boxes: int = 0) -> Room:
     """A furnished room (about 40 objects plus walls, floor and ceiling), the same for the same seed.
 
     `spacing` bounds the mesh's vertex spacing on furniture; `boxes` (at most 8) adds storage
@@ -328,8 +330,10 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
     dining = spot(2.6, 3.7)
     dining_yaw = rng.uniform(-0.15, 0.15)
     top = f.table(dining, dining_yaw, *f.colors(1))
-    for (dx, dy, face), color in zip(((0.75, 0, np.pi), (-0.75, 0, 0.0), (0.3, 0.62, -np.pi / 2), (-0.3, -0.62, np.pi / 2)), f.colors(4)):
-        f.chair(dining + yaw_offset(dining_yaw, dx, dy) + [*rng.uniform(-0.05, 0.05, 2), 0], dining_yaw + face + rng.uniform(-0.2, 0.2), color)
+    for (dx, dy, face), color in zip(((0.75, 0, np.pi), (-0.75, 0, 0.0), (0.3, 0.62, -np.pi / 2),
+                                      (-0.3, -0.62, np.pi / 2)), f.colors(4)):
+        f.chair(dining + yaw_offset(dining_yaw, dx, dy) + [*rng.uniform(-0.05, 0.05, 2), 0],
+                dining_yaw + face + rng.uniform(-0.2, 0.2), color)
     f.tabletop_items(dining + [0, 0, top], dining_yaw, int(rng.integers(1, 4)), int(rng.integers(1, 3)), (0.45, 0.22))
 
     # Lounge: sofa against the wall y = D facing the room, coffee table, armchair, TV on a stand.
@@ -363,7 +367,8 @@ def make_room(seed: int, size=(8.0, 6.0, 2.7), wall_spacing: float = 0.12, spaci
     for k, color in enumerate(f.colors(min(boxes, 8))):
         f.block("box", np.array([0.9 + 0.42 * k, D - 0.25, 0.0]), rng.uniform(-0.2, 0.2), color, (0.35, 0.3, 0.3))
 
-    focus = [desk + [0, 0, 0.9], (0.3, 2.3, 1.0), dining + [0, 0, 0.7], sofa + [0, -0.8, 0.5], stand + [0, 0, 0.7], bed + [0.2, 0, 0.6], (4.2, 0.3, 0.6)]
+    focus = [desk + [0, 0, 0.9], (0.3, 2.3, 1.0), dining + [0, 0, 0.7], sofa + [0, -0.8, 0.5], stand + [0, 0, 0.7],
+             bed + [0.2, 0, 0.6], (4.2, 0.3, 0.6)]
     return b.build(size, focus)
 
 

@@ -23,13 +23,13 @@ import numpy as np
 
 from clipclique.sim.procedural import (
     PALETTE,
-    Room,
-    Walk,
     Furniture,
+    Room,
     RoomBuilder,
-    yaw_offset,
+    Walk,
     add_shell,
     hand_shake,
+    yaw_offset,
 )
 
 WALL_SPACING = 0.12
@@ -41,7 +41,8 @@ def _curtain(f: Furniture, at, yaw: float, color: str, width: float, height: flo
     folds = max(2, int(round(width / 0.2)))
     for k in range(folds):
         offset = yaw_offset(yaw, 0.05 * (k % 2), -width / 2 + (k + 0.5) * width / folds)
-        f.b.box(obj, rgb, (0.03, width / folds + 0.02, height - 0.1), at + offset + [0, 0, 0.1 + (height - 0.1) / 2], yaw)
+        f.b.box(obj, rgb, (0.03, width / folds + 0.02, height - 0.1), at + offset + [0, 0, 0.1 + (height - 0.1) / 2],
+                yaw)
 
 
 def make_apartment(seed: int) -> Room:
@@ -178,7 +179,8 @@ def make_desk(seed: int, corners: bool = False) -> Room:
         f.cylinder_object("bottle", spot(), color(), 0.035, 0.24)
     for _ in range(2):
         f.block("cell phone", spot(), rng.uniform(-0.8, 0.8), color(), (0.15, 0.075, 0.025))
-    for category, dims in (("fork", (0.19, 0.035, 0.025)), ("knife", (0.21, 0.03, 0.025)), ("spoon", (0.17, 0.045, 0.025)),
+    for category, dims in (("fork", (0.19, 0.035, 0.025)), ("knife", (0.21, 0.03, 0.025)),
+                           ("spoon", (0.17, 0.045, 0.025)),
                            ("scissors", (0.2, 0.08, 0.025)), ("remote", (0.19, 0.05, 0.025))):
         f.block(category, spot(), rng.uniform(-0.8, 0.8), color(), dims)
     f.block("laptop", spot(), 0.0, color(), (0.34, 0.24, 0.025))

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from clipclique.geometry import look_at
-from clipclique.verify.projection import box_area, project
 from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose
+from clipclique.verify.projection import box_area, project
 
 ENCODER = "simulated-clip"
 SIMULATED_CAMERA = Camera(np.array([[320.0, 0.0, 320.0], [0.0, 320.0, 240.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)

@@ -269,7 +269,8 @@ def load_model(path: str = "") -> ConfidenceModel | None:
     unknown = [name for name in names if name not in FEATURES]
     if unknown:
         raise ClipcliqueError(f"{file}: unknown features {', '.join(unknown)} (known: {', '.join(FEATURES)})")
-    if any(a.shape != (len(names),) for a in arrays) or not all(np.isfinite(a).all() for a in arrays) or len(platt) != 2:
+    if (any(a.shape != (len(names),) for a in arrays) or not all(np.isfinite(a).all() for a in arrays)
+        or len(platt) != 2):
         raise ClipcliqueError(f"{file}: mean, scale and coefficients must be {len(names)} finite numbers each, "
                               "platt two")
     return ConfidenceModel(names, *arrays, intercept, platt, data.get("provenance", {}))

@@ -3,8 +3,9 @@
 An ellipsoid with centre c, rotation R and semi-axes s is the unit sphere moved by
 H = [[R diag(s), c], [0, 1]]; its dual quadric is Q* = H diag(1, 1, 1, -1) H^T. A camera
 P = K [R_c^T | -R_c^T t_c] (pose (R_c, t_c) camera-to-map) sees its outline as the dual conic
-C* = P Q* P^T (Hartley & Zisserman, 8.3), computed in the expanded form `project` gives. The tangent lines x = u of that conic, (1, 0, -u) C* (1, 0, -u)^T = 0,
-give the box in closed form: u = (C*13 +- sqrt(C*13^2 - C*11 C*33)) / C*33, and likewise v.
+C* = P Q* P^T (Hartley & Zisserman, 8.3), computed in the expanded form `project` gives. The tangent lines x = u of that
+conic, (1, 0, -u) C* (1, 0, -u)^T = 0, give the box in closed form: u = (C*13 +- sqrt(C*13^2 - C*11 C*33)) / C*33, and
+likewise v.
 
 The projection is an ellipse only when the whole ellipsoid lies in front of the camera, so a
 landmark any part of which is nearer than MIN_DEPTH (behind or around the camera), whose centre is
@@ -200,16 +201,16 @@ def _term(spread: np.ndarray, kron_row: np.ndarray) -> float:
 
 @njit(cache=True)
 def _kron(view: np.ndarray) -> np.ndarray:
-    """(B, 3, 3, 3, 3) `np.einsum("bij,blk->biljk", view, view)`, compiled, without einsum's setup (a fifth of a
+    """(B, 3, 3, 3, 3) `np.einsum("bij,bmk->bimjk", view, view)`, compiled, without einsum's setup (a fifth of a
     frame's projection)."""
     count = view.shape[0]
     kron = np.empty((count, 3, 3, 3, 3))
     for b in range(count):
         for i in range(3):
-            for l in range(3):
+            for m in range(3):
                 for j in range(3):
                     for k in range(3):
-                        kron[b, i, l, j, k] = view[b, i, j] * view[b, l, k]
+                        kron[b, i, m, j, k] = view[b, i, j] * view[b, m, k]
     return kron
 
 
@@ -230,7 +231,8 @@ def _outline_boxes(spreads: np.ndarray, centers: np.ndarray, width: float, heigh
                 for j in range(3):
                     conic[i, j] = spreads[b, n, 3 * i + j] - center[i] * center[j]
             (boxes[b, n, 0], boxes[b, n, 1], boxes[b, n, 2], boxes[b, n, 3], visible[b, n],
-             full_areas[b, n]) = _outline_box(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2], center[2],
+             full_areas[b, n]) = _outline_box(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2],
+                                              center[2],
                                               width, height, max_depth)
     return conics, boxes, visible, full_areas
 

@@ -33,10 +33,10 @@ from numba import njit
 
 from clipclique.config import VerificationConfig
 from clipclique.errors import ClipcliqueError
-from clipclique.verify import projection
-from clipclique.verify.projection import at_least_zero, box_iou, corners_iou, project
 from clipclique.pose.stack import Stack, alike_spans
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations
+from clipclique.verify import projection
+from clipclique.verify.projection import at_least_zero, box_iou, corners_iou, project
 
 
 @dataclass(kw_only=True)

@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 import rerun as rr
-from rerun.encodings import ChannelDatatype
 from PIL import Image
+from rerun.encodings import ChannelDatatype
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -66,7 +66,8 @@ def camera(
         transform = rr.Transform3D.cleared()
     else:
         transform = rr.Transform3D(translation=pose.translation, mat3x3=pose.rotation)
-    look = np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tobytes(), width, height, tuple(np.ravel(color).tolist())
+    look = (np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).tobytes(), width, height,
+            tuple(np.ravel(color).tolist()))
     return [transform, pinhole(*look, plane)]
 
 
@@ -128,7 +129,8 @@ def depth_fields(depth: np.ndarray) -> dict:
 def image_fields(image: np.ndarray) -> dict:
     """The buffer and format `rr.DepthImage(image)` or `rr.SegmentationImage(image)` make of a 2D array."""
     height, width = image.shape
-    format = rr.components.ImageFormat(width=width, height=height, channel_datatype=ChannelDatatype.from_np_dtype(image.dtype))
+    format = rr.components.ImageFormat(width=width, height=height,
+                                       channel_datatype=ChannelDatatype.from_np_dtype(image.dtype))
     return {"buffer": image.tobytes(), "format": format}
 
 
@@ -164,7 +166,8 @@ def box_fields(detections: Detections, class_names: list[str]) -> tuple[dict, di
     """The detection boxes with a visible label where it does not crowd a larger box's (the viewer draws it
     under the box's centre), and the crowded ones labelled on hover only: the fields of two Boxes2D (an
     ArchetypeRows row each), centres and half sizes as `rr.Boxes2D(array=..., array_format=XYXY)` makes them."""
-    labels = np.array([f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)], dtype=object)
+    labels = np.array([f"{class_names[c]} {s:.2f}" for c, s in zip(detections.class_ids, detections.scores)],
+                      dtype=object)
     boxes = np.asarray(detections.boxes, dtype=np.float64).reshape(-1, 4)
     anchors = np.column_stack(((boxes[:, 0] + boxes[:, 2]) / 2 / BOX_LABEL_WIDTH, boxes[:, 3]))
     shown = spread_labels(anchors, (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]), BOX_LABEL_SPACING)

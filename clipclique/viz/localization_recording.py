@@ -13,8 +13,8 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from clipclique.config import GraphConfig
-from clipclique.verify.projection import box_iou, ellipse_outlines, project
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
+from clipclique.verify.projection import box_iou, ellipse_outlines, project
 from clipclique.viz.blueprints import localization_blueprint
 from clipclique.viz.convert import (
     box_fields,
@@ -41,8 +41,8 @@ from clipclique.viz.style import (
 
 if TYPE_CHECKING:
     from clipclique.metrics import FrameEvaluation
-    from clipclique.pipeline import LocalizationResult
     from clipclique.multiframe.window import WindowQuery
+    from clipclique.pipeline import LocalizationResult
 
 CAMERA = "world/camera/gt"  # holds the query image and overlays, so they hang in the ground-truth frustum
 DEPTH = "depth"  # outside `world`: subsampled (see convert), shown in its own 2D view, not projected
@@ -155,8 +155,9 @@ class LocalizationRecorder:
 
     @queued
     def log_window(self, query: WindowQuery, placement: Pose | None) -> None:
-        """(Queued after the frame it belongs to, so it lands at that frame's time.) The fused window of the frame just logged: each source frame's observations moved into the newest
-        camera (newest brightest, older ones fading) and the odometry path of the window's cameras, placed by
+        """(Queued after the frame it belongs to, so it lands at that frame's time.) The fused window of the frame just
+        logged: each source frame's observations moved into the newest camera (newest brightest, older ones fading) and
+        the odometry path of the window's cameras, placed by
         `placement` (the ground truth, else the top-1 estimate)."""
         if placement is None:
             for path in (WINDOW_SOURCES, WINDOW_PATH):
@@ -382,7 +383,8 @@ def estimate_trajectory_columns(rows: list[tuple[np.ndarray, np.ndarray]]) -> li
     """The top-1 positions so far at each frame (positions, match_correctness codes), coloured by correctness."""
     positions, codes = zip(*rows)
     points = rr.Points3D.columns(positions=np.concatenate(positions),
-                                 colors=correctness_colors(np.concatenate(codes))).partition([len(p) for p in positions])
+                                 colors=correctness_colors(np.concatenate(codes))).partition([len(p)
+                                                                                              for p in positions])
     return [*points, *rr.Points3D.columns(radii=[rr.Radius.ui_points(4.0)] * len(rows))]
 
 

@@ -53,7 +53,8 @@ def log_map(stream: rr.RecordingStream, map: Map, d_adj: float) -> None:
     shown = spread_labels(map.ellipsoids.centers, map.ellipsoids.axes.prod(axis=1), LABEL_SPACING)
     labels = [map.class_names[c] if keep else "" for c, keep in zip(map.class_ids, shown)]
     # hover values; rerun warns about an AnyValues with nothing in it, so a map without landmarks has none
-    hover = [rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids))] if len(map) else []
+    hover = ([rr.AnyValues(description=list(map.descriptions), instance_id=np.asarray(map.instance_ids))] if len(map)
+             else [])
     stream.log("world/map/landmarks", ellipsoids3d(map.ellipsoids, map.class_ids, labels=labels), *hover, static=True)
     edges = graph_edges(map.ellipsoids.centers, d_adj)
     stream.log(

@@ -130,11 +130,13 @@ class ColumnsAtClose:
     anyway), kept until the run ends and then sent as one column per entity and component: one Rerun call each per
     run, where logging it frame by frame took a call per entity per frame on the recorder's thread (Python work
     under the GIL the run needs). Rows are kept as plain values (scalars, clears, an archetype's fields: see
-    ArchetypeRows) and built into archetypes only at the end. A viewer sees the same values at the same frames; a run killed before `send` loses them. Small data only: images belong on the stream."""
+    ArchetypeRows) and built into archetypes only at the end. A viewer sees the same values at the same frames; a run
+    killed before `send` loses them. Small data only: images belong on the stream."""
 
     def __init__(self) -> None:
         # (path, how rows become columns) -> [(frame, stamp, row)]
-        self._rows: dict[tuple[str, Callable[[list], Iterable[rr.ComponentColumn]]], list[tuple[int, float | None, object]]] = {}
+        self._rows: dict[tuple[str, Callable[[list], Iterable[rr.ComponentColumn]]],
+                         list[tuple[int, float | None, object]]] = {}
 
     def add(self, path: str, frame: int, timestamp: float | None, row: Row,
             columns: Callable[[list[Row]], Iterable[rr.ComponentColumn]]) -> None:

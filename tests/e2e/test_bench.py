@@ -1,4 +1,5 @@
-"""The benchmark suite (clipclique.benchmark.suite, clipclique.benchmark.report): a quick run on the demo, and the report's logic."""
+"""The benchmark suite (clipclique.benchmark.suite, clipclique.benchmark.report): a quick run on the demo, and the
+report's logic."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clipclique.benchmark import report, suite as bench
+from clipclique.benchmark import report
+from clipclique.benchmark import suite as bench
 from clipclique.config import make_config
 from clipclique.sim.demo import DEMO_SCENES
 
@@ -27,7 +29,8 @@ def quick_run(tmp_path_factory) -> Path:
     """`tools/bench.py --sequences demo --quick` run from an empty folder (so it builds its own demo map)."""
     cwd = tmp_path_factory.mktemp("bench")
     env = os.environ | {"CLIPCLIQUE_DATA": str(ROOT / "data")}
-    subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--sequences", "demo", "--quick", "--out", "report"],
+    subprocess.run([sys.executable, str(ROOT / "tools" / "bench.py"), "--sequences", "demo", "--quick", "--out",
+                    "report"],
                    cwd=cwd, env=env, check=True, capture_output=True, timeout=300)
     return cwd / "report"
 
@@ -49,7 +52,8 @@ def section(markdown: str, heading: str) -> str:
 
 def test_quick_report_has_every_row_with_numbers(quick_run):
     text = (quick_run / "report.md").read_text()
-    tables = {"methods": section(text, "Table I"), **dict.fromkeys(("fixes", "descriptors", "inliers", "weights", "matching"),
+    tables = {"methods": section(text, "Table I"),
+              **dict.fromkeys(("fixes", "descriptors", "inliers", "weights", "matching"),
                                                                     section(text, "Ablations"))}
     for group, table in tables.items():
         for label in GROUP_LABELS[group]:
@@ -85,10 +89,11 @@ def test_quick_report_matches_its_json(quick_run):
 
 
 def test_cached_observations_give_the_numbers_clipclique_loc_gives(quick_run):
-    from clipclique.sim.demo import DEMO_SCENES
     from clipclique.localization.run import RunSettings, execute, prepare
+    from clipclique.sim.demo import DEMO_SCENES
 
-    settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz", data_root=ROOT / "data",
+    settings = RunSettings("demo", map_path=quick_run.parent / "outputs" / "maps" / "demo.map.npz",
+                           data_root=ROOT / "data",
                            stride=DEMO_SCENES["demo"].num_frames // bench.QUICK_FRAMES, max_frames=bench.QUICK_FRAMES,
                            record=False)
     direct = execute(prepare(settings)).summary()
@@ -139,12 +144,14 @@ def test_claims_say_plainly_when_ours_disagree():
     assert verdicts["Pose weights lower the error (median TE, w_sim * w_com vs none)"] == "agrees"
     assert verdicts["Adaptive matching is best"] == "–"  # the group did not run
     assert verdicts["SH + CLIP beats either descriptor alone"] == "agrees"
-    assert verdicts["True pairs: CLIP similarity reaches about 0.4 where SH reaches about 0.8"] == "**disagrees**"  # SH 0.2
+    # SH 0.2
+    assert verdicts["True pairs: CLIP similarity reaches about 0.4 where SH reaches about 0.8"] == "**disagrees**"
 
 
 def test_real_sequences_need_their_map(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    for folder in ("data/scannet/scans/scene0001_00", "data/scannet/scans/scene0002_00", "data/tum/rgbd_dataset_freiburg2_desk"):
+    for folder in ("data/scannet/scans/scene0001_00", "data/scannet/scans/scene0002_00",
+                   "data/tum/rgbd_dataset_freiburg2_desk"):
         (tmp_path / folder).mkdir(parents=True)
     (tmp_path / "outputs" / "maps").mkdir(parents=True)
     (tmp_path / "outputs" / "maps" / "scene0002_00.map.npz").touch()
@@ -165,7 +172,8 @@ def test_a_failed_demo_map_build_is_one_line(tmp_path, monkeypatch, capsys):
         raise DatasetError("data/demo: cannot write the demo scene there (Permission denied)")
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr("clipclique.benchmark.engine.run_build", unwritable)  # the suite builds demo maps through the engine
+    # the suite builds demo maps through the engine
+    monkeypatch.setattr("clipclique.benchmark.engine.run_build", unwritable)
     with pytest.raises(SystemExit) as exit_info:
         bench.main(["--sequences", "demo", "--quick", "--out", "report"])
     assert exit_info.value.code == 2
@@ -177,7 +185,8 @@ def test_a_failed_demo_map_build_is_one_line(tmp_path, monkeypatch, capsys):
 def test_each_ablation_changes_one_part_of_clipclique_and_seeds_only_vary_stochastic_ones():
     def flat(tree: dict, prefix: str = "") -> dict:
         return {k: v for key, value in tree.items()
-                for k, v in (flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
+                for k, v in (flat(value, f"{prefix}{key}.") if isinstance(value, dict)
+                             else {f"{prefix}{key}": value}).items()}
 
     for variant in bench.variants():
         if variant.group == "methods":
@@ -230,7 +239,8 @@ def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkey
 
     monkeypatch.chdir(quick_run.parent)
     run = prepare(RunSettings("demo", data_root=ROOT / "data", max_frames=2, record=False))
-    timed = bench.gpu_stages(run, frames=1, device="cpu", warmup=1, clip_model="ViT-B-32", yolo_config="yolov8n-seg.yaml")
+    timed = bench.gpu_stages(run, frames=1, device="cpu", warmup=1, clip_model="ViT-B-32",
+                             yolo_config="yolov8n-seg.yaml")
     assert timed["frames"] == 1 and set(timed["stage_ms"]) == {"detector", "observations", "encoder"}
     assert all(ms > 0 for ms in timed["stage_ms"].values())
     results = {"gpu": {"ran": True, "sequence": "demo", **timed}}
@@ -240,7 +250,8 @@ def test_gpu_stages_time_every_stage_with_random_weight_models(quick_run, monkey
 
 
 def test_bench_loc_user_mistakes_are_one_line(tmp_path):
-    for args, expected in ((["nosuch"], "unknown scene 'nosuch'"), (["--repeat", "0"], "--repeat"), (["--method", "x"], "--method")):
+    for args, expected in ((["nosuch"], "unknown scene 'nosuch'"), (["--repeat", "0"], "--repeat"),
+                           (["--method", "x"], "--method")):
         done = subprocess.run([sys.executable, str(ROOT / "tools" / "bench_loc.py"), *args], cwd=tmp_path,
                               capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and expected in done.stderr and "Traceback" not in done.stderr, done.stderr
@@ -256,12 +267,13 @@ def test_readme_figures_are_the_committed_reports():
 
 def test_update_readme_replaces_only_its_regions():
     text = "a\n<!-- figures:benchmark -->\nold\n<!-- /figures -->\nb\n"
-    assert report.update_readme(text, {"benchmark": "new\n"}) == "a\n<!-- figures:benchmark -->\nnew\n<!-- /figures -->\nb\n"
+    assert (report.update_readme(text, {"benchmark": "new\n"})
+            == "a\n<!-- figures:benchmark -->\nnew\n<!-- /figures -->\nb\n")
     with pytest.raises(ValueError, match="do not match"):
         report.update_readme("no region\n", {"benchmark": "new\n"})
     other = text + "<!-- figures:scene_stats_demo_desk -->\n| x |\n<!-- /figures -->\n"  # another generator's region
-    assert report.update_readme(other, {"benchmark": "new\n"}).endswith("<!-- figures:scene_stats_demo_desk -->\n| x |\n"
-                                                                         "<!-- /figures -->\n")
+    assert report.update_readme(other, {"benchmark": "new\n"}).endswith(
+        "<!-- figures:scene_stats_demo_desk -->\n| x |\n<!-- /figures -->\n")
 
 
 def test_make_docs_regenerates_every_readme_region(tmp_path):

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
-from clipclique.metrics import SUCCESS_THRESHOLDS_M
-from clipclique.outcomes import FailureKind
 from clipclique.localization.results import read_results
 from clipclique.localization.run import RunSettings, run_and_save
 from clipclique.mapping.build import build_map
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
+from clipclique.outcomes import FailureKind
+from clipclique.resolve import open_scene
 
 pytestmark = pytest.mark.slow
 METHODS = ("clipclique", "sh", "xview", "cliploc")
@@ -172,7 +172,8 @@ def test_make_demo_reports_a_user_error_in_one_line(monkeypatch, capsys, reposit
     with pytest.raises(SystemExit) as exit_info:
         tool.main()
     assert exit_info.value.code == 2
-    assert capsys.readouterr().err == "demo: error: --out outputs/loc/demo/clipclique: cannot create the folder (Not a directory)\n"
+    assert capsys.readouterr().err == ("demo: error: --out outputs/loc/demo/clipclique: cannot create the "
+                                       "folder (Not a directory)\n")
 
 
 def test_results_carry_each_hypothesis_verification_and_confidence(runs):

@@ -18,10 +18,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from tolerance import compare, decisions
 
 from clipclique.localization.results import read_results, results_digest
 from clipclique.localization.run import RunSettings, run_and_save
-from tolerance import compare, decisions
 
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]  # the repository

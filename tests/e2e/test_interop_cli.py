@@ -23,7 +23,8 @@ RUNNER = CliRunner()
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("maps") / "demo_tum.map.npz"
-    result = RUNNER.invoke(map_app, ["build", "demo_tum", "--data-root", str(ROOT / "data"), "--out", str(path), "--no-rrd", "-q"])
+    result = RUNNER.invoke(map_app, ["build", "demo_tum", "--data-root", str(ROOT / "data"), "--out", str(path),
+                                     "--no-rrd", "-q"])
     assert result.exit_code == 0, result.output
     return path
 
@@ -53,7 +54,8 @@ def test_text_round_trip_keeps_geometry_and_names_what_it_cannot_write(built, tm
     assert exported.exit_code == 0, exported.output
     assert "left out" in exported.output and "lamp" in exported.output and "office chair as chair" in exported.output
     original = load_map(built)
-    imported = RUNNER.invoke(map_app, ["import", str(out), "--encoder", "none", "--no-rrd", "--out", str(tmp_path / "t.map.npz")])
+    imported = RUNNER.invoke(map_app, ["import", str(out), "--encoder", "none", "--no-rrd", "--out",
+                                       str(tmp_path / "t.map.npz")])
     assert imported.exit_code == 0, imported.output
     back = load_map(tmp_path / "t.map.npz")
     rows = {i: r for r, i in enumerate(original.instance_ids.tolist())}
@@ -66,7 +68,8 @@ def test_text_round_trip_keeps_geometry_and_names_what_it_cannot_write(built, tm
         quadric = [encode_dual_quadric(e.centers[i], e.axes[i], e.rotations[i])  # the same ellipsoid, any axis order
                    for e, i in ((back.ellipsoids, row), (original.ellipsoids, source))]
         assert np.abs(quadric[0] - quadric[1]).max() < 1e-5
-    refused = RUNNER.invoke(loc_app, ["run", "demo_tum", "--data-root", str(ROOT / "data"), "--map", str(tmp_path / "t.map.npz"),
+    refused = RUNNER.invoke(loc_app, ["run", "demo_tum", "--data-root", str(ROOT / "data"), "--map",
+                                      str(tmp_path / "t.map.npz"),
                                       "--out", str(tmp_path / "r"), "--no-rrd", "--max-frames", "2"])
     assert refused.exit_code == 2 and "not aligned to a sequence" in refused.output  # its own frame: not demo_tum's
 
@@ -74,9 +77,9 @@ def test_text_round_trip_keeps_geometry_and_names_what_it_cannot_write(built, tm
 def test_a_yolo_run_writes_its_detections_and_a_file_rerun_reproduces_it(monkeypatch, built, tmp_path):
     """`--detector yolo` (a stand-in here: no weights) writes COCO results with RLE masks; `--detector file:` on
     them gives the same poses."""
+    from clipclique.interop.coco import reported_classes
     from clipclique.perception import yolo
     from clipclique.perception.detectors import InstanceDetector
-    from clipclique.interop.coco import reported_classes
     from clipclique.sim.detectors import SimulatedDetector
     from clipclique.types import Detections
 
@@ -107,7 +110,8 @@ def test_a_yolo_run_writes_its_detections_and_a_file_rerun_reproduces_it(monkeyp
     entries = json.loads((first / "detections.json").read_text())
     assert len(entries) > 30 and all(set(e["segmentation"]) == {"size", "counts"} for e in entries)
     assert len(json.loads((first / "images.json").read_text())["images"]) == 12
-    again = RUNNER.invoke(loc_app, [*args, "--detector", f"file:{first / 'detections.json'}", "--out", str(tmp_path / "file")])
+    again = RUNNER.invoke(loc_app, [*args, "--detector", f"file:{first / 'detections.json'}", "--out",
+                                    str(tmp_path / "file")])
     assert again.exit_code == 0, again.output
 
     def poses(folder: Path) -> list:

@@ -55,10 +55,13 @@ SKIPPED = {
     "python -m pytest -q tests/unit/inliers/test_inliers.py tests/unit/test_config.py": "runs tests this suite runs",
     "python -m pytest tests/e2e/test_golden.py --force-regen": "rewrites the golden results (tests/e2e/test_golden.py "
                                                                "runs the same runs and compares them)",
-    "pip install dask-jobqueue": "starts a SLURM cluster (none here); the local cluster is tested in tests/integration/test_bench_engine.py",
+    "pip install dask-jobqueue": "starts a SLURM cluster (none here); the local cluster is tested in "
+                                 "tests/integration/test_bench_engine.py",
     ".venv/bin/python tools/fit_confidence.py scene0002_00 fr2 --out my_confidence.json": "needs real datasets",
-    "mkdir -p data/tum && curl -L https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":
-        "downloads TUM fr2/desk and needs a published object map; the block after it runs the same commands on generated files",
+    "mkdir -p data/tum && curl -L "
+    "https://cvg.cit.tum.de/rgbd/dataset/freiburg2/rgbd_dataset_freiburg2_desk.tgz | tar xz -C data/tum":
+        "downloads TUM fr2/desk and needs a published object map; the block after it runs the same commands on "
+        "generated files",
     "clipclique-map build demo_tum -q": "prints the example below it: test_printed_examples_are_current runs it on the "
                                         "full scenes and compares",
     ".venv/bin/python tools/bench_window.py --step 1": "localizes both realistic scenes 40 times each (minutes); "

@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from clipclique.resolve import open_scene
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
 from clipclique.localization.cli import app
 from clipclique.mapping.build import build_map
+from clipclique.resolve import open_scene
 
 pytestmark = pytest.mark.slow
 LOC = Path(sys.executable).with_name("clipclique-loc")
@@ -41,7 +41,8 @@ def demo(tmp_path_factory, demo_data) -> Path:
 
 
 def args(root: Path, *extra: str) -> list[str]:
-    return ["run", "demo", "--data-root", str(root), "--map", str(root / "demo.map.npz"), "--out", str(root / "loc"), *extra]
+    return ["run", "demo", "--data-root", str(root), "--map", str(root / "demo.map.npz"), "--out", str(root / "loc"),
+            *extra]
 
 
 def digests(folder: Path) -> dict[str, str]:
@@ -88,7 +89,8 @@ def test_no_rrd_never_deletes_the_recording_and_says_each_time_it_shows_other_re
     for _ in range(2):  # every time, not only the first
         done, described = run("--max-frames", "2", "--no-rrd")
         assert stale in " ".join(done.stdout.split())
-        assert described["recording"] == {"file": "recording.rrd", "results_digest": described["recording"]["results_digest"],
+        assert described["recording"] == {"file": "recording.rrd",
+                                          "results_digest": described["recording"]["results_digest"],
                                           "matches": False}
         assert described["recording"]["results_digest"] != described["results_digest"]
     quiet, _ = run("--max-frames", "2", "--no-rrd", "-q")

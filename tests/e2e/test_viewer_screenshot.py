@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from clipclique.viz import LocalizationRecorder, class_colors, screenshot as tool, write_map_recording
+from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
+from clipclique.viz import screenshot as tool
 from clipclique.viz.style import CORRECT, WRONG
 
 pytestmark = [

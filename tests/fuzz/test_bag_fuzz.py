@@ -28,7 +28,8 @@ IMAGE, INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
 
 @pytest.fixture(scope="module")
 def inputs(demo_data, bag_tools, tmp_path_factory) -> dict[str, Path]:
-    """A map (of demo_tum, which every bag here is named after), a detection file listing no detection in the first frames (by index), and a good demo_tum bag."""
+    """A map (of demo_tum, which every bag here is named after), a detection file listing no detection in the first
+    frames (by index), and a good demo_tum bag."""
     root = tmp_path_factory.mktemp("bag-fuzz")
     folder = demo_data("demo_tum") / "demo" / "demo_tum"
     map, _ = build_map(open_scene(str(folder)), load_encoder("none"))

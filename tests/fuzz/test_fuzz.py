@@ -69,7 +69,8 @@ class Workspace:
         return target
 
     def loc_args(self, *extra: str, sequence: str = "demo", map_path: Path | None = None) -> list[str]:
-        return ["run", sequence, "--data-root", str(self.data), "--map", str(map_path or self.map), "--out", str(self.loc),
+        return ["run", sequence, "--data-root", str(self.data), "--map", str(map_path or self.map), "--out",
+                str(self.loc),
                 "--max-frames", "2", *extra]
 
     def map_args(self, scene: str, *extra: str) -> list[str]:
@@ -85,12 +86,14 @@ def workspace(tmp_path_factory, demo_data) -> Workspace:
     assert built.exit_code == 0, built.output
     ran = RUNNER.invoke(loc_app, space.loc_args())
     assert ran.exit_code == 0, ran.output
-    assert {p.name for p in space.loc.iterdir()} == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"}
+    assert ({p.name for p in space.loc.iterdir()}
+            == {"results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd"})
     return space
 
 
 def snapshot(*folders: Path) -> dict[str, str]:
-    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for folder in folders for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for folder in folders
+            for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 def leftovers(root: Path) -> list[str]:
@@ -194,7 +197,8 @@ def map_cases() -> list[Case]:
         return write
 
     def rotations(matrix_of: Callable[[np.ndarray], np.ndarray]):
-        return lambda space, case_dir: _rewrite_map(space, case_dir, rotations=matrix_of(_map_arrays(space.map)["rotations"]))
+        return lambda space, case_dir: _rewrite_map(space, case_dir,
+                                                    rotations=matrix_of(_map_arrays(space.map)["rotations"]))
 
     def reflect(r: np.ndarray) -> np.ndarray:
         r = r.copy()
@@ -213,7 +217,9 @@ def map_cases() -> list[Case]:
         return lambda space, case_dir: _rewrite_map(space, case_dir, edit=change)
 
     def vocabulary(space, case_dir):
-        return _rewrite_map(space, case_dir, edit=lambda h: h.__setitem__("class_names", h["class_names"] + [f"c{i}" for i in range(200_000)]))
+        return _rewrite_map(space, case_dir,
+                            edit=lambda h: h.__setitem__("class_names",
+                                                         h["class_names"] + [f"c{i}" for i in range(200_000)]))
 
     def empty(space, case_dir):
         return _rewrite_map(space, case_dir, edit=lambda h: h.update(class_names=[], descriptions=[]),
@@ -247,7 +253,8 @@ def map_cases() -> list[Case]:
         "huge-vocabulary": vocabulary,
         "header-deep-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array(_deep_json())),
         "header-not-json": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.array("{not json")),
-        "header-bytes": lambda space, case_dir: _rewrite_map(space, case_dir, header=np.frombuffer(b"\x00\xff" * 8, np.uint8)),
+        "header-bytes": lambda space, case_dir: _rewrite_map(space, case_dir,
+                                                             header=np.frombuffer(b"\x00\xff" * 8, np.uint8)),
         "schema-version-3": header(lambda h: h.update(schema_version=3)),
         "class-name-nul": header(lambda h: h["class_names"].__setitem__(0, "ch\0air")),
         "class-name-not-text": header(lambda h: h["class_names"].__setitem__(0, 7)),
@@ -276,7 +283,8 @@ def config_cases() -> list[Case]:
 
         return make
 
-    cases = [Case("config", f"{key}={value}", override(f"{key}={value}", key)) for key in FLOAT_KEYS for value in ("nan", "inf", "-inf")]
+    cases = [Case("config", f"{key}={value}", override(f"{key}={value}", key)) for key in FLOAT_KEYS
+             for value in ("nan", "inf", "-inf")]
     for assignment in ("graph.walk_length=40", "graph.walk_length=0", "inliers.seed=-1", "graph.xview_seed=-3",
                        "top_n=0", "top_n=100000000000000000000", "matching.k=-2", "inliers.min_clique_size=2",
                        "matching.top_m_fraction=1.5", "graph.xview_walks=1000000000", "method=xyz",
@@ -320,28 +328,39 @@ def tum_cases() -> list[Case]:
             Case("tum-text", f"{relative}-latin1", mutated(relative, lambda p: _insert(p, b"# " + LATIN1 + b"\n"))),
             Case("tum-text", f"{relative}-nul", mutated(relative, lambda p: _insert(p, b"\0\n", 0.9))),
             Case("tum-text", f"{relative}-folder", mutated(relative, _replace_dir)),
-            Case("tum-text", f"{relative}-utf16", mutated(relative, lambda p: p.write_bytes(p.read_text().encode("utf-16")))),
+            Case("tum-text", f"{relative}-utf16",
+                 mutated(relative, lambda p: p.write_bytes(p.read_text().encode("utf-16")))),
         ]
     objects = "annotations/objects.csv"
     cases += [
         Case("tum-data", "rgb-empty", mutated("rgb.txt", lambda p: p.write_text("# timestamp filename\n"))),
-        Case("tum-data", "rgb-escape", mutated("rgb.txt", lambda p: _insert(p, b"1700000000.0 ../../../etc/passwd\n", 0.99))),
-        Case("tum-data", "groundtruth-nan", mutated("groundtruth.txt", lambda p: _insert(p, b"1700000000.5 nan 0 0 0 0 0 1\n", 0.99))),
+        Case("tum-data", "rgb-escape", mutated("rgb.txt",
+                                               lambda p: _insert(p, b"1700000000.0 ../../../etc/passwd\n", 0.99))),
+        Case("tum-data", "groundtruth-nan",
+             mutated("groundtruth.txt", lambda p: _insert(p, b"1700000000.5 nan 0 0 0 0 0 1\n", 0.99))),
         Case("tum-data", "intrinsics-negative", mutated("intrinsics.txt", lambda p: p.write_text("-500 500 80 60\n"))),
-        Case("tum-data", "objects-id-2**70", mutated(objects, lambda p: _insert(p, f'{2**70},chair,"a chair"\n'.encode(), 0.99))),
+        Case("tum-data", "objects-id-2**70",
+             mutated(objects, lambda p: _insert(p, f'{2**70},chair,"a chair"\n'.encode(), 0.99))),
         Case("tum-data", "objects-id-0", mutated(objects, lambda p: _insert(p, b'0,chair,"a chair"\n', 0.99))),
-        Case("tum-data", "objects-id-duplicate", mutated(objects, lambda p: p.write_text(p.read_text() + p.read_text().splitlines()[1] + "\n"))),
-        Case("tum-data", "objects-class-escape", mutated(objects, lambda p: _insert(p, b'99,ch\x1bair,"a chair"\n', 0.99))),
+        Case("tum-data", "objects-id-duplicate",
+             mutated(objects, lambda p: p.write_text(p.read_text() + p.read_text().splitlines()[1] + "\n"))),
+        Case("tum-data", "objects-class-escape",
+             mutated(objects, lambda p: _insert(p, b'99,ch\x1bair,"a chair"\n', 0.99))),
         Case("tum-data", "objects-no-header", mutated(objects, lambda p: p.write_text("7,desk,a desk\n"))),
-        Case("tum-image", "instance-rgb", mutated("annotations/instances", lambda p: Image.new("RGB", (160, 120)).save(first_instance(p)), "instances")),
-        Case("tum-image", "instance-junk", mutated("annotations/instances", lambda p: first_instance(p).write_bytes(b"\x89PNG junk"), "instances")),
-        Case("tum-image", "instance-folder", mutated("annotations/instances", lambda p: _replace_dir(first_instance(p)), "instances")),
+        Case("tum-image", "instance-rgb",
+             mutated("annotations/instances", lambda p: Image.new("RGB", (160, 120)).save(first_instance(p)),
+                     "instances")),
+        Case("tum-image", "instance-junk",
+             mutated("annotations/instances", lambda p: first_instance(p).write_bytes(b"\x89PNG junk"), "instances")),
+        Case("tum-image", "instance-folder",
+             mutated("annotations/instances", lambda p: _replace_dir(first_instance(p)), "instances")),
     ]
     return cases
 
 
 def annotate_cases() -> list[Case]:
-    """The small demo_tum's masks and objects table, moved out of it and one broken, given to clipclique-map annotate."""
+    """The small demo_tum's masks and objects table, moved out of it and one broken, given to clipclique-map
+    annotate."""
 
     def mutated(change: Callable[[Path, Path], None], names: str) -> Callable:
         def make(space, case_dir):
@@ -369,7 +388,8 @@ def annotate_cases() -> list[Case]:
         Case("annotate", "mask-folder", mutated(lambda m, t: _replace_dir(first(m)), "masks")),
         Case("annotate", "masks-none", mutated(lambda m, t: shutil.rmtree(m), "masks")),
         Case("annotate", "objects-latin1", mutated(lambda m, t: _insert(t, b"# " + LATIN1 + b"\n"), "classes.csv")),
-        Case("annotate", "objects-missing-id", mutated(lambda m, t: t.write_text("id,class,description\n"), "classes.csv")),
+        Case("annotate", "objects-missing-id",
+             mutated(lambda m, t: t.write_text("id,class,description\n"), "classes.csv")),
     ]
 
     def coco(change: Callable[[dict], None]) -> Callable:
@@ -408,7 +428,8 @@ def annotate_cases() -> list[Case]:
         "image-no-size": lambda d: d["images"][0].pop("width"),
         "image-names-no-frame": lambda d: d["images"][0].update(file_name="rgb/photo.png"),
         "one-object-two-classes": lambda d: (d["categories"].append({"id": 4, "name": "bottle"}),
-                                             d["annotations"].append(d["annotations"][0] | {"id": 2, "category_id": 4})),
+                                             d["annotations"].append(d["annotations"][0]
+                                                                     | {"id": 2, "category_id": 4})),
     }.items()]
     return cases
 
@@ -433,7 +454,8 @@ def scannet_cases() -> list[Case]:
 
         return make
 
-    aggregation, segs, descriptions = "demo.aggregation.json", "demo_vh_clean_2.0.010000.segs.json", "demo_descriptions.json"
+    aggregation, segs, descriptions = ("demo.aggregation.json", "demo_vh_clean_2.0.010000.segs.json",
+                                       "demo_descriptions.json")
     groups = lambda change: _aggregation(lambda d: change(d["segGroups"]))  # noqa: E731
     tsv = "scannetv2-labels.combined.tsv"
     cases = {
@@ -484,7 +506,8 @@ def frame_cases() -> list[Case]:
             return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
 
         header = struct.pack(">IIBBBBB", 100_000, 100_000, 16, 0, 0, 0, 0)
-        path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND", b""))
+        path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 100))
+                         + chunk(b"IEND", b""))
 
     scaled = np.eye(4)
     scaled[:3, :3] *= 1.5
@@ -500,7 +523,9 @@ def frame_cases() -> list[Case]:
         "pose-text": ("pose/1.txt", lambda p: p.write_text("one two three four\n" * 4)),
         "intrinsics-latin1": ("intrinsic/intrinsic_depth.txt", lambda p: _insert(p, LATIN1 + b"\n", 0.0)),
         "intrinsics-garbage": ("intrinsic/intrinsic_depth.txt", lambda p: p.write_text("1 2\n3\n")),
-        "intrinsics-other-camera": ("intrinsic/intrinsic_depth.txt", matrix(np.array([[500.0, 0, 700, 0], [0, 500, 20, 0], [0, 0, 1, 0], [0, 0, 0, 1]]))),
+        "intrinsics-other-camera": ("intrinsic/intrinsic_depth.txt",
+                                    matrix(np.array([[500.0, 0, 700, 0], [0, 500, 20, 0], [0, 0, 1, 0],
+                                                     [0, 0, 0, 1]]))),
         "intrinsics-folder": ("intrinsic/intrinsic_depth.txt", _replace_dir),
         "depth-8bit": ("depth/1.png", lambda p: Image.fromarray(np.full((120, 160), 200, np.uint8)).save(p)),
         "depth-rgb": ("depth/1.png", lambda p: Image.new("RGB", (160, 120)).save(p)),
@@ -550,8 +575,10 @@ def output_cases() -> list[Case]:
         args[args.index("--out") + 1] = str(case_dir / "m.map.npz")
         return map_app, args, "m.map.rrd"
 
-    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name)) for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
-    return cases + [Case("outputs", "out-is-a-file", out_is_file), Case("outputs", "map-out-is-a-folder", map_out_folder),
+    cases = [Case("outputs", f"{name}-is-a-folder", loc_in_the_way(name))
+             for name in ("results.json", "frames.csv", "poses.tum", "groundtruth.tum", "config.json", "recording.rrd")]
+    return cases + [Case("outputs", "out-is-a-file", out_is_file),
+                    Case("outputs", "map-out-is-a-folder", map_out_folder),
                     Case("outputs", "map-recording-is-a-folder", map_recording_folder)]
 
 
@@ -699,21 +726,24 @@ def odometry_cases() -> list[Case]:
 def import_cases() -> list[Case]:
     """Another system's map given to clipclique-map import: every reader refuses it in one line naming the file."""
     q = " ".join(f"{v:.8f}" for v in (np.diag([0.09, 0.01, 0.04, -1.0]) + np.outer([0, 0, 0, 0], [0] * 4)).T.ravel())
-    skew = " ".join(f"{v:.8f}" for v in np.array([[0.09, 0.5, 0, 0], [0, 0.01, 0, 0], [0, 0, 0.04, 0], [0, 0, 0, -1]]).T.ravel())
+    skew = " ".join(f"{v:.8f}" for v in np.array([[0.09, 0.5, 0, 0], [0, 0.01, 0, 0], [0, 0, 0.04, 0],
+                                                  [0, 0, 0, -1]]).T.ravel())
     good_node = {"id": 5, "translation": [1, 2, 3], "orientation": [1, 0, 0, 0], "radii": [0.1, 0.2, 0.3],
                  "baseline_label": {"41.0": [1.0, [0, 0, 0]]}}
     good_landmark = {"id": 1, "class": "cup", "center": [0, 0, 1], "semi_axes": [0.1, 0.1, 0.1],
                      "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}
 
     def landmarks(**change) -> bytes:
-        return json.dumps({"format": "clipclique-landmarks", "version": 1, "landmarks": [good_landmark | change]}).encode()
+        return json.dumps({"format": "clipclique-landmarks", "version": 1,
+                           "landmarks": [good_landmark | change]}).encode()
 
     def imported(name: str, data: bytes, *extra: str, files: dict[str, bytes] | None = None, named: str | None = None):
         def make(space: Workspace, case_dir: Path):
             for other, content in (files or {}).items():
                 (case_dir / other).write_bytes(content)
             (case_dir / name).write_bytes(data)
-            return map_app, ["import", str(case_dir / name), "--out", str(space.map), "--encoder", "none", *extra], named or name
+            return (map_app, ["import", str(case_dir / name), "--out", str(space.map), "--encoder", "none", *extra],
+                    named or name)
 
         return make
 
@@ -740,14 +770,18 @@ def import_cases() -> list[Case]:
         "msgloc-not-json": imported("m.json", b"{nodes"),
         "msgloc-deep": imported("m.json", _deep_json().encode()),
         "msgloc-nodes-not-list": imported("m.json", b'{"nodes": 3}'),
-        "msgloc-quaternion": imported("m.json", json.dumps({"nodes": [good_node | {"orientation": [3, 0, 0, 0]}]}).encode()),
+        "msgloc-quaternion": imported("m.json",
+                                      json.dumps({"nodes": [good_node | {"orientation": [3, 0, 0, 0]}]}).encode()),
         "msgloc-id-text": imported("m.json", json.dumps({"nodes": [good_node | {"id": "x"}]}).encode()),
-        "msgloc-no-label": imported("m.json", json.dumps({"nodes": [{k: v for k, v in good_node.items() if k != "baseline_label"}]}).encode()),
+        "msgloc-no-label": imported("m.json",
+                                    json.dumps({"nodes": [{k: v for k, v in good_node.items()
+                                                           if k != "baseline_label"}]}).encode()),
         "json-version-9": imported("l.json", json.dumps({"format": "clipclique-landmarks", "version": 9}).encode()),
         "json-rotation": imported("l.json", landmarks(rotation=[[2, 0, 0], [0, 1, 0], [0, 0, 1]])),
         "json-class-control": imported("l.json", landmarks(**{"class": "c\x1bup"})),
         "json-distribution": imported("l.json", landmarks(class_distribution={"cup": 0.4})),
-        "voom-without-classes": osmap(b"\x0a\x47\x0a\x42\x0a\x40" + np.diag([0.09, 0.01, 0.04, -1.0]).astype("<f4").tobytes()
+        "voom-without-classes": osmap(b"\x0a\x47\x0a\x42\x0a\x40"
+                                      + np.diag([0.09, 0.01, 0.04, -1.0]).astype("<f4").tobytes()
                                       + b"\x10\x07", key="ObjectsFile"),
     }
     cases = [Case("import", name, make) for name, make in makers.items()]
@@ -766,7 +800,8 @@ def import_cases() -> list[Case]:
 
     def bad_csv(space: Workspace, case_dir: Path):
         (case_dir / "objects.csv").write_text("id,name\n1,cup\n")
-        app, args, _ = imported("map_objects_x.txt", f"1 41 {q}\n".encode(), "--objects", str(case_dir / "objects.csv"))(space, case_dir)
+        app, args, _ = imported("map_objects_x.txt", f"1 41 {q}\n".encode(), "--objects",
+                                str(case_dir / "objects.csv"))(space, case_dir)
         return app, args, "objects.csv"
 
     cases.append(Case("import", "objects-csv-header", bad_csv))
@@ -833,22 +868,33 @@ def detection_cases() -> list[Case]:
         "coco-image-unknown": given("r.json", json.dumps([coco | {"image_id": 5}]).encode(), image_list),
         "coco-category-0": given("r.json", json.dumps([coco | {"category_id": 0}]).encode(), image_list),
         "coco-bbox-negative": given("r.json", json.dumps([coco | {"bbox": [10, 10, -5, 30]}]).encode(), image_list),
-        "coco-rle-corrupt": given("r.json", json.dumps([coco | {"segmentation": {"size": [120, 160], "counts": "\u00ff\u00fe"}}]).encode(), image_list),
-        "coco-rle-short": given("r.json", json.dumps([coco | {"segmentation": {"size": [120, 160], "counts": [5, 5]}}]).encode(), image_list),
-        "coco-image-list-broken": given("r.json", json.dumps([coco]).encode(), b'{"images": [{"id": "zero"}]}', named="images.json"),
-        "coco-mask-wrong-size": given("r.json", json.dumps([coco | {"segmentation": {"size": [10, 10], "counts": [100]}}]).encode(),
+        "coco-rle-corrupt": given("r.json",
+                                  json.dumps([coco
+                                              | {"segmentation": {"size": [120, 160],
+                                                                  "counts": "\u00ff\u00fe"}}]).encode(), image_list),
+        "coco-rle-short": given("r.json",
+                                json.dumps([coco | {"segmentation": {"size": [120, 160], "counts": [5, 5]}}]).encode(),
+                                image_list),
+        "coco-image-list-broken": given("r.json", json.dumps([coco]).encode(), b'{"images": [{"id": "zero"}]}',
+                                        named="images.json"),
+        "coco-mask-wrong-size": given("r.json",
+                                      json.dumps([coco
+                                                  | {"segmentation": {"size": [10, 10], "counts": [100]}}]).encode(),
                                       image_list),
     }
     return [Case("detections", name, make) for name, make in makers.items()]
 
 
-CASES = map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases() + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases() + import_cases() + label_cases() + detection_cases()
+CASES = (map_cases() + align_cases() + odometry_cases() + config_cases() + tum_cases() + annotate_cases()
+         + scannet_cases() + frame_cases() + output_cases() + encoder_cases() + compare_cases() + name_cases()
+         + import_cases() + label_cases() + detection_cases())
 
 
 def test_the_suite_is_large_and_covers_every_family():
     assert len(CASES) >= 100
     assert len({str(case) for case in CASES}) == len(CASES)
-    assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet", "frames",
+    assert {case.family for case in CASES} >= {"map", "config", "tum-text", "tum-data", "tum-image", "scannet",
+                                               "frames",
                                                "outputs", "encoder", "compare", "names", "import",
                                                "detections", "labels", "annotate",
                                                "align", "odometry"}

@@ -34,7 +34,8 @@ PLANS: dict[str, bytes | None] = {
     "grid-unknown-key": b'scenes = ["demo"]\n[grid]\n"inliers.nothing" = [1]',
     "grid-wrong-type": b'scenes = ["demo"]\n[grid]\n"inliers.d_comp" = ["far"]',
     "grid-out-of-range": b'scenes = ["demo"]\n[grid]\n"inliers.d_comp" = [-1.0]',
-    "grid-too-large": b'scenes = ["demo"]\n[grid]\n' + b"".join(b'"k%d" = [%s]\n' % (i, b",".join(b"%d" % j for j in range(40))) for i in range(4)),
+    "grid-too-large": b'scenes = ["demo"]\n[grid]\n'
+    + b"".join(b'"k%d" = [%s]\n' % (i, b",".join(b"%d" % j for j in range(40))) for i in range(4)),
     "grid-deep": b'scenes = ["demo"]\n[grid.' + b".".join([b"a"] * 3000) + b"]\nb = 1",
     "glob-matches-nothing": b'scenes = ["/nonexistent/scene*"]',
     "huge": b"# " + b"x" * (2 << 20),

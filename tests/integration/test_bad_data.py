@@ -17,14 +17,14 @@ from clipclique.datasets import open_sequence
 from clipclique.errors import DatasetError, MapFileError
 from clipclique.geometry import backproject, rotation_angle
 from clipclique.io.mapfile import validate_map
+from clipclique.io.outputs import MAP_DIR
+from clipclique.localization.cli import app as loc_app
+from clipclique.localization.run import RunSettings
+from clipclique.mapping.cli import app as map_app
 from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.fit import conditioning
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-from clipclique.localization.cli import app as loc_app
-from clipclique.io.outputs import MAP_DIR
-from clipclique.localization.run import RunSettings
-from clipclique.mapping.cli import app as map_app
 
 RUNNER = CliRunner()
 
@@ -69,13 +69,15 @@ def test_a_row_of_objects_gives_no_pose_rather_than_a_confident_wrong_one():
 
 
 def test_the_same_objects_spread_in_3d_give_an_accurate_pose_with_its_conditioning():
-    spread = ROW + np.array([[0, 0, 0], [0, 0.3, 0], [0, 0, 0.3], [0, 0.3, 0.2], [0, 0, 0.3]])  # neighbours stay within d_adj
+    # neighbours stay within d_adj
+    spread = ROW + np.array([[0, 0, 0], [0, 0.3, 0], [0, 0, 0.3], [0, 0.3, 0.2], [0, 0, 0.3]])
     map, observations, camera = _scene(spread, noise=0.01)
     result = _localize(map, observations)
     best = result.hypotheses[0]
     assert _error_deg(best.pose, camera) < 2.0  # 1.1 deg: 1 cm of centre noise over ~0.3 m of spread
     assert np.linalg.norm(best.pose.translation - camera.translation) < 0.05
-    assert best.conditioning == pytest.approx(min(conditioning(observations.ellipsoids.centers), conditioning(spread)), rel=0.05)
+    assert (best.conditioning == pytest.approx(min(conditioning(observations.ellipsoids.centers), conditioning(spread)),
+                                               rel=0.05))
     assert 0.15 < best.conditioning < 1.0
 
 
@@ -107,7 +109,8 @@ def test_8_bit_depth_is_refused_naming_the_file(tmp_path, scannet_scene):
 def test_depth_at_half_size_gets_intrinsics_rescaled_so_points_land_where_they_are(tmp_path, scannet_scene):
     folder, _ = scannet_scene(tmp_path)
     full = open_sequence(folder.name, tmp_path)[0]
-    Image.fromarray(np.full((240, 320), 1500, np.uint16)).save(folder / "depth" / "0.png")  # intrinsic_depth.txt stays 640 x 480
+    # intrinsic_depth.txt stays 640 x 480
+    Image.fromarray(np.full((240, 320), 1500, np.uint16)).save(folder / "depth" / "0.png")
     half = open_sequence(folder.name, tmp_path)[0]
     np.testing.assert_allclose(half.intrinsics[:2], full.intrinsics[:2] / 2)
     assert half.instances.shape == (240, 320)
@@ -173,7 +176,8 @@ def _edited(tum: Path, where: Path, relative: str, text: str | bytes) -> Path:
 
 
 def test_a_nul_byte_in_a_description_is_refused(tum, tmp_path):
-    folder = _edited(tum, tmp_path / "seq", "annotations/objects.csv", 'id,class,description\n7,desk,"a white\0 desk"\n')
+    folder = _edited(tum, tmp_path / "seq", "annotations/objects.csv",
+                     'id,class,description\n7,desk,"a white\0 desk"\n')
     with pytest.raises(DatasetError, match=r"objects\.csv, line 2: holds a NUL byte"):
         open_sequence(str(folder)).instances()
 
@@ -207,7 +211,8 @@ def test_a_folder_named_with_markup_prints_as_it_is(tum, tmp_path):
 def test_class_names_with_markup_print_as_they_are(tum, tmp_path):
     objects = (tum / "annotations" / "objects.csv").read_text().replace(",desk,", ",[bold]desk[/],", 1)
     folder = _edited(tum, tmp_path / "seq", "annotations/objects.csv", objects)
-    result = RUNNER.invoke(map_app, ["build", str(folder), "--out", str(tmp_path / "m.map.npz"), "--encoder", "simulated"])
+    result = RUNNER.invoke(map_app, ["build", str(folder), "--out", str(tmp_path / "m.map.npz"), "--encoder",
+                                     "simulated"])
     assert result.exit_code == 0, result.output
     assert "[bold]desk[/]" in result.output
     assert (tmp_path / "m.map.npz").is_file() and (tmp_path / "m.map.rrd").is_file()
@@ -218,7 +223,8 @@ def test_tum_depth_at_half_size_gets_intrinsics_rescaled_too(tum, tmp_path):
     full = open_sequence(str(folder))[0]
     sequence = open_sequence(str(folder))
     depth_path = folder / sequence.depth_files[0]
-    (folder / "annotations" / "instances" / f"{Path(sequence.rgb_files[0]).stem}.png").unlink(missing_ok=True)  # full size
+    # full size
+    (folder / "annotations" / "instances" / f"{Path(sequence.rgb_files[0]).stem}.png").unlink(missing_ok=True)
     with Image.open(depth_path) as image:
         image.resize((80, 60), Image.NEAREST).save(depth_path)
     half = open_sequence(str(folder))[0]

@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import pytest
+from tolerance import compare, decisions
 from typer.testing import CliRunner
 
 from clipclique.backends import load_encoder
@@ -23,7 +24,6 @@ from clipclique.localization.results import read_results
 from clipclique.localization.run import RunSettings, run_and_save
 from clipclique.mapping.build import build_map
 from clipclique.resolve import open_scene
-from tolerance import compare, decisions
 
 RUNNER = CliRunner()
 

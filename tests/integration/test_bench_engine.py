@@ -16,9 +16,9 @@ import pytest
 from clipclique.benchmark import aggregate, engine, perception
 from clipclique.benchmark.engine import TaskFailure, run_jobs
 from clipclique.benchmark.plan import Plan, runs
-from clipclique.pipeline import localize
 from clipclique.localization.results import read_results
 from clipclique.localization.run import RunSettings, prepare, run_and_save
+from clipclique.pipeline import localize
 
 pytestmark = pytest.mark.slow
 SCENES = ["demo", "demo_tum"]
@@ -113,7 +113,8 @@ def test_two_worker_processes_give_the_same_numbers(workspace, in_process):
         result = run_jobs(plan_runs(workspace, "cluster"), workspace[0] / "cache-b", Recorder(), client)
     assert len(result.documents) == 4 and not result.failed
     a, b = folders(workspace, "in-process"), folders(workspace, "cluster")
-    assert [p.relative_to(workspace[0] / "in-process") for p in a] == [p.relative_to(workspace[0] / "cluster") for p in b]
+    assert ([p.relative_to(workspace[0] / "in-process") for p in a]
+            == [p.relative_to(workspace[0] / "cluster") for p in b])
     for left, right in zip(a, b):
         assert canonical(left) == canonical(right)
 
@@ -145,7 +146,8 @@ def test_resume_does_only_the_remaining_work(workspace, in_process):
     shutil.copytree(folder / "cache-a", folder / "cache-r")
     shutil.rmtree(folder / "resumed" / "demo" / "sh")  # interrupted before these two runs were written
     shutil.rmtree(folder / "resumed" / "demo_tum" / "clipclique")
-    tum_cache = next(p for p in (folder / "cache-r").glob("demo_tum-*") if '"encoder": null' not in (p / "key.json").read_text())
+    tum_cache = next(p for p in (folder / "cache-r").glob("demo_tum-*")
+                     if '"encoder": null' not in (p / "key.json").read_text())
     for index in (2, 3):  # ... and before two frames of demo_tum were perceived
         perception.frame_file(tum_cache, index).unlink()
     before = {p: p.stat().st_mtime_ns for p in folders(workspace, "resumed")}
@@ -173,10 +175,12 @@ def test_a_failing_task_is_retried_once_then_reported(workspace, in_process, mon
     assert calls.count(("sh", 3)) == 3  # two sh runs have a frame 3; the failing one is tried twice
     assert [f.reason for f in tracker.failures] == ["demo frame 3: ValueError: the GPU fell over"]
     assert tracker.failures[0].task.label() == "demo / sh, localize frames 2-3"
-    assert result.failed == [{"sequence": "demo", "run": "sh", "reasons": ["demo frame 3: ValueError: the GPU fell over"]}]
+    assert result.failed == [{"sequence": "demo", "run": "sh",
+                              "reasons": ["demo frame 3: ValueError: the GPU fell over"]}]
     assert len(result.documents) == 3 and not (workspace[0] / "failing" / "demo" / "sh").exists()
     aggregate.write(result, workspace[0] / "failing", "clipclique-bench demo demo_tum")
-    assert "demo / sh: demo frame 3: ValueError: the GPU fell over" in (workspace[0] / "failing" / "report.md").read_text()
+    assert ("demo / sh: demo frame 3: ValueError: the GPU fell over"
+            in (workspace[0] / "failing" / "report.md").read_text())
     monkeypatch.setattr(engine, "localize_observed", original)
     again = run_jobs(plan_runs(workspace, "failing"), workspace[0] / "cache-a", Recorder())  # the rerun does the rest
     assert again.skipped == 3 and again.tasks == FRAMES // 2 and not again.failed
@@ -200,18 +204,22 @@ def test_a_transient_failure_is_retried_and_leaves_no_trace(workspace, in_proces
 
 
 def test_frames_without_annotations_are_left_out_as_clipclique_loc_leaves_them(tmp_path, monkeypatch, tum_sequence):
-    """The tiny TUM sequence annotates one of its three frames: the benchmark's run is clipclique-loc's, note included."""
+    """The tiny TUM sequence annotates one of its three frames: the benchmark's run is clipclique-loc's, note
+    included."""
     from clipclique.mapping.run import run_build
 
     folder = tum_sequence(tmp_path, rounded=True)
     monkeypatch.chdir(tmp_path)
     run_build(folder.name, tmp_path, Path("outputs/maps") / f"{folder.name}.map.npz", encoder_spec="none", rrd=False)
-    result = run_jobs(runs(Plan([folder.name]), tmp_path / "bench", tmp_path, record=False), tmp_path / "cache", Recorder())
+    result = run_jobs(runs(Plan([folder.name]), tmp_path / "bench", tmp_path, record=False), tmp_path / "cache",
+                      Recorder())
     reference = run_and_save(RunSettings(folder.name, data_root=tmp_path, out=tmp_path / "loc", record=False))
     (document,) = result.documents
     assert document["summary"]["frames"] == 1 and document["summary"]["not_annotated"] == 2
-    assert document["run"]["notes"] == reference["run"]["notes"] and any("no annotations" in n for n in reference["run"]["notes"])
-    assert canonical(tmp_path / "bench" / folder.name / "clipclique" / "results.json") == canonical(tmp_path / "loc" / "results.json")
+    assert (document["run"]["notes"] == reference["run"]["notes"]
+            and any("no annotations" in n for n in reference["run"]["notes"]))
+    assert (canonical(tmp_path / "bench" / folder.name / "clipclique" / "results.json")
+            == canonical(tmp_path / "loc" / "results.json"))
 
 
 def test_run_inputs_shared_with_clipclique_loc_give_its_results_in_process_and_on_a_cluster(workspace, in_process):
@@ -230,7 +238,8 @@ def test_run_inputs_shared_with_clipclique_loc_give_its_results_in_process_and_o
     result = run_jobs([settings], folder / "cache-inputs", Recorder())
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) \
             as cluster, Client(cluster) as client:
-        on_cluster = run_jobs(runs(plan, folder / "inputs-b", data, record=False), folder / "cache-inputs-b", Recorder(),
+        on_cluster = run_jobs(runs(plan, folder / "inputs-b", data, record=False), folder / "cache-inputs-b",
+                              Recorder(),
                               client)
     assert not result.failed and not on_cluster.failed
     reference = folder / "loc-inputs"
@@ -240,4 +249,5 @@ def test_run_inputs_shared_with_clipclique_loc_give_its_results_in_process_and_o
     for out in (settings.out, folder / "inputs-b" / settings.out.relative_to(folder / "inputs-a")):
         assert canonical(out / "results.json") == expected
         assert (out / "poses.tum").read_text() == (reference / "poses.tum").read_text()
-    assert read_results(settings.out / "results.json")["frames"][2]["window"]["frames"] == [2, 3, 4]  # 3: not selected, perceived for the window
+    # 3: not selected, perceived for the window
+    assert read_results(settings.out / "results.json")["frames"][2]["window"]["frames"] == [2, 3, 4]

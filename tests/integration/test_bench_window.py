@@ -1,4 +1,5 @@
-"""clipclique.benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a window helps."""
+"""clipclique.benchmark.window (tools/bench_window.py) on a few frames of demo_desk: K = 1 is the single-frame result, a
+window helps."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ from clipclique.benchmark.suite import cache_sequence, ensure_map
 from clipclique.benchmark.window import table, window_success
 from clipclique.config import make_config
 from clipclique.geometry import pose_errors
-from clipclique.pipeline import index_map, localize
 from clipclique.multiframe.window import WindowConfig
+from clipclique.pipeline import index_map, localize
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,4 +41,5 @@ def test_a_window_of_one_is_the_single_frame_result_and_a_longer_one_helps(desk)
     assert five["observations_mean"] > 2 * one["observations_mean"] and five["dropped_frames"] == 0
     rows = [{"scene": "demo_desk", "config": "SH", "K": k, "S": 1, "drift_percent": d, **figures}
             for k, d, figures in ((1, 0.0, one), (5, 1.0, five))]
-    assert f"| demo_desk | SH | 5 | - | {100 * five['within_0.5m']:.1f} / {100 * five['within_1m']:.1f} |" in table(rows)
+    assert (f"| demo_desk | SH | 5 | - | {100 * five['within_0.5m']:.1f} / {100 * five['within_1m']:.1f} |"
+            in table(rows))

@@ -11,7 +11,7 @@ import pytest
 IMPORTS = """import os
 import clipclique.pipeline, clipclique.io.mapfile, clipclique.benchmark.suite, clipclique.localization.run, clipclique.mapping.build
 print(os.environ.get("OPENBLAS_NUM_THREADS"), os.environ.get("HF_HUB_OFFLINE"))
-"""
+"""  # noqa: E501 (the import line is code the subprocess runs)
 ENTRY = """import os, sys
 sys.argv = ["tool", "--version"]
 from {module} import main
@@ -34,7 +34,8 @@ def test_importing_the_library_sets_nothing():
     assert probe(IMPORTS) == ["None", "None"]
 
 
-@pytest.mark.parametrize("module", ["clipclique.localization.cli", "clipclique.mapping.cli", "clipclique.benchmark.cli"])
+@pytest.mark.parametrize("module", ["clipclique.localization.cli", "clipclique.mapping.cli",
+                                    "clipclique.benchmark.cli"])
 def test_each_tool_defaults_to_one_thread_and_a_users_setting_wins(module):
     assert probe(ENTRY.format(module=module))[-1] == "1"
     assert probe(ENTRY.format(module=module), OPENBLAS_NUM_THREADS="4")[-1] == "4"

@@ -12,11 +12,11 @@ import pytest
 
 from clipclique.datasets import READERS, STRUCTURE_CLASSES, open_sequence
 from clipclique.errors import DatasetError
+from clipclique.geometry import backproject
+from clipclique.perception.raycast import MeshRaycaster
 from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, DemoSpec, ensure_scene, generate
 from clipclique.sim.procedural import PALETTE, make_room, make_walk
-from clipclique.perception.raycast import MeshRaycaster
-from clipclique.geometry import backproject
 
 SMALL = {name: dataclasses.replace(spec, num_frames=4, width=160, height=120) for name, spec in DEMO_SCENES.items()}
 
@@ -30,7 +30,8 @@ def small_demo(root: Path, name: str) -> Path:
 
 
 def digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
 @pytest.mark.parametrize("name", ["demo", "demo_tum", "demo_apartment", "demo_desk"])
@@ -86,7 +87,8 @@ def test_frames_agree_with_the_scene_geometry(tmp_path, name):
         ids = frame.instances[labelled]
         for object_id in np.unique(ids)[:8]:
             vertices = room.vertices[owner == object_id]
-            inside = np.all((points[ids == object_id] >= vertices.min(0) - 0.05) & (points[ids == object_id] <= vertices.max(0) + 0.05), axis=1)
+            inside = np.all((points[ids == object_id] >= vertices.min(0) - 0.05)
+                            & (points[ids == object_id] <= vertices.max(0) + 0.05), axis=1)
             assert inside.mean() > 0.95, (name, frame.name, object_id)
 
 

@@ -11,10 +11,10 @@ import pytest
 from rich.console import Console
 from typer.testing import CliRunner
 
-from clipclique.sim import demo
 from clipclique.localization.cli import app as loc_app
 from clipclique.localization.tables import print_frames
 from clipclique.mapping.cli import app as map_app
+from clipclique.sim import demo
 
 pytestmark = pytest.mark.slow
 RUNNER = CliRunner()
@@ -44,7 +44,8 @@ def in_first_use(first_use, monkeypatch) -> Path:
 
 def test_the_first_build_says_it_generates_the_scene(first_use, in_first_use):
     root, output = first_use
-    assert f"generating the demo scene into {root / 'data' / 'demo' / 'demo'} (first use only" in output.replace("\n", "")
+    assert (f"generating the demo scene into {root / 'data' / 'demo' / 'demo'} (first use only"
+            in output.replace("\n", ""))
     again = RUNNER.invoke(map_app, ["build", "demo", "--no-rrd", "--out", "again.map.npz"])
     assert again.exit_code == 0 and "generating" not in again.output  # generated once
 
@@ -60,12 +61,14 @@ def test_verbose_lines_name_each_frame_once_in_plain_words(in_first_use):
     assert done.exit_code == 0, done.output
     frames = [line for line in done.output.splitlines() if line.startswith("frame ")]
     assert len(frames) == FRAMES
-    assert all(re.fullmatch(r"frame \d+: \d+ observations?, (TE \d+\.\d\d m|no pose: .+)", line) for line in frames), frames
+    assert all(re.fullmatch(r"frame \d+: \d+ observations?, (TE \d+\.\d\d m|no pose: .+)", line)
+               for line in frames), frames
     console = Console(width=200, record=True)
     frame = {"index": 3, "name": "1305031102.175304", "observations": 1, "failure": "fewer than 3 observations (1)",
              "evaluation": {"translation_error_m": None}}
     print_frames(console, {"frames": [frame]})
-    assert console.export_text().strip() == "frame 3 (image 1305031102.175304): 1 observation, no pose: fewer than 3 observations (1)"
+    assert console.export_text().strip() == ("frame 3 (image 1305031102.175304): 1 observation, no pose: fewer than 3 "
+                                             "observations (1)")
 
 
 def test_set_spellings_of_one_change_share_a_folder_and_the_presets_value_renames_nothing(in_first_use):
@@ -105,7 +108,8 @@ def test_errors_lead_somewhere_and_read_alike_in_both_tools(in_first_use):
 
 
 def test_method_accepts_the_names_the_tables_print(in_first_use):
-    for typed, folder in (("CLIP-Clique", "clipclique"), ("CLIP-Clique (paper)", "clipclique-paper"), ("X-View", "xview")):
+    for typed, folder in (("CLIP-Clique", "clipclique"), ("CLIP-Clique (paper)", "clipclique-paper"),
+                          ("X-View", "xview")):
         done = RUNNER.invoke(loc_app, ["run", "demo", "--method", typed, "-q", "--no-rrd"])
         assert done.exit_code == 0, done.output
         assert f"results: outputs/loc/demo/{folder}/" in done.output
@@ -127,7 +131,8 @@ def test_a_run_writes_a_row_per_frame_and_counts_its_failures(in_first_use):
         error = frame["evaluation"]["translation_error_m"]
         assert row["translation_error_m"] == ("" if error is None else str(error))
         assert row["within_1m"] == str(int(error is not None and error < 1.0))
-        assert row["localized"] == str(int(frame["failure"] is None)) and row["failure_kind"] == (frame["failure_kind"] or "")
+        assert (row["localized"] == str(int(frame["failure"] is None))
+                and row["failure_kind"] == (frame["failure_kind"] or ""))
     kinds = Counter(frame["failure_kind"] for frame in document["frames"] if frame["failure_kind"])
     assert document["summary"]["failures"] == dict(kinds) and isinstance(document["summary"]["frames"], int)
     assert kinds, "the shortened demo has frames without a pose"  # and the console names why

@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.resolve import open_scene
 from clipclique.datasets.tum import read_trajectory
 from clipclique.interop.align import AlignmentLimits, align_trajectory, aligned_map
 from clipclique.interop.errors import InteropError
-from clipclique.pose.fit import Similarity
-from clipclique.types import Ellipsoids, Map, Pose
 from clipclique.mapping.build import build_map
+from clipclique.pose.fit import Similarity
+from clipclique.resolve import open_scene
+from clipclique.types import Ellipsoids, Map, Pose
 
 ROOT = Path(__file__).resolve().parents[2]
 GROUNDTRUTH = ROOT / "data" / "demo" / "demo_tum" / "groundtruth.txt"
@@ -113,8 +113,10 @@ def test_an_aligned_import_is_taken_as_the_sequences_map(tmp_path, demo_map):
     document["frame"] = "unknown"
     (tmp_path / "l.json").write_text(json.dumps(document))
     out = tmp_path / "aligned.map.npz"
-    result = runner.invoke(map_app, ["import", str(tmp_path / "l.json"), "--align-to", "demo_tum", "--data-root", str(ROOT / "data"),
-                                     "--trajectory", str(trajectory), "--encoder", "none", "--no-rrd", "--out", str(out)])
+    result = runner.invoke(map_app, ["import", str(tmp_path / "l.json"), "--align-to", "demo_tum", "--data-root",
+                                     str(ROOT / "data"),
+                                     "--trajectory", str(trajectory), "--encoder", "none", "--no-rrd", "--out",
+                                     str(out)])
     assert result.exit_code == 0, result.output
     assert "aligned to demo_tum: 242 keyframes matched, RMSE 0.00 cm, scale 1.0000 (rigid)" in result.output
     aligned = load_map(out)

@@ -7,13 +7,13 @@ import pytest
 from typer.testing import CliRunner
 
 from clipclique.datasets import STRUCTURE_CLASSES, Instance
-from clipclique.resolve import open_scene
-from clipclique.sim.demo import DEMO_SCENES
-from clipclique.sim.procedural import make_room
 from clipclique.geometry import FitParams
 from clipclique.io.mapfile import load_map
 from clipclique.mapping.build import BuildReport, build_map, fit_landmarks
 from clipclique.mapping.cli import app
+from clipclique.resolve import open_scene
+from clipclique.sim.demo import DEMO_SCENES
+from clipclique.sim.procedural import make_room
 
 runner = CliRunner()
 
@@ -27,7 +27,8 @@ def object_boxes(name: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Instance id -> (min corner, max corner) of each object's mesh vertices."""
     room = make_room(DEMO_SCENES[name].seed)
     owner = room.segment_objects[room.vertex_segments] + 1
-    return {o.object_id + 1: (room.vertices[owner == o.object_id + 1].min(0), room.vertices[owner == o.object_id + 1].max(0)) for o in room.objects}
+    return {o.object_id + 1: (room.vertices[owner == o.object_id + 1].min(0),
+                              room.vertices[owner == o.object_id + 1].max(0)) for o in room.objects}
 
 
 def test_scannet_demo_map_matches_the_objects(data_root):
@@ -36,7 +37,8 @@ def test_scannet_demo_map_matches_the_objects(data_root):
     room = make_room(DEMO_SCENES["demo"].seed)
     objects = [o for o in room.objects if o.category not in STRUCTURE_CLASSES]
     assert report.structure == {"wall": 4, "floor": 1, "ceiling": 1}
-    assert [item for items in report.skipped.values() for item in items] == [f"picture #{o.object_id + 1}" for o in objects if o.category == "picture"]
+    assert ([item for items in report.skipped.values() for item in items]
+            == [f"picture #{o.object_id + 1}" for o in objects if o.category == "picture"])
     assert len(map) == len(objects) - 1
     boxes = object_boxes("demo")
     offsets = []
@@ -105,7 +107,8 @@ def test_cli_builds_the_demo_map_and_recording(data_root, tmp_path):
 
 def test_cli_tum_demo_without_encoder_or_recording(data_root, tmp_path):
     out = tmp_path / "t.map.npz"
-    result = runner.invoke(app, ["build", "demo_tum", "--data-root", str(data_root), "--out", str(out), "--encoder", "none", "--no-rrd"])
+    result = runner.invoke(app, ["build", "demo_tum", "--data-root", str(data_root), "--out", str(out), "--encoder",
+                                 "none", "--no-rrd"])
     assert result.exit_code == 0, result.output
     assert load_map(out).encoder == "none" and "text embeddings: none (--encoder none)" in result.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.map.npz"]

@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 
 from clipclique.datasets import open_sequence
 from clipclique.localization.cli import app as loc_app
-from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.mapping.cli import app
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
 
 RUNNER = CliRunner()
 NAME = "rgbd_dataset_freiburg2_desk"  # the tiny TUM sequence of tests/conftest.py (write_tum_sequence)
@@ -40,7 +40,8 @@ def annotate(tmp_path, masks, table):
                                "--data-root", str(tmp_path)])
 
 
-def test_masks_named_by_stem_or_timestamp_become_the_sequences_annotations_and_its_map(tmp_path, monkeypatch, tum_sequence):
+def test_masks_named_by_stem_or_timestamp_become_the_sequences_annotations_and_its_map(tmp_path, monkeypatch,
+                                                                                       tum_sequence):
     folder = tum_sequence(tmp_path, annotations=False, rounded=True)
     # the first frame by its file stem, the second by a rounded timestamp, 8-bit
     masks, table = own_masks(tmp_path, [RGB_STAMPS[0]], mode="L")
@@ -65,7 +66,8 @@ def test_masks_named_by_stem_or_timestamp_become_the_sequences_annotations_and_i
     (["nan"], "nan.png: names no colour image of"),
     ([RGB_STAMPS[0], f"{float(RGB_STAMPS[0]) + 0.001:.6f}"], "a second mask of frame"),
 ])
-def test_a_mask_that_names_no_frame_or_a_frame_twice_is_one_line_and_writes_nothing(tmp_path, names, problem, tum_sequence):
+def test_a_mask_that_names_no_frame_or_a_frame_twice_is_one_line_and_writes_nothing(tmp_path, names, problem,
+                                                                                    tum_sequence):
     folder = tum_sequence(tmp_path, annotations=False)
     masks, table = own_masks(tmp_path, names)
     done = annotate(tmp_path, masks, table)
@@ -78,11 +80,13 @@ def test_unknown_ids_wrong_sizes_and_existing_annotations_are_refused(tmp_path, 
     masks, table = own_masks(tmp_path, [RGB_STAMPS[0]], ids=(7, 12))
     assert "object id 12 is not in" in annotate(tmp_path, masks, table).output.replace("\n", "")
     Image.fromarray(np.zeros((240, 320), np.uint16)).save(masks / f"{RGB_STAMPS[0]}.png")
-    assert "mask is 320 x 240, the depth image of its frame 640 x 480" in annotate(tmp_path, masks, table).output.replace("\n", "")
+    assert ("mask is 320 x 240, the depth image of its frame 640 x 480"
+            in annotate(tmp_path, masks, table).output.replace("\n", ""))
     (folder / "annotations").mkdir()
     (folder / "annotations" / "objects.csv").write_text("id,class,description\n1,chair,mine\n")
     refused = annotate(tmp_path, masks, table)
-    assert refused.exit_code == 2 and "exists already; annotate never replaces annotations" in refused.output.replace("\n", "")
+    assert (refused.exit_code == 2
+            and "exists already; annotate never replaces annotations" in refused.output.replace("\n", ""))
     assert (folder / "annotations" / "objects.csv").read_text() == "id,class,description\n1,chair,mine\n"
 
 
@@ -101,7 +105,8 @@ def test_frames_without_annotations_are_left_out_and_counted_not_failed(tmp_path
     """The tiny sequence annotates one of its three frames: the run scores one, and says the other two are left out."""
     tum_sequence(tmp_path, rounded=True)
     monkeypatch.chdir(tmp_path)
-    assert RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code == 0
+    assert (RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code
+            == 0)
     ran = RUNNER.invoke(loc_app, ["run", NAME, "--data-root", str(tmp_path), "--no-rrd"])
     assert ran.exit_code == 0, ran.output
     assert (f"note: 2 of 3 frames have no annotations for the annotations detector: left out, not counted as failures "
@@ -111,7 +116,8 @@ def test_frames_without_annotations_are_left_out_and_counted_not_failed(tmp_path
     assert [frame["name"] for frame in document["frames"]] == [RGB_STAMPS[0]]
 
 
-def test_another_recording_of_the_same_place_is_localized_with_same_place_and_refused_without(tmp_path, monkeypatch, tum_sequence):
+def test_another_recording_of_the_same_place_is_localized_with_same_place_and_refused_without(tmp_path, monkeypatch,
+                                                                                              tum_sequence):
     """A second recording of the mapped place, without ground truth: --same-place localizes it against the first
     one's map, and the table shows how many frames got a pose; without it the map is refused, naming the option."""
     folder = tum_sequence(tmp_path, rounded=True)
@@ -124,7 +130,8 @@ def test_another_recording_of_the_same_place_is_localized_with_same_place_and_re
     shutil.copytree(folder, second)
     (second / "groundtruth.txt").unlink()  # recorded without motion capture
     monkeypatch.chdir(tmp_path)
-    assert RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code == 0
+    assert (RUNNER.invoke(app, ["build", NAME, "--data-root", str(tmp_path), "--encoder", "none", "--no-rrd"]).exit_code
+            == 0)
     args = ["run", second.name, "--data-root", str(tmp_path), "--map", f"outputs/maps/{NAME}.map.npz", "--no-rrd"]
     refused = RUNNER.invoke(loc_app, args)
     assert refused.exit_code == 2
@@ -189,7 +196,8 @@ def test_a_coco_annotation_file_becomes_the_sequences_annotations(tmp_path, tum_
                    {"id": 2, "file_name": f"{float(RGB_STAMPS[1]):.3f}.png", "width": 640, "height": 480}],
         "categories": [{"id": 1, "name": "monitor"}, {"id": 2, "name": "cup"}],
         "annotations": [
-            {"id": 1, "image_id": 1, "category_id": 1, "attributes": {"track_id": 7}, "segmentation": encode_rle(monitor)},
+            {"id": 1, "image_id": 1, "category_id": 1, "attributes": {"track_id": 7},
+             "segmentation": encode_rle(monitor)},
             {"id": 2, "image_id": 1, "category_id": 2, "track_id": 8,
              "segmentation": [[340, 200, 380, 200, 380, 280, 340, 280]]},  # a 40 x 80 rectangle
             {"id": 3, "image_id": 2, "category_id": 2, "track_id": 8, "segmentation": encode_rle(monitor)},
@@ -209,7 +217,8 @@ def test_a_coco_annotation_file_becomes_the_sequences_annotations(tmp_path, tum_
     shutil.rmtree(tmp_path / "tum" / NAME / "annotations")
     table = tmp_path / "classes.csv"
     table.write_text('id,class,description\n7,monitor,"a black monitor, wide"\n8,cup,a red cup\n')
-    again = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--objects", str(table), "--data-root", str(tmp_path)])
+    again = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--objects", str(table), "--data-root",
+                                str(tmp_path)])
     assert again.exit_code == 0, again.output
     assert "a red cup" in (tmp_path / "tum" / NAME / "annotations" / "objects.csv").read_text()
     refused = RUNNER.invoke(app, ["annotate", NAME, "--coco", str(coco), "--data-root", str(tmp_path)])
@@ -219,7 +228,8 @@ def test_a_coco_annotation_file_becomes_the_sequences_annotations(tmp_path, tum_
 def test_annotate_reads_masks_or_a_coco_file_not_both(tmp_path, tum_sequence):
     tum_sequence(tmp_path, annotations=False)
     masks, table = own_masks(tmp_path, [RGB_STAMPS[0]])
-    both = RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--coco", str(table), "--data-root", str(tmp_path)])
+    both = RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--coco", str(table), "--data-root",
+                               str(tmp_path)])
     assert both.exit_code == 2 and "either --masks DIR (with --objects CSV) or --coco FILE" in both.output
     alone = RUNNER.invoke(app, ["annotate", NAME, "--masks", str(masks), "--data-root", str(tmp_path)])
     assert alone.exit_code == 2 and "--masks needs --objects CSV" in alone.output

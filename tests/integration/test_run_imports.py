@@ -13,8 +13,8 @@ import pytest
 
 from clipclique.backends import load_encoder
 from clipclique.io.mapfile import save_map
-from clipclique.resolve import open_scene
 from clipclique.mapping.build import build_map
+from clipclique.resolve import open_scene
 
 pytestmark = pytest.mark.slow
 PROBE = ("import atexit, json, sys; atexit.register(lambda: print('MODULES', json.dumps(sorted(sys.modules)))); "

@@ -31,7 +31,8 @@ def results(sequence: str, method_title: str, changed: dict, max_frames: int | N
                "failures": {"few_observations": 100, "no_clique": 12},
                "stage_ms_median": dict.fromkeys(ALL_STAGES, 1234.5)}
     run = {"sequence": sequence, "method_title": method_title, "notes": [], "changed": changed,
-           "detector": {"name": "annotations", "simulated": False}, "encoder": {"name": "simulated-clip", "simulated": True},
+           "detector": {"name": "annotations", "simulated": False},
+           "encoder": {"name": "simulated-clip", "simulated": True},
            "map": f"outputs/maps/{sequence}.map.npz", "stride": 1, "max_frames": max_frames}
     return {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "run": run, "summary": summary, "frames": []}
 
@@ -74,7 +75,8 @@ def test_compare_into_a_pipe_keeps_long_names_and_numbers_whole(tmp_path):
         lines = check_whole(done.stdout)
         assert lines[-3:] == ["(a) inliers.d_comp=0.6", "(b) success_threshold_m=0.5", "(c) max_frames=20"]
         assert "CLIP-Loc (c): 112 of 2488 frames without a pose: 100 few observations, 12 no clique" in lines
-        assert "within the run's success threshold (0.5, 1 m: see the marks)" in " ".join(done.stdout.split())  # not "within 1 m"
+        # not "within 1 m"
+        assert "within the run's success threshold (0.5, 1 m: see the marks)" in " ".join(done.stdout.split())
 
 
 def test_an_80_column_terminal_fits_the_tables_of_the_longest_names(tmp_path):

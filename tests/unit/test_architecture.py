@@ -36,7 +36,8 @@ def imports(path: Path, known: set[str]) -> Iterator[str]:
         if isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:  # a submodule, else the module
-            names = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in known else node.module for a in node.names]
+            names = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in known else node.module
+                     for a in node.names]
         else:
             continue
         yield from (name for name in names if name in known)
@@ -61,7 +62,8 @@ def offenders(graph: dict[str, set[str]], importer: tuple[str, ...], imported: t
 
 def test_the_scan_sees_the_project(graph):
     """A scan that found nothing would pass every rule below."""
-    assert {"clipclique.pipeline", "clipclique.localization.run", "clipclique.mapping.run", "clipclique.benchmark.suite",
+    assert {"clipclique.pipeline", "clipclique.localization.run", "clipclique.mapping.run",
+            "clipclique.benchmark.suite",
             "tools.demo"} <= set(graph)
     assert "clipclique.pipeline" in graph["clipclique.localization.run"]
     assert "clipclique.mapping.run" in graph["tools.demo"]
@@ -95,7 +97,8 @@ def test_only_the_registries_import_the_simulation(graph):
 
 
 def test_no_module_imports_a_cli_module(graph):
-    """Tools, the benchmark and tests call runners (clipclique.localization.run, clipclique.mapping.run), never a CLI."""
+    """Tools, the benchmark and tests call runners (clipclique.localization.run, clipclique.mapping.run), never a
+    CLI."""
     assert sorted(f"{a} imports {b}" for a, targets in graph.items() for b in targets if b in CLI_MODULES) == []
 
 

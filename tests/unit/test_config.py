@@ -38,7 +38,8 @@ NEWLY_REACHABLE = {
 
 def _flatten(tree: dict, prefix: str = "") -> dict:
     return {k: v for key, value in tree.items()
-            for k, v in (_flatten(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value}).items()}
+            for k, v in (_flatten(value, f"{prefix}{key}.") if isinstance(value, dict)
+                         else {f"{prefix}{key}": value}).items()}
 
 
 # defaults moved on purpose since that config.json was written (clipclique/benchmark/accuracy_levers.py measured them)
@@ -94,7 +95,8 @@ def _bounded(config: LocalizationConfig) -> dict[str, tuple[float, float]]:
 def test_every_number_has_a_range_and_is_refused_outside_it():
     config = make_config("clipclique")
     bounded = _bounded(config)
-    numbers = {key for key, value in flat(config).items() if isinstance(value, (int, float)) and not isinstance(value, bool)}
+    numbers = {key for key, value in flat(config).items()
+               if isinstance(value, (int, float)) and not isinstance(value, bool)}
     assert numbers == set(bounded) >= set(NEWLY_REACHABLE)
     for key, (low, high) in bounded.items():
         value = flat(config)[key]

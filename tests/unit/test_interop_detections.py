@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from clipclique.interop.boxfit import BoxSegmentation, box_mask, ellipse_region
-from clipclique.interop.coco import decode_rle, encode_rle
+from clipclique.interop.coco import decode_rle, encode_rle, reported_classes
 from clipclique.interop.detections import (
     CocoRecorder,
     FileDetector,
@@ -18,10 +18,9 @@ from clipclique.interop.detections import (
     merged_duplicates,
     read_detections,
 )
-from clipclique.interop.coco import reported_classes
 from clipclique.interop.errors import InteropError
-from clipclique.types import Detections, Frame
 from clipclique.perception.yolo import coco_to_vocabulary
+from clipclique.types import Detections, Frame
 
 INTRINSICS = np.array([[500.0, 0, 80], [0, 500.0, 60], [0, 0, 1]])
 CLASSES = ["book", "cup", "monitor"]
@@ -166,7 +165,8 @@ def test_coco_results_without_their_image_list_say_how_to_give_it(tmp_path):
 
 
 def voom_file(tmp_path, frames: int = 3):
-    """Shaped as VOOM's diamond files: boxes with ellipses, one of them zero-width ([199.0, 278.5, 0.0, 0.0018, 0.0])."""
+    """Shaped as VOOM's diamond files: boxes with ellipses, one of them zero-width ([199.0, 278.5, 0.0, 0.0018,
+    0.0])."""
     entries = [{"file_name": f"rgb/{1311868164 + i}.363181.png", "detections": [
         {"category_id": 41, "detection_score": 0.9, "bbox": [58, 38, 102, 82], "ellipse": [80, 60, 44, 44, 0.1]}]}
         for i in range(frames)]
@@ -212,5 +212,6 @@ def test_a_file_of_another_sequence_is_refused_naming_both_schemes(tmp_path):
                                            r"'1341847980.000000' or numbers 0..119: covered 0 of 120 frames"):
         found.check_coverage(other, range(120))
     partly = Named([f"{1311868164 + i}.363181" for i in range(2)] + [f"9.{i}" for i in range(8)])
-    assert found.check_coverage(partly, range(10))[-1] == "voom_detections.json covered 2 of 10 frames; the others have no detections"
+    assert found.check_coverage(partly, range(10))[-1] == ("voom_detections.json covered 2 of 10 frames; the others "
+                                                           "have no detections")
     assert found.check_coverage(partly, range(0, 4)) == found.read.notes(found.path)  # 2 of 4: no coverage warning

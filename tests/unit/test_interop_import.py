@@ -28,7 +28,8 @@ def test_import_refuses_another_sources_map_unless_forced(tmp_path):
     assert len(digest) == 64 and load_map(out).class_names == ["cup"]
     run_import(first, out=out, encoder_spec="none", rrd=False)  # the same input: replaces its own output
     with pytest.raises(InteropError, match=rf"map_desk.map.npz holds a map imported from {tmp_path / 'goreloc.txt'}; "
-                                           rf"importing {tmp_path / 'voom.txt'} would replace it: pass --out FILE, or --force"):
+                                           fr"importing {tmp_path / 'voom.txt'} would replace it: pass "
+                                           r"--out FILE, or --force"):
         run_import(second, out=out, encoder_spec="none", rrd=False)
     assert load_map(out).class_names == ["cup"] and sorted(p.name for p in out.parent.iterdir()) == ["map_desk.map.npz"]
     run_import(second, out=out, encoder_spec="none", rrd=False, force=True)

@@ -8,7 +8,15 @@ import json
 import pytest
 
 from clipclique.interop.errors import InteropError
-from clipclique.interop.labels import COCO, LVIS_TO_COCO, MAX_LABELS, class_lookup, duplicate_note, label_set, read_label_file
+from clipclique.interop.labels import (
+    COCO,
+    LVIS_TO_COCO,
+    MAX_LABELS,
+    class_lookup,
+    duplicate_note,
+    label_set,
+    read_label_file,
+)
 from clipclique.interop.maps import read_map
 from clipclique.perception.yolo import COCO_NAMES
 from tests.unit.test_interop_detections import CLASSES, detector, frame
@@ -17,7 +25,8 @@ from tests.unit.test_interop_maps import msgloc_node
 
 def test_bundled_sets_hold_the_published_ids():
     lvis = label_set("lvis")
-    assert len(lvis.names) == 1203 and lvis.names[704] == "mouse (computer equipment)" and lvis.names[0] == "aerosol can"
+    assert (len(lvis.names) == 1203 and lvis.names[704] == "mouse (computer equipment)"
+            and lvis.names[0] == "aerosol can")
     assert label_set(None) is COCO and label_set("coco").names == tuple(COCO_NAMES) and COCO.names[41] == "cup"
     assert lvis.duplicates == {}
     assert set(LVIS_TO_COCO) <= set(lvis.names) and set(LVIS_TO_COCO.values()) <= set(COCO_NAMES)
@@ -54,7 +63,8 @@ def test_lvis_msgloc_map_needs_labels_lvis(tmp_path):
     path = tmp_path / "desk_yolo_lvis_map.json"
     node = msgloc_node(baseline_label={"704.0": [0.7, [1, 2, 3]], "295.0": [0.3, [1, 2, 3]]})
     path.write_text(json.dumps({"nodes": [node]}))
-    with pytest.raises(InteropError, match=r"category id 704 is not a coco class id \(0..79\); an LVIS file\? pass --labels lvis"):
+    with pytest.raises(InteropError,
+                       match=r"category id 704 is not a coco class id \(0..79\); an LVIS file\? pass --labels lvis"):
         read_map(path)
     imported = read_map(path, labels=label_set("lvis"))
     assert imported.classes == ["mouse (computer equipment)"]
@@ -68,7 +78,8 @@ def test_vocabularies_meet_through_the_lvis_to_coco_table():
     assert lookup["computer keyboard"] == 0 and "person" not in lookup
     coco_map = ["keyboard", "mouse", "cup", "monitor"]
     lookup = class_lookup(coco_map)  # LVIS detections against a COCO map (monitor: COCO's tv, as for YOLO)
-    assert [lookup[name] for name in ("computer keyboard", "mouse (computer equipment)", "mug", "television set")] == [0, 1, 2, 3]
+    assert ([lookup[name] for name in ("computer keyboard", "mouse (computer equipment)", "mug", "television set")]
+            == [0, 1, 2, 3])
     assert "aerosol can" not in lookup
 
 

@@ -1,4 +1,5 @@
-"""Readers of object-SLAM maps on files written here byte by byte (docs/import_export.md), and the writers' round trip."""
+"""Readers of object-SLAM maps on files written here byte by byte (docs/import_export.md), and the writers' round
+trip."""
 
 from __future__ import annotations
 
@@ -217,7 +218,8 @@ def test_msgloc_negative_radii_w_first_quaternion_and_distribution(tmp_path):
     path.write_text(json.dumps({"nodes": [msgloc_node()], "edges": []}))
     imported = read_map(path)
     assert imported.source == "msgloc" and imported.object_ids == [8142508126285856768]
-    assert imported.classes == ["keyboard"] and imported.distributions[0] == pytest.approx({"keyboard": 0.8, "mouse": 0.2})
+    assert (imported.classes == ["keyboard"]
+            and imported.distributions[0] == pytest.approx({"keyboard": 0.8, "mouse": 0.2}))
     assert imported.notes == ["1 nodes had negative radii: their absolute values taken"]
     np.testing.assert_allclose(imported.ellipsoids.axes[0], AXES)
     np.testing.assert_allclose(imported.ellipsoids.rotations[0], ROTATION, atol=1e-12)
@@ -250,7 +252,8 @@ def test_msgloc_malformed_node_refused(tmp_path, change, problem):
 
 def demo_like_map(tmp_path):
     path = tmp_path / "msgloc.json"
-    labels = ({"56.0": [1.0, [0, 0, 0]]}, {"41.0": [0.7, [0, 0, 0]], "39.0": [0.3, [0, 0, 0]]}, {"63.0": [1.0, [0, 0, 0]]})
+    labels = ({"56.0": [1.0, [0, 0, 0]]}, {"41.0": [0.7, [0, 0, 0]], "39.0": [0.3, [0, 0, 0]]},
+              {"63.0": [1.0, [0, 0, 0]]})
     nodes = [msgloc_node(node_id=i, translation=[i * 0.5, 0.1, 2.0], baseline_label=labels[i - 1]) for i in range(1, 4)]
     path.write_text(json.dumps({"nodes": nodes}))
     return to_map(read_map(path), str(path))
@@ -302,6 +305,7 @@ def test_a_folder_holding_one_osmap_yaml_is_read_others_get_one_message(tmp_path
     assert read_map(tmp_path).classes == ["cup"] and read_map(tmp_path).source == "goreloc"
     (tmp_path / "map_other.yaml").write_text("%YAML:1.0\n")
     for format in (None, MapFormat.OSMAP, MapFormat.MSGLOC):
-        with pytest.raises(InteropError, match=r": a folder; pass a map file \(map_objects_\*.txt, an Osmap map_\*.yaml, "
+        with pytest.raises(InteropError,
+                           match=r": a folder; pass a map file \(map_objects_\*.txt, an Osmap map_\*.yaml, "
                                                r"a .json\): it holds 2 .yaml files \(map_desk.yaml, map_other.yaml\)"):
             read_map(tmp_path, format)

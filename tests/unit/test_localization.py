@@ -9,18 +9,18 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 from rich.text import Text
+from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
-from clipclique.geometry import random_rotation
 from clipclique.errors import ClipcliqueError
-from clipclique.types import Ellipsoids, Map, Pose
+from clipclique.geometry import random_rotation
 from clipclique.localization.cli import app, imports_kept
 from clipclique.localization.run import choose_encoder, read_ahead
 from clipclique.datasets.tum import tum_line
 from clipclique.localization.results import ALL_STAGES, json_safe, read_results
 from clipclique.localization.tables import results_table, run_banner
+from clipclique.types import Ellipsoids, Map, Pose
 
 RUNNER = CliRunner()
 
@@ -88,7 +88,8 @@ def test_an_unwritable_out_folder_is_a_user_error(monkeypatch, tmp_path):
     import clipclique.localization.run as runner
     from clipclique.localization.run import RunSettings
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
+    monkeypatch.setattr(runner, "prepare",
+                        lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", lambda *args: pytest.fail("ran frames into a folder it cannot write"))
     blocker = tmp_path / "a-file"
     blocker.write_text("")
@@ -104,7 +105,8 @@ def test_an_interrupted_run_leaves_no_folder_it_made(monkeypatch, tmp_path):
     def interrupted(*args):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(runner, "prepare", lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
+    monkeypatch.setattr(runner, "prepare",
+                        lambda settings: SimpleNamespace(sequence=SimpleNamespace(name="demo"), settings=settings))
     monkeypatch.setattr(runner, "execute", interrupted)
     (tmp_path / "kept").mkdir()
     for out in (tmp_path / "new" / "run", tmp_path / "kept"):
@@ -132,11 +134,11 @@ def test_encoder_choice_follows_the_map():
 
 def test_a_frame_without_ground_truth_has_no_success_verdict_in_the_results():
     from clipclique.config import make_config
+    from clipclique.localization.results import frame_record
+    from clipclique.localization.run import FrameOutcome
     from clipclique.metrics import evaluate_frame
     from clipclique.pipeline import index_map, localize
     from clipclique.sim.synthetic import synthetic_map, synthetic_query
-    from clipclique.localization.results import frame_record
-    from clipclique.localization.run import FrameOutcome
 
     rng = np.random.default_rng(3)
     map = synthetic_map(rng)
@@ -165,7 +167,8 @@ def test_run_folders_are_named_by_what_changes_the_results(tmp_path):
     first = RunSettings("demo", config_file=config).run_name()
     config.write_text("[inliers]\nd_comp = 0.5\n")
     assert first.startswith("clipclique+my-") and RunSettings("demo", config_file=config).run_name() != first
-    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai", overrides=["confidence_model=x" + "9" * 200]).run_name()
+    odd = RunSettings("demo", encoder="open_clip:ViT-L-14/openai",
+                      overrides=["confidence_model=x" + "9" * 200]).run_name()
     assert "/" not in odd and len(odd) == 100
     assert RunSettings("demo", out=tmp_path / "here").out_dir("demo") == tmp_path / "here"
 

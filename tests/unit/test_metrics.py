@@ -18,7 +18,8 @@ def rotation_z(angle: float) -> np.ndarray:
 MAP = Map(Ellipsoids.empty(), np.zeros(4, int), ["thing"], [""] * 4, instance_ids=np.array([10, 11, 12, 13]))
 # observations see objects 10, 11, 12 and 99 (not in the map) plus a false detection (-1)
 OBSERVATIONS = Observations(
-    Ellipsoids.empty(), np.zeros(5, int), None, instance_ids=np.array([10, 11, 12, 99, -1]), detection_index=np.arange(5)
+    Ellipsoids.empty(), np.zeros(5, int), None, instance_ids=np.array([10, 11, 12, 99, -1]),
+    detection_index=np.arange(5)
 )
 TRUTH = Pose(np.eye(3), np.zeros(3))
 
@@ -83,8 +84,10 @@ def test_summarize_aggregates_as_documented():
     # top-1 errors 0.2, 4.0, 0.4 and no pose: within 0.05 / 0.1 / 0.25 / 0.5 / 1 / 2 / 5 m of the 4 frames
     assert summary["success_within_m"] == {"0.05": 0.0, "0.1": 0.0, "0.25": 0.25, "0.5": 0.5, "1": 0.5, "2": 0.5,
                                            "5": 0.75}
-    assert summary["te_mean_m"] == pytest.approx(4.6 / 3) and summary["te_p90_m"] == pytest.approx(np.percentile([0.2, 4, 0.4], 90))
-    assert summary["re_mean_deg"] == pytest.approx(np.degrees(0.2)) and summary["re_p75_deg"] == pytest.approx(np.degrees(0.25))
+    assert (summary["te_mean_m"] == pytest.approx(4.6 / 3)
+            and summary["te_p90_m"] == pytest.approx(np.percentile([0.2, 4, 0.4], 90)))
+    assert (summary["re_mean_deg"] == pytest.approx(np.degrees(0.2))
+            and summary["re_p75_deg"] == pytest.approx(np.degrees(0.25)))
 
 
 def test_frames_without_ground_truth_do_not_count_in_success():
@@ -103,4 +106,5 @@ def test_a_map_without_ground_truth_ids_has_no_precision():
     pairs = np.array([[0, 0], [1, 2], [2, 2]])
     evaluation = evaluate_frame(result_with([TRUTH], pairs), OBSERVATIONS, imported, TRUTH, make_config(), 0)
     assert evaluation.precision is None and evaluation.num_in_map == 0 and evaluation.success[1]
-    assert evaluate_frame(result_with([TRUTH], pairs), OBSERVATIONS, MAP, TRUTH, make_config(), 0).precision == pytest.approx(2 / 3)
+    assert (evaluate_frame(result_with([TRUTH], pairs), OBSERVATIONS, MAP, TRUTH, make_config(), 0).precision
+            == pytest.approx(2 / 3))

@@ -8,9 +8,9 @@ import dataclasses
 import numpy as np
 
 from clipclique.benchmark import perception
+from clipclique.localization.run import Seen
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Detections
-from clipclique.localization.run import Seen
 
 
 def seen_with(observations) -> Seen:

@@ -30,7 +30,8 @@ def run(method: str, frames: int = 12, overrides: list[str] | None = None, seed:
 # The baselines need no CLIP (SH, X-View) or no graph (CLIP-Loc); all localize this easy synthetic map.
 # 24 frames: RANSAC verified by projected overlap (the paper's) misses a frame or two more than by centres.
 @pytest.mark.parametrize(
-    ("method", "success", "precision"), [("clipclique", 1.0, 0.95), ("sh", 0.75, 0.95), ("xview", 0.75, 0.95), ("cliploc", 0.9, 0.95)]
+    ("method", "success", "precision"), [("clipclique", 1.0, 0.95), ("sh", 0.75, 0.95), ("xview", 0.75, 0.95),
+                                         ("cliploc", 0.9, 0.95)]
 )
 def test_each_method_localizes_synthetic_frames(method, success, precision):
     summary, results = run(method, frames=24)
@@ -103,11 +104,13 @@ def test_bad_observation_classes_and_embedding_sizes_are_user_errors():
     with pytest.raises(ClipcliqueError, match="8 classes"):
         localize(dataclasses.replace(observations, class_ids=observations.class_ids + 8), index, config)
     with pytest.raises(ClipcliqueError, match="dimensions"):
-        localize(dataclasses.replace(observations, image_embeddings=observations.image_embeddings[:, :5]), index, config)
+        localize(dataclasses.replace(observations, image_embeddings=observations.image_embeddings[:, :5]), index,
+                 config)
     for part, row in (("centers", 2), ("axes", 0), ("rotations", 1)):  # one bad row failed the whole frame silently
         shapes = dataclasses.replace(observations.ellipsoids, **{part: getattr(observations.ellipsoids, part).copy()})
         getattr(shapes, part)[row] = np.nan if part != "axes" else np.inf
-        with pytest.raises(ClipcliqueError, match=rf"observation {row} has a centre, axes or rotation that is not finite "
+        with pytest.raises(ClipcliqueError,
+                           match=rf"observation {row} has a centre, axes or rotation that is not finite "
                                                   rf"\(1 of {len(observations)} observations\)"):
             localize(dataclasses.replace(observations, ellipsoids=shapes), index, config)
 
@@ -185,12 +188,14 @@ def test_empty_map_or_frame_fails_cleanly(method):
         detection_index=nothing,
     )
     result = localize(empty_frame, index_map(map, config), config)
-    assert result.similarity.shape == (0, len(map)) and result.failure == Failure(kind=FailureKind.FEW_OBSERVATIONS, count=0)
+    assert (result.similarity.shape == (0, len(map))
+            and result.failure == Failure(kind=FailureKind.FEW_OBSERVATIONS, count=0))
 
 
 @pytest.mark.parametrize(
     "override",
-    ["graph.xview_walks=-1", "inliers.max_cliques=0", "inliers.ransac_iterations=0", "top_n=0", "success_threshold_m=0"],
+    ["graph.xview_walks=-1", "inliers.max_cliques=0", "inliers.ransac_iterations=0", "top_n=0",
+     "success_threshold_m=0"],
 )
 def test_counts_and_thresholds_out_of_range_are_config_errors(override):
     # xview_walks=-1 crashed numpy; max_cliques <= 0 reported a cap hit with no clique looked at
@@ -199,7 +204,8 @@ def test_counts_and_thresholds_out_of_range_are_config_errors(override):
 
 
 def test_an_object_detected_twice_with_two_classes_never_enters_one_clique_twice():
-    from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose as TruePose
+    from clipclique.types import Camera, Ellipsoids, Map, Observations
+    from clipclique.types import Pose as TruePose
 
     # a cup and a bottle 3 cm apart on a desk, three other objects; the camera sees the cup twice
     # (once as "cup", once as "bottle": one box, two classes) and the three others
@@ -375,7 +381,8 @@ def test_the_fitted_stack_is_the_masked_rows():
         pairs, first = candidates[members], candidates[0]
         source, target, weights = weighted_sets(
             pairs, scores[members], sizes, (first[0], first[1], scores[0]),
-            (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
+            (observations.ellipsoids.centers, observations.ellipsoids.axes),
+            (map.ellipsoids.centers, map.ellipsoids.axes),
             config.pose.weights)
         rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
         ok &= (nonzero_counts(weights) >= 3) & (measure >= config.pose.min_conditioning)

@@ -4,17 +4,17 @@ literal reading still available as the `clipclique-paper` preset."""
 import numpy as np
 import pytest
 
-from clipclique.benchmark import core as bench_core, literal_reference
+from clipclique.benchmark import core as bench_core
+from clipclique.benchmark import literal_reference
 from clipclique.config import make_config
-from clipclique.geometry import pose_errors, random_rotation
-from clipclique.inliers.compatibility import compatibility_graph, partial_view_slack
 from clipclique.descriptors.graph import semantic_graph, semantic_histograms
 from clipclique.descriptors.lookalikes import class_kernel
+from clipclique.geometry import pose_errors, random_rotation
+from clipclique.inliers.compatibility import compatibility_graph, partial_view_slack
 from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
-
 
 SH_ONLY = {"similarity.descriptor": "sh"}
 
@@ -28,7 +28,8 @@ def labelled_map(classes: list[str], names: list[str], centers, axes=None) -> Ma
                np.arange(n) + 1)
 
 
-def seen(map: Map, pose: Pose, rows: list[int], classes: list[int] | None = None, centers=None, axes=None) -> Observations:
+def seen(map: Map, pose: Pose, rows: list[int], classes: list[int] | None = None, centers=None,
+         axes=None) -> Observations:
     """Landmarks `rows` observed exactly from `pose` (camera-to-map), optionally with other classes/centres/axes."""
     camera = map.ellipsoids.subset(np.array(rows)).transformed(pose.inverse())
     if centers is not None:
@@ -99,7 +100,8 @@ def test_soft_histograms_spread_each_walk_over_look_alike_labels():
     expected[1, 1 * 3 + 2], expected[1, 1 * 3 + 0] = 1.0, 0.5  # (book, cup) and (book, bottle)
     np.testing.assert_allclose(soft, expected / np.linalg.norm(expected, axis=1, keepdims=True))
     exact = semantic_histograms(adjacency, np.array([2, 1]), 3, walk_length=2).toarray()
-    np.testing.assert_allclose(semantic_histograms(adjacency, np.array([2, 1]), 3, 2, class_kernel(names, 0.0)).toarray(),
+    np.testing.assert_allclose(semantic_histograms(adjacency, np.array([2, 1]), 3, 2,
+                                                   class_kernel(names, 0.0)).toarray(),
                                exact)
 
 

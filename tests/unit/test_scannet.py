@@ -69,7 +69,8 @@ def test_segment_count_mismatch_names_both_files(tmp_path, scannet_scene):
     folder, _ = scannet_scene(tmp_path)
     segs = folder / f"{SCENE}_vh_clean_2.0.010000.segs.json"
     segs.write_text(json.dumps({"segIndices": [0, 1, 2]}))
-    with pytest.raises(DatasetError, match=r"segs\.json: 3 segIndices for 650 vertices of scene0007_00_vh_clean_2\.labels\.ply"):
+    with pytest.raises(DatasetError,
+                       match=r"segs\.json: 3 segIndices for 650 vertices of scene0007_00_vh_clean_2\.labels\.ply"):
         open_sequence(SCENE, tmp_path).instances()
 
 
@@ -104,9 +105,11 @@ def test_frames_without_instance_images_project_the_labelled_mesh(tmp_path, scan
     quad["x"], quad["y"], quad["z"] = [-0.5, 0.5, 0.5, -0.5], [0.0, 0.0, 1.0, 1.0], 2.7
     face = np.zeros(2, dtype=[("vertex_indices", "i4", (3,))])
     face["vertex_indices"] = [[650, 651, 652], [650, 652, 653]]
-    PlyData([PlyElement.describe(np.concatenate([vertex, quad]), "vertex"), PlyElement.describe(face, "face")]).write(str(ply_path))
+    PlyData([PlyElement.describe(np.concatenate([vertex, quad]), "vertex"),
+             PlyElement.describe(face, "face")]).write(str(ply_path))
     segs = folder / f"{SCENE}_vh_clean_2.0.010000.segs.json"
-    segs.write_text(json.dumps({"segIndices": json.loads(segs.read_text())["segIndices"] + [512] * 4}))  # the plain chair
+    # the plain chair
+    segs.write_text(json.dumps({"segIndices": json.loads(segs.read_text())["segIndices"] + [512] * 4}))
     depth = np.full((480, 640), 1500, np.uint16)
     depth[:, 320:] = 3000  # right half measures 3 m where the mesh is at 1.5 m: the depth test fails
     Image.fromarray(depth).save(folder / "depth" / "0.png")

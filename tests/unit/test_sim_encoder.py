@@ -71,7 +71,8 @@ def test_simulated_crop_context_pulls_towards_neighbours():
     pixels = _pixels(30)
     alone = encoder.encode_images(_showing(pixels, ((1, 1.0),)))
     crowded = encoder.encode_images(_showing(pixels, ((1, 0.5), (2, 0.4), (0, 0.1))))
-    assert encoder.contents(_showing(pixels, ((1, 0.5), (2, 0.4), (0, 0.1)))[0])[0] == (None, pytest.approx(0.1, abs=0.01))
+    assert (encoder.contents(_showing(pixels, ((1, 0.5), (2, 0.4), (0, 0.1)))[0])[0]
+            == (None, pytest.approx(0.1, abs=0.01)))
     assert encoder.contents(Crop(pixels[0])) == ((None, 1.0),)  # no instance image: background alone
     assert (alone @ chair).mean() > (crowded @ chair).mean() + 0.02
     assert (crowded @ desk).mean() > (alone @ desk).mean() + 0.1

@@ -10,18 +10,20 @@ import numpy as np
 import pytest
 
 from clipclique.config import make_config
+from clipclique.descriptors.similarity import soft_class_similarity
 from clipclique.errors import MapFileError
 from clipclique.io.mapfile import load_map, save_map
 from clipclique.pipeline import index_map, localize
-from clipclique.descriptors.similarity import soft_class_similarity
 from clipclique.types import Ellipsoids, Map, Observations
 
 
 def make_map() -> Map:
     """Five landmarks of two classes."""
     rng = np.random.default_rng(3)
-    ellipsoids = Ellipsoids(rng.uniform(-3, 3, (5, 3)), rng.uniform(0.05, 1.0, (5, 3)), np.repeat(np.eye(3)[None], 5, axis=0))
-    return Map(ellipsoids, np.arange(5) % 2, ["chair", "table"], [f"a chair number {i}" for i in range(5)], np.arange(5) + 10,
+    ellipsoids = Ellipsoids(rng.uniform(-3, 3, (5, 3)), rng.uniform(0.05, 1.0, (5, 3)),
+                            np.repeat(np.eye(3)[None], 5, axis=0))
+    return Map(ellipsoids, np.arange(5) % 2, ["chair", "table"], [f"a chair number {i}" for i in range(5)],
+               np.arange(5) + 10,
                provenance={"source": {"name": "test"}})
 
 
@@ -78,7 +80,8 @@ def test_one_hot_distributions_change_nothing_and_uncertain_ones_soften_the_clas
     baseline = localize(observations, index_map(map, hard), hard).similarity
     one_hot = with_distributions(map, np.eye(3)[map.class_ids])
     np.testing.assert_allclose(localize(observations, index_map(one_hot, soft), soft).similarity, baseline, atol=1e-12)
-    assert localize(observations, index_map(one_hot, hard), hard).similarity.tolist() == baseline.tolist()  # off: unused
+    # off: unused
+    assert localize(observations, index_map(one_hot, hard), hard).similarity.tolist() == baseline.tolist()
     unsure = one_hot.class_distributions.copy()
     unsure[0] = [0.6, 0.4, 0.0]  # landmark 0: a cup, maybe a bottle
     index = index_map(with_distributions(map, unsure), soft)

@@ -10,8 +10,10 @@ from clipclique.datasets import open_sequence
 from clipclique.datasets.tum import INTRINSICS, TumSequence, associate
 from clipclique.errors import DatasetError
 
+
 def test_association_pairs_nearest_and_drops_unmatched():
-    np.testing.assert_array_equal(associate(np.array([1.0, 2.0, 3.0, 4.0]), np.array([3.015, 0.99, 2.5, 4.03])), [1, -1, 0, -1])
+    np.testing.assert_array_equal(associate(np.array([1.0, 2.0, 3.0, 4.0]), np.array([3.015, 0.99, 2.5, 4.03])),
+                                  [1, -1, 0, -1])
     np.testing.assert_array_equal(associate(np.array([1.0]), np.array([])), [-1])
 
 
@@ -71,7 +73,8 @@ def test_intrinsics_need_a_known_camera_or_a_file(tmp_path, tum_sequence):
 def test_annotation_errors_name_the_file(tmp_path, tum_sequence):
     folder = tum_sequence(tmp_path)
     (folder / "annotations" / "objects.csv").write_text("id,class,description\n4,monitor,x\n")
-    with pytest.raises(DatasetError, match=r"instances/1311868164\.001300\.png: object id 9 is not in annotations/objects\.csv"):
+    with pytest.raises(DatasetError,
+                       match=r"instances/1311868164\.001300\.png: object id 9 is not in annotations/objects\.csv"):
         open_sequence("fr2", tmp_path).instances()
     (folder / "annotations" / "objects.csv").write_text("id,label\n4,monitor\n")
     with pytest.raises(DatasetError, match=r"objects\.csv: header must be 'id,class,description'"):

@@ -16,11 +16,10 @@ from clipclique.metrics import evaluate_frame
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
-from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, voxel_downsample
+from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, spread_labels, voxel_downsample
 from clipclique.viz.localization_recording import thinned
-from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
-from clipclique.viz.convert import spread_labels
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
+from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
 
 
@@ -106,7 +105,8 @@ def test_class_colors_follow_the_class_name_not_the_vocabulary():
     assert colors.shape == (40, 3) and colors.dtype == np.uint8
     np.testing.assert_array_equal(colors, class_colors(names))
     # the same class, the same colour, whatever else the map holds and in whatever order (was vocabulary order)
-    np.testing.assert_array_equal(class_colors(["sofa", "chair"]), class_colors(["tv", "chair", "lamp", "sofa"])[[3, 1]])
+    np.testing.assert_array_equal(class_colors(["sofa", "chair"]),
+                                  class_colors(["tv", "chair", "lamp", "sofa"])[[3, 1]])
     np.testing.assert_array_equal(class_colors(["Sofa "]), class_colors(["sofa"]))
     shades = palette().astype(float)
     assert len(np.unique(shades, axis=0)) == len(shades) == 48
@@ -127,7 +127,8 @@ def test_annotation_context_is_rerun_s_own():
     infos = [rr.AnnotationInfo(id=0, label="background", color=(0, 0, 0, 0))]
     infos += [rr.AnnotationInfo(id=i + 1, label=name, color=tuple(int(c) for c in color))
               for i, (name, color) in enumerate(zip(names, colors))]
-    assert annotation_context(names).context.as_arrow_array().equals(rr.AnnotationContext(infos).context.as_arrow_array())
+    assert annotation_context(names).context.as_arrow_array().equals(
+        rr.AnnotationContext(infos).context.as_arrow_array())
     assert annotation_context([]).context.as_arrow_array().equals(
         rr.AnnotationContext(infos[:1]).context.as_arrow_array())
 
@@ -186,7 +187,8 @@ def test_segmentation_reads_masks_in_their_boxes_only_where_they_lie_there():
                       [8, 2, 20, 14]])
     masks = np.zeros((len(boxes), *shape), bool)
     for mask, (x0, y0, x1, y1) in zip(masks, boxes):
-        rows, columns = slice(max(int(np.floor(y0)), 0), int(np.ceil(y1))), slice(max(int(np.floor(x0)), 0), int(np.ceil(x1)))
+        rows, columns = (slice(max(int(np.floor(y0)), 0), int(np.ceil(y1))),
+                         slice(max(int(np.floor(x0)), 0), int(np.ceil(x1))))
         mask[rows, columns] = rng.random(mask[rows, columns].shape) < 0.7
     scores = np.array([0.9, 0.5, 0.5, 0.7, 0.2, 0.5])  # ties: the later detection paints over
     class_ids = np.array([3, 300, 1, 0, 7, 2])  # an id over 255: uint16
@@ -363,7 +365,8 @@ def test_matches_are_coloured_by_ground_truth(tmp_path, run):
         assert (candidate_colors == CORRECT).all(axis=1).sum() == visible  # the true pairs
         assert (candidate_colors == WRONG).all(axis=1).sum() == len(f.result.candidates) - visible
         expected = CORRECT if f is good else WRONG
-        assert len(top1_colors) == len(f.result.hypotheses[0].correspondences) and (rgb_of(top1_colors) == expected).all()
+        assert (len(top1_colors) == len(f.result.hypotheses[0].correspondences)
+                and (rgb_of(top1_colors) == expected).all())
 
 
 def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
@@ -385,7 +388,8 @@ def test_stale_ranks_are_cleared_and_failures_logged(tmp_path, run):
         (first.frame.index, len(first.observations)), (second.frame.index, len(second.observations))]
     lines = [(frame, text, level) for (frame, (text,)), (_, (level,))
              in zip(spy.rows("log", "TextLog:text"), spy.rows("log", "TextLog:level"), strict=True)]
-    assert [frame for frame, text, _ in lines if text.startswith(f"frame {frame} ")] == [first.frame.index, second.frame.index]
+    assert ([frame for frame, text, _ in lines if text.startswith(f"frame {frame} ")]
+            == [first.frame.index, second.frame.index])
     assert [(frame, level) for frame, text, level in lines if "no pose" in text] == [(second.frame.index, "WARN")]
 
 
@@ -395,7 +399,8 @@ def test_error_plots_leave_a_gap_and_mark_a_frame_without_a_pose(tmp_path, run):
     recorder = LocalizationRecorder(tmp_path / "r.rrd", map, "x")
     spy = LogSpy(recorder)
     for i, f in enumerate(frames[:3]):
-        result = dataclasses.replace(f.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2)) if i == 1 else f.result
+        result = (dataclasses.replace(f.result, hypotheses=[], failure=Failure(kind=FailureKind.FEW_MATCHED, count=2))
+                  if i == 1 else f.result)
         evaluation = evaluate_frame(result, f.observations, map, f.frame.pose, LocalizationConfig(), i)
         recorder.log_frame(f.frame, f.detections, f.observations, result, evaluation)
     recorder.close()
@@ -492,12 +497,15 @@ def test_archetype_rows_come_back_as_what_logging_each_row_would_log():
         def send_columns(self, path, indexes, columns):
             times = {index.timeline_name(): index.as_arrow_array().to_pylist() for index in indexes}
             for column in columns:
-                sent[path, str(column.component_descriptor()), "time" in times] = (times["frame"], column.as_arrow_array().to_pylist())
+                sent[path, str(column.component_descriptor()), "time" in times] = (times["frame"],
+                                                                                   column.as_arrow_array().to_pylist())
 
     strips = ArchetypeRows(rr.LineStrips3D, ("strips", "colors", "labels"))
-    rows = [(3, None, {"strips": np.arange(12.0).reshape(2, 2, 3), "colors": np.array([[255, 0, 0], [0, 9, 0]], np.uint8),
+    rows = [(3, None, {"strips": np.arange(12.0).reshape(2, 2, 3),
+                       "colors": np.array([[255, 0, 0], [0, 9, 0]], np.uint8),
                        "labels": ["a", "b"], "radii": -1.5}),
-            (4, None, {"strips": np.zeros((0, 2, 3)), "colors": np.zeros((0, 3), np.uint8), "labels": [], "radii": -2.5}),
+            (4, None, {"strips": np.zeros((0, 2, 3)), "colors": np.zeros((0, 3), np.uint8), "labels": [],
+                       "radii": -2.5}),
             (7, 1.5e9, {"strips": np.ones((1, 2, 3)), "colors": np.array([[1, 2, 3]], np.uint8), "labels": ["c"],
                         "radii": -1.0})]
     values = ArchetypeRows(rr.AnyValues)
@@ -505,13 +513,15 @@ def test_archetype_rows_come_back_as_what_logging_each_row_would_log():
     for frame, stamp, row in rows:
         late.add("p", frame, stamp, row, strips)
         late.add("p", frame, stamp, {"score": float(frame) / 4, "size": frame}, values)
-    late.add("q", 5, None, {"strips": [np.zeros((3, 3))], "radii": -2.0}, ArchetypeRows(rr.LineStrips3D, ("strips", "colors")))
+    late.add("q", 5, None, {"strips": [np.zeros((3, 3))], "radii": -2.0},
+             ArchetypeRows(rr.LineStrips3D, ("strips", "colors")))
     late.send(Stream())
     for frame, stamp, row in rows:
         for batch in [*rr.LineStrips3D(**row).as_component_batches(),
                       *rr.AnyValues(score=float(frame) / 4, size=frame).as_component_batches()]:
             frames, logged = sent["p", str(batch.component_descriptor()), stamp is not None]
-            assert logged[frames.index(frame)] == batch.as_arrow_array().to_pylist(), (frame, batch.component_descriptor())
+            assert (logged[frames.index(frame)] == batch.as_arrow_array().to_pylist()), (frame,
+                                                                                         batch.component_descriptor())
     assert sent["p", "LineStrips3D:radii", False] == ([3, 4], [[-1.5], [-2.5]])
     assert sent["p", "score", True] == ([7], [[1.75]]) and sent["p", "size", False] == ([3, 4], [[3], [4]])
     assert sent["p", "LineStrips3D:strips", False][1][1] == []  # the empty row is there, empty
@@ -533,23 +543,27 @@ def test_cameras_kept_until_close_are_what_logging_them_live_logs():
     intrinsics = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
     poses = [Pose(Rotation.random(random_state=k).as_matrix(), rng.normal(size=3)) for k in range(3)]
     colors = [np.array([255, 200, 0, alpha]) for alpha in (255, 110, 110)]
-    columns = camera_columns([camera_row(pose, intrinsics, 640, 480, color, 0.25) for pose, color in zip(poses, colors)])
+    columns = camera_columns([camera_row(pose, intrinsics, 640, 480, color, 0.25)
+                              for pose, color in zip(poses, colors)])
     sent = {str(column.component_descriptor()): column.as_arrow_array().to_pylist() for column in columns}
     for k, (pose, color) in enumerate(zip(poses, colors)):
         for archetype in camera(pose, intrinsics, 640, 480, color, 0.25):
             for batch in archetype.as_component_batches():
                 assert sent[str(batch.component_descriptor())][k] == batch.as_arrow_array().to_pylist()
-    assert {"Transform3D:translation", "Transform3D:mat3x3", "Pinhole:image_from_camera", "Pinhole:resolution"} <= set(sent)
+    assert ({"Transform3D:translation", "Transform3D:mat3x3", "Pinhole:image_from_camera", "Pinhole:resolution"}
+            <= set(sent))
 
     rows = [ellipsoid_fields(Ellipsoids(rng.normal(size=(n, 3)), rng.uniform(0.1, 1, (n, 3)),
                                         Rotation.random(n, random_state=n).as_matrix().reshape(n, 3, 3)),
-                             np.arange(n), [f"o{i}" for i in range(n)], np.full((n, 3), 200, np.uint8), "MajorWireframe",
+                             np.arange(n), [f"o{i}" for i in range(n)], np.full((n, 3), 200, np.uint8),
+                             "MajorWireframe",
                              False) for n in (4, 1, 3)]
     sent = {str(column.component_descriptor()): column.as_arrow_array().to_pylist()
             for column in ELLIPSOIDS([dict(row) for row in rows])}
     for k, row in enumerate(rows):
         quaternions = Rotation.from_matrix(row["rotations"]).as_quat()
-        live = rr.Ellipsoids3D(**{name: value for name, value in row.items() if name != "rotations"}, quaternions=quaternions)
+        live = rr.Ellipsoids3D(**{name: value for name, value in row.items() if name != "rotations"},
+                               quaternions=quaternions)
         for batch in live.as_component_batches():
             assert sent[str(batch.component_descriptor())][k] == batch.as_arrow_array().to_pylist()
 
@@ -563,7 +577,8 @@ def test_images_sent_a_few_frames_at_a_time_hold_what_logging_each_frame_would()
 
     rng = np.random.default_rng(5)
     frames = [(rng.integers(0, 255, (24, 32, 3), dtype=np.uint8), rng.uniform(0, 9, (24, 32)).astype(np.float32),
-               rng.integers(0, 300 if k == 1 else 5, (24, 32)).astype(np.uint16 if k == 1 else np.uint8)) for k in range(3)]
+               rng.integers(0, 300 if k == 1 else 5, (24, 32)).astype(np.uint16 if k == 1 else np.uint8))
+              for k in range(3)]
     frames[0][1][3, 4] = np.nan
     sent = []
 
@@ -666,7 +681,9 @@ def test_crowded_detection_labels_show_on_hover_only():
         for name in ("centers", "half_sizes"):
             assert rr.Boxes2D(**{name: fields[name]}).as_component_batches()[0].as_arrow_array().to_pylist() == \
                 getattr(expected, name).as_arrow_array().to_pylist()
-    assert all(len(fields) == 0 for fields in box_fields(Detections(np.zeros((0, 4, 5), bool), np.zeros((0, 4)), np.zeros(0, int), np.zeros(0), np.zeros(0, int)), [])[0].values() if not isinstance(fields, bool))
+    assert all(len(fields) == 0 for fields in box_fields(Detections(np.zeros((0, 4, 5), bool), np.zeros((0, 4)),
+                                                                    np.zeros(0, int), np.zeros(0), np.zeros(0, int)),
+                                                         [])[0].values() if not isinstance(fields, bool))
 
 
 def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_entities):
@@ -677,8 +694,8 @@ def test_the_localization_layout_hides_the_semantic_graph(loc_rrd, recorded_enti
 
 
 def test_window_sources_and_odometry_path_are_placed_by_the_newest_pose(tmp_path, run):
-    from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
     from clipclique.multiframe.window import WindowConfig, Windower
+    from clipclique.viz.localization_recording import WINDOW_PATH, WINDOW_SOURCES
 
     map, frames = run
     windower = Windower(WindowConfig(size=2), [f.frame.pose for f in frames], map.class_names)

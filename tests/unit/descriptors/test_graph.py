@@ -3,7 +3,14 @@ import pytest
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from clipclique.descriptors.graph import capped_semantic_graph, landmark_histograms, query_histograms, random_walk_descriptors, semantic_graph, semantic_histograms
+from clipclique.descriptors.graph import (
+    capped_semantic_graph,
+    landmark_histograms,
+    query_histograms,
+    random_walk_descriptors,
+    semantic_graph,
+    semantic_histograms,
+)
 
 A, B, C = 0, 1, 2
 # Hand-drawn graph: triangle 0-1-2, tail 2-3, node 4 far away. Classes A B A C B.

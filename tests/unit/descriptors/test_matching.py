@@ -3,8 +3,20 @@ import pytest
 import scipy.sparse as sp
 
 from clipclique.config import MatchingConfig
-from clipclique.descriptors.matching import (FLAT, SELECTED_UP_TO, Lookalikes, adaptive_matches, best_rows, cap, class_groups,
-                                 knn_matches, match, mutual_best_matches, top_m, with_lookalikes)
+from clipclique.descriptors.matching import (
+    FLAT,
+    SELECTED_UP_TO,
+    Lookalikes,
+    adaptive_matches,
+    best_rows,
+    cap,
+    class_groups,
+    knn_matches,
+    match,
+    mutual_best_matches,
+    top_m,
+    with_lookalikes,
+)
 
 
 def test_adaptive_keeps_the_landmarks_above_the_largest_gap():
@@ -123,14 +135,16 @@ def test_adaptive_matches_are_the_largest_gap_rule_of_the_sorted_rows():
         m = top_m(similarity.shape[1], (0.05, 0.25, 1.0)[trial % 3])
         order = np.argsort(-similarity, axis=1, kind="stable")[:, :m]
         gaps = -np.diff(np.take_along_axis(similarity, order, axis=1), axis=1)
-        count = np.where(gaps.max(axis=1, initial=-np.inf) > FLAT, gaps.argmax(axis=1) + 1, m) if m > 1 else np.ones(len(order), int)
+        count = (np.where(gaps.max(axis=1, initial=-np.inf) > FLAT, gaps.argmax(axis=1) + 1, m) if m > 1
+                 else np.ones(len(order), int))
         expected = [(i, order[i, j]) for i in range(len(order)) for j in range(count[i])]
         np.testing.assert_array_equal(adaptive_matches(similarity, m), np.array(expected).reshape(-1, 2))
 
 
 def test_adaptive_selection_of_few_is_the_stable_argsorts_order_on_special_values():
     """Up to SELECTED_UP_TO best per row are picked by a compiled insertion: the same pairs in the same order as the
-    gap rule (and kNN) on numpy's stable argsort, with 0 and -0 tied, infinities, NaN (last) and every m from 1 to the row."""
+    gap rule (and kNN) on numpy's stable argsort, with 0 and -0 tied, infinities, NaN (last) and every m from 1 to the
+    row."""
     rng = np.random.default_rng(5)
     special = np.array([0.0, -0.0, np.nan, np.inf, -np.inf, 1.0, 0.5, 0.25, -1.0])
     for trial in range(200):
@@ -149,7 +163,8 @@ def test_adaptive_selection_of_few_is_the_stable_argsorts_order_on_special_value
             np.testing.assert_array_equal(got, np.array(expected).reshape(-1, 2))
             assert got.dtype == np.int64
             nearest = knn_matches(similarity, m)
-            np.testing.assert_array_equal(nearest, np.column_stack((np.repeat(np.arange(len(order)), m), order.ravel())))
+            np.testing.assert_array_equal(nearest,
+                                          np.column_stack((np.repeat(np.arange(len(order)), m), order.ravel())))
             assert nearest.dtype == np.int64
 
 
@@ -288,7 +303,8 @@ def test_with_lookalikes_keeps_a_whole_class_smaller_than_per_class_and_only_lan
 def test_with_lookalikes_matches_the_numpy_reference_on_random_maps_with_ties_and_nan():
     generator = np.random.default_rng(7)
     for trial in range(300):
-        num_obs, num_landmarks, num_classes = generator.integers(1, 8), generator.integers(1, 40), generator.integers(1, 6)
+        num_obs, num_landmarks, num_classes = (generator.integers(1, 8), generator.integers(1, 40),
+                                               generator.integers(1, 6))
         similarity = generator.integers(0, 5, (num_obs, num_landmarks)) / 4.0  # few values: many ties
         if trial % 5 == 0:
             similarity[generator.random(similarity.shape) < 0.1] = np.nan
@@ -313,7 +329,8 @@ def test_match_adds_lookalikes_only_when_asked_and_only_to_adaptive_matching():
     np.testing.assert_array_equal(added, [False, True])
     off = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=0)
     np.testing.assert_array_equal(match(similarity, off, lookalikes)[0], [[0, 0]])
-    above = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=1, min_similarity=0.4)  # the floor holds for them too
+    # the floor holds for them too
+    above = MatchingConfig(top_m_fraction=1.0, lookalike_candidates=1, min_similarity=0.4)
     np.testing.assert_array_equal(match(similarity, above, lookalikes)[0], [[0, 0]])
     knn = MatchingConfig(strategy="knn", k=1, lookalike_candidates=1)
     np.testing.assert_array_equal(match(similarity, knn, lookalikes)[0], [[0, 0]])
@@ -325,7 +342,8 @@ def test_adaptive_matching_with_lookalikes_in_one_call_is_the_three_steps():
     look-alikes (candidates as they came) and every m the path takes."""
     generator = np.random.default_rng(8)
     for trial in range(300):
-        num_obs, num_landmarks, num_classes = generator.integers(1, 8), generator.integers(1, 60), generator.integers(1, 6)
+        num_obs, num_landmarks, num_classes = (generator.integers(1, 8), generator.integers(1, 60),
+                                               generator.integers(1, 6))
         similarity = generator.integers(-1, 5, (num_obs, num_landmarks)) / 4.0
         if trial % 5 == 0:
             similarity[generator.random(similarity.shape) < 0.1] = np.nan

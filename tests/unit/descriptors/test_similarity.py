@@ -14,7 +14,8 @@ def test_histogram_similarity_is_cosine_of_histograms():
     dense = histograms.toarray()
     np.testing.assert_allclose(similarity, dense[:4] @ dense.T)
     connected = np.flatnonzero(np.linalg.norm(dense, axis=1) > 0)[:4]
-    np.testing.assert_allclose(histogram_similarity(histograms[connected], by_bin(histograms[connected])).diagonal(), 1.0)
+    np.testing.assert_allclose(histogram_similarity(histograms[connected], by_bin(histograms[connected])).diagonal(),
+                               1.0)
     # a node's own class is each walk's first label: different classes never share a bin
     assert (similarity[classes[:4, None] != classes[None, :]] == 0).all()
 
@@ -58,7 +59,8 @@ def test_the_class_term_is_the_numpy_formula_written_over_the_histogram():
     for weight in (0.0, 1.0, 0.3, 0.7, 1 / 3):
         for observations, landmarks in ((6, 9), (0, 9), (4, 0), (30, 200)):
             classes = rng.choice(special, (5, landmarks)) if landmarks < 100 else rng.random((5, landmarks))
-            histogram = rng.choice(special, (observations, landmarks)) if landmarks < 100 else rng.random((observations, landmarks))
+            histogram = (rng.choice(special, (observations, landmarks)) if landmarks < 100
+                         else rng.random((observations, landmarks)))
             rows = rng.integers(0, 5, observations)
             with np.errstate(invalid="ignore"):
                 expected = weight * classes[rows] + (1.0 - weight) * histogram

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from clipclique.inliers.cliquesearch import clique_total, top_cliques
 from clipclique.config import make_config
+from clipclique.inliers.cliquesearch import clique_total, top_cliques
 from clipclique.inliers.compatibility import compatibility_graph
 from clipclique.inliers.reference_cliques import maximal_cliques, rank_cliques
 from clipclique.pipeline import LocalizationResult, _solve_cliques
@@ -222,7 +222,8 @@ def test_offer_keeps_the_plain_ranked_list():
         if trial % 5 == 0:
             weights[rng.integers(12)] = np.nan
         capacity = int(rng.integers(1, 7))
-        cliques = [rng.choice(12, int(rng.integers(1, 6)), replace=False).tolist() for _ in range(int(rng.integers(0, 15)))]
+        cliques = [rng.choice(12, int(rng.integers(1, 6)), replace=False).tolist()
+                   for _ in range(int(rng.integers(0, 15)))]
         cliques += [sorted(cliques[0])[:-1] or [0], cliques[0][::-1]] if cliques else []  # a prefix, the same again
         state = np.zeros(7, np.int64)
         total, size, slot, members = np.zeros(capacity), np.zeros(capacity, np.int64), np.arange(capacity), np.zeros(

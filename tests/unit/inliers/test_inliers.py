@@ -34,7 +34,8 @@ def test_compatibility_graph_applies_the_rigid_distance_test():
     landmarks = np.array([[5, 5, 0], [6.2, 5, 0], [5, 7, 0], [9, 9, 9.0]])
     candidates = np.array([[0, 0], [1, 1], [2, 2], [2, 3], [0, 3]])
     edges = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
-    expected = {(0, 1), (0, 2), (1, 2)}  # |1 - 1.2| < 0.3; candidate 3 is far; 0-4 and 3-4 share an observation or landmark
+    # |1 - 1.2| < 0.3; candidate 3 is far; 0-4 and 3-4 share an observation or landmark
+    expected = {(0, 1), (0, 2), (1, 2)}
     assert set(map(tuple, edges.tolist())) == expected
     assert (0, 1) not in set(map(tuple, compatibility_graph(observed, landmarks, candidates, d_comp=0.1).tolist()))
 
@@ -106,7 +107,8 @@ def test_sample_consensus_recovers_a_known_pose_among_80_percent_outliers(seed, 
     assert consensus.inlier_sets[0].tolist() == list(range(right))
     assert right - 2 < consensus.scores[0] <= right  # each inlier adds 1 - residual / threshold
     assert consensus.scores == sorted(consensus.scores, reverse=True)
-    pose = fit_rigid(observed[candidates[consensus.inlier_sets[0], 0]], landmarks[candidates[consensus.inlier_sets[0], 1]])
+    pose = fit_rigid(observed[candidates[consensus.inlier_sets[0], 0]],
+                     landmarks[candidates[consensus.inlier_sets[0], 1]])
     te, re = pose_errors(pose, truth)
     assert te < 0.05 and re < np.radians(1.0)
 
@@ -154,7 +156,8 @@ def test_slack_widens_the_test_per_candidate():
     assert set(map(tuple, edges.tolist())) == set(map(tuple, np.argwhere(np.triu(dense, 1)).tolist()))
     plain = compatibility_graph(observed, landmarks, candidates, d_comp=0.3)
     assert len(edges) > len(plain)
-    np.testing.assert_array_equal(compatibility_graph(observed, landmarks, candidates, 0.3, np.zeros(len(candidates))), plain)
+    np.testing.assert_array_equal(compatibility_graph(observed, landmarks, candidates, 0.3, np.zeros(len(candidates))),
+                                  plain)
 
 
 def test_identical_landmarks_are_capped_to_the_pair_budget_best_scored_first():
@@ -205,7 +208,8 @@ def test_pair_distances_are_numpys_norm():
     from clipclique.inliers.compatibility import pair_distances
 
     hand = np.array([[0.0, -0.0, 0.0], [-0.0, 0.0, -0.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [np.nan, 0.0, 1.0],
-                     [np.inf, 1.0, 0.0], [-np.inf, 0.0, 0.0], [1e200, 1e-200, 3.0], [0.1, 0.2, 0.3], [5e-324, 0.0, 1.0]])
+                     [np.inf, 1.0, 0.0], [-np.inf, 0.0, 0.0], [1e200, 1e-200, 3.0], [0.1, 0.2, 0.3],
+                     [5e-324, 0.0, 1.0]])
     rng = np.random.default_rng(0)
     for centers in (hand, rng.normal(size=(40, 3)) * 10.0 ** rng.integers(-3, 4, (40, 1)), np.zeros((0, 3)),
                     np.asfortranarray(rng.normal(size=(7, 3)))):

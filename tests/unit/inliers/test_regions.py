@@ -4,10 +4,10 @@ ranked cliques as one search over the whole graph, copies of a room searched onc
 import numpy as np
 import pytest
 
+from clipclique.config import make_config
 from clipclique.inliers import regions
 from clipclique.inliers.cliquesearch import top_cliques
 from clipclique.inliers.compatibility import compatibility_graph
-from clipclique.config import make_config
 from clipclique.outcomes import CapHit, RegionSplit
 from clipclique.pipeline import index_map, localize
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
@@ -51,8 +51,8 @@ def test_region_labels_join_points_within_reach_numbered_by_first_point():
     points = np.array([[40, 0, 0], [0, 0, 0], [0.9, 0, 0], [41.5, 0, 0], [1.8, 0, 0], [20, 0, 0.0]])
     np.testing.assert_array_equal(regions.region_labels(points, 1.0), [0, 1, 1, 2, 1, 3])  # 0.9 apart join, 1.5 not
     np.testing.assert_array_equal(regions.region_labels(points, 2.0), [0, 1, 1, 0, 1, 2])
-    np.testing.assert_array_equal(regions.region_labels(np.array([[0, 0, 0], [1e7, 1e7, 1e7]]), 1e-6), [0, 0])  # keys would
-    # overflow: one region (a coarser split loses no clique)
+    # keys would overflow: one region (a coarser split loses no clique)
+    np.testing.assert_array_equal(regions.region_labels(np.array([[0, 0, 0], [1e7, 1e7, 1e7]]), 1e-6), [0, 0])
 
 
 def test_three_identical_rooms_are_one_layout_searched_once_and_ranked_by_rows():

@@ -21,7 +21,8 @@ def make_map(n: int = 5, dim: int | None = 8) -> Map:
         embeddings = rng.normal(size=(n, dim)).astype(np.float32)
         embeddings /= np.linalg.norm(embeddings, axis=1, keepdims=True)
     return Map(
-        ellipsoids=Ellipsoids(rng.uniform(-3, 3, (n, 3)), rng.uniform(0.05, 1.0, (n, 3)), np.array([random_rotation(rng) for _ in range(n)])),
+        ellipsoids=Ellipsoids(rng.uniform(-3, 3, (n, 3)), rng.uniform(0.05, 1.0, (n, 3)),
+                              np.array([random_rotation(rng) for _ in range(n)])),
         class_ids=np.arange(n) % 2,
         class_names=["chair", "table"],
         descriptions=[f"a chair number {i}" for i in range(n)],

@@ -51,7 +51,8 @@ def test_two_overlapping_parts_moved_by_a_known_transform(seed):
         np.testing.assert_allclose(best.pose.rotation, truth.rotation, rtol=0, atol=1e-12)
     assert not alignment.ambiguous and best.confidence > 0.5
     pairs = best.correspondences
-    assert np.array_equal(query.instance_ids[pairs[:, 0]], room.subset(np.flatnonzero(x > 1.8)).instance_ids[pairs[:, 1]])
+    assert np.array_equal(query.instance_ids[pairs[:, 0]],
+                          room.subset(np.flatnonzero(x > 1.8)).instance_ids[pairs[:, 1]])
 
 
 @pytest.mark.parametrize("method", ["sh", "xview", "cliploc", "clipclique-paper"])
@@ -82,7 +83,8 @@ def test_a_part_of_a_room_in_ten_copies_is_ambiguous():
     alignment = align_maps(moved(room.subset(near), truth, rng), duplicate_rooms(room, 10), CONFIG)
     assert alignment.ambiguous
     assert len(alignment.competitors) >= 5  # every reported candidate is one copy
-    shifts = sorted(round(c.pose.translation[0] - alignment.candidates[0].pose.translation[0], 1) for c in alignment.candidates)
+    shifts = sorted(round(c.pose.translation[0] - alignment.candidates[0].pose.translation[0], 1)
+                    for c in alignment.candidates)
     assert len(set(shifts)) == len(shifts)  # distinct copies, not one copy five times
     assert all(c.confidence < 0.5 for c in alignment.candidates)
 
@@ -191,7 +193,8 @@ def test_few_correspondence_wrong_answers_between_two_detectors_maps_are_not_con
             continue
         best = alignment.candidates[0]
         translation, rotation = errors(best.pose, truth, query)
-        (right if translation < 0.3 and rotation < 5 else wrong).append((seed, len(best.correspondences), best.confidence))
+        (right if translation < 0.3 and rotation < 5 else wrong).append((seed, len(best.correspondences),
+                                                                         best.confidence))
     confident = [case for case in wrong if case[2] >= 0.5]
     assert len(wrong) >= 10 and all(size >= 6 for _, size, _ in confident) and len(confident) <= 1, confident
     assert sum(confidence >= 0.5 for _, _, confidence in right) >= 0.8 * len(right) >= 12
@@ -228,7 +231,8 @@ def test_align_three_maps_checks_that_the_cycle_closes_and_names_the_weakest_lin
     x = room.ellipsoids.centers[:, 0]
     parts = [np.flatnonzero(x < 3.5), np.flatnonzero((x > 0.8) & (x < 4.3)), np.flatnonzero(x > 1.5)]
     for name, part in zip("abc", parts):
-        save_map(moved(room.subset(part), Pose(random_rotation(rng), rng.uniform(-5, 5, 3)), rng), tmp_path / f"{name}.map.npz")
+        save_map(moved(room.subset(part), Pose(random_rotation(rng), rng.uniform(-5, 5, 3)), rng),
+                 tmp_path / f"{name}.map.npz")
     save_map(synthetic_map(rng, 45), tmp_path / "other.map.npz")
     args = ["align", *(str(tmp_path / f"{name}.map.npz") for name in "ab"), "--out", str(tmp_path / "out"), "--no-rrd"]
     closed = CliRunner().invoke(app, [*args, str(tmp_path / "c.map.npz")])

@@ -6,13 +6,12 @@ import numpy as np
 import pytest
 
 from clipclique import pipeline
-from clipclique.verify import verification
 from clipclique.config import make_config
 from clipclique.geometry import look_at
+from clipclique.multiframe.window import WindowConfig, Windower, fuse, fusion, relative_poses, span_step, window_frames
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations, Pose
-from clipclique.multiframe.window import (WindowConfig, Windower, fuse, fusion, relative_poses, span_step,
-                                          window_frames)
+from clipclique.verify import verification
 
 NAMES = ["cup", "bottle", "chair", "book"]
 CUP, BOTTLE, CHAIR, BOOK = range(4)

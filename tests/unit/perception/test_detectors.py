@@ -8,10 +8,10 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from clipclique.errors import ClipcliqueError, ModelUnavailableError
-from clipclique.types import Frame, Pose
 from clipclique.backends import make_detector
+from clipclique.errors import ClipcliqueError, ModelUnavailableError
 from clipclique.perception.detectors import InstanceDetector, box_masks, id_counts, instance_boxes, mask_boxes
+from clipclique.perception.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
 from clipclique.sim.detectors import (
     SimulatedDetector,
     SimulatedYoloDetector,
@@ -20,7 +20,7 @@ from clipclique.sim.detectors import (
     far_masks,
     read_lookalikes,
 )
-from clipclique.perception.yolo import COCO_NAMES, YoloDetector, coco_to_vocabulary
+from clipclique.types import Frame, Pose
 
 CLASSES = ["chair", "table", "lamp", "sofa"]
 OBJECTS = {3: "chair", 7: "table", 9: "plant", 12: "chair"}  # 9 is not in the map's vocabulary

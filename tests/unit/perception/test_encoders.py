@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from clipclique.backends import load_encoder
-from clipclique.perception.encoders import ClipEncoder, Crop
 from clipclique.errors import ClipcliqueError, ModelUnavailableError
+from clipclique.perception.encoders import ClipEncoder, Crop
 
 
 def _crops(count: int, side: int = 120, seed: int = 0) -> list[Crop]:
@@ -77,6 +77,7 @@ def test_real_clip_device_placement(random_clip):
 
     assert {p.device.type for p in random_clip.model.parameters()} == {"cpu"}
     if torch.cuda.is_available():
-        gpu = ClipEncoder(copy.deepcopy(random_clip.model), random_clip.preprocess, random_clip.tokenizer, "gpu", "cuda")
+        gpu = ClipEncoder(copy.deepcopy(random_clip.model), random_clip.preprocess, random_clip.tokenizer, "gpu",
+                          "cuda")
         assert {p.device.type for p in gpu.model.parameters()} == {"cuda"}
         assert gpu.encode_images(_crops(2)).shape == (2, 512)

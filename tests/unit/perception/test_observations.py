@@ -7,11 +7,18 @@ import math
 import numpy as np
 import pytest
 
-from clipclique.perception.detectors import mask_boxes
-from clipclique.types import Detections, Frame, Pose
 from clipclique.geometry import FitParams, _depth_points
-from clipclique.perception.observations import ObservationParams, _window_pixels, crop, embed, extract_observations, mask_pixels
+from clipclique.perception.detectors import mask_boxes
+from clipclique.perception.observations import (
+    ObservationParams,
+    _window_pixels,
+    crop,
+    embed,
+    extract_observations,
+    mask_pixels,
+)
 from clipclique.sim.encoder import SimulatedClipEncoder
+from clipclique.types import Detections, Frame, Pose
 
 K = np.array([[300.0, 0, 160], [0, 300.0, 120], [0, 0, 1]])
 SPHERE_CENTER, SPHERE_RADIUS = np.array([0.2, -0.1, 2.0]), 0.3
@@ -71,7 +78,8 @@ def test_bad_detections_are_dropped_by_reason_never_nan():
     far = np.zeros_like(sphere)
     far[150:200, 20:80] = True
     frame.depth[far] = 12.0
-    extraction = extract_observations(frame, detections_of([sphere, tiny, sliver, no_depth, flat, far], [1, 2, 3, 4, 5, 6]))
+    extraction = extract_observations(frame,
+                                      detections_of([sphere, tiny, sliver, no_depth, flat, far], [1, 2, 3, 4, 5, 6]))
     assert extraction.dropped == {"tiny mask": 1, "border sliver": 1, "invalid depth": 2, "degenerate fit": 1}
     assert extraction.observations.detection_index.tolist() == [0]
     assert np.isfinite(extraction.observations.ellipsoids.centers).all()
@@ -277,8 +285,9 @@ def square(value: float) -> float:
 
 @pytest.mark.parametrize(("k", "radius"), [(20, 2), (3, 1), (8, 1), (30, 3), (48, 3), (5, 2)])
 def test_neighbour_pass_gives_the_sequential_values(k, radius):
-    """Holes, NaN, infinite, -0 and negative depths, a ragged mask, rows of a single pixel and pixels without neighbours: every point and
-    spread equals the plain pixel-by-pixel pass within rounding (the compiled pass computes each distance
+    """Holes, NaN, infinite, -0 and negative depths, a ragged mask, rows of a single pixel and pixels without
+    neighbours: every point and spread equals the plain pixel-by-pixel pass within rounding (the compiled pass computes
+    each distance
     once for both of its pixels and runs the rows vectorized)."""
     rng = np.random.default_rng(k + radius)
     depth = (2.0 + rng.normal(0, 0.05, (23, 31))).astype(np.float32)
@@ -362,7 +371,8 @@ def test_masks_in_boxes_are_counted_in_their_windows_with_the_same_outcome():
     boxed = extract_observations(frame, detections, params)
     assert whole.dropped == boxed.dropped and whole.dropped["border sliver"] == 1 and whole.dropped["tiny mask"] == 1
     for field in ("centers", "axes", "rotations"):
-        assert np.array_equal(getattr(whole.observations.ellipsoids, field), getattr(boxed.observations.ellipsoids, field))
+        assert np.array_equal(getattr(whole.observations.ellipsoids, field),
+                              getattr(boxed.observations.ellipsoids, field))
     assert np.array_equal(whole.observations.mask_areas, boxed.observations.mask_areas)
     assert [c.truncated for c in whole.crops] == [c.truncated for c in boxed.crops] == [False, True]
 
@@ -459,7 +469,8 @@ def test_box_orders_its_axes_as_numpy_did():
 
 def test_box_parts_eigenvectors_are_numpys():
     """numba's `eigh` in `_box_parts` (LAPACK's dsyevd, as numpy's) gives numpy's eigenvectors of the inliers'
-    scatter, the same basis within rounding: random clouds, axis-aligned ones (a diagonal scatter), repeated and zero eigenvalues."""
+    scatter, the same basis within rounding: random clouds, axis-aligned ones (a diagonal scatter), repeated and zero
+    eigenvalues."""
     from clipclique.geometry import Oriented, _box_parts, _inliers
 
     rng = np.random.default_rng(5)
@@ -496,7 +507,7 @@ def test_frame_pass_gives_each_detection_its_own_fit():
     """The compiled frame pass: the same drops (every reason), areas, border counts and ellipsoids (within rounding),
     as each detection on its own, whether the masks are counted whole or in their windows, subsampled or not;
     an input the pass does not take (float32 intrinsics) goes detection by detection."""
-    from clipclique.perception.observations import _Outcome, _frame_pass, _plain
+    from clipclique.perception.observations import _frame_pass, _Outcome, _plain
 
     frame, sphere = sphere_frame()
     rng = np.random.default_rng(8)
@@ -518,9 +529,11 @@ def test_frame_pass_gives_each_detection_its_own_fit():
     stack = [sphere, sphere & (rng.random(sphere.shape) < 0.9), *masks.values()]
     boxes = mask_boxes(np.stack(stack))
     boxes[-1] = (5.0, 5.0, 5.0, 5.0)  # the empty mask: a point of a box
-    detections = Detections(np.stack(stack), boxes, np.zeros(len(stack), int), np.ones(len(stack)), np.arange(len(stack)))
+    detections = Detections(np.stack(stack), boxes, np.zeros(len(stack), int), np.ones(len(stack)),
+                            np.arange(len(stack)))
     reasons = set()
-    for params in (ObservationParams(min_mask_pixels=50), ObservationParams(fit=FitParams(max_points=700, min_axis=0.002)),
+    for params in (ObservationParams(min_mask_pixels=50),
+                   ObservationParams(fit=FitParams(max_points=700, min_axis=0.002)),
                    ObservationParams(erode_px=0, border_px=0, min_mask_pixels=1)):
         for in_boxes in (False, True):
             detections.masks_in_boxes = in_boxes
@@ -530,12 +543,14 @@ def test_frame_pass_gives_each_detection_its_own_fit():
             fits = iter(zip(got.observations.ellipsoids.centers, got.observations.ellipsoids.axes,
                             got.observations.ellipsoids.rotations))
             for k, (reason, fit, pixels, in_band) in enumerate(wanted):
-                assert (passed.pixels[k], passed.in_band[k]) == (pixels, in_band) and passed.outcomes[k] != _Outcome.LEFT
+                assert ((passed.pixels[k], passed.in_band[k]) == (pixels, in_band)
+                        and passed.outcomes[k] != _Outcome.LEFT)
                 reasons.add(reason)
                 if fit is not None:
                     for a, b in zip(next(fits), fit):
                         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
-            assert got.observations.detection_index.tolist() == [k for k, want in enumerate(wanted) if want[1] is not None]
+            assert (got.observations.detection_index.tolist()
+                    == [k for k, want in enumerate(wanted) if want[1] is not None])
             kept = [want for want in wanted if want[1] is not None]  # their areas and border flags, as plain ints
             assert got.observations.mask_areas.tolist() == [want[2] for want in kept]
             assert [c.truncated for c in got.crops] == [want[3] > 0 for want in kept]
@@ -549,7 +564,7 @@ def test_frame_pass_gives_each_detection_its_own_fit():
 def test_a_scatter_numba_refuses_is_left_to_numpy():
     """Intrinsics that send back-projected points to infinity: the frame pass leaves the detection to the
     detection-by-detection fit (numpy's eigh decides, as it always did)."""
-    from clipclique.perception.observations import _Outcome, _frame_pass
+    from clipclique.perception.observations import _frame_pass, _Outcome
 
     frame, sphere = sphere_frame()
     frame.intrinsics = frame.intrinsics.copy()

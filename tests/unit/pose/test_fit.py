@@ -3,9 +3,20 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.geometry import random_rotation
-from clipclique.pose.fit import (MIN_SPREAD_M, RELATIVE_SPREAD, DegeneratePoseError, correspondence_weights, fit_rigid,
-                             conditioning, fit_rigid_batch, fit_rigid_conditioned, fit_rigid_sets, fit_similarity,
-                             nonzero_counts, weighted_sets)
+from clipclique.pose.fit import (
+    MIN_SPREAD_M,
+    RELATIVE_SPREAD,
+    DegeneratePoseError,
+    conditioning,
+    correspondence_weights,
+    fit_rigid,
+    fit_rigid_batch,
+    fit_rigid_conditioned,
+    fit_rigid_sets,
+    fit_similarity,
+    nonzero_counts,
+    weighted_sets,
+)
 
 
 @pytest.mark.parametrize("seed", range(5))

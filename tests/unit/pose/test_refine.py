@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from clipclique.pose import refine as refine_module
 from clipclique.geometry import pose_errors
+from clipclique.pose import refine as refine_module
 from clipclique.pose.refine import nearby_pairs, nearby_pairs_of, refine
 from clipclique.pose.stack import Stack
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
-from scipy.spatial.transform import Rotation
 
 
 def desk(rng):
@@ -32,7 +32,8 @@ def test_refit_on_every_nearby_similar_landmark_corrects_a_poorly_fixed_pose():
     assert pose_errors(off, truth)[0] > 0.15
     refine([hypothesis], observations, map, similarity, radius=0.3, weights="none")
     assert pose_errors(hypothesis.pose, truth)[0] < 0.05
-    assert len(hypothesis.correspondences) > 3 and (hypothesis.correspondences[:, 0] == hypothesis.correspondences[:, 1]).all()
+    assert (len(hypothesis.correspondences) > 3
+            and (hypothesis.correspondences[:, 0] == hypothesis.correspondences[:, 1]).all())
 
 
 def test_only_similar_landmarks_within_the_radius_are_taken_one_to_one():
@@ -76,7 +77,8 @@ def test_the_kd_tree_search_pairs_exactly_as_the_dense_distance_matrix(dense_pai
             centers[count // 2:] = centers[: count - count // 2]
             centers = np.round(centers * 4) / 4
         axes = np.full((count, 3), 0.05)
-        map = Map(Ellipsoids(centers, axes, np.tile(np.eye(3), (count, 1, 1))), np.zeros(count, np.int64), ["c"], [""] * count,
+        map = Map(Ellipsoids(centers, axes, np.tile(np.eye(3), (count, 1, 1))), np.zeros(count, np.int64), ["c"],
+                  [""] * count,
                   np.arange(count))
         pose = Pose(Rotation.random(random_state=trial).as_matrix(), rng.normal(size=3))
         picked = rng.integers(0, count, seen)
@@ -124,7 +126,8 @@ def test_hypotheses_with_the_same_nearby_pairs_are_refitted_alike():
     refine([first, second], observations, map, np.eye(8), radius=0.3, weights="none")
     refine([alone], observations, map, np.eye(8), radius=0.3, weights="none")
     np.testing.assert_array_equal(first.correspondences, second.correspondences)
-    assert np.array_equal(first.pose.rotation, second.pose.rotation) and np.array_equal(first.pose.rotation, alone.pose.rotation)
+    assert (np.array_equal(first.pose.rotation, second.pose.rotation)
+            and np.array_equal(first.pose.rotation, alone.pose.rotation))
     assert np.array_equal(first.pose.translation, alone.pose.translation) and len(first.correspondences) == 8
 
 
@@ -174,7 +177,8 @@ def test_the_compiled_order_and_choice_match_lexsort_and_a_greedy_loop():
     rng = np.random.default_rng(6)
     for trial in range(200):
         most = 30 if trial % 4 == 0 else 9  # a pose's hundreds of pairs, or a few
-        num_poses, num_obs, num_landmarks = int(rng.integers(1, 5)), int(rng.integers(1, most)), int(rng.integers(1, most))
+        num_poses, num_obs, num_landmarks = (int(rng.integers(1, 5)), int(rng.integers(1, most)),
+                                             int(rng.integers(1, most)))
         candidates = np.array([(b, k, n) for b in range(num_poses) for k in range(num_obs) for n in range(num_landmarks)
                                if rng.random() < 0.6], np.int64).reshape(-1, 3)
         distance = rng.choice([0.1, 0.2, 0.3], size=len(candidates))  # many exact ties

@@ -27,7 +27,8 @@ def test_alike_items_are_those_with_the_same_bytes():
         for source, target in zip(repeat, rng.integers(0, max(count, 1), count // 2)):
             if counts[source] == counts[target]:
                 poses[target] = poses[source]
-                pairs[starts[target]: starts[target] + counts[target]] = pairs[starts[source]: starts[source] + counts[source]]
+                pairs[starts[target]: starts[target] + counts[target]] = (
+                    pairs[starts[source]: starts[source] + counts[source]])
         for values in (pairs, pairs[:, 0]):  # pairs, and sets of single numbers
             group, firsts = alike(poses, values, starts, counts)
             expected_group, expected_firsts = alike_by_bytes(poses, values, starts, counts)
@@ -46,7 +47,8 @@ def test_a_stack_takes_rows_with_their_pairs_and_gives_back_its_hypotheses():
     for got, source in zip(taken.hypotheses(verification=np.array([0.25, 0.5, 0.75])), [3, 1, 0]):
         np.testing.assert_array_equal(got.correspondences, hypotheses[source].correspondences)
         np.testing.assert_array_equal(got.pose.rotation, hypotheses[source].pose.rotation)  # taken, not computed
-        assert (got.score, got.conditioning, got.confidence) == (hypotheses[source].score, hypotheses[source].conditioning, None)
+        assert ((got.score, got.conditioning, got.confidence)
+                == (hypotheses[source].score, hypotheses[source].conditioning, None))
     assert [h.verification for h in taken.hypotheses(verification=np.array([0.25, 0.5, 0.75]))] == [0.25, 0.5, 0.75]
     joined = Stack.joined([taken, stack])
     np.testing.assert_array_equal(joined.pairs, np.concatenate((taken.pairs, stack.pairs)))

@@ -8,18 +8,16 @@ import numpy as np
 import pytest
 
 from clipclique.benchmark import calibration
-from clipclique.verify import confidence
-from clipclique.config import make_config
+from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.metrics import evaluate_frame, summarize
-from clipclique.config import VerificationConfig
 from clipclique.outcomes import Failure, FailureKind
 from clipclique.pipeline import index_map, localize
-from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.pose.stack import Stack
+from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Hypothesis, Pose
+from clipclique.verify import confidence
 from clipclique.verify.verification import Verification
-
 
 MISSED_WEIGHT = VerificationConfig().missed_weight
 
@@ -46,9 +44,11 @@ def test_the_shipped_model_is_monotone_in_the_verification_score():
 def verification_of(overlap: list[float], missed: list[int]) -> Verification:
     overlap, missed = np.array(overlap), np.array(missed)
     size = len(overlap)
-    return Verification(score=overlap - MISSED_WEIGHT * missed, overlap=overlap, mean_iou=np.full(size, 0.5), missed=missed,
+    return Verification(score=overlap - MISSED_WEIGHT * missed, overlap=overlap, mean_iou=np.full(size, 0.5),
+                        missed=missed,
                         missed_evidence=missed.astype(float),
-                        expected_evidence=missed.astype(float), depth_error=np.full(size, 0.1), missed_weight=MISSED_WEIGHT)
+                        expected_evidence=missed.astype(float), depth_error=np.full(size, 0.1),
+                        missed_weight=MISSED_WEIGHT)
 
 
 def test_missed_landmarks_count_beyond_the_frame_s_fewest():
@@ -100,7 +100,8 @@ def test_fit_recovers_a_calibrated_model_and_holds_signs():
     y = rng.random(4000) < 1 / (1 + np.exp(-truth))
     groups = np.repeat(["a", "b", "c", "d"], 1000)
     model = confidence.fit(x, y, groups, names)
-    assert model.coefficients[0] == pytest.approx(1.5, abs=0.2) and model.coefficients[2] == pytest.approx(-0.8, abs=0.2)
+    assert (model.coefficients[0] == pytest.approx(1.5, abs=0.2)
+            and model.coefficients[2] == pytest.approx(-0.8, abs=0.2))
     assert model.coefficients[1] >= 0
     assert calibration.ece(model.probability(x), y) < 0.03
 
@@ -169,13 +170,15 @@ def test_min_confidence_reports_unconfident_frames_as_not_localized():
     threshold = float(np.median(confidences))  # some frames keep a pose, some lose all
     strict = make_config("sh", overrides=[f"min_confidence={threshold}"])
     evaluations, refused = [], 0
-    for (frame, map, observations, truth, before), (*_, after) in zip(synthetic_frames(plain), synthetic_frames(strict)):
+    for (frame, map, observations, truth, before), (*_, after) in zip(synthetic_frames(plain),
+                                                                      synthetic_frames(strict)):
         kept = [h for h in before.hypotheses if h.confidence >= threshold]
         assert [h.confidence for h in after.hypotheses] == [h.confidence for h in kept]
         if before.hypotheses and not kept:
             refused += 1
             best = max(h.confidence for h in before.hypotheses)
-            assert after.failure == Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=threshold, best_confidence=best)
+            assert (after.failure == Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=threshold,
+                                             best_confidence=best))
             assert after.failure.message == f"no pose with confidence >= {threshold:g} (best {best:.2f})"
         evaluations.append(evaluate_frame(after, observations, map, truth, strict, frame))
     assert refused > 0 and sum(e.failure is None for e in evaluations) > 0
@@ -233,7 +236,8 @@ def test_the_feature_matrix_holds_each_features_own_numbers():
     matrix = confidence.feature_matrix(evidence, names)
     assert matrix.flags.c_contiguous
     np.testing.assert_allclose(matrix, expected, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(confidence.feature_matrix(evidence, names[2:4]), expected[:, 2:4], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(confidence.feature_matrix(evidence, names[2:4]), expected[:, 2:4], rtol=1e-12,
+                               atol=1e-12)
     np.testing.assert_allclose(confidence.feature_matrix(evidence, names[::-3]), expected[:, ::-3], rtol=1e-12,
                                atol=1e-12)
 

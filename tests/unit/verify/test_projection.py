@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from tolerance import assert_close
 
 from clipclique.geometry import look_at, random_rotation
-from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 from clipclique.types import Camera, Ellipsoids, Pose
-from tolerance import assert_close
+from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 
 CAMERA = Camera(np.array([[520.0, 0.0, 318.0], [0.0, 515.0, 242.0], [0.0, 0.0, 1.0]]), 640, 480, 8.0)
 
@@ -70,7 +70,8 @@ def test_a_landmark_at_the_border_is_clipped_to_the_image():
     ellipsoids = Ellipsoids(np.array([[1.6, 0.0, 3.0]]), np.array([[0.5, 0.3, 0.3]]), np.eye(3)[None])
     seen = project(ellipsoids, np.eye(3)[None], np.zeros((1, 3)), CAMERA)
     assert seen.visible[0, 0] and seen.boxes[0, 0, 2] == 640.0
-    assert seen.full_areas[0, 0] > (seen.boxes[0, 0, 2] - seen.boxes[0, 0, 0]) * (seen.boxes[0, 0, 3] - seen.boxes[0, 0, 1])
+    assert (seen.full_areas[0, 0] > (seen.boxes[0, 0, 2] - seen.boxes[0, 0, 0])
+            * (seen.boxes[0, 0, 3] - seen.boxes[0, 0, 1]))
 
 
 def test_box_iou():
@@ -104,7 +105,8 @@ def numpy_outline_boxes(conics: np.ndarray, depths: np.ndarray, camera: Camera):
         boxes[..., axis_index], boxes[..., axis_index + 2] = (c_i3 + root) / c33, (c_i3 - root) / c33
     full_areas = np.where(in_front, box_area(boxes), 0.0)
     boxes = np.clip(boxes, 0.0, np.array([camera.width, camera.height] * 2, float))
-    visible = (in_front & (depths <= camera.max_depth) & (boxes[..., 2] > boxes[..., 0]) & (boxes[..., 3] > boxes[..., 1]))
+    visible = (in_front & (depths <= camera.max_depth) & (boxes[..., 2] > boxes[..., 0]) & (boxes[..., 3]
+                                                                                            > boxes[..., 1]))
     return boxes, visible, full_areas
 
 
@@ -116,10 +118,12 @@ def test_the_compiled_boxes_are_the_numpy_passes():
         centers = rng.uniform(-4.0, 4.0, (count, 3))
         if trial % 2:
             centers = np.round(centers)  # on a grid: centres exactly at the depth limit, on the axes
-        ellipsoids = Ellipsoids(centers, rng.uniform(0.0, 0.6, (count, 3)), np.array([random_rotation(rng) for _ in range(count)]))
+        ellipsoids = Ellipsoids(centers, rng.uniform(0.0, 0.6, (count, 3)),
+                                np.array([random_rotation(rng) for _ in range(count)]))
         poses = [look_at(rng.uniform(-3.0, 3.0, 3), rng.uniform(-1.0, 1.0, 3)) for _ in range(int(rng.integers(1, 6)))]
         camera = Camera(CAMERA.intrinsics, 640, 480, float(rng.choice([3.0, 4.0, 8.0])))
-        seen = project(ellipsoids, np.array([p.rotation for p in poses]), np.array([p.translation for p in poses]), camera)
+        seen = project(ellipsoids, np.array([p.rotation for p in poses]), np.array([p.translation for p in poses]),
+                       camera)
         for ours, theirs in zip((seen.boxes, seen.visible, seen.full_areas),
                                 numpy_outline_boxes(seen.dual_conics, seen.depths, camera)):
             assert_close(ours, theirs)
@@ -149,7 +153,8 @@ def numpy_projection(ellipsoids: Ellipsoids, rotations: np.ndarray, translations
     view = product(camera.intrinsics, rotations.transpose(0, 2, 1))
     kron = np.einsum("bij,blk->biljk", view, view).reshape(-1, 9, 9)
     centers = product(ellipsoids.centers[None] - translations[:, None], view.transpose(0, 2, 1))
-    conics, boxes, visible, full_areas = _outline_boxes(product(spread, kron.transpose(0, 2, 1)), centers, float(camera.width),
+    conics, boxes, visible, full_areas = _outline_boxes(product(spread, kron.transpose(0, 2, 1)), centers,
+                                                        float(camera.width),
                                                         float(camera.height), float(camera.max_depth))
     return conics, boxes, visible, centers[..., 2], full_areas
 
@@ -302,7 +307,8 @@ def test_the_boxes_of_flat_conic_entries_are_the_numpy_passes():
         if trial % 3 == 0 and size:
             conics[0, 0, 0, 2], conics[-1, -1, 2, 2] = rng.choice([np.nan, np.inf, -0.0]), rng.choice([np.nan, -np.inf])
             depth[0, -1] = rng.choice([np.nan, np.inf, -0.0])
-        entries = np.stack([conics[..., 0, 0], conics[..., 0, 2], conics[..., 1, 1], conics[..., 1, 2], conics[..., 2, 2],
+        entries = np.stack([conics[..., 0, 0], conics[..., 0, 2], conics[..., 1, 1], conics[..., 1, 2],
+                            conics[..., 2, 2],
                             depth]).reshape(6, -1)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             boxes, visible, full_areas = numpy_outline_boxes(conics, depth, camera)

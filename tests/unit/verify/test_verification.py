@@ -6,19 +6,19 @@ import dataclasses
 
 import numpy as np
 import pytest
+from tolerance import assert_close
 
-from clipclique.inliers import consensus
-from clipclique.verify import verification
 from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import look_at
+from clipclique.inliers import consensus
 from clipclique.pipeline import index_map, localize
-from clipclique.verify.projection import box_area, box_iou, project
-from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.pose.stack import Stack
+from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
+from clipclique.verify import verification
+from clipclique.verify.projection import box_area, box_iou, project
 from clipclique.verify.verification import verify
-from tolerance import assert_close
 
 
 def room() -> tuple[Map, Pose, Observations]:
@@ -55,7 +55,8 @@ def test_a_correct_pose_scores_higher_than_one_a_metre_off():
 
 def test_alike_hypotheses_are_verified_once_and_get_the_same_figures():
     map, truth, observations = room()
-    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
+    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]),
+             Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = [hypothesis(poses[i], count) for i, count in ((0, 6), (1, 6), (0, 6), (2, 5), (1, 6), (0, 4))]
     group = np.array([0, 1, 0, 2, 1, 3])
     checked, distinct = verify(pool, observations, map), verify([pool[i] for i in (0, 1, 3, 5)], observations, map)
@@ -69,7 +70,8 @@ def test_the_maps_kept_spreads_verify_as_the_landmarks_in_range_alone():
     """`verify_stack` with the whole map's spreads (what `index_map` keeps) gathered for the landmarks in range gives
     the figures it gives projecting those landmarks alone, when some landmarks are out of range and when none is."""
     map, truth, observations = room()
-    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]), Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
+    poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]),
+             Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
     pool = Stack.of([hypothesis(pose, count) for pose, count in zip(poses, (6, 5, 4))])
     spreads = index_map(map, make_config("clipclique")).spreads
     for max_depth in (8.0, 3.0):  # every landmark in range; the far ones out
@@ -141,7 +143,8 @@ def test_a_missed_landmark_costs_by_its_projected_size():
     assert 0.02 < share < 0.021
     weight = VerificationConfig().missed_weight
     for full, cost in ((0.0625, share / 0.0625), (0.015, 1.0), (1.0, share)):
-        checked = verify([hypothesis(truth, 5)], partial, map, VerificationConfig(missed_full_area=full, missed_share_from=0.0))
+        checked = verify([hypothesis(truth, 5)], partial, map,
+                         VerificationConfig(missed_full_area=full, missed_share_from=0.0))
         assert checked.missed[0] == 1
         assert checked.missed_evidence[0] == pytest.approx(cost)
         assert checked.score[0] == pytest.approx(5.0 - weight * cost)
@@ -458,7 +461,8 @@ def test_the_figures_in_one_call_are_the_numpy_passes():
         slot[nearby] = np.arange(len(nearby))
         depth_gap = np.abs(observed_depths[obs] - landmark_depths)
         expected = (*numpy_pair_measures(obs, lm, owner, slot, visible, projected, boxes, depth_gap, 0.5, sizes),
-                    *numpy_missed(projected, visible, full_areas, class_ids[nearby], boxes, detected_classes, min_pixels,
+                    *numpy_missed(projected, visible, full_areas, class_ids[nearby], boxes, detected_classes,
+                                  min_pixels,
                                   0.1, full))
         for ours, theirs in zip(got, expected, strict=True):
             assert_close(ours, theirs)

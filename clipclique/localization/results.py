@@ -28,6 +28,8 @@ from clipclique.errors import ClipcliqueError
 from clipclique.geometry import pose_errors
 from clipclique.io.safeio import read_json
 from clipclique.localization.runs import FrameOutcome, Run
+from clipclique.metrics import SUCCESS_THRESHOLDS_M
+from clipclique.outcomes import ALL_STAGES
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1

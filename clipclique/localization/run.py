@@ -40,7 +40,7 @@ from clipclique.localization.results import (
     run_description,
     write_results,
 )
-from clipclique.localization.runs import FrameOutcome, Run, RunSettings
+from clipclique.localization.runs import FrameOutcome, Run, RunProgress, RunSettings
 from clipclique.metrics import FrameEvaluation, evaluate_frame
 from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
 from clipclique.multiframe.window import WindowConfig, Windower, span_step
@@ -51,13 +51,6 @@ from clipclique.perception.yolo import YoloDetector
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.resolve import check_scene, default_detector, open_scene
 from clipclique.types import Detections, Ellipsoids, Frame, Map, Observations, Pose
-from clipclique.multiframe.odometry import GROUND_TRUTH, Odometry, open_odometry
-from clipclique.multiframe.window import WindowConfig, Windower, span_step
-from clipclique.localization.runs import FrameOutcome, Run, RunProgress, RunSettings
-from clipclique.localization.results import DETECTIONS_FILE, IMAGES_FILE, OUTPUT_FILES, RECORDING, earlier_recording, run_description, write_results
-from clipclique.interop.coco import reported_classes
-from clipclique.interop.detections import CocoRecorder, FileDetector
-from clipclique.perception.yolo import YoloDetector
 
 if TYPE_CHECKING:
     from clipclique.viz import LocalizationRecorder  # rerun is imported only when a run records

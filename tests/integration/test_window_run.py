@@ -9,9 +9,9 @@ import pytest
 from typer.testing import CliRunner
 
 from clipclique.backends import load_encoder
+from clipclique.datasets.tum import tum_line
 from clipclique.io.mapfile import save_map
 from clipclique.localization.cli import app
-from clipclique.datasets.tum import tum_line
 from clipclique.localization.run import RunSettings, run_and_save
 from clipclique.mapping.build import build_map
 from clipclique.resolve import open_scene

@@ -13,12 +13,12 @@ from rich.text import Text
 from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
+from clipclique.datasets.tum import tum_line
 from clipclique.errors import ClipcliqueError
 from clipclique.geometry import random_rotation
 from clipclique.localization.cli import app, imports_kept
-from clipclique.localization.run import choose_encoder, read_ahead
-from clipclique.datasets.tum import tum_line
 from clipclique.localization.results import ALL_STAGES, json_safe, read_results
+from clipclique.localization.run import choose_encoder, read_ahead
 from clipclique.localization.tables import results_table, run_banner
 from clipclique.types import Ellipsoids, Map, Pose
 

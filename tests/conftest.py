@@ -16,6 +16,7 @@ import dataclasses  # noqa: E402
 import json  # noqa: E402
 import re  # noqa: E402
 import subprocess  # noqa: E402
+import sys  # noqa: E402
 from collections.abc import Callable  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -39,6 +40,30 @@ def pytest_addoption(parser) -> None:
     parser.addoption("--force-regen", action="store_true", default=False,
                      help="rewrite tests/golden/ from this tree's results and print what moved "
                           "(tests/e2e/test_golden.py)")
+
+
+def pytest_sessionstart(session) -> None:
+    """Before a parallel run's workers start: numba's kernels compiled into its cache and, for the whole suite,
+    the golden results' full-size scenes generated, side by side (tests/warm_up.py; seconds once they exist)."""
+    config = session.config
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return  # a worker, or a run without workers: each test compiles and generates what it needs
+    whole_suite = not config.args or [Path(arg).resolve() for arg in config.args] == [ROOT / "tests"]
+    jobs = ["kernels", "scenes"] if whole_suite else ["kernels"]
+    started = [subprocess.Popen([sys.executable, str(ROOT / "tests" / "warm_up.py"), job]) for job in jobs]
+    failed = [job for job, process in zip(jobs, started) if process.wait() != 0]
+    if failed:
+        pytest.exit(f"tests/warm_up.py {' and '.join(failed)} failed (its error is above)", returncode=1)
+
+
+# `make test` runs with `--dist loadgroup`: a module's tests share its fixtures, so they go to one worker
+# together (a group per module), except a test given a group of its own (`xdist_group`), such as each golden
+# scene's runs, which then spread over the workers.
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items) -> None:
+    for item in items:
+        if not any(item.iter_markers("xdist_group")):
+            item.add_marker(pytest.mark.xdist_group(item.path.relative_to(ROOT).as_posix()))
 
 
 @pytest.fixture(scope="session")

@@ -62,7 +62,7 @@ $(CLUSTER_STAMP): $(STAMP)
 
 test: $(CLUSTER_STAMP)
 	$(PY) -m ruff check .
-	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadgroup --durations=15
+	$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadscope --durations=15
 
 # the core, pytest and ruff only: no torch, so a fresh clone is testing in a minute or two
 $(DEV_STAMP): $(CORE)

@@ -56,14 +56,33 @@ def pytest_sessionstart(session) -> None:
         pytest.exit(f"tests/warm_up.py {' and '.join(failed)} failed (its error is above)", returncode=1)
 
 
-# `make test` runs with `--dist loadgroup`: a module's tests share its fixtures, so they go to one worker
-# together (a group per module), except a test given a group of its own (`xdist_group`), such as each golden
-# scene's runs, which then spread over the workers.
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items) -> None:
-    for item in items:
-        if not any(item.iter_markers("xdist_group")):
-            item.add_marker(pytest.mark.xdist_group(item.path.relative_to(ROOT).as_posix()))
+# `make test` runs with `--dist loadscope`: a module's tests share its fixtures, so they go to one worker
+# together, except where a scope of their own lets costly independent tests spread over the workers: each
+# golden scene's runs (they share that scene's map) and the docs' printed-examples check (its own scratch root).
+OWN_SCOPES = {
+    "tests/e2e/test_golden.py::test_the_same_inputs_give_the_same_bytes": "golden demo_desk",
+    "tests/e2e/test_readme.py::test_printed_examples_are_current": "printed examples",
+}
+GOLDEN_RUN = re.compile(r"tests/e2e/test_golden\.py::test_results_hold_the_golden_ones\[(\w+)-\w+\]")
+
+
+def scope_of(nodeid: str) -> str:
+    """The work unit a test goes to a worker in (xdist's scheduler asks for every test)."""
+    if golden := GOLDEN_RUN.fullmatch(nodeid):
+        return f"golden {golden[1]}"
+    return OWN_SCOPES.get(nodeid, nodeid.split("::")[0])
+
+
+def pytest_xdist_make_scheduler(config, log):
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class ByScope(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return scope_of(nodeid)
+
+    return ByScope(config, log)
 
 
 @pytest.fixture(scope="session")

@@ -51,8 +51,7 @@ def decided(full_size_maps, tmp_path: Path, scene: str, method: str) -> list[dic
 
 
 @pytest.mark.parametrize("method", METHODS)
-@pytest.mark.parametrize("scene", [pytest.param(scene, marks=pytest.mark.xdist_group(f"golden-{scene}"))
-                                   for scene in SCENES])  # a scene's runs share its map: one worker
+@pytest.mark.parametrize("scene", SCENES)
 def test_results_hold_the_golden_ones(full_size_maps, tmp_path, scene, method, request, capsys):
     found = decided(full_size_maps, tmp_path, scene, method)
     path = golden_path(scene, method)
@@ -89,7 +88,6 @@ def test_a_moved_pose_fails_the_comparison():
     assert not compare(frames, relabelled).holds
 
 
-@pytest.mark.xdist_group("golden-demo_desk")
 def test_the_same_inputs_give_the_same_bytes(full_size_maps, tmp_path):
     """Determinism: the same run twice in this process, and twice in fresh processes, gives identical results
     (every number of every frame, timings aside)."""

@@ -186,7 +186,6 @@ def test_evo_files_pair_up(workspace):
         assert done.returncode == 0, done.stderr
 
 
-@pytest.mark.xdist_group("printed-examples")  # its own scratch root: apart from the workspace's tests
 def test_printed_examples_are_current():
     """What the docs show a command printing is what it prints today (make docs rewrites it: tools/docs_outputs.py)."""
     done = subprocess.run([sys.executable, str(ROOT / "tools" / "docs_outputs.py"), "--check"], cwd=ROOT,

@@ -3,7 +3,7 @@ reads TUM folders (this project's, evo, ORB-SLAM's examples, ...) reads the reco
 
 The folder holds what clipclique.datasets.tum reads back as the bag's frames:
 - `rgb/<stamp>.png` (RGB) and `depth/<stamp>.png` (uint16, metres x DEPTH_FACTOR, 0 = missing; depth beyond
-  the uint16 range, 13.1 m, is clipped to it), both named by the frame's colour stamp (`%.6f`, the bag pairs
+  the uint16 range, 13.1 m, is written as missing), both named by the frame's colour stamp (`%.6f`, the bag pairs
   each colour image with its depth image), listed in `rgb.txt` and `depth.txt`;
 - `intrinsics.txt`: the frames' K (`fx fy cx cy`, the bag's CameraInfo K at the images' size);
 - `groundtruth.txt`: the pose of each frame that has one (no file when none has).
@@ -130,10 +130,11 @@ def _same_intrinsics(first: np.ndarray | None, frame: Frame, sequence: BagSequen
 
 
 def depth_units(depth: np.ndarray) -> np.ndarray:
-    """Metres as TUM's uint16 units (DEPTH_FACTOR per metre): NaN, infinite or not positive -> 0 (missing),
-    beyond the uint16 range clipped to it."""
+    """Metres as TUM's uint16 units (DEPTH_FACTOR per metre): NaN, infinite, not positive or beyond the uint16
+    range (13.1 m) -> 0, missing: a clipped value would be a false reading at 13.1 m."""
     units = np.round(np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float64) * DEPTH_FACTOR)
-    return np.clip(units, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+    units[(units < 0) | (units > np.iinfo(np.uint16).max)] = 0
+    return units.astype(np.uint16)
 
 
 def _write_png(pixels: np.ndarray, path: Path) -> None:

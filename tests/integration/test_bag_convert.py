@@ -103,5 +103,5 @@ def current_umask() -> int:
 
 def test_depth_units_are_tum_units_with_nan_missing():
     metres = np.array([[1.0, np.nan, 0.0, -2.0], [np.inf, 0.00011, 13.107, 20.0]], np.float32)
-    assert depth_units(metres).tolist() == [[5000, 0, 0, 0], [0, 1, 65535, 65535]]
+    assert depth_units(metres).tolist() == [[5000, 0, 0, 0], [0, 1, 65535, 0]]
     assert depth_units(metres).dtype == np.uint16

@@ -133,6 +133,11 @@ class PoseConfig:
     # Beyond the paper (0 = off): metres; each pose refitted with every observation it moves this
     # close to a landmark it is similar to (clipclique.pose.refine)
     refine_radius: float = ranged(0.3, 0.0, 10.0)
+    # Beyond the paper (0 = off): Levenberg-Marquardt steps aligning each kept hypothesis's landmarks, projected
+    # as conics, with its observations' detection boxes (clipclique.verify.boxalign): a few partly seen objects fix
+    # a pose loosely by their centres, their boxes sharply. A pose is kept only where its robust cost fell.
+    box_refine_steps: int = ranged(0, 0, 50)
+    box_refine_scale: float = ranged(10.0, 1e-3, 1e4)  # pixels: a box side this far off costs Cauchy's knee
 
 
 @dataclass

@@ -41,7 +41,7 @@ from clipclique.inliers import cliquesearch, compatibility, consensus, regions
 from clipclique.inliers.cliquesearch import sort_span
 from clipclique.multiframe import mapalign
 from clipclique.pose import refine
-from clipclique.verify import confidence, projection, verification
+from clipclique.verify import boxalign, confidence, projection, verification
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, LocalizationResult, Stage
@@ -139,6 +139,9 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         pool = refine.refined(pool, observations, index.map, scores, config.pose.refine_radius, config.pose.weights,
                               landmarks=index.landmark_tree)[0]
     _verify(result, pool, observations, index, config)
+    if config.pose.box_refine_steps > 0 and result.hypotheses:
+        result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map,
+                                             config.pose.box_refine_steps, config.pose.box_refine_scale, index.spreads)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)

@@ -25,7 +25,7 @@ from clipclique.config import make_config
 from clipclique.metrics import SUCCESS_THRESHOLDS_M, evaluate_frame, success_within
 from clipclique.pipeline import index_map, localize
 
-SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum")
+SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum", "demo_sparse")
 DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 
 # Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
@@ -56,6 +56,12 @@ LEVERS: dict[str, dict[str, Any]] = {
     "look-alike candidates 1": {"matching.lookalike_candidates": 1},
     "look-alike candidates 3": {"matching.lookalike_candidates": 3},
     "look-alike candidates, any size": {"matching.lookalike_size_ratio": 1000.0},
+    # issue 37: the kept hypotheses' poses aligned with the detection boxes (clipclique.verify.boxalign)
+    "box refinement": {"pose.box_refine_steps": 5},
+    "box refinement 3 steps": {"pose.box_refine_steps": 3},
+    "box refinement 10 steps": {"pose.box_refine_steps": 10},
+    "box refinement 5 px": {"pose.box_refine_steps": 5, "pose.box_refine_scale": 5.0},
+    "box refinement 20 px": {"pose.box_refine_steps": 5, "pose.box_refine_scale": 20.0},
 }
 
 

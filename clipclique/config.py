@@ -138,6 +138,12 @@ class PoseConfig:
     # a pose loosely by their centres, their boxes sharply. A pose is kept only where its robust cost fell.
     box_refine_steps: int = ranged(0, 0, 50)
     box_refine_scale: float = ranged(10.0, 1e-3, 1e4)  # pixels: a box side this far off costs Cauchy's knee
+    # metres (0 = boxes alone): each pair's observed centre off its landmark's by this costs as much, a prior that
+    # keeps the boxes from pulling the pose where the centres it was fitted to disagree
+    box_refine_centre_m: float = ranged(0.0, 0.0, 100.0)
+    # the weight of a box's size beside its offset (1: the four sides alike): a map ellipsoid's outline is smaller
+    # than its object's box, so the size pulls the camera nearer
+    box_refine_size_weight: float = ranged(1.0, 0.0, 10.0)
 
 
 @dataclass

@@ -140,8 +140,10 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
                               landmarks=index.landmark_tree)[0]
     _verify(result, pool, observations, index, config)
     if config.pose.box_refine_steps > 0 and result.hypotheses:
-        result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map,
-                                             config.pose.box_refine_steps, config.pose.box_refine_scale, index.spreads)
+        settings = config.pose
+        result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map, settings.box_refine_steps,
+                                             settings.box_refine_scale, index.spreads, settings.box_refine_centre_m,
+                                             settings.box_refine_size_weight)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)

@@ -59,9 +59,16 @@ LEVERS: dict[str, dict[str, Any]] = {
     # issue 37: the kept hypotheses' poses aligned with the detection boxes (clipclique.verify.boxalign)
     "box refinement": {"pose.box_refine_steps": 5},
     "box refinement 3 steps": {"pose.box_refine_steps": 3},
-    "box refinement 10 steps": {"pose.box_refine_steps": 10},
     "box refinement 5 px": {"pose.box_refine_steps": 5, "pose.box_refine_scale": 5.0},
     "box refinement 20 px": {"pose.box_refine_steps": 5, "pose.box_refine_scale": 20.0},
+    "box refinement, centres 5 cm": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.05},
+    "box refinement, centres 2 cm": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.02},
+    "box refinement, centres 10 cm": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.1},
+    "box refinement, centres 5 cm, 3 steps": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.05},
+    "box refinement, size 0.3": {"pose.box_refine_steps": 5, "pose.box_refine_size_weight": 0.3},
+    "box refinement, size 0": {"pose.box_refine_steps": 5, "pose.box_refine_size_weight": 0.0},
+    "box refinement, centres 5 cm, size 0.3": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.05,
+                                                "pose.box_refine_size_weight": 0.3},
 }
 
 

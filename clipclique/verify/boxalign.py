@@ -8,8 +8,8 @@ clipclique.verify.projection) minus the detection box, in units of `scale` pixel
 detection box cut by the image border says nothing of where the object ends and is left out, and so
 is a pair whose landmark reaches behind the camera at the start. A few Levenberg-Marquardt steps on a
 Cauchy loss (a wrong pair or a badly fitted ellipsoid pulls little) move the pose from where the clique
-left it: a rotation vector and a translation in the camera's frame, the Jacobian by central differences
-of one batched projection of every hypothesis's 13 poses. The refined pose is kept only where its robust
+left it: a rotation vector and a translation in the camera's frame, the Jacobian by forward differences
+of one projection of the pose and its 6 perturbations. The refined pose is kept only where its robust
 cost fell and it moved less than MAX_MOVE_M and MAX_TURN_RAD; otherwise the clique's pose stays.
 """
 
@@ -24,16 +24,20 @@ from clipclique.verify.projection import _projected, spreads
 MAX_MOVE_M = 1.0  # a refinement that moves the camera farther has found another pose, not refined this one
 MAX_TURN_RAD = np.deg2rad(20.0)
 BORDER_PX = 2.0  # a detection box side this close to the image border is cut by it
-STEP = 1e-5  # radians / metres: the central differences' step
+STEP = 1e-6  # radians / metres: the forward differences' step
 DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal matrix's diagonal
 
 
 def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
-            map_spreads: np.ndarray | None = None) -> list[Hypothesis]:
+            map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0) -> list[Hypothesis]:
     """`hypotheses` with each pose refined by box alignment (at most `steps` LM steps, residuals in units of
     `scale` pixels); a hypothesis without three usable pairs, or whose refinement did not lower its cost or moved
     too far, keeps its pose. Observations without boxes or camera: unchanged. `map_spreads`: the map's
-    `projection.spreads` (None: computed here)."""
+    `projection.spreads` (None: computed here). `centre_m` > 0: each pair's observed centre, moved into the map,
+    minus its landmark's, in units of `centre_m` metres, joins the cost (what the clique's pose was fitted to,
+    kept as a prior). `size_weight`: where both sides of an axis count, the box's offset and its size along it
+    are the residuals, the size's weighed by this (1: the sides as they are; a map ellipsoid's outline is smaller
+    than its object's box, so the size pulls the camera nearer)."""
     if steps <= 0 or not hypotheses or observations.boxes is None or observations.camera is None:
         return hypotheses
     problem = _problem(hypotheses, observations, map, map_spreads)
@@ -42,15 +46,15 @@ def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, 
     rotations = np.array([h.pose.rotation for h in hypotheses], np.float64)[problem.rows]
     translations = np.array([h.pose.translation for h in hypotheses], np.float64)[problem.rows]
     new_rotations, new_translations, start, end = solve(problem, rotations, translations, steps, scale,
-                                                        observations.camera)
+                                                        observations.camera, centre_m, size_weight)
+    turn = np.arccos(np.clip((np.einsum("hij,hij->h", rotations, new_rotations) - 1) / 2, -1.0, 1.0))
+    move = np.linalg.norm(new_translations - translations, axis=1)
+    better = (end < start) & (move < MAX_MOVE_M) & (turn < MAX_TURN_RAD)
     out = list(hypotheses)
-    for i, row in enumerate(problem.rows.tolist()):
-        turn = np.arccos(np.clip((np.trace(rotations[i].T @ new_rotations[i]) - 1) / 2, -1.0, 1.0))
-        move = np.linalg.norm(new_translations[i] - translations[i])
-        if end[i] < start[i] and move < MAX_MOVE_M and turn < MAX_TURN_RAD:
-            h = hypotheses[row]
-            out[row] = Hypothesis(Pose(new_rotations[i], new_translations[i]), h.correspondences, h.score,
-                                  h.conditioning, h.verification, h.confidence)
+    for i in np.flatnonzero(better).tolist():
+        h = hypotheses[problem.rows[i]]
+        out[problem.rows[i]] = Hypothesis(Pose(new_rotations[i], new_translations[i]), h.correspondences, h.score,
+                                          h.conditioning, h.verification, h.confidence)
     return out
 
 
@@ -59,13 +63,14 @@ class Problem:
     projection), detection boxes and which sides count."""
 
     def __init__(self, rows: np.ndarray, owner: np.ndarray, column: np.ndarray, centers: np.ndarray,
-                 spread: np.ndarray, boxes: np.ndarray, sides: np.ndarray) -> None:
+                 spread: np.ndarray, boxes: np.ndarray, sides: np.ndarray, seen: np.ndarray) -> None:
         self.rows = rows  # (H,) the hypotheses refined
         self.owner = owner  # (P,) 0..H-1 the refined hypothesis of each pair
         self.column = column  # (P,) the pair's landmark among the projected ones
         self.centers, self.spread = centers, spread  # (U, 3), (U, 9) the landmarks projected
         self.boxes = boxes  # (P, 4) the detection boxes
         self.sides = sides  # (P, 4) float, 1 where the side counts, 0 where the image border cut it
+        self.seen = seen  # (P, 3) the observed centres (camera frame)
 
 
 def _problem(hypotheses: list[Hypothesis], observations: Observations, map: Map,
@@ -91,25 +96,28 @@ def _problem(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     sides = (np.abs(boxes - limits) > BORDER_PX).astype(np.float64)
     every = spreads(map.ellipsoids) if map_spreads is None else map_spreads
     return Problem(np.array(rows), owner, column.reshape(-1), np.ascontiguousarray(map.ellipsoids.centers[landmarks]),
-                   np.ascontiguousarray(every[landmarks]), boxes, sides)
+                   np.ascontiguousarray(every[landmarks]), boxes, sides,
+                   np.ascontiguousarray(observations.ellipsoids.centers[pairs[:, 0]], np.float64))
 
 
 def solve(problem: Problem, rotations: np.ndarray, translations: np.ndarray, steps: int, scale: float,
-          camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          camera: Camera, centre_m: float = 0.0,
+          size_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Levenberg-Marquardt on each hypothesis (`_solve`): the poses (H, 3, 3), (H, 3) and the robust costs at the
     start and the end (H,) (inf where a pair reaches behind the camera at the start: the pose is left alone)."""
     starts = np.searchsorted(problem.owner, np.arange(len(rotations)))
     ends = np.searchsorted(problem.owner, np.arange(len(rotations)), side="right")
-    return _solve(problem.centers, problem.spread, problem.column, problem.boxes / scale, problem.sides, starts, ends,
-                  np.ascontiguousarray(rotations, np.float64), np.ascontiguousarray(translations, np.float64), steps,
-                  scale, np.asarray(camera.intrinsics, np.float64), float(camera.width), float(camera.height),
+    weights = np.array([1.0 / scale, 1.0 / centre_m if centre_m > 0 else 0.0, size_weight])
+    return _solve(problem.centers, problem.spread, problem.column, problem.boxes, problem.sides, problem.seen, starts,
+                  ends, np.ascontiguousarray(rotations, np.float64), np.ascontiguousarray(translations, np.float64),
+                  steps, weights, np.asarray(camera.intrinsics, np.float64), float(camera.width), float(camera.height),
                   float(camera.max_depth))
 
 
 @njit(cache=True)
-def _solve(centers, spread, column, boxes, sides, starts, ends, rotations, translations, steps, scale, intrinsics,
-           width, height, max_depth):
-    """`solve`, compiled: per hypothesis, each step projects its current pose and 12 perturbations of it
+def _solve(centers, spread, column, boxes, sides, seen, starts, ends, rotations, translations, steps, weights,
+           intrinsics, width, height, max_depth):
+    """`solve`, compiled: per hypothesis, each step projects its current pose and 6 perturbations of it
     (projection's `_projected`, one call) for the Jacobian; a step that raised the cost is undone and the damping
     raised tenfold, one that lowered it kept and the damping cut tenfold (a few numpy calls per step would cost
     more than the arithmetic of a frame's five hypotheses)."""
@@ -119,10 +127,10 @@ def _solve(centers, spread, column, boxes, sides, starts, ends, rotations, trans
     for h in range(count):
         cols = column[starts[h]:ends[h]]
         c, s = centers[cols], spread[cols]
-        box, side = boxes[starts[h]:ends[h]], sides[starts[h]:ends[h]]
+        box, side, x = boxes[starts[h]:ends[h]], sides[starts[h]:ends[h]], seen[starts[h]:ends[h]]
         rot, trans = rotations[h].copy(), translations[h].copy()
-        cost, usable, normal, gradient = _linearized(c, s, box, side, rot, trans, scale, intrinsics, width, height,
-                                                     max_depth, True)
+        cost, usable, normal, gradient = _linearized(c, s, box, side, x, rot, trans, weights, intrinsics, width,
+                                                     height, max_depth, True)
         if not usable:
             continue
         start_cost[h] = cost
@@ -134,7 +142,8 @@ def _solve(centers, spread, column, boxes, sides, starts, ends, rotations, trans
             delta = -np.linalg.solve(damped, gradient)
             trial_rot, trial_trans = _moved_one(rot, trans, delta)
             trial_cost, trial_usable, trial_normal, trial_gradient = _linearized(
-                c, s, box, side, trial_rot, trial_trans, scale, intrinsics, width, height, max_depth, step < steps - 1)
+                c, s, box, side, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
+                step < steps - 1)
             if trial_usable and trial_cost < cost:
                 rot, trans, cost, normal, gradient = trial_rot, trial_trans, trial_cost, trial_normal, trial_gradient
                 damping *= 0.1
@@ -146,49 +155,59 @@ def _solve(centers, spread, column, boxes, sides, starts, ends, rotations, trans
 
 @njit(cache=True)
 def _moved_one(rotation, translation, delta):
-    """A pose moved in its own camera frame by (6,) (rotation vector w, translation d): R exp([w]), t + R d."""
-    return rotation @ _exp(delta[0], delta[1], delta[2]), translation + rotation @ delta[3:]
+    """A pose moved in its own camera frame by (6,) (rotation vector w, translation d): R exp([w]), t + R d, in
+    plain loops (numba's `@` on 3 x 3 matrices calls BLAS, a microsecond each)."""
+    turn = _exp(delta[0], delta[1], delta[2])
+    moved, shifted = np.empty((3, 3)), translation.copy()
+    for i in range(3):
+        for j in range(3):
+            moved[i, j] = rotation[i, 0] * turn[0, j] + rotation[i, 1] * turn[1, j] + rotation[i, 2] * turn[2, j]
+        shifted[i] += rotation[i, 0] * delta[3] + rotation[i, 1] * delta[4] + rotation[i, 2] * delta[5]
+    return moved, shifted
 
 
 @njit(cache=True)
 def _exp(x, y, z):
-    """The rotation of the rotation vector (x, y, z) (Rodrigues)."""
+    """The rotation of the rotation vector (x, y, z) (Rodrigues: I + sin a [k] + (1 - cos a) (k k^T - I))."""
     angle = np.sqrt(x * x + y * y + z * z)
     out = np.eye(3)
     if angle < 1e-15:
         return out
-    x, y, z = x / angle, y / angle, z / angle
-    sin, cos = np.sin(angle), 1.0 - np.cos(angle)
-    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return out + sin * cross + cos * (cross @ cross)
+    k = np.array([x, y, z]) / angle
+    sin, versine = np.sin(angle), 1.0 - np.cos(angle)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] += versine * (k[i] * k[j] - (1.0 if i == j else 0.0))
+    out[0, 1] -= sin * k[2]
+    out[1, 0] += sin * k[2]
+    out[0, 2] += sin * k[1]
+    out[2, 0] -= sin * k[1]
+    out[1, 2] -= sin * k[0]
+    out[2, 1] += sin * k[0]
+    return out
 
 
 @njit(cache=True)
-def _linearized(centers, spread, boxes, sides, rotation, translation, scale, intrinsics, width, height, max_depth,
-                jacobian):
-    """At one pose: the Cauchy cost of the pairs' residuals (projected outline box / scale minus detection box /
-    scale, on the sides that count), whether every landmark is wholly in front of the camera, and (when
-    `jacobian`) the normal matrix J^T W J and gradient J^T W r of the reweighted residuals (IRLS), J by central
-    differences."""
-    moves = 13 if jacobian else 1
+def _linearized(centers, spread, boxes, sides, seen, rotation, translation, weights, intrinsics, width, height,
+                max_depth, jacobian):
+    """At one pose: the Cauchy cost of the pairs' residuals (`_residuals`), whether every landmark is wholly in
+    front of the camera, and (when `jacobian`) the normal matrix J^T W J and gradient J^T W r of the reweighted
+    residuals (IRLS), J by forward differences."""
+    moves = 7 if jacobian else 1
     rots, trans = np.empty((moves, 3, 3)), np.empty((moves, 3))
     delta = np.zeros(6)
     rots[0], trans[0] = rotation, translation
     for m in range(1, moves):
         delta[:] = 0.0
-        delta[(m - 1) % 6] = STEP if m <= 6 else -STEP
+        delta[m - 1] = STEP
         rots[m], trans[m] = _moved_one(rotation, translation, delta)
     conics, _, _, _, full_areas = _projected(centers, spread, rots, trans, intrinsics, width, height, max_depth)
     size = len(centers)
-    residual = np.empty((moves, size, 4))
+    residual = np.zeros((moves, size, RESIDUALS))
     for m in range(moves):
         for n in range(size):
-            conic = conics[m, n]
-            u0, v0, u1, v1 = _outline(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2])
-            residual[m, n, 0] = (u0 / scale - boxes[n, 0]) * sides[n, 0]
-            residual[m, n, 1] = (v0 / scale - boxes[n, 1]) * sides[n, 1]
-            residual[m, n, 2] = (u1 / scale - boxes[n, 2]) * sides[n, 2]
-            residual[m, n, 3] = (v1 / scale - boxes[n, 3]) * sides[n, 3]
+            _residuals_into(conics[m, n], boxes[n], sides[n], seen[n], centers[n], rots[m], trans[m], weights,
+                            residual[m, n])
     usable = True
     for n in range(size):
         usable = usable and full_areas[0, n] > 0
@@ -196,18 +215,48 @@ def _linearized(centers, spread, boxes, sides, rotation, translation, scale, int
     normal, gradient = np.zeros((6, 6)), np.zeros(6)
     column = np.empty(6)
     for n in range(size):
-        for k in range(4):
+        for k in range(RESIDUALS):
             r = residual[0, n, k]
             cost += 0.5 * np.log1p(r * r)
-            if jacobian:
+            if jacobian and r != 0.0:
                 weight = 1.0 / (1.0 + r * r)  # Cauchy's IRLS weight
                 for i in range(6):
-                    column[i] = (residual[1 + i, n, k] - residual[7 + i, n, k]) / (2 * STEP)
+                    column[i] = (residual[1 + i, n, k] - r) / STEP
                 for i in range(6):
                     gradient[i] += weight * column[i] * r
                     for j in range(6):
                         normal[i, j] += weight * column[i] * column[j]
     return cost, usable, normal, gradient
+
+
+RESIDUALS = 7  # per pair: four of the box, three of the centre
+
+
+@njit(cache=True, inline="always")
+def _residuals_into(conic, box, sides, seen, center, rotation, translation, weights, out):
+    """One pair's residuals under one pose: along each image axis, where both sides count, the outline box's offset
+    from the detection box and (times `weights[2]`) its size's difference, both over sqrt 2 (at weight 1 the sum of
+    squares of the two sides' differences), where one counts, that side's difference, in units of 1 / `weights[0]`
+    pixels; then the observed centre moved into the map minus the landmark's, in units of 1 / `weights[1]` metres
+    (zeros at 0)."""
+    u0, v0, u1, v1 = _outline(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2])
+    scale, centre, size_weight = weights[0], weights[1], weights[2]
+    for axis in range(2):
+        low, high = (u0, u1) if axis == 0 else (v0, v1)
+        first, second = (low - box[axis]) * scale, (high - box[axis + 2]) * scale
+        if sides[axis] > 0 and sides[axis + 2] > 0:
+            out[2 * axis] = (first + second) * SQRT_HALF
+            out[2 * axis + 1] = (second - first) * SQRT_HALF * size_weight
+        else:
+            out[2 * axis] = first * sides[axis] + second * sides[axis + 2]
+            out[2 * axis + 1] = 0.0
+    if centre > 0:
+        for i in range(3):
+            out[4 + i] = (rotation[i, 0] * seen[0] + rotation[i, 1] * seen[1] + rotation[i, 2] * seen[2]
+                          + translation[i] - center[i]) * centre
+
+
+SQRT_HALF = np.sqrt(0.5)
 
 
 @njit(cache=True, inline="always")

@@ -144,6 +144,9 @@ class PoseConfig:
     # the weight of a box's size beside its offset (1: the four sides alike): a map ellipsoid's outline is smaller
     # than its object's box, so the size pulls the camera nearer
     box_refine_size_weight: float = ranged(1.0, 0.0, 10.0)
+    # a fraction (0 = pixels alone): a box's residuals in units of sqrt(scale^2 + (this * its diagonal)^2) pixels:
+    # a large object's ellipsoid misses its box by more pixels than a small one's
+    box_refine_relative: float = ranged(0.0, 0.0, 10.0)
 
 
 @dataclass

@@ -143,7 +143,7 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         settings = config.pose
         result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map, settings.box_refine_steps,
                                              settings.box_refine_scale, index.spreads, settings.box_refine_centre_m,
-                                             settings.box_refine_size_weight)
+                                             settings.box_refine_size_weight, settings.box_refine_relative)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)

@@ -29,7 +29,8 @@ DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal ma
 
 
 def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
-            map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0) -> list[Hypothesis]:
+            map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0,
+            relative: float = 0.0) -> list[Hypothesis]:
     """`hypotheses` with each pose refined by box alignment (at most `steps` LM steps, residuals in units of
     `scale` pixels); a hypothesis without three usable pairs, or whose refinement did not lower its cost or moved
     too far, keeps its pose. Observations without boxes or camera: unchanged. `map_spreads`: the map's
@@ -37,7 +38,8 @@ def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, 
     minus its landmark's, in units of `centre_m` metres, joins the cost (what the clique's pose was fitted to,
     kept as a prior). `size_weight`: where both sides of an axis count, the box's offset and its size along it
     are the residuals, the size's weighed by this (1: the sides as they are; a map ellipsoid's outline is smaller
-    than its object's box, so the size pulls the camera nearer)."""
+    than its object's box, so the size pulls the camera nearer). `relative` > 0: a box's residuals are in units of
+    sqrt(scale^2 + (relative * its diagonal)^2) pixels (a large object's ellipsoid misses its box by more pixels)."""
     if steps <= 0 or not hypotheses or observations.boxes is None or observations.camera is None:
         return hypotheses
     problem = _problem(hypotheses, observations, map, map_spreads)
@@ -46,7 +48,7 @@ def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, 
     rotations = np.array([h.pose.rotation for h in hypotheses], np.float64)[problem.rows]
     translations = np.array([h.pose.translation for h in hypotheses], np.float64)[problem.rows]
     new_rotations, new_translations, start, end = solve(problem, rotations, translations, steps, scale,
-                                                        observations.camera, centre_m, size_weight)
+                                                        observations.camera, centre_m, size_weight, relative)
     turn = np.arccos(np.clip((np.einsum("hij,hij->h", rotations, new_rotations) - 1) / 2, -1.0, 1.0))
     move = np.linalg.norm(new_translations - translations, axis=1)
     better = (end < start) & (move < MAX_MOVE_M) & (turn < MAX_TURN_RAD)
@@ -101,21 +103,24 @@ def _problem(hypotheses: list[Hypothesis], observations: Observations, map: Map,
 
 
 def solve(problem: Problem, rotations: np.ndarray, translations: np.ndarray, steps: int, scale: float,
-          camera: Camera, centre_m: float = 0.0,
-          size_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+          camera: Camera, centre_m: float = 0.0, size_weight: float = 1.0,
+          relative: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Levenberg-Marquardt on each hypothesis (`_solve`): the poses (H, 3, 3), (H, 3) and the robust costs at the
     start and the end (H,) (inf where a pair reaches behind the camera at the start: the pose is left alone)."""
     starts = np.searchsorted(problem.owner, np.arange(len(rotations)))
     ends = np.searchsorted(problem.owner, np.arange(len(rotations)), side="right")
-    weights = np.array([1.0 / scale, 1.0 / centre_m if centre_m > 0 else 0.0, size_weight])
-    return _solve(problem.centers, problem.spread, problem.column, problem.boxes, problem.sides, problem.seen, starts,
-                  ends, np.ascontiguousarray(rotations, np.float64), np.ascontiguousarray(translations, np.float64),
-                  steps, weights, np.asarray(camera.intrinsics, np.float64), float(camera.width), float(camera.height),
+    weights = np.array([1.0 / centre_m if centre_m > 0 else 0.0, size_weight])
+    diagonal = np.hypot(problem.boxes[:, 2] - problem.boxes[:, 0], problem.boxes[:, 3] - problem.boxes[:, 1])
+    units = 1.0 / np.sqrt(scale**2 + (relative * diagonal) ** 2)
+    return _solve(problem.centers, problem.spread, problem.column, problem.boxes, problem.sides, units, problem.seen,
+                  starts, ends, np.ascontiguousarray(rotations, np.float64),
+                  np.ascontiguousarray(translations, np.float64), steps, weights,
+                  np.asarray(camera.intrinsics, np.float64), float(camera.width), float(camera.height),
                   float(camera.max_depth))
 
 
 @njit(cache=True)
-def _solve(centers, spread, column, boxes, sides, seen, starts, ends, rotations, translations, steps, weights,
+def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rotations, translations, steps, weights,
            intrinsics, width, height, max_depth):
     """`solve`, compiled: per hypothesis, each step projects its current pose and 6 perturbations of it
     (projection's `_projected`, one call) for the Jacobian; a step that raised the cost is undone and the damping
@@ -128,8 +133,9 @@ def _solve(centers, spread, column, boxes, sides, seen, starts, ends, rotations,
         cols = column[starts[h]:ends[h]]
         c, s = centers[cols], spread[cols]
         box, side, x = boxes[starts[h]:ends[h]], sides[starts[h]:ends[h]], seen[starts[h]:ends[h]]
+        unit = units[starts[h]:ends[h]]
         rot, trans = rotations[h].copy(), translations[h].copy()
-        cost, usable, normal, gradient = _linearized(c, s, box, side, x, rot, trans, weights, intrinsics, width,
+        cost, usable, normal, gradient = _linearized(c, s, box, side, unit, x, rot, trans, weights, intrinsics, width,
                                                      height, max_depth, True)
         if not usable:
             continue
@@ -142,7 +148,7 @@ def _solve(centers, spread, column, boxes, sides, seen, starts, ends, rotations,
             delta = -np.linalg.solve(damped, gradient)
             trial_rot, trial_trans = _moved_one(rot, trans, delta)
             trial_cost, trial_usable, trial_normal, trial_gradient = _linearized(
-                c, s, box, side, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
+                c, s, box, side, unit, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
                 step < steps - 1)
             if trial_usable and trial_cost < cost:
                 rot, trans, cost, normal, gradient = trial_rot, trial_trans, trial_cost, trial_normal, trial_gradient
@@ -188,7 +194,7 @@ def _exp(x, y, z):
 
 
 @njit(cache=True)
-def _linearized(centers, spread, boxes, sides, seen, rotation, translation, weights, intrinsics, width, height,
+def _linearized(centers, spread, boxes, sides, units, seen, rotation, translation, weights, intrinsics, width, height,
                 max_depth, jacobian):
     """At one pose: the Cauchy cost of the pairs' residuals (`_residuals`), whether every landmark is wholly in
     front of the camera, and (when `jacobian`) the normal matrix J^T W J and gradient J^T W r of the reweighted
@@ -206,8 +212,8 @@ def _linearized(centers, spread, boxes, sides, seen, rotation, translation, weig
     residual = np.zeros((moves, size, RESIDUALS))
     for m in range(moves):
         for n in range(size):
-            _residuals_into(conics[m, n], boxes[n], sides[n], seen[n], centers[n], rots[m], trans[m], weights,
-                            residual[m, n])
+            _residuals_into(conics[m, n], boxes[n], sides[n], units[n], seen[n], centers[n], rots[m], trans[m],
+                            weights, residual[m, n])
     usable = True
     for n in range(size):
         usable = usable and full_areas[0, n] > 0
@@ -233,14 +239,14 @@ RESIDUALS = 7  # per pair: four of the box, three of the centre
 
 
 @njit(cache=True, inline="always")
-def _residuals_into(conic, box, sides, seen, center, rotation, translation, weights, out):
+def _residuals_into(conic, box, sides, unit, seen, center, rotation, translation, weights, out):
     """One pair's residuals under one pose: along each image axis, where both sides count, the outline box's offset
-    from the detection box and (times `weights[2]`) its size's difference, both over sqrt 2 (at weight 1 the sum of
-    squares of the two sides' differences), where one counts, that side's difference, in units of 1 / `weights[0]`
-    pixels; then the observed centre moved into the map minus the landmark's, in units of 1 / `weights[1]` metres
+    from the detection box and (times `weights[1]`) its size's difference, both over sqrt 2 (at weight 1 the sum of
+    squares of the two sides' differences), where one counts, that side's difference, in units of 1 / `unit`
+    pixels; then the observed centre moved into the map minus the landmark's, in units of 1 / `weights[0]` metres
     (zeros at 0)."""
     u0, v0, u1, v1 = _outline(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2])
-    scale, centre, size_weight = weights[0], weights[1], weights[2]
+    scale, centre, size_weight = unit, weights[0], weights[1]
     for axis in range(2):
         low, high = (u0, u1) if axis == 0 else (v0, v1)
         first, second = (low - box[axis]) * scale, (high - box[axis + 2]) * scale

@@ -140,13 +140,13 @@ class PoseConfig:
     box_refine_scale: float = ranged(10.0, 1e-3, 1e4)  # pixels: a box side this far off costs Cauchy's knee
     # metres (0 = boxes alone): each pair's observed centre off its landmark's by this costs as much, a prior that
     # keeps the boxes from pulling the pose where the centres it was fitted to disagree
-    box_refine_centre_m: float = ranged(0.0, 0.0, 100.0)
+    box_refine_centre_m: float = ranged(0.05, 0.0, 100.0)
     # the weight of a box's size beside its offset (1: the four sides alike): a map ellipsoid's outline is smaller
     # than its object's box, so the size pulls the camera nearer
     box_refine_size_weight: float = ranged(1.0, 0.0, 10.0)
     # a fraction (0 = pixels alone): a box's residuals in units of sqrt(scale^2 + (this * its diagonal)^2) pixels:
     # a large object's ellipsoid misses its box by more pixels than a small one's
-    box_refine_relative: float = ranged(0.0, 0.0, 10.0)
+    box_refine_relative: float = ranged(0.1, 0.0, 10.0)
 
 
 @dataclass

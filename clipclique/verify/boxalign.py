@@ -25,6 +25,7 @@ MAX_MOVE_M = 1.0  # a refinement that moves the camera farther has found another
 MAX_TURN_RAD = np.deg2rad(20.0)
 BORDER_PX = 2.0  # a detection box side this close to the image border is cut by it
 STEP = 1e-6  # radians / metres: the forward differences' step
+CONVERGED = 1e-5  # radians / metres: a step this small ends the refinement
 DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal matrix's diagonal
 
 
@@ -61,15 +62,15 @@ def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, 
 
 
 class Problem:
-    """The pairs of the hypotheses that have at least 3 with a box: their landmarks (as columns of one
-    projection), detection boxes and which sides count."""
+    """The pairs of the hypotheses that have at least 3 with a box: their landmarks, detection boxes, which sides
+    count and observed centres."""
 
     def __init__(self, rows: np.ndarray, owner: np.ndarray, column: np.ndarray, centers: np.ndarray,
                  spread: np.ndarray, boxes: np.ndarray, sides: np.ndarray, seen: np.ndarray) -> None:
         self.rows = rows  # (H,) the hypotheses refined
         self.owner = owner  # (P,) 0..H-1 the refined hypothesis of each pair
-        self.column = column  # (P,) the pair's landmark among the projected ones
-        self.centers, self.spread = centers, spread  # (U, 3), (U, 9) the landmarks projected
+        self.column = column  # (P,) the pair's landmark
+        self.centers, self.spread = centers, spread  # (N, 3), (N, 9) the map's centres and spreads
         self.boxes = boxes  # (P, 4) the detection boxes
         self.sides = sides  # (P, 4) float, 1 where the side counts, 0 where the image border cut it
         self.seen = seen  # (P, 3) the observed centres (camera frame)
@@ -79,27 +80,24 @@ def _problem(hypotheses: list[Hypothesis], observations: Observations, map: Map,
              map_spreads: np.ndarray | None) -> Problem | None:
     """The `Problem` of the hypotheses' correspondences whose observation has a box (None: no hypothesis
     has 3)."""
-    has_box = np.ones(len(observations), bool) if observations.has_box is None else observations.has_box
-    pairs, owners, rows = [], [], []
-    for row, h in enumerate(hypotheses):
-        corr = np.asarray(h.correspondences, np.int64).reshape(-1, 2)
-        corr = corr[has_box[corr[:, 0]]]
-        if len(corr) >= 3:
-            pairs.append(corr)
-            owners.append(np.full(len(corr), len(rows)))
-            rows.append(row)
-    if not rows:
+    counts = np.array([len(h.correspondences) for h in hypotheses])
+    pairs = np.concatenate([np.asarray(h.correspondences, np.int64).reshape(-1, 2) for h in hypotheses])
+    owner = np.repeat(np.arange(len(hypotheses)), counts)
+    if observations.has_box is not None:
+        boxed = observations.has_box[pairs[:, 0]]
+        pairs, owner = pairs[boxed], owner[boxed]
+    enough = np.bincount(owner, minlength=len(hypotheses)) >= 3
+    if not enough.any():
         return None
-    pairs, owner = np.concatenate(pairs), np.concatenate(owners)
-    landmarks, column = np.unique(pairs[:, 1], return_inverse=True)
+    kept = enough[owner]
+    pairs, renumber = pairs[kept], np.cumsum(enough) - 1
     camera = observations.camera
     boxes = np.asarray(observations.boxes, np.float64)[pairs[:, 0]]
-    limits = np.array([0.0, 0.0, camera.width, camera.height])
-    sides = (np.abs(boxes - limits) > BORDER_PX).astype(np.float64)
+    sides = (np.abs(boxes - np.array([0.0, 0.0, camera.width, camera.height])) > BORDER_PX).astype(np.float64)
     every = spreads(map.ellipsoids) if map_spreads is None else map_spreads
-    return Problem(np.array(rows), owner, column.reshape(-1), np.ascontiguousarray(map.ellipsoids.centers[landmarks]),
-                   np.ascontiguousarray(every[landmarks]), boxes, sides,
-                   np.ascontiguousarray(observations.ellipsoids.centers[pairs[:, 0]], np.float64))
+    return Problem(np.flatnonzero(enough), renumber[owner[kept]], pairs[:, 1],
+                   np.ascontiguousarray(map.ellipsoids.centers, np.float64), np.ascontiguousarray(every, np.float64),
+                   boxes, sides, np.ascontiguousarray(observations.ellipsoids.centers[pairs[:, 0]], np.float64))
 
 
 def solve(problem: Problem, rotations: np.ndarray, translations: np.ndarray, steps: int, scale: float,
@@ -146,6 +144,8 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
             for i in range(6):
                 damped[i, i] += damping * max(normal[i, i], 1e-12)
             delta = -np.linalg.solve(damped, gradient)
+            if np.abs(delta).max() < CONVERGED:
+                break
             trial_rot, trial_trans = _moved_one(rot, trans, delta)
             trial_cost, trial_usable, trial_normal, trial_gradient = _linearized(
                 c, s, box, side, unit, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,

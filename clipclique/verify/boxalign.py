@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from scipy.spatial.transform import Rotation
 
 from clipclique.types import Camera, Hypothesis, Map, Observations, Pose
 from clipclique.verify.projection import _projected, spreads
@@ -201,12 +202,15 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
     residuals (IRLS), J by forward differences."""
     moves = 7 if jacobian else 1
     rots, trans = np.empty((moves, 3, 3)), np.empty((moves, 3))
-    delta = np.zeros(6)
-    rots[0], trans[0] = rotation, translation
-    for m in range(1, moves):
-        delta[:] = 0.0
-        delta[m - 1] = STEP
-        rots[m], trans[m] = _moved_one(rotation, translation, delta)
+    for m in range(moves):
+        rots[m], trans[m] = rotation, translation
+    if jacobian:
+        for axis in range(3):  # R exp([STEP e_axis]) and t + STEP R e_axis, without a matrix allocated each
+            for i in range(3):
+                for j in range(3):
+                    rots[1 + axis, i, j] = (rotation[i, 0] * _TURNS[axis, 0, j] + rotation[i, 1] * _TURNS[axis, 1, j]
+                                            + rotation[i, 2] * _TURNS[axis, 2, j])
+                trans[4 + axis, i] += STEP * rotation[i, axis]
     conics, _, _, _, full_areas = _projected(centers, spread, rots, trans, intrinsics, width, height, max_depth)
     size = len(centers)
     residual = np.zeros((moves, size, RESIDUALS))
@@ -235,6 +239,7 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
     return cost, usable, normal, gradient
 
 
+_TURNS = np.array([Rotation.from_rotvec(STEP * axis).as_matrix() for axis in np.eye(3)])  # exp([STEP e_i])
 RESIDUALS = 7  # per pair: four of the box, three of the centre
 
 

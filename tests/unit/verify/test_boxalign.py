@@ -90,7 +90,9 @@ def test_a_side_cut_by_the_image_border_is_left_out():
     assert pose_errors(refined.pose, truth)[0] < 0.05
 
 
-def test_in_localize_the_lever_at_0_changes_nothing_and_on_it_sharpens_the_top_pose():
+def test_in_localize_the_lever_at_0_changes_nothing_and_on_it_sharpens_the_top_pose(monkeypatch):
+    """Eight objects whose observed centres carry 3 cm of noise, their boxes exact. At 0 the refinement is
+    never called (so the results are those of the pipeline without it)."""
     map, observations, truth = desk(count=8, seed=5)
     rng = np.random.default_rng(6)
     noisy = Observations(Ellipsoids(observations.ellipsoids.centers + rng.normal(scale=0.03, size=(8, 3)),
@@ -98,14 +100,23 @@ def test_in_localize_the_lever_at_0_changes_nothing_and_on_it_sharpens_the_top_p
                          observations.class_ids, None, observations.instance_ids, observations.detection_index,
                          boxes=observations.boxes, camera=CAMERA)
     results = {}
-    for name, overrides in {"default": {}, "off": {"pose.box_refine_steps": 0},
-                            "on": {"pose.box_refine_steps": 5}}.items():
+    for name, overrides in {"off": {"pose.box_refine_steps": 0}, "prior": {"pose.box_refine_steps": 3},
+                            "on": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.0}}.items():
         config = make_config("clipclique", overrides={"similarity.alpha": 0.0} | overrides)
         results[name] = localize(noisy, index_map(map, config), config)
-    default, off, on = (results[name].hypotheses for name in ("default", "off", "on"))
-    assert len(default) == len(off) == len(on) > 0
-    for a, b in zip(default, off):
+    config = make_config("clipclique", overrides={"similarity.alpha": 0.0, "pose.box_refine_steps": 0})
+
+    def never(*args, **kwargs):
+        raise AssertionError("box refinement called with pose.box_refine_steps = 0")
+
+    monkeypatch.setattr(boxalign, "refined", never)
+    untouched = localize(noisy, index_map(map, config), config).hypotheses
+    off, prior, on = (results[name].hypotheses for name in ("off", "prior", "on"))
+    assert len(untouched) == len(off) == len(prior) == len(on) > 0
+    for a, b in zip(untouched, off):
         assert np.array_equal(a.pose.matrix(), b.pose.matrix()) and np.array_equal(a.correspondences, b.correspondences)
         assert a.verification == b.verification
-    assert pose_errors(on[0].pose, truth)[0] < 0.5 * pose_errors(default[0].pose, truth)[0]
-    assert pose_errors(on[0].pose, truth)[0] < 0.01
+    before = pose_errors(off[0].pose, truth)[0]
+    assert before > 0.03
+    assert pose_errors(prior[0].pose, truth)[0] < 0.75 * before  # the noisy centres' prior holds it back a little
+    assert pose_errors(on[0].pose, truth)[0] < 0.01  # the exact boxes alone

@@ -44,22 +44,38 @@ def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, 
     sqrt(scale^2 + (relative * its diagonal)^2) pixels (a large object's ellipsoid misses its box by more pixels)."""
     if steps <= 0 or not hypotheses or observations.boxes is None or observations.camera is None:
         return hypotheses
-    problem = _problem(hypotheses, observations, map, map_spreads)
+    distinct, of = _distinct(hypotheses)
+    problem = _problem(distinct, observations, map, map_spreads)
     if problem is None:
         return hypotheses
-    rotations = np.array([h.pose.rotation for h in hypotheses], np.float64)[problem.rows]
-    translations = np.array([h.pose.translation for h in hypotheses], np.float64)[problem.rows]
+    rotations = np.array([h.pose.rotation for h in distinct], np.float64)[problem.rows]
+    translations = np.array([h.pose.translation for h in distinct], np.float64)[problem.rows]
     new_rotations, new_translations, start, end = solve(problem, rotations, translations, steps, scale,
                                                         observations.camera, centre_m, size_weight, relative)
     turn = np.arccos(np.clip((np.einsum("hij,hij->h", rotations, new_rotations) - 1) / 2, -1.0, 1.0))
     move = np.linalg.norm(new_translations - translations, axis=1)
     better = (end < start) & (move < MAX_MOVE_M) & (turn < MAX_TURN_RAD)
+    poses = {problem.rows[i]: Pose(new_rotations[i], new_translations[i]) for i in np.flatnonzero(better).tolist()}
     out = list(hypotheses)
-    for i in np.flatnonzero(better).tolist():
-        h = hypotheses[problem.rows[i]]
-        out[problem.rows[i]] = Hypothesis(Pose(new_rotations[i], new_translations[i]), h.correspondences, h.score,
-                                          h.conditioning, h.verification, h.confidence)
+    for row, h in enumerate(hypotheses):
+        if of[row] in poses:
+            out[row] = Hypothesis(poses[of[row]], h.correspondences, h.score, h.conditioning, h.verification,
+                                  h.confidence)
     return out
+
+
+def _distinct(hypotheses: list[Hypothesis]) -> tuple[list[Hypothesis], list[int]]:
+    """The hypotheses with distinct poses and correspondences, first first, and which of them each one is: two
+    in three of a frame's kept hypotheses repeat one before them (cliques refitted to the same pairs)."""
+    first: dict[tuple[bytes, bytes, bytes], int] = {}
+    distinct, of = [], []
+    for h in hypotheses:
+        key = (h.pose.rotation.tobytes(), h.pose.translation.tobytes(), np.asarray(h.correspondences).tobytes())
+        if key not in first:
+            first[key] = len(distinct)
+            distinct.append(h)
+        of.append(first[key])
+    return distinct, of
 
 
 class Problem:

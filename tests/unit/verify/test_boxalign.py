@@ -120,3 +120,16 @@ def test_in_localize_the_lever_at_0_changes_nothing_and_on_it_sharpens_the_top_p
     assert before > 0.03
     assert pose_errors(prior[0].pose, truth)[0] < 0.75 * before  # the noisy centres' prior holds it back a little
     assert pose_errors(on[0].pose, truth)[0] < 0.01  # the exact boxes alone
+
+
+def test_a_repeated_hypothesis_is_refined_once_and_alike():
+    map, observations, truth = desk()
+    pairs = np.column_stack((np.arange(4), np.arange(4)))
+    start, other = perturbed(truth), perturbed(truth, seed=2)
+    copy = Pose(start.rotation.copy(), start.translation.copy())
+    hypotheses = [Hypothesis(start, pairs, 4.0, verification=3.0), Hypothesis(other, pairs, 4.0),
+                  Hypothesis(copy, pairs.copy(), 3.0, verification=2.0)]
+    assert len(boxalign._distinct(hypotheses)[0]) == 2
+    first, second, again = boxalign.refined(hypotheses, observations, map, steps=15, scale=10.0)
+    assert np.array_equal(first.pose.matrix(), again.pose.matrix()) and pose_errors(first.pose, truth)[0] < 0.05
+    assert again.score == 3.0 and again.verification == 2.0 and pose_errors(second.pose, truth)[0] < 0.05

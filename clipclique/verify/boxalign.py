@@ -20,7 +20,15 @@ from numba import njit
 from scipy.spatial.transform import Rotation
 
 from clipclique.types import Camera, Hypothesis, Map, Observations, Pose
-from clipclique.verify.projection import _projected, spreads
+from clipclique.verify.projection import (
+    _conic_entries_into,
+    _image_row_into,
+    _in_front,
+    _kron,
+    _term_row_into,
+    _views,
+    spreads,
+)
 
 MAX_MOVE_M = 1.0  # a refinement that moves the camera farther has found another pose, not refined this one
 MAX_TURN_RAD = np.deg2rad(20.0)
@@ -138,7 +146,7 @@ def solve(problem: Problem, rotations: np.ndarray, translations: np.ndarray, ste
 def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rotations, translations, steps, weights,
            intrinsics, width, height, max_depth):
     """`solve`, compiled: per hypothesis, each step projects its current pose and 6 perturbations of it
-    (projection's `_projected`, one call) for the Jacobian; a step that raised the cost is undone and the damping
+    (`_entries`) for the Jacobian; a step that raised the cost is undone and the damping
     raised tenfold, one that lowered it kept and the damping cut tenfold (a few numpy calls per step would cost
     more than the arithmetic of a frame's five hypotheses)."""
     count = len(rotations)
@@ -227,16 +235,17 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
                     rots[1 + axis, i, j] = (rotation[i, 0] * _TURNS[axis, 0, j] + rotation[i, 1] * _TURNS[axis, 1, j]
                                             + rotation[i, 2] * _TURNS[axis, 2, j])
                 trans[4 + axis, i] += STEP * rotation[i, axis]
-    conics, _, _, _, full_areas = _projected(centers, spread, rots, trans, intrinsics, width, height, max_depth)
+    entries = _entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rots, trans, intrinsics)
     size = len(centers)
     residual = np.zeros((moves, size, RESIDUALS))
     for m in range(moves):
         for n in range(size):
-            _residuals_into(conics[m, n], boxes[n], sides[n], units[n], seen[n], centers[n], rots[m], trans[m],
-                            weights, residual[m, n])
+            e = m * size + n
+            _residuals_into(entries[0, e], entries[1, e], entries[2, e], entries[3, e], entries[4, e], boxes[n],
+                            sides[n], units[n], seen[n], centers[n], rots[m], trans[m], weights, residual[m, n])
     usable = True
     for n in range(size):
-        usable = usable and full_areas[0, n] > 0
+        usable = usable and _in_front(entries[4, n], entries[5, n]) and entries[5, n] <= max_depth
     cost = 0.0
     normal, gradient = np.zeros((6, 6)), np.zeros(6)
     column = np.empty(6)
@@ -255,18 +264,36 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
     return cost, usable, normal, gradient
 
 
+@njit(cache=True)
+def _entries(centers_t, spread_t, rotations, translations, intrinsics):
+    """(6, B * N) the dual conic entries a box reads (C*11, C*13, C*22, C*23, C*33) and the centre's depth of N
+    landmarks (centres (3, N), spreads (9, N)) under B poses, pose after pose: projection's `_visible_boxes`
+    without its boxes, by its own compiled pieces."""
+    count, size = len(rotations), centers_t.shape[1]
+    view = _views(rotations, intrinsics)
+    kron = _kron(view).reshape(count, 9, 9)
+    entries, image, product = np.empty((6, count * size)), np.empty((3, size)), np.empty((5, size))
+    for b in range(count):
+        for i in range(3):
+            _image_row_into(centers_t, translations, view, b, i, image[i])
+        for r, row in enumerate((0, 2, 4, 5, 8)):
+            _term_row_into(spread_t, kron, b, row, product[r])
+        _conic_entries_into(image, product, entries[:, b * size: (b + 1) * size])
+    return entries
+
+
 _TURNS = np.array([Rotation.from_rotvec(STEP * axis).as_matrix() for axis in np.eye(3)])  # exp([STEP e_i])
 RESIDUALS = 7  # per pair: four of the box, three of the centre
 
 
 @njit(cache=True, inline="always")
-def _residuals_into(conic, box, sides, unit, seen, center, rotation, translation, weights, out):
+def _residuals_into(c11, c13, c22, c23, c33, box, sides, unit, seen, center, rotation, translation, weights, out):
     """One pair's residuals under one pose: along each image axis, where both sides count, the outline box's offset
     from the detection box and (times `weights[1]`) its size's difference, both over sqrt 2 (at weight 1 the sum of
     squares of the two sides' differences), where one counts, that side's difference, in units of 1 / `unit`
     pixels; then the observed centre moved into the map minus the landmark's, in units of 1 / `weights[0]` metres
     (zeros at 0)."""
-    u0, v0, u1, v1 = _outline(conic[0, 0], conic[0, 2], conic[1, 1], conic[1, 2], conic[2, 2])
+    u0, v0, u1, v1 = _outline(c11, c13, c22, c23, c33)
     scale, centre, size_weight = unit, weights[0], weights[1]
     for axis in range(2):
         low, high = (u0, u1) if axis == 0 else (v0, v1)

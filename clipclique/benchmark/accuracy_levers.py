@@ -66,7 +66,7 @@ LEVERS: dict[str, dict[str, Any]] = {
     "box refinement, centres 2 cm": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.02},
     "box refinement, centres 10 cm": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.1},
     "box refinement, pixels alone": {"pose.box_refine_steps": 3, "pose.box_refine_relative": 0.0},
-    "box refinement, 5 px": {"pose.box_refine_steps": 3, "pose.box_refine_scale": 5.0},
+    "box refinement, 10 px": {"pose.box_refine_steps": 3, "pose.box_refine_scale": 10.0},
     "box refinement, size 0.3": {"pose.box_refine_steps": 3, "pose.box_refine_size_weight": 0.3},
 }
 

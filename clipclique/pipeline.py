@@ -21,8 +21,9 @@ each pose is refitted with every observation it brings near a similar landmark (
 clipclique.pose.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
 detected twice with two classes) never enter one clique together; adaptive matching also keeps each observation's
 best landmarks of its look-alike classes (`matching.lookalike_candidates`), and with re-ranking each clique holding
-such a pair is also fitted without it. Missing CLIP embeddings make "fused" fall back to SH only (a note
-says so) and make "clip" a ClipcliqueError.
+such a pair is also fitted without it. Off by default, the kept hypotheses' poses can then be aligned with the
+detection boxes (`pose.box_refine_steps`, clipclique.verify.boxalign). Missing CLIP embeddings make "fused" fall back
+to SH only (a note says so) and make "clip" a ClipcliqueError.
 """
 
 from __future__ import annotations

@@ -34,8 +34,8 @@ DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 # landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers. The third
 # round's starting point is "no missed share" (each missed landmark costing alike however many the pose expects).
 # The look-alike candidates (the third round's matching lever) are off in "previous" and "before";
-# "no look-alike candidates" is today's without them. So is the box refinement (issue 37): "no box refinement"
-# is today's without it; the other "box refinement" rows change one of its settings.
+# "no look-alike candidates" is today's without them. The box refinement (issue 37, off by default): "box
+# refinement" turns it on with its other keys' defaults; the other "box refinement" rows change one of them.
 PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0,
             "matching.lookalike_candidates": 0, "pose.box_refine_steps": 0}
 BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
@@ -58,7 +58,7 @@ LEVERS: dict[str, dict[str, Any]] = {
     "look-alike candidates 3": {"matching.lookalike_candidates": 3},
     "look-alike candidates, any size": {"matching.lookalike_size_ratio": 1000.0},
     # issue 37: the kept hypotheses' poses aligned with the detection boxes (clipclique.verify.boxalign)
-    "no box refinement": {"pose.box_refine_steps": 0},
+    "box refinement": {"pose.box_refine_steps": 3},
     "box refinement 5 steps": {"pose.box_refine_steps": 5},
     "box refinement, boxes alone": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.0,
                                     "pose.box_refine_relative": 0.0},

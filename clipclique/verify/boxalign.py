@@ -2,15 +2,19 @@
 
 Three or four partly seen objects a few decimetres apart fix a pose poorly by their centres (a clique's
 fit, clipclique.pose.refine), but the detector's boxes are sharp: a degree of rotation moves every box
-by pixels. As OA-SLAM and GOReloc do, each correspondence (observation with a box, landmark) gives four
-residuals, the landmark's projected outline box (the tangent lines of its dual conic,
-clipclique.verify.projection) minus the detection box, in units of `scale` pixels; a side of a
-detection box cut by the image border says nothing of where the object ends and is left out, and so
-is a pair whose landmark reaches behind the camera at the start. A few Levenberg-Marquardt steps on a
-Cauchy loss (a wrong pair or a badly fitted ellipsoid pulls little) move the pose from where the clique
-left it: a rotation vector and a translation in the camera's frame, the Jacobian by forward differences
-of one projection of the pose and its 6 perturbations. The refined pose is kept only where its robust
-cost fell and it moved less than MAX_MOVE_M and MAX_TURN_RAD; otherwise the clique's pose stays.
+by pixels. As OA-SLAM and GOReloc do, each correspondence (observation with a box, landmark) gives
+residuals of the landmark's projected outline box (the tangent lines of its dual conic,
+clipclique.verify.projection) against the detection box: along each image axis its offset and its size
+difference, in units that grow with the box (a map ellipsoid's outline misses a table's box by tens of
+pixels, a cup's by two); a side of a detection box cut by the image border says nothing of where the
+object ends and is left out, and a pair whose landmark reaches behind the camera at the start leaves the
+pose alone. The outline is not the object's box, so the boxes alone would pull a pose of 3-4 pairs to
+where those misfits agree: each pair's observed centre against its landmark's stays in the cost as a
+prior. A few Levenberg-Marquardt steps on a Cauchy loss (a wrong pair pulls little) move the pose from
+where the clique left it: a rotation vector and a translation in the camera's frame, the Jacobian by
+forward differences of one projection of the pose and its 6 perturbations. The refined pose is kept only
+where its robust cost fell and it moved less than MAX_MOVE_M and MAX_TURN_RAD; otherwise the clique's
+pose stays. Measured in docs/methods.md ("precision from the detection boxes").
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from clipclique.verify.projection import (
 MAX_MOVE_M = 1.0  # a refinement that moves the camera farther has found another pose, not refined this one
 MAX_TURN_RAD = np.deg2rad(20.0)
 BORDER_PX = 2.0  # a detection box side this close to the image border is cut by it
+MIN_PAIRS = 3  # a hypothesis with fewer pairs with a box keeps its pose
 STEP = 1e-6  # radians / metres: the forward differences' step
 CONVERGED = 1e-5  # radians / metres: a step this small ends the refinement
 DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal matrix's diagonal
@@ -111,7 +116,7 @@ def _problem(hypotheses: list[Hypothesis], observations: Observations, map: Map,
     if observations.has_box is not None:
         boxed = observations.has_box[pairs[:, 0]]
         pairs, owner = pairs[boxed], owner[boxed]
-    enough = np.bincount(owner, minlength=len(hypotheses)) >= 3
+    enough = np.bincount(owner, minlength=len(hypotheses)) >= MIN_PAIRS
     if not enough.any():
         return None
     kept = enough[owner]

@@ -41,7 +41,8 @@ def ranged(default: Any, low: float, high: float) -> Any:
 @dataclass
 class GraphConfig:
     d_adj: float = ranged(0.8, 1e-6, 100.0)  # metres: landmarks closer than this are neighbours
-    max_degree: int = ranged(64, 1, 10_000)  # neighbours kept per node at most (memory bound; real scenes stay under ~30)
+    # neighbours kept per node at most (memory bound; real scenes stay under ~30)
+    max_degree: int = ranged(64, 1, 10_000)
     # Semantic Histogram path length s (nodes per walk). Walks grow as degree^(s-1) and codes as
     # C^s: s = 5 is beyond the paper's 3 and safe.
     walk_length: int = ranged(3, 1, 5)
@@ -108,7 +109,8 @@ class InlierConfig:
     max_cliques: int = ranged(100_000, 1, 10_000_000)  # enumeration stops here and says so
     time_limit_s: float = ranged(1.0, 1e-6, 3600.0)  # enumeration stops here and says so
     ransac_iterations: int = ranged(1000, 1, 10_000_000)
-    inlier_threshold: float = ranged(0.5, 1e-6, 100.0)  # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
+    # metres: RANSAC/PROSAC centre residual to count as inlier (centers)
+    inlier_threshold: float = ranged(0.5, 1e-6, 100.0)
     seed: int = ranged(0, 0, 2**63 - 1)
     verification: Verification = "overlap"  # RANSAC/PROSAC: projected box overlap (the paper) or 3D centre distance
     iou_threshold: float = ranged(0.3, 0.0, 1.0)  # RANSAC/PROSAC overlap verification: box IoU to count as inlier
@@ -155,10 +157,12 @@ class PoseConfig:
 class VerificationConfig:
     """Image verification of every hypothesis (clipclique.verify.verification)."""
 
-    depth_tolerance: float = ranged(0.5, 1e-6, 100.0)  # metres: depth disagreement at which an overlap counts for nothing
+    # metres: depth disagreement at which an overlap counts for nothing
+    depth_tolerance: float = ranged(0.5, 1e-6, 100.0)
     missed_weight: float = ranged(0.25, 0.0, 100.0)  # a missed landmark costs a quarter of a perfect overlap
     min_visible_pixels: int = ranged(1500, 0, 100_000_000)  # projected boxes smaller than this may well go undetected
-    explained_iou: float = ranged(0.1, 0.0, 1.0)  # a detection of the landmark's class overlapping this much explains it
+    # a detection of the landmark's class overlapping this much explains it
+    explained_iou: float = ranged(0.1, 0.0, 1.0)
     # Beyond the first verification (0 = each missed landmark costs missed_weight): a missed landmark costs in
     # full when its projected box covers this fraction of the image (a sixteenth: 160 x 120 of 640 x 480), in
     # proportion when smaller. Detectors miss small objects most (a cluttered desk's right pose misses a score
@@ -167,7 +171,8 @@ class VerificationConfig:
     # Beyond the paper (0 = off: each missed landmark costs alike however many the pose expects): where a pose
     # expects more than this much evidence (its landmarks in view counted by size, as missed ones are), its
     # missed evidence is scaled by this / expected: it pays for the share it missed. A cluttered desk's right
-    # pose misses a dozen small objects, a wrong one looking past the desk a few (clipclique/benchmark/accuracy_levers.py).
+    # pose misses a dozen small objects, a wrong one looking past the desk a few
+    # (clipclique/benchmark/accuracy_levers.py).
     missed_share_from: float = ranged(3.0, 0.0, 1000.0)
 
 
@@ -248,7 +253,8 @@ METHOD_PRESETS: dict[str, dict[str, Any]] = {
     },
 }
 
-METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View", "cliploc": "CLIP-Loc"}
+METHOD_TITLES = {"clipclique": "CLIP-Clique", "clipclique-paper": "CLIP-Clique (paper)", "sh": "SH", "xview": "X-View",
+                 "cliploc": "CLIP-Loc"}
 
 
 def method_key(name: str) -> str:

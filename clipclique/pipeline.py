@@ -37,19 +37,19 @@ import scipy.sparse as sp
 from numba import njit
 from scipy.spatial import cKDTree
 
+from clipclique.config import LocalizationConfig
 from clipclique.descriptors import graph, lookalikes, matching, similarity
+from clipclique.errors import ClipcliqueError
 from clipclique.inliers import cliquesearch, compatibility, consensus, regions
 from clipclique.inliers.cliquesearch import sort_span
 from clipclique.multiframe import mapalign
-from clipclique.pose import refine
-from clipclique.verify import boxalign, confidence, projection, verification
-from clipclique.config import LocalizationConfig
-from clipclique.errors import ClipcliqueError
 from clipclique.outcomes import PIPELINE_STAGES, CapHit, Failure, FailureKind, LocalizationResult, Stage
+from clipclique.pose import refine
 from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
-from clipclique.verify.projection import pair_iou
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations
+from clipclique.verify import boxalign, confidence, projection, verification
+from clipclique.verify.projection import pair_iou
 
 
 @dataclass(kw_only=True)
@@ -63,12 +63,16 @@ class MapIndex:
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
     text_embeddings: np.ndarray | None = None  # (N, D) float64 copy of map.text_embeddings, made once, not per frame
     class_kernel: sp.csr_matrix | None = None  # (C, C) class similarity (lookalikes.class_kernel)
-    class_distributions: sp.csr_matrix | None = None  # (N, C) the map's soft classes, when similarity.soft_classes uses them
+    # (N, C) the map's soft classes, when similarity.soft_classes uses them
+    class_distributions: sp.csr_matrix | None = None
     histograms_by_bin: sp.csr_matrix | None = None  # (C^s, N) the histograms transposed (similarity.by_bin)
-    kernel_by_landmark: np.ndarray | None = None  # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
+    # (C, N) class_kernel to each landmark's class (similarity.kernel_columns)
+    kernel_by_landmark: np.ndarray | None = None
     capped_nodes: int = 0  # landmarks that lost neighbours to graph.max_degree
-    landmark_tree: cKDTree | None = None  # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
-    class_groups: matching.ClassGroups | None = None  # landmarks by class, look-alike classes (matching.lookalike_candidates)
+    # the map's centres, for pose refinement's nearby landmarks (refine.nearby_pairs)
+    landmark_tree: cKDTree | None = None
+    # landmarks by class, look-alike classes (matching.lookalike_candidates)
+    class_groups: matching.ClassGroups | None = None
     spreads: np.ndarray | None = None  # (N, 9) the landmarks' spreads, verification's map side (projection.spreads)
 
 
@@ -113,7 +117,8 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
-    candidates, candidate_scores, added = matching.match(scores, config.matching, _lookalikes(observations, index, config))
+    candidates, candidate_scores, added = matching.match(scores, config.matching,
+                                                         _lookalikes(observations, index, config))
     split = _split(observations, index.map, candidates, candidate_scores, config)
     kept = matching.best_rows(candidate_scores, config.matching.max_candidates) if split is None else split.kept
     capped = kept is not None if split is None else split.capped
@@ -237,7 +242,8 @@ def _histogram_similarity(
     if weight == 0:
         return sh
     if index.class_distributions is not None:
-        classes = similarity.soft_class_similarity(observations.class_ids, index.class_kernel, index.class_distributions)
+        classes = similarity.soft_class_similarity(observations.class_ids, index.class_kernel,
+                                                   index.class_distributions)
         return similarity.with_class_term(sh, classes, np.arange(len(classes)), weight)
     return similarity.with_class_term(sh, index.kernel_by_landmark, observations.class_ids, weight)
 
@@ -286,7 +292,8 @@ def _check_observations(observations: Observations, map: Map) -> None:
 
 
 @njit(cache=True)
-def _valid(class_ids: np.ndarray, num_classes: int, centers: np.ndarray, axes: np.ndarray, rotations: np.ndarray) -> bool:
+def _valid(class_ids: np.ndarray, num_classes: int, centers: np.ndarray, axes: np.ndarray,
+           rotations: np.ndarray) -> bool:
     """Whether `_check_observations` passes: one compiled pass where its min, max and three finite tests were
     some ten numpy calls a query (its numpy code then only explains a failure)."""
     for class_id in class_ids:
@@ -548,8 +555,9 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
         config.pose.weights)
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     if _usable(ok, weights, measure, float(config.pose.min_conditioning)):  # nearly always: the arrays as they are
-        return Stack(rotations=rotation, translations=translation, pairs=pairs, counts=sizes.astype(np.int64, copy=False),
-                     scores=np.asarray(scores, np.float64), conditioning=measure)
+        return Stack(rotations=rotation, translations=translation, pairs=pairs,
+                     counts=sizes.astype(np.int64, copy=False), scores=np.asarray(scores, np.float64),
+                     conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
 
@@ -597,7 +605,8 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
     kept = None
     if config.inliers.rerank != "none":
         if config.inliers.rerank == "confidence" and probability is None:
-            raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
+            raise ClipcliqueError(
+                "inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
         kept = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[: config.top_n]
     result.hypotheses = pool.hypotheses(kept, checked.score, probability)
@@ -611,7 +620,8 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
                                      best_confidence=best)
 
 
-def _with_boxes(observations: Observations, pool: Stack, similarity: np.ndarray) -> tuple[Observations, Stack, np.ndarray]:
+def _with_boxes(observations: Observations, pool: Stack,
+                similarity: np.ndarray) -> tuple[Observations, Stack, np.ndarray]:
     """What verification and confidence may read: the observations with a box in the query image, each
     hypothesis with its correspondences among them (renumbered), and their rows of the similarity.
     Unchanged when every observation has a box (a single frame)."""

@@ -138,8 +138,8 @@ class PoseConfig:
     # Beyond the paper (0 = off): Levenberg-Marquardt steps aligning each kept hypothesis's landmarks, projected
     # as conics, with its observations' detection boxes (clipclique.verify.boxalign): a few partly seen objects fix
     # a pose loosely by their centres, their boxes sharply. A pose is kept only where its robust cost fell. At 3,
-    # top-1 within 0.05 m gains 10-29 points on the generated scenes, but demo loses 4 frames of 60 at 0.25 m
-    # (large objects whose ellipsoids miss their boxes): off (docs/methods.md, clipclique/benchmark/accuracy_levers.py).
+    # top-1 within 0.05 m gains 8-29 points on five generated scenes of six, but demo loses 2-3 frames of 120 at
+    # 0.25-0.5 m (large objects whose ellipsoids miss their boxes): off (docs/methods.md, benchmark/accuracy_levers.py).
     box_refine_steps: int = ranged(0, 0, 50)
     box_refine_scale: float = ranged(5.0, 1e-3, 1e4)  # pixels: a box side this far off costs Cauchy's knee
     # metres (0 = boxes alone): each pair's observed centre off its landmark's by this costs as much, a prior that

@@ -135,6 +135,22 @@ class PoseConfig:
     # Beyond the paper (0 = off): metres; each pose refitted with every observation it moves this
     # close to a landmark it is similar to (clipclique.pose.refine)
     refine_radius: float = ranged(0.3, 0.0, 10.0)
+    # Beyond the paper (0 = off): Levenberg-Marquardt steps aligning each kept hypothesis's landmarks, projected
+    # as conics, with its observations' detection boxes (clipclique.verify.boxalign): a few partly seen objects fix
+    # a pose loosely by their centres, their boxes sharply. A pose is kept only where its robust cost fell. At 3,
+    # top-1 within 0.05 m gains 8-29 points on five generated scenes of six, but demo loses 2-3 frames of 120 at
+    # 0.25-0.5 m (large objects whose ellipsoids miss their boxes): off (docs/methods.md, benchmark/accuracy_levers.py).
+    box_refine_steps: int = ranged(0, 0, 50)
+    box_refine_scale: float = ranged(5.0, 1e-3, 1e4)  # pixels: a box side this far off costs Cauchy's knee
+    # metres (0 = boxes alone): each pair's observed centre off its landmark's by this costs as much, a prior that
+    # keeps the boxes from pulling the pose where the centres it was fitted to disagree
+    box_refine_centre_m: float = ranged(0.05, 0.0, 100.0)
+    # the weight of a box's size beside its offset (1: the four sides alike): a map ellipsoid's outline is smaller
+    # than its object's box, so the size pulls the camera nearer
+    box_refine_size_weight: float = ranged(1.0, 0.0, 10.0)
+    # a fraction (0 = pixels alone): a box's residuals in units of sqrt(scale^2 + (this * its diagonal)^2) pixels:
+    # a large object's ellipsoid misses its box by more pixels than a small one's
+    box_refine_relative: float = ranged(0.1, 0.0, 10.0)
 
 
 @dataclass
@@ -209,7 +225,7 @@ class LocalizationConfig:
 # The baselines keep the paper's literal descriptors (no class term, exact labels).
 LITERAL = {"similarity.class_weight": 0.0, "similarity.lookalike_weight": 0.0, "inliers.partial_slack": 0.0,
            "inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0,
-           "verification.missed_share_from": 0.0, "matching.lookalike_candidates": 0}
+           "verification.missed_share_from": 0.0, "matching.lookalike_candidates": 0, "pose.box_refine_steps": 0}
 
 METHOD_PRESETS: dict[str, dict[str, Any]] = {
     "clipclique": {},

@@ -21,8 +21,9 @@ each pose is refitted with every observation it brings near a similar landmark (
 clipclique.pose.refine), and two observations whose boxes overlap (`inliers.duplicate_iou`: one object
 detected twice with two classes) never enter one clique together; adaptive matching also keeps each observation's
 best landmarks of its look-alike classes (`matching.lookalike_candidates`), and with re-ranking each clique holding
-such a pair is also fitted without it. Missing CLIP embeddings make "fused" fall back to SH only (a note
-says so) and make "clip" a ClipcliqueError.
+such a pair is also fitted without it. Off by default, the kept hypotheses' poses can then be aligned with the
+detection boxes (`pose.box_refine_steps`, clipclique.verify.boxalign). Missing CLIP embeddings make "fused" fall back
+to SH only (a note says so) and make "clip" a ClipcliqueError.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from clipclique.pose import refine
 from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations
-from clipclique.verify import confidence, projection, verification
+from clipclique.verify import boxalign, confidence, projection, verification
 from clipclique.verify.projection import pair_iou
 
 
@@ -144,6 +145,11 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         pool = refine.refined(pool, observations, index.map, scores, config.pose.refine_radius, config.pose.weights,
                               landmarks=index.landmark_tree)[0]
     _verify(result, pool, observations, index, config)
+    if config.pose.box_refine_steps > 0 and result.hypotheses:
+        settings = config.pose
+        result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map, settings.box_refine_steps,
+                                             settings.box_refine_scale, index.spreads, settings.box_refine_centre_m,
+                                             settings.box_refine_size_weight, settings.box_refine_relative)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)
@@ -550,8 +556,8 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
     rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
     if _usable(ok, weights, measure, float(config.pose.min_conditioning)):  # nearly always: the arrays as they are
         return Stack(rotations=rotation, translations=translation, pairs=pairs,
-                     counts=sizes.astype(np.int64, copy=False),
-                     scores=np.asarray(scores, np.float64), conditioning=measure)
+                     counts=sizes.astype(np.int64, copy=False), scores=np.asarray(scores, np.float64),
+                     conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
 
@@ -599,8 +605,8 @@ def _verify(result: LocalizationResult, pool: Stack, observations: Observations,
     kept = None
     if config.inliers.rerank != "none":
         if config.inliers.rerank == "confidence" and probability is None:
-            raise ClipcliqueError("inliers.rerank = confidence needs a confidence model (none is "
-                                  "shipped in this build)")
+            raise ClipcliqueError(
+                "inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
         kept = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[: config.top_n]
     result.hypotheses = pool.hypotheses(kept, checked.score, probability)

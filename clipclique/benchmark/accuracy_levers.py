@@ -1,16 +1,18 @@
 """Accuracy levers side by side: each a config key, on the same cached observations of every realistic scene.
 
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers               # every lever, both descriptors, all scenes
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers --scenes demo_clutter --frames 40 \\
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers       # every lever, both descriptors, all scenes
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --scenes demo_clutter --frames 40 \
         --levers before "defaults (after)"
-    .venv/bin/python -m clipclique.benchmark.accuracy_levers --reference   # with the paper preset and the literal
-                                                                           # reference
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --reference  # with the paper preset, the literal reference
+    .venv/bin/python -m clipclique.benchmark.accuracy_levers --timing     # with the verification stage's median ms
 
 Each scene's frames go through the detector, the observation fit and the (simulated) CLIP once
 (clipclique.benchmark.suite's cache); every lever then localizes those observations, once with Semantic
 Histograms only (`similarity.alpha=0`) and once fused with the simulated CLIP. Printed as a
 markdown table: top-1 success within each of metrics.SUCCESS_THRESHOLDS_M, and top-5 within 1 m (what re-ranking
-could reach), per scene, descriptor and lever.
+could reach), per scene, descriptor and lever; with --timing also the median per frame of the verification stage
+(`LocalizationResult.timings`, which holds the box refinement too), one pass: on a shared machine compare rows
+run together.
 """
 
 from __future__ import annotations
@@ -25,9 +27,10 @@ import numpy as np
 from clipclique.benchmark import suite
 from clipclique.config import make_config
 from clipclique.metrics import SUCCESS_THRESHOLDS_M, evaluate_frame, success_within
+from clipclique.outcomes import Stage
 from clipclique.pipeline import index_map, localize
 
-SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum")
+SCENES = ("demo_apartment", "demo_desk", "demo_clutter", "demo", "demo_tum", "demo_sparse")
 DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 
 # Lever name -> config overrides on top of the defaults. "before" is every kept lever off (the
@@ -36,9 +39,10 @@ DESCRIPTORS = {"SH": {"similarity.alpha": 0.0}, "CLIP": {}}
 # landmark costing in full); "pool only" and "sized misses only" add one of its two kept levers. The third
 # round's starting point is "no missed share" (each missed landmark costing alike however many the pose expects).
 # The look-alike candidates (the third round's matching lever) are off in "previous" and "before";
-# "no look-alike candidates" is today's without them.
+# "no look-alike candidates" is today's without them. The box refinement (issue 37, off by default): "box
+# refinement" turns it on with its other keys' defaults; the other "box refinement" rows change one of them.
 PREVIOUS = {"inliers.rerank_pool": 5, "verification.missed_full_area": 0.0, "verification.missed_share_from": 0.0,
-            "matching.lookalike_candidates": 0}
+            "matching.lookalike_candidates": 0, "pose.box_refine_steps": 0}
 BEFORE = {"inliers.rerank": "none", "inliers.duplicate_iou": 0.0, "pose.refine_radius": 0.0} | PREVIOUS
 LEVERS: dict[str, dict[str, Any]] = {
     "before": BEFORE,
@@ -58,27 +62,43 @@ LEVERS: dict[str, dict[str, Any]] = {
     "look-alike candidates 1": {"matching.lookalike_candidates": 1},
     "look-alike candidates 3": {"matching.lookalike_candidates": 3},
     "look-alike candidates, any size": {"matching.lookalike_size_ratio": 1000.0},
+    # issue 37: the kept hypotheses' poses aligned with the detection boxes (clipclique.verify.boxalign)
+    "box refinement": {"pose.box_refine_steps": 3},
+    "box refinement 5 steps": {"pose.box_refine_steps": 5},
+    "box refinement, boxes alone": {"pose.box_refine_steps": 5, "pose.box_refine_centre_m": 0.0,
+                                    "pose.box_refine_relative": 0.0},
+    "box refinement, no centre prior": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.0},
+    "box refinement, centres 2 cm": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.02},
+    "box refinement, centres 10 cm": {"pose.box_refine_steps": 3, "pose.box_refine_centre_m": 0.1},
+    "box refinement, pixels alone": {"pose.box_refine_steps": 3, "pose.box_refine_relative": 0.0},
+    "box refinement, 10 px": {"pose.box_refine_steps": 3, "pose.box_refine_scale": 10.0},
+    "box refinement, size 0.3": {"pose.box_refine_steps": 3, "pose.box_refine_size_weight": 0.3},
 }
 
 
 def top1_errors(sequence: suite.CachedSequence, method: str, overrides: dict[str, Any],
-                reference: bool = False) -> tuple[list[float | None], float]:
-    """Top-1 translation error per frame (None when no pose), and top-5 success within 1 m."""
+                reference: bool = False, laps: list[float] | None = None) -> tuple[list[float | None], float]:
+    """Top-1 translation error per frame (None when no pose), and top-5 success within 1 m; `laps`: each frame's
+    verification seconds appended (the literal reference has none: NaN)."""
     config = make_config(method, overrides=overrides)
     localizer = (partial(suite.literal_localize, map=sequence.map, alpha=config.similarity.alpha) if reference
                  else partial(localize, index=index_map(sequence.map, config), config=config))
     errors, top5 = [], []
     for frame in sequence.frames:
-        evaluation = evaluate_frame(localizer(frame.observations), frame.observations, sequence.map, frame.gt_pose,
-                                    config, frame.index)
+        result = localizer(frame.observations)
+        if laps is not None:
+            laps.append(result.timings.get(Stage.VERIFICATION, float("nan")))
+        evaluation = evaluate_frame(result, frame.observations, sequence.map, frame.gt_pose, config, frame.index)
         errors.append(evaluation.translation_error)
         top5.append(evaluation.success[5])
     return errors, float(np.mean(top5))
 
 
-def row(scene: str, descriptor: str, lever: str, errors: list[float | None], top5: float) -> str:
+def row(scene: str, descriptor: str, lever: str, errors: list[float | None], top5: float,
+        laps: list[float] | None = None) -> str:
     within = " | ".join(f"{share:.1%}" for share in success_within(errors).values())
-    return f"| {scene} | {descriptor} | {lever} | {within} | {top5:.1%} |"
+    timing = "" if laps is None else f" {1e3 * float(np.median(laps)):.3f} |"
+    return f"| {scene} | {descriptor} | {lever} | {within} | {top5:.1%} |{timing}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,24 +107,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--levers", nargs="+", default=list(LEVERS), choices=list(LEVERS))
     parser.add_argument("--frames", type=int, help="frames per scene, spread evenly [default: all]")
     parser.add_argument("--reference", action="store_true", help="also the paper preset and the literal reference")
+    parser.add_argument("--timing", action="store_true", help="also the verification stage's median ms per frame")
     args = parser.parse_args(argv)
     within = "top-1 within " + " | ".join(f"{t:g} m" for t in SUCCESS_THRESHOLDS_M)
-    print(f"| scene | descriptor | lever | {within} | top-5 within 1 m |")
-    print("|---|---|---|" + "---|" * (len(SUCCESS_THRESHOLDS_M) + 1), flush=True)
+    timing = " verification ms |" if args.timing else ""
+    print(f"| scene | descriptor | lever | {within} | top-5 within 1 m |{timing}")
+    print("|---|---|---|" + "---|" * (len(SUCCESS_THRESHOLDS_M) + 1 + args.timing), flush=True)
     for scene in args.scenes:
         suite.ensure_map(scene, None)
         sequence = suite.cache_sequence(scene, None, args.frames, lambda total: None)
         for descriptor, base in DESCRIPTORS.items():
             if descriptor == "CLIP" and not sequence.has_clip:
                 continue
-            for lever in args.levers:
-                print(row(scene, descriptor, lever, *top1_errors(sequence, "clipclique", base | LEVERS[lever])),
-                      flush=True)
+            rows = [(lever, "clipclique", base | LEVERS[lever], False) for lever in args.levers]
             if args.reference:
-                print(row(scene, descriptor, "paper preset", *top1_errors(sequence, "clipclique-paper", base)),
-                      flush=True)
-                print(row(scene, descriptor, "literal reference",
-                          *top1_errors(sequence, "clipclique-paper", base, reference=True)), flush=True)
+                rows += [("paper preset", "clipclique-paper", base, False),
+                         ("literal reference", "clipclique-paper", base, True)]
+            for lever, method, overrides, reference in rows:
+                laps = [] if args.timing else None
+                errors, top5 = top1_errors(sequence, method, overrides, reference, laps)
+                print(row(scene, descriptor, lever, errors, top5, laps), flush=True)
     return 0
 
 

@@ -30,11 +30,9 @@ ROOT = Path(__file__).resolve().parents[2]  # the repository
 # the pages whose commands run, in order: a page's commands may use what an earlier page's made
 PAGES = ["README.md", "docs/scenes.md", "docs/data.md", "docs/cli.md", "docs/own_maps.md",
          "docs/methods.md", "docs/verification.md", "docs/models.md", "docs/recordings.md",
-         "docs/benchmarks.md", "docs/library.md", "docs/architecture.md"]
+         "docs/benchmarks.md", "docs/library.md", "docs/architecture.md", "docs/import_export.md", "docs/bags.md"]
 # pages whose commands do not run here yet, and why (each is a debt: move it into PAGES when its blocks run)
 NOT_RUN = {
-    "docs/import_export.md": "its blocks were added with the label sets and not yet run in the scratch root",
-    "docs/bags.md": "its blocks read data/demo/demo_tum and write bags there; run by hand, not yet in the scratch root",
     "docs/REAL_SCENES.md": "its block generates and localizes the 900-frame demo_sparse (many minutes)",
 }
 TEXT = {page: (ROOT / page).read_text() for page in PAGES}
@@ -64,6 +62,11 @@ SKIPPED = {
         "generated files",
     "clipclique-map build demo_tum -q": "prints the example below it: test_printed_examples_are_current runs it on the "
                                         "full scenes and compares",
+    "python tools/fit_align_confidence.py --seeds 60": "fits the alignment confidence on 120 seeds of generated map "
+                                                       "pairs (minutes); tests/unit/multiframe/test_mapalign.py holds "
+                                                       "the fitted model to its cases",
+    "python tools/bench_bag.py --frames 40": "a benchmark: writes and reads bags 1, 5 and 20 times the demo's length "
+                                             "(minutes); tests/unit/test_rosbag.py checks the lazy reading",
     ".venv/bin/python tools/bench_window.py --step 1": "localizes both realistic scenes 40 times each (minutes); "
                                                        "tests/integration/test_bench_window.py runs it on a few frames",
 }
@@ -100,6 +103,7 @@ def workspace(tmp_path_factory, demo_data) -> tuple[Path, dict[str, str]]:
     for name in ("tools", "tests", ".venv", "pyproject.toml"):
         (root / name).symlink_to(ROOT / name)
     data = demo_data(*DEMO_SCENES, frames=FRAMES, size=None)
+    (root / "data").symlink_to(data, target_is_directory=True)  # as make demo leaves it: data/demo/<scene>
     env = os.environ | {"CLIPCLIQUE_DATA": str(data), "TERM": "dumb"}
     env.pop("VIRTUAL_ENV", None)
     env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep) if not p.startswith(str(ROOT / ".venv")))

@@ -24,11 +24,11 @@ import numpy as np
 from clipclique.benchmark.suite import CachedSequence, cache_sequence, ensure_map
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.exits import user_errors
-from clipclique.geometry import pose_errors
 from clipclique.metrics import SUCCESS_THRESHOLDS_M, success_within
 from clipclique.multiframe.odometry import drifting
 from clipclique.multiframe.window import WindowConfig, Windower
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import pose_errors
 
 TABLE_THRESHOLDS_M = (0.5, 1.0)  # the table's cells, per odometry: a subset of SUCCESS_THRESHOLDS_M
 CONFIGS = {"CLIP-Clique": [], "SH only (alpha=0)": ["similarity.alpha=0"]}

@@ -5,10 +5,10 @@ import pytest
 
 from clipclique.config import ConfigError, make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import pose_errors
 from clipclique.metrics import evaluate_frame, summarize
 from clipclique.outcomes import PIPELINE_STAGES, Failure, FailureKind
 from clipclique.pipeline import RANK_DECIMALS, _objects, _stacked, _valid, _without_added, index_map, localize
+from clipclique.pose.distance import pose_errors
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations
 

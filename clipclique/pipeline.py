@@ -2,7 +2,10 @@
 
 One function composes the stages according to a LocalizationConfig; CLIP-Clique, the baselines
 (SH, X-View, CLIP-Loc) and every ablation are configurations of it (`config.METHOD_PRESETS`).
-Map-side work (semantic graph, descriptors) is done once per map by `index_map`.
+Map-side work (semantic graph, descriptors) is done once per map by `index_map`. Each stage's own wiring
+lives in its room: the inlier stage's (cliques or a consensus -> a Stack of poses) in
+clipclique.inliers.hypotheses, verification's (verify, confidence, re-rank, min_confidence) in
+clipclique.verify.ranking.
 
 A frame without a pose says why in `LocalizationResult.failure`, an `outcomes.Failure` naming the
 stage that lost it (its message in quotes): FEW_OBSERVATIONS "fewer than 3 observations (K)",

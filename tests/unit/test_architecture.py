@@ -161,3 +161,10 @@ def test_the_base_modules_import_no_room(graph):
 def test_every_room_is_there(graph):
     """Each room holds modules (a renamed room would pass the order test empty)."""
     assert all(any(under(name, room) and name != room for name in graph) for room in STAGES)
+
+
+def test_the_rooms_and_the_base_never_import_the_composition(graph):
+    """`clipclique.pipeline` only composes the stages (each stage's wiring, e.g. inliers.hypotheses and
+    verify.ranking, lives in its room): no room or base module reaches back up into it."""
+    assert offenders(graph, (*STAGES, *BASE), ("clipclique.pipeline",)) == []
+    assert {"clipclique.inliers.hypotheses", "clipclique.verify.ranking"} <= graph["clipclique.pipeline"]

@@ -3,9 +3,9 @@
 One function composes the stages according to a LocalizationConfig; CLIP-Clique, the baselines
 (SH, X-View, CLIP-Loc) and every ablation are configurations of it (`config.METHOD_PRESETS`).
 Map-side work (semantic graph, descriptors) is done once per map by `index_map`. Each stage's own wiring
-lives in its room: the inlier stage's (cliques or a consensus -> a Stack of poses) in
-clipclique.inliers.hypotheses, verification's (verify, confidence, re-rank, min_confidence) in
-clipclique.verify.ranking.
+lives in its room: the query's descriptors and similarity in clipclique.descriptors.query, the inlier
+stage's (cliques or a consensus -> a Stack of poses) in clipclique.inliers.hypotheses, verification's
+(verify, confidence, re-rank, min_confidence) in clipclique.verify.ranking.
 
 A frame without a pose says why in `LocalizationResult.failure`, an `outcomes.Failure` naming the
 stage that lost it (its message in quotes): FEW_OBSERVATIONS "fewer than 3 observations (K)",
@@ -40,7 +40,7 @@ from numba import njit
 from scipy.spatial import cKDTree
 
 from clipclique.config import LocalizationConfig
-from clipclique.descriptors import graph, lookalikes, matching, similarity
+from clipclique.descriptors import graph, lookalikes, matching, query, similarity
 from clipclique.errors import ClipcliqueError
 from clipclique.inliers import hypotheses
 from clipclique.multiframe import mapalign
@@ -80,7 +80,8 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
                                                           config.graph.max_degree)
     soft = (sp.csr_matrix(map.class_distributions)
             if config.similarity.soft_classes and map.class_distributions is not None else None)
-    histograms, walks = _graph_descriptors(adjacency, map.class_ids, len(map.class_names), config, distributions=soft)
+    histograms, walks = query.graph_descriptors(adjacency, map.class_ids, len(map.class_names), config,
+                                                distributions=soft)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
     return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
@@ -108,15 +109,15 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
         timings[stage] = timings.get(stage, 0.0) + now - clock  # a stage may run in turns
         clock = now
 
-    histograms, walks = _query_descriptors(observations, index, config)
+    histograms, walks = query.descriptors(observations, index, config)
     lap(Stage.DESCRIPTORS)
-    scores, notes = _similarity(observations, index, histograms, walks, config)
+    scores, notes = query.scores(observations, index, histograms, walks, config)
     if index.capped_nodes:
         notes.append(f"semantic graph capped: {index.capped_nodes} landmarks have more than graph.max_degree = "
                      f"{config.graph.max_degree} neighbours within d_adj; the nearest were kept")
     lap(Stage.SIMILARITY)
     candidates, candidate_scores, added = matching.match(scores, config.matching,
-                                                         _lookalikes(observations, index, config))
+                                                         query.lookalikes(observations, index, config))
     split = hypotheses.split_regions(observations, index.map, candidates, candidate_scores, config)
     kept = matching.best_rows(candidate_scores, config.matching.max_candidates) if split is None else split.kept
     capped = kept is not None if split is None else split.capped
@@ -157,117 +158,15 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
 def align_maps(query_map: Map, map: Map, config: LocalizationConfig) -> mapalign.MapAlignment:
     """The top transforms taking `query_map`'s coordinates into `map`'s, with their confidences and whether
     the answer is ambiguous: the query map localized as one frame (clipclique.multiframe.mapalign)."""
-    query = mapalign.as_query(query_map, map, config)
-    result = localize(query.observations, index_map(query.map, query.config), query.config)
-    return mapalign.conclude(result, query, query_map, config)
+    frame = mapalign.as_query(query_map, map, config)  # (`query` is the descriptor stage's module)
+    result = localize(frame.observations, index_map(frame.map, frame.config), frame.config)
+    return mapalign.conclude(result, frame, query_map, config)
 
 
 def index_key(config: LocalizationConfig) -> str:
     """The settings a map index depends on, readable and hashable: indexes built alike share it."""
     return (f"descriptor={config.similarity.descriptor}, lookalike_weight={config.similarity.lookalike_weight}, "
             f"soft_classes={config.similarity.soft_classes}, {config.graph}")
-
-
-def _graph_descriptors(
-    adjacency: sp.csr_matrix,
-    class_ids: np.ndarray,
-    num_classes: int,
-    config: LocalizationConfig,
-    distributions: sp.csr_matrix | None = None,
-) -> tuple[sp.csr_matrix | None, sp.csr_matrix | None]:
-    """The graph descriptors of one side (X-View walks: the query's too), `distributions` the map's
-    labels where it holds its own class distributions."""
-    descriptor = config.similarity.descriptor
-    histograms = walks = None
-    if descriptor in ("fused", "sh"):
-        histograms = graph.landmark_histograms(adjacency, class_ids, num_classes, config.graph.walk_length,
-                                               distributions)
-    if descriptor == "xview":
-        rng = np.random.default_rng(config.graph.xview_seed)
-        walks = graph.random_walk_descriptors(
-            adjacency, class_ids, num_classes, config.graph.walk_length, config.graph.xview_walks, rng
-        )
-    return histograms, walks
-
-
-def _query_descriptors(
-    observations: Observations, index: MapIndex, config: LocalizationConfig
-) -> tuple[graph.SparseRows | None, sp.csr_matrix | None]:
-    """The query side's graph descriptors, its labels softened by the class kernel when
-    `similarity.lookalike_weight` > 0; Semantic Histograms by the compiled `graph.query_histograms`."""
-    soft = index.class_kernel if config.similarity.lookalike_weight > 0 else None
-    centers, num_classes = observations.ellipsoids.centers, len(index.map.class_names)
-    if config.similarity.descriptor in ("fused", "sh"):
-        histograms = graph.query_histograms(centers, observations.class_ids, num_classes, config.graph.d_adj,
-                                            config.graph.max_degree, config.graph.walk_length, soft)
-        return histograms, None
-    if config.similarity.descriptor != "xview":
-        return None, None  # CLIP alone reads no graph
-    query_graph = graph.semantic_graph(centers, config.graph.d_adj, config.graph.max_degree)
-    return _graph_descriptors(query_graph, observations.class_ids, num_classes, config)
-
-
-def _similarity(
-    observations: Observations,
-    index: MapIndex,
-    histograms: graph.SparseRows | None,
-    walks: sp.csr_matrix | None,
-    config: LocalizationConfig,
-) -> tuple[np.ndarray, list[str]]:
-    descriptor = config.similarity.descriptor
-    if descriptor == "xview":
-        return similarity.walk_similarity(walks, index.walks), []
-    if descriptor == "sh":
-        return _histogram_similarity(observations, index, histograms, config), []
-    missing = _missing_embeddings(observations, index.map)
-    if descriptor == "clip":
-        if missing:
-            raise ClipcliqueError(f"descriptor 'clip' needs CLIP embeddings, but {missing}")
-        return similarity.clip_similarity(observations.image_embeddings, index.text_embeddings), []
-    sh = _histogram_similarity(observations, index, histograms, config)
-    if missing:
-        return sh, [f"no CLIP embeddings ({missing}): alpha = 0 (SH only)"]
-    clip = similarity.clip_similarity(observations.image_embeddings, index.text_embeddings)
-    return similarity.fuse(clip, sh, config.similarity.alpha), []
-
-
-def _histogram_similarity(
-    observations: Observations, index: MapIndex, histograms: graph.SparseRows, config: LocalizationConfig
-) -> np.ndarray:
-    """S_sh, with the class term when `similarity.class_weight` > 0."""
-    sh = similarity.histogram_similarity(histograms, index.histograms_by_bin)
-    weight = config.similarity.class_weight
-    if weight == 0:
-        return sh
-    if index.class_distributions is not None:
-        classes = similarity.soft_class_similarity(observations.class_ids, index.class_kernel,
-                                                   index.class_distributions)
-        return similarity.with_class_term(sh, classes, np.arange(len(classes)), weight)
-    return similarity.with_class_term(sh, index.kernel_by_landmark, observations.class_ids, weight)
-
-
-def _lookalikes(observations: Observations, index: MapIndex, config: LocalizationConfig) -> matching.Lookalikes | None:
-    """What `matching.lookalike_candidates` needs of this query; None when that is off."""
-    settings = config.matching
-    if (settings.strategy != "adaptive" or settings.lookalike_candidates == 0 or config.similarity.lookalike_weight == 0
-            or index.class_groups is None):
-        return None
-    return matching.Lookalikes(groups=index.class_groups, classes=observations.class_ids,
-                               axes=np.sort(np.asarray(observations.ellipsoids.axes, np.float64), axis=1))
-
-
-def _missing_embeddings(observations: Observations, map: Map) -> str | None:
-    """Why CLIP similarity cannot be computed, or None when it can."""
-    if map.text_embeddings is None:
-        return "the map has no text embeddings"
-    if observations.image_embeddings is None:
-        return "the observations have no image embeddings"
-    if observations.image_embeddings.shape[1] != map.text_embeddings.shape[1]:
-        raise ClipcliqueError(
-            f"image embeddings have {observations.image_embeddings.shape[1]} dimensions but the map's text "
-            f"embeddings ({map.encoder}) have {map.text_embeddings.shape[1]}: use the encoder that built the map"
-        )
-    return None
 
 
 def _check_observations(observations: Observations, map: Map) -> None:

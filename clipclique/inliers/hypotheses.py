@@ -116,14 +116,10 @@ def from_cliques(result: LocalizationResult, observations: Observations, map: Ma
     return Stack.joined(fits)
 
 
-
-
 def _pool_size(observations: Observations, config: LocalizationConfig) -> int:
     """Hypotheses the inlier stage fits: `inliers.rerank_pool` (at least top_n) when they will be re-ranked in
     the image (verification keeps the top_n), else top_n."""
     return max(config.top_n, config.inliers.rerank_pool) if reranked(observations, config) else config.top_n
-
-
 
 
 def _stacked(sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -279,8 +275,6 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
                      conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
-
-
 
 
 @njit(cache=True)

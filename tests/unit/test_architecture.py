@@ -188,3 +188,11 @@ def test_the_geometry_jobs_sit_in_their_rooms(graph):
                                                          "clipclique.types"}
     assert graph["clipclique.pose.distance"] == {"clipclique.types"}
     assert graph["clipclique.sim.poses"] == {"clipclique.types"}
+
+
+def test_the_rooms_and_the_base_never_import_the_composition(graph):
+    """`clipclique.pipeline` only composes the stages (each stage's wiring, e.g. descriptors.query,
+    inliers.hypotheses, verify.ranking, lives in its room): no room or base module reaches back up into it."""
+    assert offenders(graph, (*STAGES, *BASE), ("clipclique.pipeline",)) == []
+    assert {"clipclique.descriptors.query", "clipclique.inliers.hypotheses",
+            "clipclique.verify.ranking"} <= graph["clipclique.pipeline"]

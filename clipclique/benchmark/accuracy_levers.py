@@ -172,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
         sequence = suite.in_view(suite.cache_sequence(scene, None, args.frames, lambda total: None), args.view)
         if args.view != "all":
             print(f"{scene}: {len(sequence.frames)} frames of view {args.view}", file=sys.stderr, flush=True)
+        if not sequence.frames:
+            continue
         for descriptor, base in DESCRIPTORS.items():
             if descriptor == "CLIP" and not sequence.has_clip:
                 continue

@@ -99,3 +99,12 @@ def test_view_sparse_scores_only_the_sparse_frames(monkeypatch, capsys):
     rows = [line for line in captured.out.splitlines() if line.startswith("| slice |")]
     assert len(rows) == 1 and rows[0].startswith("| slice | SH | before |")  # no CLIP: the map has no texts
     assert rows[0].split("|")[-3].strip().endswith("of 4")  # the candidates' column counts the 4 sparse frames
+
+
+def test_a_view_without_frames_prints_no_rows(monkeypatch, capsys):
+    few = CachedSequence("slice", landmarks(), [CachedFrame(0, seen(10, 11), Pose.identity())], {}, {}, None)
+    monkeypatch.setattr(suite, "ensure_map", lambda scene, root: None)
+    monkeypatch.setattr(suite, "cache_sequence", lambda scene, root, frames, tick: few)
+    assert accuracy_levers.main(["--scenes", "slice", "--view", "busy", "--levers", "before"]) == 0
+    captured = capsys.readouterr()
+    assert "slice: 0 frames of view busy" in captured.err and "| slice |" not in captured.out

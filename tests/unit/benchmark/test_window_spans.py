@@ -1,5 +1,5 @@
 """clipclique.benchmark.window's `--spans`: each span the step multiframe.window.span_step makes of it at the measured
-frames' interval, exclusive of --step; the table shows span and step."""
+frames' interval, exclusive of --step; the table shows span and step; `--view` scores only its newest frames."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from clipclique.benchmark import window as bench
-from clipclique.benchmark.suite import CachedFrame, CachedSequence
-from clipclique.multiframe.window import span_step
+from clipclique.benchmark.suite import CachedFrame, CachedSequence, view_of
+from clipclique.config import make_config
+from clipclique.multiframe.window import WindowConfig, span_step
+from clipclique.types import Ellipsoids, Map, Observations, Pose
 
 
 def test_each_span_is_the_step_span_step_gives():
@@ -49,3 +51,26 @@ def test_spans_and_step_exclude_each_other_and_the_table_shows_both():
     assert lines[0].startswith("| scene | similarity | K | span | S | exact odometry")
     assert lines[2:] == ["| s | SH | 1 | - | - | 50.0 / 50.0 | 50.0 / 50.0 |",
                          "| s | SH | 10 | 3 s | 10 | 50.0 / 50.0 | 50.0 / 50.0 |"]
+
+
+def test_a_view_scores_only_its_newest_frames():
+    count = 8
+    centers = np.stack([np.arange(count, dtype=float), np.zeros(count), np.full(count, 3.0)], axis=1)
+    shapes = (np.full((count, 3), 0.2), np.tile(np.eye(3), (count, 1, 1)))
+    map = Map(Ellipsoids(centers, *shapes), np.arange(count) % 3, ["cup", "book", "chair"],
+              [f"object {i}" for i in range(count)], np.arange(10, 10 + count))
+
+    def seen(*ids: int) -> Observations:
+        index = np.array(ids) - 10
+        return Observations(map.ellipsoids.subset(index), map.class_ids[index], None, np.array(ids),
+                            np.arange(len(ids)))
+
+    views = [(10, 11), (10, 11, 12), tuple(range(10, 18)), (12, 13, 14, 15), (10,)]
+    frames = [CachedFrame(i, seen(*ids), Pose.identity()) for i, ids in enumerate(views)]
+    sequence = CachedSequence("s", map, frames, {}, {}, None)
+    config = make_config("clipclique", overrides=["similarity.alpha=0"])
+    expected = {"sparse": 2, "busy": 1, "few": 2, "all": 5}
+    assert [view_of(f.observations, map) for f in frames] == ["few", "sparse", "busy", "sparse", "few"]
+    for view, scored in expected.items():
+        figures = bench.window_success(sequence, config, WindowConfig(size=3, step=1), 0.0, 0, view=view)
+        assert figures["frames"] == scored

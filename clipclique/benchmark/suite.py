@@ -261,7 +261,7 @@ def mapped_pairs(observations: Observations, map: Map) -> np.ndarray:
 
 
 # Issue 37's sparse view: a frame whose detections hit 3 to 5 distinct mapped objects (a desk corner; the real
-# desk's failed frames hit 3-4), the upper bound the demo_sparse detector's own (backends.SPARSE: where it
+# desk's failed frames hit 3-5), the upper bound the demo_sparse detector's own (backends.SPARSE: where it
 # confuses 2 detections in 3). Fewer than 3: "few" (no pose can rest on right pairs alone); more: "busy".
 SPARSE_VIEW_OBJECTS = (3, SPARSE["sparse_objects"])
 VIEWS = ("all", "sparse", "busy", "few")

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from clipclique.config import LocalizationConfig
-from clipclique.geometry import pose_errors
 from clipclique.outcomes import ALGORITHM_STAGES, Failure, FailureKind, LocalizationResult
+from clipclique.pose.distance import pose_errors
 from clipclique.types import Map, Observations, Pose
 
 TOP_K = (1, 3, 5)

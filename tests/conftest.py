@@ -27,9 +27,9 @@ from PIL import Image  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from clipclique.config import LocalizationConfig  # noqa: E402
-from clipclique.geometry import look_at  # noqa: E402
 from clipclique.metrics import FrameEvaluation, evaluate_frame  # noqa: E402
 from clipclique.pipeline import LocalizationResult  # noqa: E402
+from clipclique.sim.poses import look_at  # noqa: E402
 from clipclique.types import Camera, Detections, Ellipsoids, Frame, Hypothesis, Map, Observations, Pose  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]  # the repository

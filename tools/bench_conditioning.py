@@ -21,8 +21,8 @@ import argparse
 import numpy as np
 
 from clipclique.config import PoseConfig
-from clipclique.geometry import random_rotation
 from clipclique.pose.fit import conditioning, fit_rigid_batch
+from clipclique.sim.poses import random_rotation
 
 EDGES = (0.0, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0)
 

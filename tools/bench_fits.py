@@ -24,6 +24,7 @@ one_blas_thread_by_default()  # as clipclique-loc runs, before numpy loads (clip
 import numpy as np  # noqa: E402
 from bench_speed import fastest  # noqa: E402  (this directory's: ms of the fastest of `repeat` calls)
 
+import clipclique.inliers.hypotheses as hypotheses  # noqa: E402  (the clique poses' fits)
 import clipclique.pipeline as pipeline  # noqa: E402
 import clipclique.pose.refine as refine  # noqa: E402
 from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
@@ -42,15 +43,15 @@ def recorded_fits(query: Callable[[], object]) -> list[Batch]:
             return fit(source, target, weights)
         return recorded
 
-    saved = pipeline.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined
-    pipeline.fit_rigid_conditioned = recording(fit_rigid_conditioned)
+    saved = hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined
+    hypotheses.fit_rigid_conditioned = recording(fit_rigid_conditioned)
     refine.fit_rigid_batch = recording(fit_rigid_batch)
     refine.refined = lambda stack, observations, map, similarity, radius, weights, rounds=2, landmarks=None: (
         refine._refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks))
     try:
         query()
     finally:
-        pipeline.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined = saved
+        hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined = saved
     return batches
 
 

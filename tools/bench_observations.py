@@ -57,14 +57,17 @@ def load_revision(rev: str, directory: Path) -> ModuleType:
         return module
 
     imported = ("geometry", "encoders")  # what the revision's observations module imports
-    current = {name: sys.modules[f"clipclique.{name}"] for name in imported}
+    current = {name: sys.modules.get(f"clipclique.{name}") for name in imported}  # None: not a module here now
     for name in imported:
         sys.modules[f"clipclique.{name}"] = load(name)
     try:
         return load("observations")
     finally:
         for name in imported:
-            sys.modules[f"clipclique.{name}"] = current[name]
+            if current[name] is None:
+                del sys.modules[f"clipclique.{name}"]
+            else:
+                sys.modules[f"clipclique.{name}"] = current[name]
 
 
 def difference(new: Extraction, old) -> float:

@@ -31,10 +31,11 @@ from scipy.optimize import minimize
 from scipy.special import expit, log_expit
 
 from clipclique.config import make_config
-from clipclique.geometry import random_rotation, rotation_angle
 from clipclique.multiframe import mapalign
 from clipclique.pipeline import align_maps
+from clipclique.pose.distance import rotation_angle
 from clipclique.sim.mappairs import detector_pair
+from clipclique.sim.poses import random_rotation
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
 

@@ -21,8 +21,8 @@ import numpy as np
 
 from clipclique.config import make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import pose_errors
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import pose_errors
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations, Pose
 from clipclique.verify import confidence, verification

@@ -30,12 +30,12 @@ import numpy as np
 
 from clipclique.benchmark import literal_reference
 from clipclique.config import METHOD_PRESETS, LocalizationConfig, make_config
-from clipclique.geometry import random_rotation
 from clipclique.inliers.compatibility import compatibility_graph
 from clipclique.inliers.reference_cliques import maximal_cliques
 from clipclique.outcomes import ALGORITHM_STAGES
 from clipclique.pipeline import LocalizationResult, MapIndex, index_map, localize
 from clipclique.pose.fit import DegeneratePoseError, correspondence_weights, fit_rigid
+from clipclique.sim.poses import random_rotation
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 

@@ -41,8 +41,8 @@ from clipclique.datasets.base import (
     resize_rgb,
 )
 from clipclique.errors import ClipcliqueError, DatasetError
-from clipclique.geometry import backproject
 from clipclique.io import safeio
+from clipclique.perception.depth import backproject
 from clipclique.types import Frame, Pose
 
 DEPTH_FACTOR = 5000.0

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from clipclique.geometry import rotation_angle
+from clipclique.pose.distance import rotation_angle
 
 CLOSES_DEG, CLOSES_M = 2.0, 0.05  # a cycle closes when composing its links moves A's landmarks less than this
 

@@ -25,11 +25,11 @@ import numpy as np
 from clipclique.config import METHOD_TITLES, LocalizationConfig, flat, make_config
 from clipclique.datasets.tum import tum_line
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import pose_errors
 from clipclique.io.safeio import read_json
 from clipclique.localization.runs import FrameOutcome, Run
 from clipclique.metrics import SUCCESS_THRESHOLDS_M
 from clipclique.outcomes import ALL_STAGES
+from clipclique.pose.distance import pose_errors
 
 RESULTS_FORMAT = "clipclique-loc results"
 RESULTS_VERSION = 1

@@ -1,7 +1,7 @@
 """Scene objects -> ellipsoid landmarks -> Map: the work behind `clipclique-map build`.
 
 Each object instance of a scene (its world points) becomes one landmark: statistical outlier
-removal, then open3d's PCA oriented box, then the inscribed ellipsoid (clipclique.geometry).
+removal, then open3d's PCA oriented box, then the inscribed ellipsoid (clipclique.perception.ellipsoids).
 Structure (walls, floors, ceilings) is left out; instances too small or degenerate to fit are
 skipped and counted by reason, never dropped silently. Landmarks stay in the dataset's world
 frame. Text embeddings of the descriptions come from the encoder, when there is one.
@@ -18,10 +18,11 @@ from datetime import datetime, timezone
 
 import numpy as np
 
+from clipclique.config import FitParams
 from clipclique.datasets import STRUCTURE_CLASSES, Instance, Sequence, is_structure
 from clipclique.descriptors.graph import semantic_graph
 from clipclique.errors import DatasetError
-from clipclique.geometry import FitParams, fit_ellipsoid, stack_ellipsoids
+from clipclique.perception.ellipsoids import fit_ellipsoid, stack_ellipsoids
 from clipclique.perception.encoders import Encoder
 from clipclique.types import Map
 from clipclique.version import __version__

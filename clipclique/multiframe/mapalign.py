@@ -42,8 +42,8 @@ from scipy.spatial.transform import Rotation
 
 from clipclique.config import LocalizationConfig
 from clipclique.descriptors import lookalikes
-from clipclique.geometry import rotation_angle
 from clipclique.outcomes import Failure, LocalizationResult
+from clipclique.pose.distance import rotation_angle
 from clipclique.pose.fit import DegeneratePoseError, fit_rigid
 from clipclique.types import Map, Observations, Pose
 

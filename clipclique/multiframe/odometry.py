@@ -30,7 +30,7 @@ from clipclique.datasets import Sequence
 from clipclique.datasets.rosbag import BagSequence
 from clipclique.datasets.tum import MAX_TIME_DIFF, associate, read_trajectory
 from clipclique.errors import ClipcliqueError, DatasetError
-from clipclique.geometry import rotation_angle
+from clipclique.pose.distance import rotation_angle
 from clipclique.types import Pose
 
 GROUND_TRUTH = "groundtruth"  # the source name of ground truth with simulated drift

@@ -2,7 +2,7 @@
 
 Each detection mask is eroded (depth at object edges mixes fore- and background), its valid
 depth back-projected with the frame's intrinsics, outliers cut (neighbours from the image
-window) and a PCA box fitted (`geometry.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are
+window) and a PCA box fitted (`ellipsoids.fit_ellipsoid_depth`). Detections that cannot give a trustworthy ellipsoid are
 dropped and counted by reason, so a run can say where objects were lost; nothing becomes NaN.
 """
 
@@ -20,14 +20,8 @@ import numpy as np
 from numba import njit
 
 from clipclique.config import ObservationParams
-from clipclique.geometry import (
-    Oriented,
-    _box_parts,
-    _neighbour_pass,
-    finished_box,
-    fit_ellipsoid_depth,
-    stack_ellipsoids,
-)
+from clipclique.perception.depth import _neighbour_pass
+from clipclique.perception.ellipsoids import Oriented, _box_parts, finished_box, fit_ellipsoid_depth, stack_ellipsoids
 from clipclique.perception.encoders import Crop, Encoder
 from clipclique.types import Camera, Detections, Frame, Observations
 
@@ -104,7 +98,7 @@ def _fit_detection(frame: Frame, mask: np.ndarray, box: np.ndarray, in_box: bool
 class _Outcome(enum.IntEnum):
     """What `_frame_pass` made of a detection."""
 
-    BOXED = 0  # fitted up to its centre (`geometry._box_parts`): its `Oriented` value says the rest
+    BOXED = 0  # fitted up to its centre (`ellipsoids._box_parts`): its `Oriented` value says the rest
     TINY_MASK = 1  # dropped, for DROP_REASONS[value - 1]
     BORDER_SLIVER = 2
     INVALID_DEPTH = 3
@@ -150,7 +144,7 @@ def _frame_pass(frame: Frame, detections: Detections, params: ObservationParams)
 @functools.cache
 def _compiled_frame_pass(k: int, radius: int):
     """The compiled frame pass for `k` neighbours within `radius` pixels, compiled in as constants (as
-    `geometry._depth_points` compiles them; a closure over integers alone, which numba's cache finds again)."""
+    `depth._depth_points` compiles them; a closure over integers alone, which numba's cache finds again)."""
 
     @njit(cache=True)
     def frame_pass(masks, boxes, depth, intrinsics, whole, erode_px, min_pixels, max_depth, border_px,

@@ -4,7 +4,8 @@
   folders by `ensure_scene` (from `procedural` rooms, the real-data-shaped `scenes`, `render`);
   `scene_detector` says which simulated detector a generated scene is localized with.
 - `detectors`: the simulated detectors; `encoder`: the simulated CLIP.
-- `synthetic`: small random maps and queries with known ground truth, for tests and benchmarks.
+- `synthetic`: small random maps and queries with known ground truth, for tests and benchmarks;
+  `poses`: a camera looking at a point (`look_at`), a uniformly random rotation.
 
 The dataset readers (clipclique.datasets) never import this package; it writes their layouts.
 """

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clipclique.geometry import random_rotation
+from clipclique.sim.poses import random_rotation
 from clipclique.sim.synthetic import synthetic_map
 from clipclique.types import Ellipsoids, Map, Pose
 

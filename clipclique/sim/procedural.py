@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clipclique.geometry import look_at
+from clipclique.sim.poses import look_at
 from clipclique.types import Pose
 
 # Colour words and the RGB the renderer paints them with.

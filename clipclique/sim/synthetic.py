@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from clipclique.geometry import look_at
+from clipclique.sim.poses import look_at
 from clipclique.types import Camera, Ellipsoids, Map, Observations, Pose
 from clipclique.verify.projection import box_area, project
 

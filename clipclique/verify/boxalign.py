@@ -24,15 +24,7 @@ from numba import njit
 from scipy.spatial.transform import Rotation
 
 from clipclique.types import Camera, Hypothesis, Map, Observations, Pose
-from clipclique.verify.projection import (
-    _conic_entries_into,
-    _image_row_into,
-    _in_front,
-    _kron,
-    _term_row_into,
-    _views,
-    spreads,
-)
+from clipclique.verify.projection import _in_front, conic_entries, spreads
 
 MAX_MOVE_M = 1.0  # a refinement that moves the camera farther has found another pose, not refined this one
 MAX_TURN_RAD = np.deg2rad(20.0)
@@ -151,7 +143,7 @@ def solve(problem: Problem, rotations: np.ndarray, translations: np.ndarray, ste
 def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rotations, translations, steps, weights,
            intrinsics, width, height, max_depth):
     """`solve`, compiled: per hypothesis, each step projects its current pose and 6 perturbations of it
-    (`_entries`) for the Jacobian; a step that raised the cost is undone and the damping
+    (`conic_entries`) for the Jacobian; a step that raised the cost is undone and the damping
     raised tenfold, one that lowered it kept and the damping cut tenfold (a few numpy calls per step would cost
     more than the arithmetic of a frame's five hypotheses)."""
     count = len(rotations)
@@ -240,7 +232,8 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
                     rots[1 + axis, i, j] = (rotation[i, 0] * _TURNS[axis, 0, j] + rotation[i, 1] * _TURNS[axis, 1, j]
                                             + rotation[i, 2] * _TURNS[axis, 2, j])
                 trans[4 + axis, i] += STEP * rotation[i, axis]
-    entries = _entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rots, trans, intrinsics)
+    entries = conic_entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rots, trans,
+                            intrinsics)
     size = len(centers)
     residual = np.zeros((moves, size, RESIDUALS))
     for m in range(moves):
@@ -267,24 +260,6 @@ def _linearized(centers, spread, boxes, sides, units, seen, rotation, translatio
                     for j in range(6):
                         normal[i, j] += weight * column[i] * column[j]
     return cost, usable, normal, gradient
-
-
-@njit(cache=True)
-def _entries(centers_t, spread_t, rotations, translations, intrinsics):
-    """(6, B * N) the dual conic entries a box reads (C*11, C*13, C*22, C*23, C*33) and the centre's depth of N
-    landmarks (centres (3, N), spreads (9, N)) under B poses, pose after pose: projection's `_visible_boxes`
-    without its boxes, by its own compiled pieces."""
-    count, size = len(rotations), centers_t.shape[1]
-    view = _views(rotations, intrinsics)
-    kron = _kron(view).reshape(count, 9, 9)
-    entries, image, product = np.empty((6, count * size)), np.empty((3, size)), np.empty((5, size))
-    for b in range(count):
-        for i in range(3):
-            _image_row_into(centers_t, translations, view, b, i, image[i])
-        for r, row in enumerate((0, 2, 4, 5, 8)):
-            _term_row_into(spread_t, kron, b, row, product[r])
-        _conic_entries_into(image, product, entries[:, b * size: (b + 1) * size])
-    return entries
 
 
 _TURNS = np.array([Rotation.from_rotvec(STEP * axis).as_matrix() for axis in np.eye(3)])  # exp([STEP e_i])

@@ -96,15 +96,24 @@ def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarra
                    intrinsics: np.ndarray, width: float, height: float,
                    max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`visible_boxes` as `_projected` computes each (pose, landmark), but of V M V^T only the five entries a box
-    reads (C*11, C*13, C*22, C*23, C*33). Pose by pose, each of those entries and of h for every landmark in a loop
-    of its own over the landmarks' numbers laid out landmark after landmark, which LLVM runs four landmarks at a time
-    (a loop computing all at once reads and writes too many arrays for it); then every box in one such pass
-    (`_boxes_where_visible`). numpy's error model: a division by zero would give inf, not raise, and none occurs."""
-    count, size = len(rotations), len(centers)
+    reads (`conic_entries`); then every box in one pass (`_boxes_where_visible`). numpy's error model: a division
+    by zero would give inf, not raise, and none occurs."""
+    entries = conic_entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rotations,
+                            translations, intrinsics)
+    return _boxes_where_visible(entries, width, height, max_depth, len(rotations), len(centers))
+
+
+@njit(cache=True, error_model="numpy")
+def conic_entries(centers_t: np.ndarray, spread_t: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                  intrinsics: np.ndarray) -> np.ndarray:
+    """(6, B * N): of each of N landmarks (centres (3, N), spreads (9, N)) under each of B poses, pose after pose,
+    the five dual conic entries a box reads (C*11, C*13, C*22, C*23, C*33) and the centre's depth. Each entry and
+    h is a loop of its own over the landmarks' numbers laid out landmark after landmark, which LLVM runs four
+    landmarks at a time (a loop computing all at once reads and writes too many arrays for it)."""
+    count, size = len(rotations), centers_t.shape[1]
     view = _views(rotations, intrinsics)
     kron = _kron(view).reshape(count, 9, 9)
-    spread_t, centers_t = np.ascontiguousarray(spread.T), np.ascontiguousarray(centers.T)  # (9, N), (3, N)
-    entries = np.empty((6, count * size))  # C*11, C*13, C*22, C*23, C*33 and the depth of each (pose, landmark)
+    entries = np.empty((6, count * size))
     image, product = np.empty((3, size)), np.empty((5, size))
     for b in range(count):
         for i in range(3):
@@ -112,7 +121,7 @@ def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarra
         for r, row in enumerate((0, 2, 4, 5, 8)):
             _term_row_into(spread_t, kron, b, row, product[r])
         _conic_entries_into(image, product, entries[:, b * size: (b + 1) * size])
-    return _boxes_where_visible(entries, width, height, max_depth, count, size)
+    return entries
 
 
 @njit(cache=True, inline="always")

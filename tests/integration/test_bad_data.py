@@ -15,14 +15,15 @@ from typer.testing import CliRunner
 from clipclique.config import make_config
 from clipclique.datasets import open_sequence
 from clipclique.errors import DatasetError, MapFileError
-from clipclique.geometry import backproject, rotation_angle
 from clipclique.io.mapfile import validate_map
 from clipclique.io.outputs import MAP_DIR
 from clipclique.localization.cli import app as loc_app
 from clipclique.localization.run import RunSettings
 from clipclique.mapping.cli import app as map_app
 from clipclique.outcomes import FailureKind
+from clipclique.perception.depth import backproject
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import rotation_angle
 from clipclique.pose.fit import conditioning
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 

@@ -11,9 +11,9 @@ import pytest
 from clipclique.benchmark.suite import cache_sequence, ensure_map
 from clipclique.benchmark.window import table, window_success
 from clipclique.config import make_config
-from clipclique.geometry import pose_errors
 from clipclique.multiframe.window import WindowConfig
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import pose_errors
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -12,7 +12,7 @@ import pytest
 
 from clipclique.datasets import READERS, STRUCTURE_CLASSES, open_sequence
 from clipclique.errors import DatasetError
-from clipclique.geometry import backproject
+from clipclique.perception.depth import backproject
 from clipclique.perception.raycast import MeshRaycaster
 from clipclique.resolve import default_detector, open_scene
 from clipclique.sim.demo import DEMO_SCENES, DemoSpec, ensure_scene, generate

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from clipclique.config import FitParams
 from clipclique.datasets import STRUCTURE_CLASSES, Instance
-from clipclique.geometry import FitParams
 from clipclique.io.mapfile import load_map
 from clipclique.mapping.build import BuildReport, build_map, fit_landmarks
 from clipclique.mapping.cli import app

@@ -15,7 +15,7 @@ import pytest
 
 import clipclique
 from clipclique.errors import ClipcliqueError, MapFileError
-from clipclique.geometry import pose_errors
+from clipclique.pose.distance import pose_errors
 
 
 @pytest.fixture(scope="module")

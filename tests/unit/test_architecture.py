@@ -141,7 +141,7 @@ def test_the_circle_finder_finds_a_circle():
 
 
 # The rooms of the core, lowest first: a room imports only rooms before it (and the modules every room may use:
-# errors, types, outcomes, config, geometry). A type both need lives in the lower one.
+# errors, types, outcomes, config). A type both need lives in the lower one.
 STAGES = ("clipclique.io", "clipclique.perception", "clipclique.descriptors", "clipclique.pose", "clipclique.verify",
           "clipclique.inliers", "clipclique.multiframe")
 BASE = ("clipclique.errors", "clipclique.types", "clipclique.outcomes", "clipclique.blas", "clipclique.commands",
@@ -161,3 +161,38 @@ def test_the_base_modules_import_no_room(graph):
 def test_every_room_is_there(graph):
     """Each room holds modules (a renamed room would pass the order test empty)."""
     assert all(any(under(name, room) and name != room for name in graph) for room in STAGES)
+
+
+CONFIG = {"clipclique.config", "clipclique.config.schema", "clipclique.config.presets", "clipclique.config.overrides"}
+
+
+def test_the_config_package_is_schema_then_presets_then_overrides(graph):
+    """The settings (schema) <- the methods as presets of them <- a configuration built from a preset, a file and
+    overrides, and checked <- the package's front door, which every room imports; below the rooms, but for the
+    strict file reader of io."""
+    within = {name: graph[name] & CONFIG for name in CONFIG}
+    assert within == {"clipclique.config.schema": set(), "clipclique.config.presets": {"clipclique.config.schema"},
+                      "clipclique.config.overrides": {"clipclique.config.schema", "clipclique.config.presets"},
+                      "clipclique.config": CONFIG - {"clipclique.config"}}
+    beyond = set().union(*(graph[name] for name in CONFIG)) - CONFIG
+    assert beyond <= {"clipclique.errors", "clipclique.types", "clipclique.io.safeio"}
+
+
+def test_the_geometry_jobs_sit_in_their_rooms(graph):
+    """What clipclique/geometry.py held, each job where its users are: ellipsoid fits and depth filtering in
+    perception (observations, the map builder), pose errors in pose (metrics, multiframe, the runners), the
+    simulator's poses in sim; each imports nothing above it."""
+    assert "clipclique.geometry" not in graph
+    assert graph["clipclique.perception.depth"] == set()
+    assert graph["clipclique.perception.ellipsoids"] == {"clipclique.config", "clipclique.perception.depth",
+                                                         "clipclique.types"}
+    assert graph["clipclique.pose.distance"] == {"clipclique.types"}
+    assert graph["clipclique.sim.poses"] == {"clipclique.types"}
+
+
+def test_the_rooms_and_the_base_never_import_the_composition(graph):
+    """`clipclique.pipeline` only composes the stages (each stage's wiring, e.g. descriptors.query,
+    inliers.hypotheses, verify.ranking, lives in its room): no room or base module reaches back up into it."""
+    assert offenders(graph, (*STAGES, *BASE), ("clipclique.pipeline",)) == []
+    assert {"clipclique.descriptors.query", "clipclique.inliers.hypotheses",
+            "clipclique.verify.ranking"} <= graph["clipclique.pipeline"]

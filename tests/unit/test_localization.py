@@ -15,11 +15,11 @@ from typer.testing import CliRunner
 
 from clipclique.datasets.tum import tum_line
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import random_rotation
 from clipclique.localization.cli import app, imports_kept
 from clipclique.localization.results import ALL_STAGES, json_safe, read_results
 from clipclique.localization.run import choose_encoder, read_ahead
 from clipclique.localization.tables import results_table, run_banner
+from clipclique.sim.poses import random_rotation
 from clipclique.types import Ellipsoids, Map, Pose
 
 RUNNER = CliRunner()

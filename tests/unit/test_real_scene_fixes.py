@@ -9,10 +9,11 @@ from clipclique.benchmark import literal_reference
 from clipclique.config import make_config
 from clipclique.descriptors.graph import semantic_graph, semantic_histograms
 from clipclique.descriptors.lookalikes import class_kernel
-from clipclique.geometry import pose_errors, random_rotation
 from clipclique.inliers.compatibility import compatibility_graph, partial_view_slack
 from clipclique.outcomes import FailureKind
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import pose_errors
+from clipclique.sim.poses import random_rotation
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations, Pose
 

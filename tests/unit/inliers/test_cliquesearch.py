@@ -3,12 +3,9 @@
 import numpy as np
 import pytest
 
-from clipclique.config import make_config
 from clipclique.inliers.cliquesearch import clique_total, top_cliques
 from clipclique.inliers.compatibility import compatibility_graph
 from clipclique.inliers.reference_cliques import maximal_cliques, rank_cliques
-from clipclique.pipeline import LocalizationResult, _solve_cliques
-from clipclique.types import Ellipsoids, Map, Observations
 
 
 def reference(edges: np.ndarray, nodes: int, weights: np.ndarray, count: int, min_size: int = 3):
@@ -99,26 +96,6 @@ def test_a_search_longer_than_its_first_slice_goes_on_in_the_arrays_it_began():
 def test_groups_must_be_independent():
     with pytest.raises(ValueError, match="one group"):
         top_cliques(np.array([[0, 1]]), 3, np.ones(3), 1, groups=np.array([0, 0, 1]))
-
-
-def test_a_degenerate_best_clique_is_skipped_and_the_search_goes_on():
-    """The heaviest clique is collinear (no pose); top_n = 1 must still give the next one."""
-    line = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]])
-    triangle = np.array([[10, 0, 0], [10, 1, 0], [11, 0, 0.0]])
-    observed = np.concatenate((line, triangle))
-    landmarks = np.concatenate((line, triangle + [0, 5, 0]))  # the two groups disagree across
-    ellipsoids = lambda c: Ellipsoids(c, np.full((6, 3), 0.2), np.repeat(np.eye(3)[None], 6, 0))  # noqa: E731
-    map = Map(ellipsoids(landmarks), np.zeros(6, int), ["thing"], ["thing"] * 6, np.arange(6) + 1, None, "none", {})
-    observations = Observations(ellipsoids(observed), np.zeros(6, int), None, np.arange(6) + 1, np.arange(6))
-    candidates = np.column_stack((np.arange(6), np.arange(6)))
-    scores = np.array([0.9, 0.9, 0.9, 0.5, 0.5, 0.5])
-    config = make_config("clipclique", overrides={"top_n": 1})
-    result = LocalizationResult(hypotheses=[], candidates=candidates, candidate_scores=scores, similarity=np.eye(6),
-                                num_cliques=0, cap_hit=None, failure=None)
-    hypotheses = _solve_cliques(result, observations, map, config, lambda stage: None).hypotheses()
-    assert len(hypotheses) == 1 and result.failure is None
-    assert hypotheses[0].correspondences[:, 0].tolist() == [3, 4, 5]
-    np.testing.assert_allclose(hypotheses[0].pose.translation, [0, 5, 0], atol=1e-9)
 
 
 def test_the_bit_intrinsics_count_and_find_bits_as_python_does():

@@ -4,11 +4,12 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from clipclique.geometry import pose_errors, random_rotation
 from clipclique.inliers.compatibility import affordable_candidates, compatibility_graph
 from clipclique.inliers.consensus import sample_consensus
 from clipclique.inliers.reference_cliques import maximal_cliques, rank_cliques
+from clipclique.pose.distance import pose_errors
 from clipclique.pose.fit import fit_rigid
+from clipclique.sim.poses import random_rotation
 from clipclique.types import Pose
 
 

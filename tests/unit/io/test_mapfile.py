@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from clipclique.errors import MapFileError
-from clipclique.geometry import random_rotation
 from clipclique.io.mapfile import SCHEMA_VERSION, load_map, save_map
+from clipclique.sim.poses import random_rotation
 from clipclique.types import Ellipsoids, Map
 
 

@@ -11,9 +11,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.config import make_config
-from clipclique.geometry import random_rotation, rotation_angle
 from clipclique.multiframe.mapalign import g2o_edge, shared_vocabulary
 from clipclique.pipeline import align_maps
+from clipclique.pose.distance import rotation_angle
+from clipclique.sim.poses import random_rotation
 from clipclique.sim.synthetic import duplicate_rooms, synthetic_map
 from clipclique.types import Map, Pose
 

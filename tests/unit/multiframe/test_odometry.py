@@ -7,8 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from clipclique.errors import DatasetError
-from clipclique.geometry import rotation_angle
 from clipclique.multiframe.odometry import drifting, from_trajectory
+from clipclique.pose.distance import rotation_angle
 from clipclique.types import Pose
 
 

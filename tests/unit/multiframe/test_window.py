@@ -7,8 +7,8 @@ import pytest
 
 from clipclique import pipeline
 from clipclique.config import make_config
-from clipclique.geometry import look_at
 from clipclique.multiframe.window import WindowConfig, Windower, fuse, fusion, relative_poses, span_step, window_frames
+from clipclique.sim.poses import look_at
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Observations, Pose
 from clipclique.verify import verification

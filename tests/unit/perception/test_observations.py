@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
-from clipclique.geometry import FitParams, _depth_points
+from clipclique.config import FitParams
+from clipclique.perception.depth import _depth_points
 from clipclique.perception.detectors import mask_boxes
 from clipclique.perception.observations import (
     ObservationParams,
@@ -152,7 +151,9 @@ def test_depth_fit_cuts_bled_background_and_agrees_with_the_point_fit():
     KD-tree filter (the map builder's) give ellipsoids within 1 cm of each other."""
     from scipy import ndimage
 
-    from clipclique.geometry import FitParams, backproject, fit_ellipsoid, fit_ellipsoid_depth
+    from clipclique.config import FitParams
+    from clipclique.perception.depth import backproject
+    from clipclique.perception.ellipsoids import fit_ellipsoid, fit_ellipsoid_depth
 
     frame, mask = sphere_frame()
     depth = frame.depth.astype(np.float64)
@@ -196,7 +197,7 @@ def reference_fit(frame: Frame, mask: np.ndarray, box: np.ndarray, params: Obser
     past max_points, each pixel's k nearest 3D neighbours among the valid pixels of its window."""
     from scipy import ndimage
 
-    from clipclique.geometry import _box
+    from clipclique.perception.ellipsoids import _box
 
     depth = np.where(frame.depth <= params.max_depth, frame.depth, 0.0)
     pad = params.erode_px + 1
@@ -252,63 +253,6 @@ def test_compiled_fit_equals_the_reference_on_a_hand_made_frame():
         np.testing.assert_allclose(ellipsoids.centers[i], center, atol=1e-9)
         np.testing.assert_allclose(ellipsoids.axes[i], axes, atol=1e-9)
         np.testing.assert_allclose(ellipsoids.rotations[i], rotation, atol=1e-9)
-
-
-def sequential_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray, k: int,
-                      radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """The neighbour pass pixel by pixel in plain Python, in the compiled pass's order of arithmetic:
-    each pixel's distances summed in window order, then its n - k farthest taken off, largest first."""
-    height, width = mask.shape
-    fx, fy, cx, cy = intrinsics[0, 0], intrinsics[1, 1], intrinsics[0, 2], intrinsics[1, 2]
-    valid = mask & np.isfinite(depth) & (depth > 0)
-    point = {(v, u): ((u - cx) * float(depth[v, u]) / fx, (v - cy) * float(depth[v, u]) / fy, float(depth[v, u]))
-             for v, u in zip(*np.nonzero(valid))}
-    points, spread = [], []
-    for (v, u), p in point.items():
-        near = [math.sqrt(square(q[0] - p[0]) + square(q[1] - p[1]) + square(q[2] - p[2]))
-                for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1)
-                if (dv or du) and (q := point.get((v + dv, u + du))) is not None]
-        total = 0.0
-        for distance in near:
-            total += distance
-        for distance in sorted(near, reverse=True)[:max(len(near) - k, 0)]:
-            total -= distance
-        points.append(p)
-        spread.append(total / min(len(near), k) if near else math.inf)
-    return np.array(points).reshape(-1, 3), np.array(spread)
-
-
-def square(value: float) -> float:
-    """value * value, as compiled code squares (Python's ** 2 goes through C's pow)."""
-    return value * value
-
-
-@pytest.mark.parametrize(("k", "radius"), [(20, 2), (3, 1), (8, 1), (30, 3), (48, 3), (5, 2)])
-def test_neighbour_pass_gives_the_sequential_values(k, radius):
-    """Holes, NaN, infinite, -0 and negative depths, a ragged mask, rows of a single pixel and pixels without
-    neighbours: every point and spread equals the plain pixel-by-pixel pass within rounding (the compiled pass computes
-    each distance
-    once for both of its pixels and runs the rows vectorized)."""
-    rng = np.random.default_rng(k + radius)
-    depth = (2.0 + rng.normal(0, 0.05, (23, 31))).astype(np.float32)
-    depth[rng.random(depth.shape) < 0.1] = np.nan
-    depth[rng.random(depth.shape) < 0.1] = 0.0
-    for unusable in (np.inf, -np.inf, -0.0, -1.5):  # none of them a point
-        depth[rng.random(depth.shape) < 0.02] = unusable
-    mask = rng.random(depth.shape) < 0.7
-    mask[5] = False
-    mask[5, 17] = True  # a row with one pixel
-    mask[8:15] = False
-    mask[11, 15] = True  # a pixel without neighbours
-    depth[11, 15] = 2.0
-    mask[0, 0] = True  # a corner
-    mask[20:, :] = rng.random((3, 31)) < 0.1  # sparse rows: pixels with few or no neighbours
-    intrinsics = np.array([[50.0, 0, 14.3], [0, 52.0, 11.1], [0, 0, 1]])
-    ours = _depth_points(k, radius)(depth, mask, intrinsics)
-    theirs = sequential_points(depth, mask, intrinsics, k, radius)
-    assert len(theirs[0]) > 150 and np.isinf(theirs[1]).any()
-    for a, b in zip(ours[:2], theirs[:2]):
-        np.testing.assert_allclose(a, b, rtol=1e-6 if a.dtype == np.float32 else 1e-12, atol=0)
 
 
 def test_mask_pixels_counts_the_mask_and_its_border_band():
@@ -375,124 +319,6 @@ def test_masks_in_boxes_are_counted_in_their_windows_with_the_same_outcome():
                               getattr(boxed.observations.ellipsoids, field))
     assert np.array_equal(whole.observations.mask_areas, boxed.observations.mask_areas)
     assert [c.truncated for c in whole.crops] == [c.truncated for c in boxed.crops] == [False, True]
-
-
-def test_inlier_moments_sum_in_point_order():
-    """Mean and scatter of the inliers, summed point by point in order (the bits the fit has always had),
-    the scatter symmetric."""
-    from clipclique.geometry import _extents, _inlier_moments
-
-    rng = np.random.default_rng(7)
-    points = rng.normal(0, 1, (200, 3)) * [0.3, 0.1, 0.05] + [1.0, -2.0, 3.0]
-    spread = rng.uniform(0, 1, 200)
-    count, mean, scatter = _inlier_moments(points, spread, 0.8)
-    inliers = points[spread <= 0.8]
-    want_mean = np.zeros(3)
-    for point in inliers:
-        want_mean += point
-    want_mean /= len(inliers)
-    want_scatter = np.zeros((3, 3))
-    for point in inliers:
-        want_scatter += np.outer(point - want_mean, point - want_mean)
-    assert count == len(inliers) and np.array_equal(mean, want_mean) and np.array_equal(scatter, want_scatter)
-    rotation = np.linalg.eigh(scatter)[1]
-    low, high = _extents(points, spread, 0.8, mean, rotation)
-    along = (inliers - mean) @ rotation
-    np.testing.assert_allclose(low, along.min(axis=0), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(high, along.max(axis=0), rtol=0, atol=1e-12)
-
-
-def numpy_box(points: np.ndarray, spread: np.ndarray, params: FitParams):
-    """The PCA box as numpy wrote it before its ordering was compiled: the reference `_box` keeps."""
-    from clipclique.geometry import _extents, _inlier_moments, _outlier_limit
-
-    limit = _outlier_limit(spread, params.outlier_std_ratio)
-    kept, mean, scatter = _inlier_moments(points, spread, limit)
-    if kept < params.min_points:
-        return None
-    _, rotation = np.linalg.eigh(scatter)
-    low, high = _extents(points, spread, limit, mean, rotation)
-    center = mean + rotation @ ((low + high) / 2)
-    axes = (high - low) / 2
-    if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < params.min_axis:
-        return None
-    order = np.argsort(-axes)
-    rotation = rotation[:, order]
-    if np.linalg.det(rotation) < 0:
-        rotation[:, 2] = -rotation[:, 2]
-    return center, axes[order], rotation
-
-
-def or_refused(fit, *arguments):
-    """`fit(*arguments)`, or "raises" where numpy's eigh refuses the scatter."""
-    try:
-        return fit(*arguments)
-    except np.linalg.LinAlgError:
-        return "raises"
-
-
-def test_box_orders_its_axes_as_numpy_did():
-    """Random clouds of every elongation and orientation, axes exactly equal (a cube's corners: numpy's sort
-    decides), flat and too small clouds, infinite spreads: the same boxes within rounding, or None."""
-    from clipclique.geometry import Oriented, _box, _oriented
-
-    rng = np.random.default_rng(11)
-    params = FitParams(min_points=4)
-    cases = []
-    for _ in range(400):
-        turn = np.linalg.qr(rng.normal(size=(3, 3)))[0]
-        scale = rng.choice([0.0, 0.004, 0.05, 0.3, 1.0], 3)
-        points = rng.normal(0, 1, (int(rng.integers(3, 120)), 3)) * scale @ turn + rng.normal(0, 3, 3)
-        spread = np.where(rng.random(len(points)) < 0.05, np.inf, rng.uniform(0, 1, len(points)))
-        cases.append((points, spread))
-    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
-    for stretch in ([1, 1, 1], [2, 1, 1], [1, 3, 1], [1, 1, 0.5], [0.5, 0.5, 2]):
-        cases.append((corners * stretch, np.zeros(8)))
-    for bad in (np.inf, -np.inf, np.nan, 1e300):  # a scatter that is not finite: numpy's eigh, as before
-        points = rng.normal(0, 1, (40, 3))
-        points[3, 1] = bad
-        cases.append((points, np.zeros(40)))
-    cases.append((np.array([[0.0, -0.0, 1.0], [-0.0, 0.0, 2.0], [1.0, -0.0, 0.0], [-0.0, 1.0, 0.0]] * 3), np.zeros(12)))
-    outcomes = {"box": 0, "none": 0, "raises": 0}
-    for points, spread in cases:
-        got, want = or_refused(_box, points, spread, params), or_refused(numpy_box, points, spread, params)
-        assert (got is None) == (want is None) and (got == "raises") == (want == "raises")
-        outcomes["none" if got is None else "raises" if got == "raises" else "box"] += 1
-        if got is not None and got != "raises":
-            for a, b in zip(got, want):
-                np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
-            assert np.linalg.det(got[2]) > 0 and np.all(np.diff(got[1]) <= 0)
-    assert outcomes["box"] > 80 and outcomes["none"] > 80 and outcomes["raises"] > 0
-    assert _oriented(np.ones(3), np.eye(3), 0.01)[0] == Oriented.UNSURE  # the cube's ties took numpy's way
-    assert _oriented(np.array([1.0, 2.0, 3.0]), np.eye(3)[:, [2, 1, 0]], 0.01)[0] == Oriented.DONE
-
-
-def test_box_parts_eigenvectors_are_numpys():
-    """numba's `eigh` in `_box_parts` (LAPACK's dsyevd, as numpy's) gives numpy's eigenvectors of the inliers'
-    scatter, the same basis within rounding: random clouds, axis-aligned ones (a diagonal scatter), repeated and zero
-    eigenvalues."""
-    from clipclique.geometry import Oriented, _box_parts, _inliers
-
-    rng = np.random.default_rng(5)
-    checked = 0
-    for trial in range(3000):
-        scale = rng.choice([0.0, 1e-3, 0.05, 0.3, 1.0, 1.0], 3)
-        turn = np.eye(3) if trial % 3 == 0 else np.linalg.qr(rng.normal(size=(3, 3)))[0]
-        points = rng.normal(0, 1, (int(rng.integers(4, 200)), 3)) * scale @ turn + rng.normal(0, 3, 3)
-        if trial % 5 == 0:
-            points = np.round(points, 1)  # ties between coordinates
-        spread = rng.uniform(0, 1, len(points))
-        parts = _box_parts(points, spread, 2.0, 4, 0.0)
-        _, _, mean, scatter = _inliers(points, spread, 2.0)
-        if parts[0] == Oriented.DEGENERATE:
-            continue
-        assert parts[0] != Oriented.NOT_FINITE
-        want = np.linalg.eigh(scatter)[1]
-        assert parts[5].flags.c_contiguous
-        np.testing.assert_allclose(parts[5], want, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(parts[3], mean, rtol=1e-12, atol=1e-12)
-        checked += 1
-    assert checked > 2500
 
 
 def each_detection(frame: Frame, detections: Detections, params: ObservationParams) -> list[tuple]:

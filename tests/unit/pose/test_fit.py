@@ -2,7 +2,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.geometry import random_rotation
 from clipclique.pose.fit import (
     MIN_SPREAD_M,
     RELATIVE_SPREAD,
@@ -17,6 +16,7 @@ from clipclique.pose.fit import (
     nonzero_counts,
     weighted_sets,
 )
+from clipclique.sim.poses import random_rotation
 
 
 @pytest.mark.parametrize("seed", range(5))

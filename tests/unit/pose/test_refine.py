@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from clipclique.geometry import pose_errors
 from clipclique.pose import refine as refine_module
+from clipclique.pose.distance import pose_errors
 from clipclique.pose.refine import nearby_pairs, nearby_pairs_of, refine
 from clipclique.pose.stack import Stack
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose

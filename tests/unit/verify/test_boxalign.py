@@ -2,8 +2,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from clipclique.config import make_config
-from clipclique.geometry import look_at, pose_errors
 from clipclique.pipeline import index_map, localize
+from clipclique.pose.distance import pose_errors
+from clipclique.sim.poses import look_at
 from clipclique.types import Camera, Ellipsoids, Hypothesis, Map, Observations, Pose
 from clipclique.verify import boxalign
 from clipclique.verify.projection import project

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from tolerance import assert_close
 
-from clipclique.geometry import look_at, random_rotation
+from clipclique.sim.poses import look_at, random_rotation
 from clipclique.types import Camera, Ellipsoids, Pose
 from clipclique.verify.projection import MIN_DEPTH, box_area, box_iou, ellipse_outlines, pair_iou, project
 

@@ -10,10 +10,10 @@ from tolerance import assert_close
 
 from clipclique.config import VerificationConfig, make_config
 from clipclique.errors import ClipcliqueError
-from clipclique.geometry import look_at
 from clipclique.inliers import consensus
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.stack import Stack
+from clipclique.sim.poses import look_at
 from clipclique.sim.synthetic import SIMULATED_CAMERA, synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Hypothesis, Map, Observations, Pose
 from clipclique.verify import verification
@@ -389,7 +389,7 @@ def test_the_missed_costs_are_the_numpy_passes():
 def test_the_verified_figures_are_the_kernels_passes():
     """`_verified` against its passes one by one (`_rows_pairs`, `_depths_along`, `_measures`, the numpy missed cost)
     and each hypothesis given its group's figures: groups in any order, hypotheses without pairs, none."""
-    from clipclique.geometry import random_rotation
+    from clipclique.sim.poses import random_rotation
 
     rng = np.random.default_rng(16)
     for trial in range(150):
@@ -471,7 +471,7 @@ def test_the_figures_in_one_call_are_the_numpy_passes():
 def test_the_compiled_landmark_depths_are_einsums():
     """`_depths_along` against the einsum of the gathered offsets and optical axes: random poses and hand-made
     entries (-0, NaN, infinities, a landmark at the camera, pairs sharing a landmark or a pose) and no pairs."""
-    from clipclique.geometry import random_rotation
+    from clipclique.sim.poses import random_rotation
     from clipclique.verify.verification import _depths_along
 
     rng = np.random.default_rng(9)

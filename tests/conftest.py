@@ -58,7 +58,8 @@ def pytest_sessionstart(session) -> None:
 
 # `make test` runs with `--dist loadscope`: a module's tests share its fixtures, so they go to one worker
 # together, except where a scope of their own lets costly independent tests spread over the workers: each
-# golden scene's runs (they share that scene's map) and the docs' printed-examples check (its own scratch root).
+# golden scene's runs (they share that scene's map), the docs' printed-examples check (its own scratch root) and
+# the docs pages whose blocks make all they use (tests/e2e/test_readme.py's SELF_CONTAINED).
 OWN_SCOPES = {
     "tests/e2e/test_golden.py::test_the_same_inputs_give_the_same_bytes": "golden demo_desk",
     "tests/e2e/test_readme.py::test_printed_examples_are_current": "printed examples",
@@ -70,6 +71,8 @@ def scope_of(nodeid: str) -> str:
     """The work unit a test goes to a worker in (xdist's scheduler asks for every test)."""
     if golden := GOLDEN_RUN.fullmatch(nodeid):
         return f"golden {golden[1]}"
+    if nodeid.startswith("tests/e2e/test_readme.py::test_self_contained_page_block_runs["):
+        return "self-contained docs pages"
     return OWN_SCOPES.get(nodeid, nodeid.split("::")[0])
 
 

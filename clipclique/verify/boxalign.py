@@ -155,8 +155,8 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
         box, side, x = boxes[starts[h]:ends[h]], sides[starts[h]:ends[h]], seen[starts[h]:ends[h]]
         unit = units[starts[h]:ends[h]]
         rot, trans = rotations[h].copy(), translations[h].copy()
-        cost, usable, normal, gradient = _linearized(c, s, box, side, unit, x, rot, trans, weights, intrinsics, width,
-                                                     height, max_depth, True)
+        cost, usable, normal, gradient = _linearize(c, s, box, side, unit, x, rot, trans, weights, intrinsics, width,
+                                                    height, max_depth, True)
         if not usable:
             continue
         start_cost[h] = cost
@@ -169,7 +169,7 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
             if np.abs(delta).max() < CONVERGED:
                 break
             trial_rot, trial_trans = _moved_one(rot, trans, delta)
-            trial_cost, trial_usable, trial_normal, trial_gradient = _linearized(
+            trial_cost, trial_usable, trial_normal, trial_gradient = _linearize(
                 c, s, box, side, unit, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
                 step < steps - 1)
             if trial_usable and trial_cost < cost:
@@ -216,8 +216,8 @@ def _exp(x, y, z):
 
 
 @njit(cache=True)
-def _linearized(centers, spread, boxes, sides, units, seen, rotation, translation, weights, intrinsics, width, height,
-                max_depth, jacobian):
+def _linearize(centers, spread, boxes, sides, units, seen, rotation, translation, weights, intrinsics, width, height,
+               max_depth, jacobian):
     """At one pose: the Cauchy cost of the pairs' residuals (`_residuals`), whether every landmark is wholly in
     front of the camera, and (when `jacobian`) the normal matrix J^T W J and gradient J^T W r of the reweighted
     residuals (IRLS), J by forward differences."""

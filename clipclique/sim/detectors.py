@@ -43,8 +43,8 @@ def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: in
     return masks
 
 
-def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
-             scores: np.ndarray) -> Detections:
+def degrade(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
+            scores: np.ndarray) -> Detections:
     """The kept true detections (with `class_ids`, possibly confused) followed by `spurious` masks
     of no object (instance id -1): what a simulated detector reports (the true boxes are kept, only the
     spurious masks are boxed). Each true mask lies in its box (`InstanceDetector`'s do): only its box is
@@ -91,7 +91,7 @@ class SimulatedDetector:
         spurious = self._blobs(rng, rng.poisson(self.false_positives), height, width)
         spurious_ids = rng.integers(0, len(self.truth.class_names), len(spurious))
         scores = np.concatenate((rng.uniform(0.6, 1.0, len(class_ids)), rng.uniform(0.3, 0.7, len(spurious))))
-        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        return degrade(true, kept, class_ids, spurious, spurious_ids, scores)
 
     def _other_class(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         count = len(self.truth.class_names)
@@ -199,7 +199,7 @@ class SimulatedYoloDetector:
         expected = self.false_positive_ratio * kept.sum() + (self.sparse_false_positives if sparse else 0.0)
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(expected))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
-        detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        detections = degrade(true, kept, class_ids, spurious, spurious_ids, scores)
         return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections
 
     def _with_duplicates(self, rng: np.random.Generator, detections: Detections,

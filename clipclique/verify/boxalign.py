@@ -35,9 +35,9 @@ CONVERGED = 1e-5  # radians / metres: a step this small ends the refinement
 DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal matrix's diagonal
 
 
-def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
-            map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0,
-            relative: float = 0.0) -> list[Hypothesis]:
+def refine_hypotheses(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
+                      map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0,
+                      relative: float = 0.0) -> list[Hypothesis]:
     """`hypotheses` with each pose refined by box alignment (at most `steps` LM steps, residuals in units of
     `scale` pixels); a hypothesis without three usable pairs, or whose refinement did not lower its cost or moved
     too far, keeps its pose. Observations without boxes or camera: unchanged. `map_spreads`: the map's

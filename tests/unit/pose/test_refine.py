@@ -290,12 +290,12 @@ def same_refinement(got, want):
 
 @pytest.mark.parametrize("weights", ["none", "sim", "com", "both"])
 def test_the_one_compiled_refinement_is_the_round_by_round_one(weights, monkeypatch):
-    """`_refined_densely` (through `refined`) against `_refined_by_rounds`: no hypothesis, one, fifty; 0 to 3
+    """`_refine_densely` (through `refine_stack`) against `_refine_by_rounds`: no hypothesis, one, fifty; 0 to 3
     rounds; similarities with zeros, float32, NaN; an observation without a place; landmarks twice (ties)."""
     rng = np.random.default_rng(30)
     calls = []
-    densely = refine_module._refined_densely
-    monkeypatch.setattr(refine_module, "_refined_densely", lambda *a: calls.append(1) or densely(*a))
+    densely = refine_module._refine_densely
+    monkeypatch.setattr(refine_module, "_refine_densely", lambda *a: calls.append(1) or densely(*a))
     refitted = 0
     for trial in range(60):
         map, observations, truth = crowded_desk(rng, int(rng.integers(3, 40)))
@@ -309,9 +309,9 @@ def test_the_one_compiled_refinement_is_the_round_by_round_one(weights, monkeypa
             observations.ellipsoids.centers[0] = np.nan
         rounds, radius = int(rng.integers(0, 4)), float(rng.choice([0.05, 0.15, 0.3]))
         with np.errstate(invalid="ignore"):
-            got = refine_module.refined(stack, observations, map, similarity, radius, weights, rounds)
-            want = refine_module._refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds,
-                                                    None)
+            got = refine_module.refine_stack(stack, observations, map, similarity, radius, weights, rounds)
+            want = refine_module._refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds,
+                                                   None)
         same_refinement(got, want)
         assert got[1].any() or got[0] is stack
         refitted += got[1].any()
@@ -335,9 +335,9 @@ def test_sets_that_are_not_finite_are_not_refitted():
         similarity = np.ones((len(observations), len(map)))
         before = [a.copy() for a in (stack.rotations, stack.translations, stack.counts, stack.pairs)]
         with np.errstate(all="ignore"):
-            got = refine_module.refined(stack, observations, map, similarity, 0.3, "both")
-            same_refinement(got, refine_module._refined_by_rounds(stack, observations, map, similarity, 0.3, "both", 2,
-                                                                  None))
+            got = refine_module.refine_stack(stack, observations, map, similarity, 0.3, "both")
+            same_refinement(got, refine_module._refine_by_rounds(stack, observations, map, similarity, 0.3, "both", 2,
+                                                                 None))
         assert got[0] is stack and not got[1].any()
         for a, b in zip(before, (stack.rotations, stack.translations, stack.counts, stack.pairs)):
             np.testing.assert_array_equal(a, b)

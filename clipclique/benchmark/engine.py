@@ -213,7 +213,7 @@ def ensure_map(name: str, data_root: Path | None) -> None:
     run_build(name, data_root, path, rrd=False)
 
 
-def finished(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
+def finished_results(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
     """The results of a run already written, or None."""
     path = settings.out_dir(sequence) / "results.json"
     if not path.is_file():
@@ -241,7 +241,7 @@ def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dic
               lambda run=run, worker_settings=worker_settings: dataclasses.replace(run, settings=worker_settings,
                                                                                    notes=list(run.notes), frames=[],
                                                                                    unannotated=[]))
-        document = finished(settings, run.sequence.name)
+        document = finished_results(settings, run.sequence.name)
         if document is not None:
             done[settings.out_dir(run.sequence.name)] = document
             continue

@@ -195,7 +195,7 @@ class SimulatedYoloDetector:
                   * np.where(truncated, self.truncated_factor, 1.0) * np.where(far, self.far_factor, 1.0))
         kept = rng.random(len(true)) < chance
         sparse = 0 < kept.sum() <= self.sparse_objects
-        class_ids = (self._confused_sparse if sparse else self._confused)(rng, true.class_ids[kept])
+        class_ids = (self._confuse_sparse if sparse else self._confuse)(rng, true.class_ids[kept])
         expected = self.false_positive_ratio * kept.sum() + (self.sparse_false_positives if sparse else 0.0)
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(expected))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
@@ -222,7 +222,7 @@ class SimulatedYoloDetector:
             masks_in_boxes=detections.masks_in_boxes,
         )
 
-    def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
+    def _confuse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced by one of its look-alikes with the table's probability."""
         targets, cumulative = self._confusions
         draw = rng.random(len(class_ids))
@@ -230,7 +230,7 @@ class SimulatedYoloDetector:
         chosen = targets[class_ids, np.minimum(pick, targets.shape[1] - 1)]
         return np.where((pick < targets.shape[1]) & (chosen >= 0), chosen, class_ids)
 
-    def _confused_sparse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
+    def _confuse_sparse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced with probability `sparse_confusion` by one of its look-alikes, drawn in proportion
         to the table's probabilities; a class without look-alikes in the map by any other of the map's."""
         targets, cumulative = self._confusions

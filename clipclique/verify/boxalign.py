@@ -168,7 +168,7 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
             delta = -np.linalg.solve(damped, gradient)
             if np.abs(delta).max() < CONVERGED:
                 break
-            trial_rot, trial_trans = _moved_one(rot, trans, delta)
+            trial_rot, trial_trans = _move_pose(rot, trans, delta)
             trial_cost, trial_usable, trial_normal, trial_gradient = _linearize(
                 c, s, box, side, unit, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
                 step < steps - 1)
@@ -182,7 +182,7 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
 
 
 @njit(cache=True)
-def _moved_one(rotation, translation, delta):
+def _move_pose(rotation, translation, delta):
     """A pose moved in its own camera frame by (6,) (rotation vector w, translation d): R exp([w]), t + R d, in
     plain loops (numba's `@` on 3 x 3 matrices calls BLAS, a microsecond each)."""
     turn = _exp(delta[0], delta[1], delta[2])

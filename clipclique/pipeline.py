@@ -141,14 +141,15 @@ def localize(observations: Observations, index: MapIndex, config: LocalizationCo
     if result.failure is None and not len(pool):
         result.failure = Failure(kind=FailureKind.DEGENERATE)
     if config.pose.refine_radius > 0 and len(pool):
-        pool = refine.refined(pool, observations, index.map, scores, config.pose.refine_radius, config.pose.weights,
-                              landmarks=index.landmark_tree)[0]
+        pool = refine.refine_stack(pool, observations, index.map, scores, config.pose.refine_radius,
+                                   config.pose.weights, landmarks=index.landmark_tree)[0]
     ranking.verify_pool(result, pool, observations, index.map, index.spreads, config)
     if config.pose.box_refine_steps > 0 and result.hypotheses:
         settings = config.pose
-        result.hypotheses = boxalign.refined(result.hypotheses, observations, index.map, settings.box_refine_steps,
-                                             settings.box_refine_scale, index.spreads, settings.box_refine_centre_m,
-                                             settings.box_refine_size_weight, settings.box_refine_relative)
+        result.hypotheses = boxalign.refine_hypotheses(result.hypotheses, observations, index.map,
+                                                       settings.box_refine_steps, settings.box_refine_scale,
+                                                       index.spreads, settings.box_refine_centre_m,
+                                                       settings.box_refine_size_weight, settings.box_refine_relative)
     lap(Stage.VERIFICATION)
     for stage in PIPELINE_STAGES:
         timings.setdefault(stage, 0.0)

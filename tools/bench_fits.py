@@ -43,15 +43,15 @@ def recorded_fits(query: Callable[[], object]) -> list[Batch]:
             return fit(source, target, weights)
         return recorded
 
-    saved = hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined
+    saved = hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refine_stack
     hypotheses.fit_rigid_conditioned = recording(fit_rigid_conditioned)
     refine.fit_rigid_batch = recording(fit_rigid_batch)
-    refine.refined = lambda stack, observations, map, similarity, radius, weights, rounds=2, landmarks=None: (
-        refine._refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks))
+    refine.refine_stack = lambda stack, observations, map, similarity, radius, weights, rounds=2, landmarks=None: (
+        refine._refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks))
     try:
         query()
     finally:
-        hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refined = saved
+        hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refine_stack = saved
     return batches
 
 

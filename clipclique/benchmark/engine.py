@@ -131,7 +131,7 @@ def _memo(store: OrderedDict, key: str, make: Callable[[], Any]) -> Any:
     return store[key]
 
 
-def _prepared(settings: RunSettings) -> Run:
+def _cached_run(settings: RunSettings) -> Run:
     return _memo(_RUNS, _run_key(settings), lambda: prepare(settings))
 
 
@@ -141,7 +141,7 @@ def _run_key(settings: RunSettings) -> str:
 
 def perceive_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path) -> int:
     """Detect, fit and embed each frame not cached yet; the number perceived."""
-    run = _prepared(settings)
+    run = _cached_run(settings)
     count = 0
     for i in frames:
         path = perception.frame_file(folder, i)
@@ -164,7 +164,7 @@ def localize_chunk(settings: RunSettings, frames: tuple[int, ...], folder: Path,
                    *after: Any) -> list[FrameOutcome | str]:
     """Localize and score the cached frames (`after`: the perception tasks they wait for); a frame without
     annotations for the detector is its name."""
-    run = _prepared(settings)
+    run = _cached_run(settings)
     key = json.dumps([dataclasses.asdict(settings), run.config.to_dict()], default=str, sort_keys=True)
     index = _memo(_INDEXES, key, lambda: index_map(run.map, run.config))
     windower = None if run.odometry is None else Windower(
@@ -213,7 +213,7 @@ def ensure_map(name: str, data_root: Path | None) -> None:
     run_build(name, data_root, path, rrd=False)
 
 
-def finished(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
+def finished_results(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
     """The results of a run already written, or None."""
     path = settings.out_dir(sequence) / "results.json"
     if not path.is_file():
@@ -227,7 +227,7 @@ def finished(settings: RunSettings, sequence: str) -> dict[str, Any] | None:
 def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dict[Path, dict[str, Any]]]:
     """Prepare each run here (maps built for the demo); those not finished yet, and the documents of those that are.
 
-    Tasks run in this process find each run prepared under their settings (`_prepared`), sharing its sequence,
+    Tasks run in this process find each run prepared under their settings (`_cached_run`), sharing its sequence,
     map and models instead of loading them a second time (seconds for CLIP and YOLO)."""
     jobs, done = [], {}
     for settings in runs:
@@ -241,7 +241,7 @@ def plan_jobs(runs: list[RunSettings], cache_root: Path) -> tuple[list[Job], dic
               lambda run=run, worker_settings=worker_settings: dataclasses.replace(run, settings=worker_settings,
                                                                                    notes=list(run.notes), frames=[],
                                                                                    unannotated=[]))
-        document = finished(settings, run.sequence.name)
+        document = finished_results(settings, run.sequence.name)
         if document is not None:
             done[settings.out_dir(run.sequence.name)] = document
             continue

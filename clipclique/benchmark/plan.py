@@ -93,7 +93,7 @@ def read_plan(path: Path) -> Plan:
     if "scenes" not in tree or not tree["scenes"]:
         raise PlanError(f"{path}: no scenes (scenes = [\"demo\", ...])")
     try:
-        entries = _dotted(tree.get("grid", {}))
+        entries = _flatten_dotted(tree.get("grid", {}))
     except RecursionError:
         raise PlanError(f"{path}: grid nests too deep") from None
     grid = {}
@@ -107,12 +107,12 @@ def read_plan(path: Path) -> Plan:
                 tree.get("max_frames"), tree.get("detector"), tree.get("encoder"), inputs, str(path))
 
 
-def _dotted(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def _flatten_dotted(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """`{"inliers": {"d_comp": [..]}}` (TOML's unquoted dotted keys) -> `{"inliers.d_comp": [..]}`."""
     flat: dict[str, Any] = {}
     for key, value in table.items():
         if isinstance(value, dict):
-            flat |= _dotted(value, f"{prefix}{key}.")
+            flat |= _flatten_dotted(value, f"{prefix}{key}.")
         else:
             flat[f"{prefix}{key}"] = value
     return flat

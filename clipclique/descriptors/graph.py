@@ -128,8 +128,8 @@ def _capped_rows(centers: np.ndarray, d_adj: float, pairs: np.ndarray, full: np.
                 kept[at[v]] = neighbours[f, t]
                 at[v] += 1
     if len(full) == 0:  # every node kept all its neighbours: the kept rows are mutual, their transpose sorted
-        return _transposed(kept_pointers, kept)
-    kept_pointers, kept = _transposed(*_transposed(kept_pointers, kept))
+        return _transpose(kept_pointers, kept)
+    kept_pointers, kept = _transpose(*_transpose(kept_pointers, kept))
     pointers = np.zeros(n + 1, np.int64)
     indices = np.empty(len(kept), np.int64)
     for v in range(n):
@@ -144,7 +144,7 @@ def _capped_rows(centers: np.ndarray, d_adj: float, pairs: np.ndarray, full: np.
 
 
 @njit(cache=True)
-def _transposed(pointers: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _transpose(pointers: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The transpose of a square pattern's CSR rows, each row's indices ascending (a counting sort: rows are read
     in order, so each column collects them ascending)."""
     n = len(pointers) - 1
@@ -203,7 +203,7 @@ def semantic_histograms(
     steps = sp.csr_matrix(adjacency, dtype=np.float64)
     walks = labels
     for _ in range(walk_length - 1):
-        walks = _prefixed(labels, (steps @ walks).tocsr())
+        walks = _row_kron(labels, (steps @ walks).tocsr())
     walks.sum_duplicates()
     walks.eliminate_zeros()
     return _l2_normalized(walks) if n else walks
@@ -240,7 +240,7 @@ def _label_rows(class_ids: np.ndarray, num_classes: int, kernel: sp.csr_matrix |
     return one_hot if kernel is None else (one_hot @ kernel).tocsr()
 
 
-def _prefixed(labels: sp.csr_matrix, tails: sp.csr_matrix) -> sp.csr_matrix:
+def _row_kron(labels: sp.csr_matrix, tails: sp.csr_matrix) -> sp.csr_matrix:
     """Row-wise Kronecker product: out[v, c * B + j] = labels[v, c] * tails[v, j], B = tails' width."""
     width = tails.shape[1]
     label_count, tail_count = np.diff(labels.indptr), np.diff(tails.indptr)
@@ -413,7 +413,7 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
     CSR rows (`neighbour_pointers`, `neighbour_indices`) and label rows (zeros left out): each sum adds
     its terms in the order scipy's sparse products do (neighbours in stored order), from 0.
 
-    `normalized`: the rows as `_scaled_reversed(..., _inverse_norms(...))` stores them (L2-normalized, last bin
+    `normalized`: the rows as `_scale_rows(..., _inverse_norms(...))` stores them (L2-normalized, last bin
     first, zeros dropped), each written so while it is in cache and into arrays sized once by a bound, where a
     second pass and doubling arrays cost a third of a 47,000-landmark map's histograms."""
     n = len(neighbour_pointers) - 1
@@ -432,7 +432,7 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                 bins[at], values[at] = label_bins[e], label_values[e]
                 at += 1
     if normalized and walk_length <= 1:
-        return _scaled_reversed(pointers, bins, values, _inverse_norms(pointers, values))
+        return _scale_rows(pointers, bins, values, _inverse_norms(pointers, values))
     label_pointers, label_bins, label_values = pointers, bins, values
     width = num_classes
     for step in range(walk_length - 1):
@@ -512,8 +512,8 @@ def _row_bound(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarray, po
 
 
 @njit(cache=True)
-def _scaled_reversed(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
-                     scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _scale_rows(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
+                scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`diags(scale) @ rows` as scipy's sparse product stores it: each row's entries last bin first, zeros dropped."""
     n = len(scale)
     out_pointers = np.zeros(n + 1, np.int64)

@@ -152,7 +152,7 @@ def top_cliques(
     if count < 1 or num_nodes < min_size:
         return TopCliques.of([], np.zeros(0), 0, None)
     deadline = time.perf_counter() + time_limit_s
-    state, members, sizes, totals, arrays = _started(weights, groups, min_size, max_cliques, edges, num_nodes, count)
+    state, members, sizes, totals, arrays = _start(weights, groups, min_size, max_cliques, edges, num_nodes, count)
     cap = None
     problem = None if arrays is None else Problem(weights, groups, min_size, max_cliques)
     while True:
@@ -181,7 +181,7 @@ def clique_total(cliques: list[np.ndarray], weights: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
-def _started(weights, groups, min_size, max_cliques, edges, num_nodes, count):
+def _start(weights, groups, min_size, max_cliques, edges, num_nodes, count):
     """`_prepare` and the search's first slice in one call, the `Problem` given as plain arguments (numba types a
     named tuple argument in Python, slowly): the state, the top list stacked (`_stacked_best`), and the search's
     arrays only while it runs on (None once it ended: most searches end within the first slice, and handing the graph

@@ -122,7 +122,7 @@ def _pool_size(observations: Observations, config: LocalizationConfig) -> int:
     return max(config.top_n, config.inliers.rerank_pool) if reranked(observations, config) else config.top_n
 
 
-def _stacked(sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+def _flatten_sets(sets: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Sets of candidates as one array of their members, set after set, and (B,) their sizes."""
     return (np.concatenate(sets).astype(np.int64) if sets else np.zeros(0, np.int64),
             np.array([len(members) for members in sets], np.int64))
@@ -246,7 +246,7 @@ def from_consensus(result: LocalizationResult, observations: Observations, map: 
     )
     result.num_cliques = found.num_hypotheses
     lap(Stage.INLIERS)
-    pool = _hypotheses(result, observations, map, config, *_stacked(found.inlier_sets), np.array(found.scores))
+    pool = _hypotheses(result, observations, map, config, *_flatten_sets(found.inlier_sets), np.array(found.scores))
     if not found.inlier_sets:
         result.failure = Failure(kind=FailureKind.NO_MINIMAL_SET)
     lap(Stage.POSE)

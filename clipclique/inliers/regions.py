@@ -118,7 +118,7 @@ def split(observed_centers: np.ndarray, landmarks: Ellipsoids, candidates: np.nd
     labels = region_labels(landmarks.centers[candidates[:, 1]],
                            compatibility.pair_reach(observed, settings.d_comp, widest))
     sizes = np.bincount(labels)
-    order = _grouped(labels, sizes)
+    order = _label_order(labels, sizes)
     bounds = np.concatenate(([0], np.cumsum(sizes)))
     rows = [order[start:end] for start, end in itertools.pairwise(bounds)]
     capped = bool(sizes.max() > max_candidates)
@@ -132,7 +132,7 @@ def split(observed_centers: np.ndarray, landmarks: Ellipsoids, candidates: np.nd
 
 
 @njit(cache=True)
-def _grouped(labels: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+def _label_order(labels: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """Indices sorted by label, ascending within a label (a counting sort)."""
     at = np.zeros(len(sizes), np.int64)
     at[1:] = np.cumsum(sizes)[:-1]

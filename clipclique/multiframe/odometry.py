@@ -66,11 +66,11 @@ def from_trajectory(path: Path, timestamps: np.ndarray, max_diff: float = MAX_TI
     file or one that matches no frame)."""
     path = Path(path)
     times, poses = read_trajectory(path)
-    return matched(times, poses, timestamps, str(path), path.name, max_diff)
+    return nearest_odometry(times, poses, timestamps, str(path), path.name, max_diff)
 
 
-def matched(times: np.ndarray, poses: list[Pose], timestamps: np.ndarray, where: str, name: str,
-            max_diff: float = MAX_TIME_DIFF) -> Odometry:
+def nearest_odometry(times: np.ndarray, poses: list[Pose], timestamps: np.ndarray, where: str, name: str,
+                     max_diff: float = MAX_TIME_DIFF) -> Odometry:
     """The poses at `times` nearest to each frame's timestamp; a DatasetError naming `where` when none is near."""
     nearest = associate(np.asarray(timestamps, np.float64), np.asarray(times, np.float64), max_diff)
     if len(timestamps) and (nearest < 0).all():
@@ -92,7 +92,7 @@ def bag_odometry(source: str, sequence: Sequence | None) -> Odometry:
                                f"{MAX_TIME_DIFF} s of any frame")
         return Odometry(poses, source, simulated=False)
     times, poses = sequence.odometry_track(rest)
-    return matched(times, poses, sequence.timestamps, f"{sequence.root}, {rest}", source)
+    return nearest_odometry(times, poses, sequence.timestamps, f"{sequence.root}, {rest}", source)
 
 
 def drifting(truth: list[Pose | None], percent: float, seed: int = 0) -> Odometry:

@@ -68,15 +68,15 @@ def _box(points: np.ndarray, spread: np.ndarray, params: FitParams) -> tuple[np.
     if parts[0] == Oriented.NOT_FINITE:
         limit, _, mean, scatter = _inliers(points, spread, params.outlier_std_ratio)
         _, eigenvectors = np.linalg.eigh(scatter)
-        middle, axes = _extents_halved(points, spread, limit, mean, eigenvectors)
-        parts = (*_oriented(axes, eigenvectors, params.min_axis), mean, middle, eigenvectors)
+        middle, axes = _middle_and_half_size(points, spread, limit, mean, eigenvectors)
+        parts = (*_orientation(axes, eigenvectors, params.min_axis), mean, middle, eigenvectors)
     return finished_box(*parts)
 
 
 def finished_box(oriented: int, axes: np.ndarray, rotation: np.ndarray, mean: np.ndarray, middle: np.ndarray,
                  eigenvectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(center, semi-axes, rotation) from `_box_parts`: the centre added up by numpy's matrix product (BLAS's
-    bits), the axes ordered by numpy's sort and determinant where `_oriented` was unsure; None for no box."""
+    bits), the axes ordered by numpy's sort and determinant where `_orientation` was unsure; None for no box."""
     if oriented == Oriented.DEGENERATE:
         return None
     center = mean + eigenvectors @ middle
@@ -92,7 +92,7 @@ def finished_box(oriented: int, axes: np.ndarray, rotation: np.ndarray, mean: np
 @njit(cache=True)
 def _box_parts(points: np.ndarray, spread: np.ndarray, ratio: float, min_points: int,
                min_axis: float) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """`_box` up to its centre, in one compiled call: (an `Oriented` value, `_oriented`'s axes and rotation, the
+    """`_box` up to its centre, in one compiled call: (an `Oriented` value, `_orientation`'s axes and rotation, the
     inliers' mean, the middle of their extents and the scatter's eigenvectors). DEGENERATE also for fewer than
     `min_points` inliers, NOT_FINITE (and nothing else meaningful) for a scatter that is not finite. numba's
     `eigh` calls LAPACK's dsyevd as numpy's does: the same bits (tests/unit/perception/test_observations.py)."""
@@ -103,13 +103,13 @@ def _box_parts(points: np.ndarray, spread: np.ndarray, ratio: float, min_points:
     if not np.isfinite(scatter).all():
         return Oriented.NOT_FINITE.value, nothing, np.eye(3), mean, nothing, np.eye(3)
     eigenvectors = np.ascontiguousarray(np.linalg.eigh(scatter)[1])  # C-ordered as numpy's: the same product
-    middle, axes = _extents_halved(points, spread, limit, mean, eigenvectors)
-    oriented, axes, rotation = _oriented(axes, eigenvectors, min_axis)
+    middle, axes = _middle_and_half_size(points, spread, limit, mean, eigenvectors)
+    oriented, axes, rotation = _orientation(axes, eigenvectors, min_axis)
     return oriented, axes, rotation, mean, middle, eigenvectors
 
 
 class Oriented(enum.IntEnum):
-    """What `_oriented` made of a box's axes."""
+    """What `_orientation` made of a box's axes."""
 
     DONE = 0  # axes largest first, the rotation's columns in their order, right-handed
     DEGENERATE = 1  # an axis not finite or below the minimum: no ellipsoid
@@ -118,7 +118,7 @@ class Oriented(enum.IntEnum):
 
 
 @njit(cache=True)
-def _oriented(axes: np.ndarray, rotation: np.ndarray, min_axis: float) -> tuple[int, np.ndarray, np.ndarray]:
+def _orientation(axes: np.ndarray, rotation: np.ndarray, min_axis: float) -> tuple[int, np.ndarray, np.ndarray]:
     """(an `Oriented` value, the box's axes largest first, the rotation's columns in that order with its third
     negated where the determinant is negative): the sign of a determinant of +-1 from cofactors is LAPACK's."""
     if not (np.isfinite(axes).all() and np.isfinite(rotation).all()) or axes.min() < min_axis:
@@ -155,8 +155,8 @@ def _inliers(points: np.ndarray, spread: np.ndarray, ratio: float) -> tuple[floa
 
 
 @njit(cache=True)
-def _extents_halved(points: np.ndarray, spread: np.ndarray, limit: float, mean: np.ndarray,
-                    rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _middle_and_half_size(points: np.ndarray, spread: np.ndarray, limit: float, mean: np.ndarray,
+                          rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The middle of `_extents` ((low + high) / 2) and half its size ((high - low) / 2), in one call."""
     low, high = _extents(points, spread, limit, mean, rotation)
     return (low + high) / 2, (high - low) / 2

@@ -52,7 +52,7 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
     point against the landmarks within reach along one axis and picks each pose's nearest one-to-one
     (`_nearest_of_all`: fifty poses of a frame against 47 landmarks); beyond, a KD-tree join lists the pairs nearer
     than `radius` (`_near_pairs`) and one compiled pass picks (a numpy pass each cost more than the work)."""
-    moved = _moved(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
+    moved = _apply_poses(rotations, translations, np.ascontiguousarray(observations.ellipsoids.centers, np.float64))
     centers = map.ellipsoids.centers
     if len(moved) * len(centers) <= DENSE_PAIRS:
         return _nearest_of_all(moved, *_along_widest_axis(np.ascontiguousarray(centers, np.float64)), similarity,
@@ -62,7 +62,7 @@ def _stacked_nearby_pairs(rotations: np.ndarray, translations: np.ndarray, obser
 
 
 @njit(cache=True)
-def _moved(rotations, translations, points):
+def _apply_poses(rotations, translations, points):
     """(B * K, 3) the K points moved by each of B poses, `np.einsum("bij,kj->bki", rotations, points) +
     translations[:, None]` in one pass (two numpy passes cost more than the arithmetic)."""
     moved = np.empty((len(rotations) * len(points), 3))
@@ -253,36 +253,36 @@ def _nearest_free(distance, lm, start, stop, pose, landmark_used_by):
 def refine(hypotheses: list[Hypothesis], observations: Observations, map: Map, similarity: np.ndarray, radius: float,
            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> None:
     """Each hypothesis's pose and correspondences replaced by the refit on its nearby pairs, in place
-    (`refined` of their stack)."""
-    stack, moved = refined(Stack.of(hypotheses), observations, map, similarity, radius, weights, rounds, landmarks)
+    (`refine_stack` of their stack)."""
+    stack, moved = refine_stack(Stack.of(hypotheses), observations, map, similarity, radius, weights, rounds, landmarks)
     ends = np.cumsum(stack.counts)
     for i in np.flatnonzero(moved).tolist():
         hypotheses[i].pose = Pose(stack.rotations[i], stack.translations[i])
         hypotheses[i].correspondences = stack.pairs[ends[i] - stack.counts[i]: ends[i]]
 
 
-def refined(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
-            weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> tuple[Stack, np.ndarray]:
+def refine_stack(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                 weights: PoseWeights, rounds: int = 2, landmarks: cKDTree | None = None) -> tuple[Stack, np.ndarray]:
     """The stack with each hypothesis's pose and pairs replaced by the refit on its nearby pairs, as long as
     they are at least as many as it had (a refit never rests on fewer objects), `rounds` times; and (B,)
     which were replaced. The hypotheses still refining are refitted together, one batch per round (a
-    re-ranked frame has fifty). A room-sized map is refined in one compiled call (`_refined_densely`; a dozen
-    Python-level calls a round cost as much as the work), a larger one round by round (`_refined_by_rounds`).
+    re-ranked frame has fifty). A room-sized map is refined in one compiled call (`_refine_densely`; a dozen
+    Python-level calls a round cost as much as the work), a larger one round by round (`_refine_by_rounds`).
     `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
     if len(stack) * len(observations) * len(map) <= DENSE_PAIRS:
-        rotations, translations, sizes, pairs, moved = _refined_densely(
+        rotations, translations, sizes, pairs, moved = _refine_densely(
             stack.rotations, stack.translations, stack.counts, stack.pairs,
             np.ascontiguousarray(observations.ellipsoids.centers, np.float64), observations.ellipsoids.axes,
             np.ascontiguousarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes, similarity, radius,
             WEIGHT_MODES[weights], rounds)
         return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes, scores=stack.scores,
                       conditioning=stack.conditioning) if moved.any() else stack), moved
-    return _refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
+    return _refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
 
 
-def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
-                       weights: PoseWeights, rounds: int, landmarks: cKDTree | None) -> tuple[Stack, np.ndarray]:
-    """`refined`, a round at a time: the nearby pairs of each by `_stacked_nearby_pairs` (a KD-tree join beyond a
+def _refine_by_rounds(stack: Stack, observations: Observations, map: Map, similarity: np.ndarray, radius: float,
+                      weights: PoseWeights, rounds: int, landmarks: cKDTree | None) -> tuple[Stack, np.ndarray]:
+    """`refine_stack`, a round at a time: the nearby pairs of each by `_stacked_nearby_pairs` (a KD-tree join beyond a
     room-sized map) and the fits by `fit_rigid_batch`."""
     rotations, translations, sizes = stack.rotations.copy(), stack.translations.copy(), stack.counts.copy()
     found = [stack.pairs]  # every round's pairs after the stack's own; `origin` indexes them all, joined
@@ -315,11 +315,11 @@ def _refined_by_rounds(stack: Stack, observations: Observations, map: Map, simil
 
 
 @njit(cache=True)
-def _refined_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
-                     similarity, radius, mode, rounds):
-    """`_refined_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
+def _refine_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
+                    similarity, radius, mode, rounds):
+    """`_refine_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
     stack's arrays) and which hypotheses moved. Each round as
-    `_refined_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_gathered`,
+    `_refine_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_chosen_pairs`,
     `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and
     `_survivors`."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
@@ -332,15 +332,15 @@ def _refined_densely(rotations, translations, counts, pairs, centers, axes, land
     for _ in range(rounds):
         if not len(active):
             break
-        near, near_counts = _nearest_of_all(_moved(rotations[active], translations[active], centers), by_axis, axis,
-                                            landmark_of, similarity, radius, len(active), num_obs)
+        near, near_counts = _nearest_of_all(_apply_poses(rotations[active], translations[active], centers), by_axis,
+                                            axis, landmark_of, similarity, radius, len(active), num_obs)
         starts, refits = _refitting(near_counts, sizes[active])
         if not len(refits):
             break
         fitted, firsts = alike_spans(np.zeros((len(refits), 0), np.int64), near.reshape(-1), 2 * starts[refits],
                                      2 * near_counts[refits])
         firsts = refits[firsts]
-        chosen, scores = _gathered(near, starts[firsts], near_counts[firsts], similarity)
+        chosen, scores = _chosen_pairs(near, starts[firsts], near_counts[firsts], similarity)
         source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[firsts], 0, 0,
                                                    np.float64(similarity[0, 0]), centers, axes, landmark_centers,
                                                    landmark_axes, mode)
@@ -362,7 +362,7 @@ def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observatio
            similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
     with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
-    chosen, scores = _gathered(pairs, starts, counts, similarity)
+    chosen, scores = _chosen_pairs(pairs, starts, counts, similarity)
     source, target, w = weighted_sets(chosen, scores, counts, (0, 0, similarity[0, 0]),
                                       (observations.ellipsoids.centers, observations.ellipsoids.axes),
                                       (map.ellipsoids.centers, map.ellipsoids.axes), weights)
@@ -388,8 +388,8 @@ def _refitting(counts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 @njit(cache=True)
-def _gathered(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray,
-              similarity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _chosen_pairs(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray,
+                  similarity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The sets pairs[start: start + count] one after another (M, 2), and (M,) each pair's similarity: numpy's
     `pairs[np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())]` and
     `similarity[chosen[:, 0], chosen[:, 1]]` in one pass."""

@@ -43,8 +43,8 @@ def ellipse_masks(centers: np.ndarray, radii: np.ndarray, height: int, width: in
     return masks
 
 
-def degraded(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
-             scores: np.ndarray) -> Detections:
+def degrade(true: Detections, kept: np.ndarray, class_ids: np.ndarray, spurious: np.ndarray, spurious_ids: np.ndarray,
+            scores: np.ndarray) -> Detections:
     """The kept true detections (with `class_ids`, possibly confused) followed by `spurious` masks
     of no object (instance id -1): what a simulated detector reports (the true boxes are kept, only the
     spurious masks are boxed). Each true mask lies in its box (`InstanceDetector`'s do): only its box is
@@ -91,7 +91,7 @@ class SimulatedDetector:
         spurious = self._blobs(rng, rng.poisson(self.false_positives), height, width)
         spurious_ids = rng.integers(0, len(self.truth.class_names), len(spurious))
         scores = np.concatenate((rng.uniform(0.6, 1.0, len(class_ids)), rng.uniform(0.3, 0.7, len(spurious))))
-        return degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        return degrade(true, kept, class_ids, spurious, spurious_ids, scores)
 
     def _other_class(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         count = len(self.truth.class_names)
@@ -195,11 +195,11 @@ class SimulatedYoloDetector:
                   * np.where(truncated, self.truncated_factor, 1.0) * np.where(far, self.far_factor, 1.0))
         kept = rng.random(len(true)) < chance
         sparse = 0 < kept.sum() <= self.sparse_objects
-        class_ids = (self._confused_sparse if sparse else self._confused)(rng, true.class_ids[kept])
+        class_ids = (self._confuse_sparse if sparse else self._confuse)(rng, true.class_ids[kept])
         expected = self.false_positive_ratio * kept.sum() + (self.sparse_false_positives if sparse else 0.0)
         spurious, spurious_ids = self._false_positives(rng, frame, rng.poisson(expected))
         scores = np.concatenate((rng.uniform(0.4, 0.95, len(class_ids)), rng.uniform(0.25, 0.6, len(spurious))))
-        detections = degraded(true, kept, class_ids, spurious, spurious_ids, scores)
+        detections = degrade(true, kept, class_ids, spurious, spurious_ids, scores)
         return self._with_duplicates(rng, detections, true.class_ids[kept]) if self.duplicate_rate > 0 else detections
 
     def _with_duplicates(self, rng: np.random.Generator, detections: Detections,
@@ -222,7 +222,7 @@ class SimulatedYoloDetector:
             masks_in_boxes=detections.masks_in_boxes,
         )
 
-    def _confused(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
+    def _confuse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced by one of its look-alikes with the table's probability."""
         targets, cumulative = self._confusions
         draw = rng.random(len(class_ids))
@@ -230,7 +230,7 @@ class SimulatedYoloDetector:
         chosen = targets[class_ids, np.minimum(pick, targets.shape[1] - 1)]
         return np.where((pick < targets.shape[1]) & (chosen >= 0), chosen, class_ids)
 
-    def _confused_sparse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
+    def _confuse_sparse(self, rng: np.random.Generator, class_ids: np.ndarray) -> np.ndarray:
         """Each class replaced with probability `sparse_confusion` by one of its look-alikes, drawn in proportion
         to the table's probabilities; a class without look-alikes in the map by any other of the map's."""
         targets, cumulative = self._confusions

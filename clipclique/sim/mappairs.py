@@ -12,8 +12,8 @@ from clipclique.sim.synthetic import synthetic_map
 from clipclique.types import Ellipsoids, Map, Pose
 
 
-def detected(room: Map, rng: np.random.Generator, miss: float, extra: float, confuse: float,
-             noise_m: float, merge: int = 0) -> Map:
+def detector_map(room: Map, rng: np.random.Generator, miss: float, extra: float, confuse: float,
+                 noise_m: float, merge: int = 0) -> Map:
     """`room` as one detector maps it: a share `miss` of the landmarks missed, `confuse` of the rest given another
     class, false positives (`extra` of the count) of random classes inside the room's box, centres jittered by
     `noise_m`; `merge` > 0 folds the last `merge` classes onto the first ones (a coarser vocabulary)."""
@@ -44,10 +44,10 @@ def detector_pair(rng: np.random.Generator) -> tuple[Map, Map, Pose]:
     room = synthetic_map(rng, int(rng.integers(30, 60)), num_classes=12)
     x = room.ellipsoids.centers[:, 0]
     cut, band = rng.uniform(2.0, 3.0), rng.uniform(0.3, 1.2)
-    first = detected(room.subset(np.flatnonzero(x < cut + band)), rng, miss=rng.uniform(0.1, 0.4),
-                     extra=rng.uniform(0.0, 0.3), confuse=rng.uniform(0.0, 0.2), noise_m=0.03)
-    second = detected(room.subset(np.flatnonzero(x > cut - band)), rng, miss=rng.uniform(0.1, 0.4),
-                      extra=rng.uniform(0.0, 0.3), confuse=rng.uniform(0.0, 0.2), noise_m=0.05,
-                      merge=int(rng.integers(0, 4)))
+    first = detector_map(room.subset(np.flatnonzero(x < cut + band)), rng, miss=rng.uniform(0.1, 0.4),
+                         extra=rng.uniform(0.0, 0.3), confuse=rng.uniform(0.0, 0.2), noise_m=0.03)
+    second = detector_map(room.subset(np.flatnonzero(x > cut - band)), rng, miss=rng.uniform(0.1, 0.4),
+                          extra=rng.uniform(0.0, 0.3), confuse=rng.uniform(0.0, 0.2), noise_m=0.05,
+                          merge=int(rng.integers(0, 4)))
     truth = Pose(random_rotation(rng), rng.uniform(-5, 5, 3))
     return first.transformed(truth.inverse()), second, truth

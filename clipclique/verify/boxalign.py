@@ -35,9 +35,9 @@ CONVERGED = 1e-5  # radians / metres: a step this small ends the refinement
 DAMPING = 1e-3  # initial Levenberg-Marquardt damping, relative to the normal matrix's diagonal
 
 
-def refined(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
-            map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0,
-            relative: float = 0.0) -> list[Hypothesis]:
+def refine_hypotheses(hypotheses: list[Hypothesis], observations: Observations, map: Map, steps: int, scale: float,
+                      map_spreads: np.ndarray | None = None, centre_m: float = 0.0, size_weight: float = 1.0,
+                      relative: float = 0.0) -> list[Hypothesis]:
     """`hypotheses` with each pose refined by box alignment (at most `steps` LM steps, residuals in units of
     `scale` pixels); a hypothesis without three usable pairs, or whose refinement did not lower its cost or moved
     too far, keeps its pose. Observations without boxes or camera: unchanged. `map_spreads`: the map's
@@ -155,8 +155,8 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
         box, side, x = boxes[starts[h]:ends[h]], sides[starts[h]:ends[h]], seen[starts[h]:ends[h]]
         unit = units[starts[h]:ends[h]]
         rot, trans = rotations[h].copy(), translations[h].copy()
-        cost, usable, normal, gradient = _linearized(c, s, box, side, unit, x, rot, trans, weights, intrinsics, width,
-                                                     height, max_depth, True)
+        cost, usable, normal, gradient = _linearize(c, s, box, side, unit, x, rot, trans, weights, intrinsics, width,
+                                                    height, max_depth, True)
         if not usable:
             continue
         start_cost[h] = cost
@@ -168,8 +168,8 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
             delta = -np.linalg.solve(damped, gradient)
             if np.abs(delta).max() < CONVERGED:
                 break
-            trial_rot, trial_trans = _moved_one(rot, trans, delta)
-            trial_cost, trial_usable, trial_normal, trial_gradient = _linearized(
+            trial_rot, trial_trans = _move_pose(rot, trans, delta)
+            trial_cost, trial_usable, trial_normal, trial_gradient = _linearize(
                 c, s, box, side, unit, x, trial_rot, trial_trans, weights, intrinsics, width, height, max_depth,
                 step < steps - 1)
             if trial_usable and trial_cost < cost:
@@ -182,7 +182,7 @@ def _solve(centers, spread, column, boxes, sides, units, seen, starts, ends, rot
 
 
 @njit(cache=True)
-def _moved_one(rotation, translation, delta):
+def _move_pose(rotation, translation, delta):
     """A pose moved in its own camera frame by (6,) (rotation vector w, translation d): R exp([w]), t + R d, in
     plain loops (numba's `@` on 3 x 3 matrices calls BLAS, a microsecond each)."""
     turn = _exp(delta[0], delta[1], delta[2])
@@ -216,8 +216,8 @@ def _exp(x, y, z):
 
 
 @njit(cache=True)
-def _linearized(centers, spread, boxes, sides, units, seen, rotation, translation, weights, intrinsics, width, height,
-                max_depth, jacobian):
+def _linearize(centers, spread, boxes, sides, units, seen, rotation, translation, weights, intrinsics, width, height,
+               max_depth, jacobian):
     """At one pose: the Cauchy cost of the pairs' residuals (`_residuals`), whether every landmark is wholly in
     front of the camera, and (when `jacobian`) the normal matrix J^T W J and gradient J^T W r of the reweighted
     residuals (IRLS), J by forward differences."""

@@ -57,16 +57,16 @@ def spreads(ellipsoids: Ellipsoids) -> np.ndarray:
 def project_spreads(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                     camera: Camera) -> Projection:
     """`project` of ellipsoids given by their centres (N, 3) and `spreads` (N, 9)."""
-    conics, boxes, visible, images, full_areas = _projected(centers, spread, rotations, translations, camera.intrinsics,
-                                                            float(camera.width), float(camera.height),
-                                                            float(camera.max_depth))
+    conics, boxes, visible, images, full_areas = _projections(centers, spread, rotations, translations,
+                                                              camera.intrinsics, float(camera.width),
+                                                              float(camera.height), float(camera.max_depth))
     return Projection(conics, boxes, visible, images[..., 2], full_areas)
 
 
 @njit(cache=True)
-def _projected(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-               intrinsics: np.ndarray, width: float, height: float,
-               max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _projections(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                 intrinsics: np.ndarray, width: float, height: float,
+                 max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`_outline_boxes` of V = K R^T, vec(V M V^T) = spread (V kron V)^T and h = (c - t) V^T in one compiled call,
     each product a plain loop (three BLAS calls per pose cost more than the arithmetic). Returns the conics, boxes,
     visibility, h (B, N, 3) (its third coordinate the depth) and the full areas."""
@@ -95,7 +95,7 @@ def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray
 def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
                    intrinsics: np.ndarray, width: float, height: float,
                    max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`visible_boxes` as `_projected` computes each (pose, landmark), but of V M V^T only the five entries a box
+    """`visible_boxes` as `_projections` computes each (pose, landmark), but of V M V^T only the five entries a box
     reads (`conic_entries`); then every box in one pass (`_boxes_where_visible`). numpy's error model: a division
     by zero would give inf, not raise, and none occurs."""
     entries = conic_entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rotations,
@@ -259,8 +259,8 @@ def _outline_box(c11: float, c13: float, c22: float, c23: float, c33: float, dep
     root = np.sqrt(at_least_zero(c23 * c23 - c22 * c33))
     v0, v1 = (c23 + root) / c33, (c23 - root) / c33
     full_area = (at_least_zero(u1 - u0) * at_least_zero(v1 - v0)) if in_front else 0.0
-    u0, u1 = _clipped(u0, width), _clipped(u1, width)
-    v0, v1 = _clipped(v0, height), _clipped(v1, height)
+    u0, u1 = _clip(u0, width), _clip(u1, width)
+    v0, v1 = _clip(v0, height), _clip(v1, height)
     return u0, v0, u1, v1, in_front & (depth <= max_depth) & (u1 > u0) & (v1 > v0), full_area
 
 
@@ -272,7 +272,7 @@ def _in_front(c33: float, depth: float) -> bool:
 
 
 @njit(cache=True)
-def _clipped(value: float, limit: float) -> float:
+def _clip(value: float, limit: float) -> float:
     """np.clip(value, 0, limit): -0 and NaN kept."""
     return 0.0 if value < 0.0 else limit if value > limit else value
 

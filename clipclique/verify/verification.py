@@ -81,7 +81,7 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
         float(camera.max_depth))
     spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
     boxes, visible, full_areas = projection.visible_boxes(centers[nearby], spread, rotations, translations, camera)
-    figures = _verified(group, firsts, stack.pairs, stack.counts, rotations, translations, centers, nearby, len(map),
+    figures = _verdicts(group, firsts, stack.pairs, stack.counts, rotations, translations, centers, nearby, len(map),
                         visible, boxes, full_areas, np.asarray(observations.boxes, np.float64),
                         observations.ellipsoids.centers, map.class_ids, observations.class_ids,
                         float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
@@ -112,7 +112,7 @@ def _distinct_in_range(rotations, translations, pairs, counts, centers, axes, ma
 
 
 @njit(cache=True)
-def _verified(group, firsts, pairs, counts, rotations, translations, centers, nearby, map_size, visible, projected,
+def _verdicts(group, firsts, pairs, counts, rotations, translations, centers, nearby, map_size, visible, projected,
               full_areas, boxes, observed_centers, class_ids, detected_classes, depth_tolerance, min_pixels,
               explained_iou, full, missed_weight, share_from):
     """`verify_stack`'s figures (in `_PER_HYPOTHESIS`'s order) of the hypotheses `firsts` (their poses `rotations`,

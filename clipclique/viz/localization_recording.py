@@ -227,13 +227,13 @@ class LocalizationRecorder:
 
         if frame.pose is not None:
             self._gt_positions.append(frame.pose.translation)
-            path = np.array(self._gt_positions)[thinned(len(self._gt_positions))]
+            path = np.array(self._gt_positions)[sample_indices(len(self._gt_positions))]
             self._late.add("world/trajectory/gt", *self._now, path, gt_trajectory_columns)
         if result.hypotheses:
             success = evaluation.success.get(1) if evaluation is not None else None
             self._estimate_positions.append(result.hypotheses[0].pose.translation)
             self._estimate_correct.append(-1 if success is None else int(success))
-            keep = thinned(len(self._estimate_positions))
+            keep = sample_indices(len(self._estimate_positions))
             self._late.add("world/trajectory/estimate", *self._now,
                            (np.array(self._estimate_positions)[keep], np.array(self._estimate_correct)[keep]),
                            estimate_trajectory_columns)
@@ -388,7 +388,7 @@ def estimate_trajectory_columns(rows: list[tuple[np.ndarray, np.ndarray]]) -> li
     return [*points, *rr.Points3D.columns(radii=[rr.Radius.ui_points(4.0)] * len(rows))]
 
 
-def thinned(count: int, limit: int = TRAJECTORY_POINTS) -> np.ndarray:
+def sample_indices(count: int, limit: int = TRAJECTORY_POINTS) -> np.ndarray:
     """Indices of at most `limit` of `count` trajectory points, evenly spread, first and last kept:
     a trajectory re-logged every frame then costs O(frames), not O(frames^2)."""
     return np.unique(np.linspace(0, count - 1, min(count, limit)).round().astype(np.int64))

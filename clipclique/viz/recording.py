@@ -187,7 +187,7 @@ class ArchetypeRows:
         instanced = [name for name in self.instanced if name in rows[0]]
         if instanced:
             lengths = [len(row[instanced[0]]) for row in rows]
-            joined = {name: _joined([row[name] for row in rows]) for name in instanced}
+            joined = {name: _join([row[name] for row in rows]) for name in instanced}
             if self.convert is not None:
                 joined = self.convert(joined)
             columns += self.archetype.columns(**joined).partition(lengths)
@@ -197,7 +197,7 @@ class ArchetypeRows:
         return columns
 
 
-def _joined(parts: list) -> np.ndarray | list:
+def _join(parts: list) -> np.ndarray | list:
     """The rows' instances one after another: arrays concatenated, lists chained."""
     if isinstance(parts[0], np.ndarray):
         return np.concatenate(parts)

@@ -17,7 +17,7 @@ from clipclique.outcomes import Failure, FailureKind
 from clipclique.types import Detections, Ellipsoids
 from clipclique.viz import LocalizationRecorder, class_colors, write_map_recording
 from clipclique.viz.convert import depth_units, ellipsoids3d, encode_jpeg, segmentation, spread_labels, voxel_downsample
-from clipclique.viz.localization_recording import thinned
+from clipclique.viz.localization_recording import sample_indices
 from clipclique.viz.map_recording import CEILING_MARGIN, LABEL_SPACING, below_landmarks, graph_edges
 from clipclique.viz.recording import ArchetypeRows, ColumnsAtClose
 from clipclique.viz.style import CORRECT, UNKNOWN, WRONG, correctness_colors, hsv_to_rgb, match_correctness, palette
@@ -245,8 +245,8 @@ def test_graph_edges_are_the_semantic_graph():
 
 
 def test_trajectories_are_thinned_to_a_bound():
-    np.testing.assert_array_equal(thinned(4, limit=10), [0, 1, 2, 3])
-    many = thinned(1001, limit=300)
+    np.testing.assert_array_equal(sample_indices(4, limit=10), [0, 1, 2, 3])
+    many = sample_indices(1001, limit=300)
     assert len(many) == 300 and many[0] == 0 and many[-1] == 1000
     assert np.diff(many).max() <= 4  # evenly spread: no gap much over 1000 / 300
 

@@ -241,9 +241,9 @@ def test_inverse_row_norms_are_numpys_formula():
 @pytest.mark.parametrize("length", [1, 2, 3, 4])
 def test_normalized_walks_are_the_two_pass_normalization(length):
     """The walks normalized row by row in their last step against what they replaced (the raw walks, then
-    `_scaled_reversed(..., _inverse_norms(...))`), within rounding: isolated nodes, a lone node's empty row, -0,
+    `_scale_rows(..., _inverse_norms(...))`), within rounding: isolated nodes, a lone node's empty row, -0,
     NaN, labels whose squares underflow (norm 0: all dropped) and entries the scaling rounds to 0 (dropped)."""
-    from clipclique.descriptors.graph import _inverse_norms, _scaled_reversed, _walk_histograms
+    from clipclique.descriptors.graph import _inverse_norms, _scale_rows, _walk_histograms
 
     adjacency = semantic_graph(np.array([[0, 0, 0], [0.5, 0, 0], [0.25, 0.4, 0], [0.25, 1.1, 0], [5, 5, 5],
                                          [9, 9, 9], [9.5, 9, 9], [20, 0, 0], [20.5, 0, 0.0]]), 0.8)
@@ -254,7 +254,7 @@ def test_normalized_walks_are_the_two_pass_normalization(length):
     arrays = (adjacency.indptr.astype(np.int64), adjacency.indices.astype(np.int64),
               distributions.indptr.astype(np.int64), distributions.indices.astype(np.int64), distributions.data)
     raw = _walk_histograms(*arrays, 3, length)
-    expected = _scaled_reversed(*raw, _inverse_norms(raw[0], raw[2]))
+    expected = _scale_rows(*raw, _inverse_norms(raw[0], raw[2]))
     got = _walk_histograms(*arrays, 3, length, True)
     for ours, theirs in zip(got, expected):
         assert ours.dtype == theirs.dtype

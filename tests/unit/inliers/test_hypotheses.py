@@ -4,7 +4,7 @@ degenerate cliques skipped, cliques tried without their added look-alike pairs, 
 import numpy as np
 
 from clipclique.config import make_config
-from clipclique.inliers.hypotheses import _hypotheses, _objects, _stacked, _usable, _without_added, from_cliques
+from clipclique.inliers.hypotheses import _flatten_sets, _hypotheses, _objects, _usable, _without_added, from_cliques
 from clipclique.outcomes import LocalizationResult
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations
@@ -53,7 +53,7 @@ def test_cliques_holding_added_lookalike_pairs_are_also_tried_without_them():
 
 def without_added(cliques, added, min_size):
     """`_without_added` of a list of cliques, as a list."""
-    members, sizes, _ = _without_added(*_stacked(cliques), added, np.zeros(len(added)), min_size)
+    members, sizes, _ = _without_added(*_flatten_sets(cliques), added, np.zeros(len(added)), min_size)
     return np.split(members, np.cumsum(sizes)[:-1]) if len(sizes) else []
 
 
@@ -123,8 +123,8 @@ def test_the_compiled_rests_are_the_numpy_passes():
         if trial % 7 == 0:
             scores[rng.integers(len(added))] = rng.choice([-0.0, np.nan, np.inf, -np.inf])
         for min_size in (1, 2, 3):
-            got = _without_added(*_stacked(cliques), added, scores, min_size)
-            expected = numpy_without_added(*_stacked(cliques), added, scores, min_size)
+            got = _without_added(*_flatten_sets(cliques), added, scores, min_size)
+            expected = numpy_without_added(*_flatten_sets(cliques), added, scores, min_size)
             for ours, theirs in zip(got, expected):
                 assert ours.dtype == theirs.dtype
             np.testing.assert_array_equal(got[0], expected[0])
@@ -172,7 +172,7 @@ def test_the_fitted_stack_is_the_masked_rows():
                                 num_cliques=0, cap_hit=None, failure=None)
     good = [np.array([5, 6, 7, 8]), np.array([6, 7, 9]), np.array([1, 5, 8, 9])]
     for sets in (good, [np.array([0, 1, 2]), *good, np.array([3, 4, 5])]):
-        members, sizes = _stacked(sets)
+        members, sizes = _flatten_sets(sets)
         totals = rng.random(len(sets))
         got = _hypotheses(result, observations, map, config, members, sizes, totals)
         pairs, first = candidates[members], candidates[0]

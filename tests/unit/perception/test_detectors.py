@@ -15,7 +15,7 @@ from clipclique.perception.yolo import COCO_NAMES, YoloDetector, coco_to_vocabul
 from clipclique.sim.detectors import (
     SimulatedDetector,
     SimulatedYoloDetector,
-    degraded,
+    degrade,
     ellipse_masks,
     far_masks,
     read_lookalikes,
@@ -155,14 +155,14 @@ def test_free_pixels_are_numpys_isin_and_flatnonzero():
     assert not mapped.any() and np.array_equal(free, np.flatnonzero(frame.depth > 0))
 
 
-def test_degraded_copies_the_true_boxes_into_masks_as_a_concatenation_would():
+def test_degrade_copies_the_true_boxes_into_masks_as_a_concatenation_would():
     rng = np.random.default_rng(3)
     frame = make_frame()
     frame.instances = blocky_instances(0)
     true = InstanceDetector({i: "chair" for i in range(12)}, CLASSES).detect(frame)
     spurious = ellipse_masks(np.array([[10.0, 10.0], [40.0, 60.0]]), np.array([[4.0, 6.0], [9.0, 3.0]]), 48, 64)
     for kept in (rng.random(len(true)) < 0.5, np.ones(len(true), bool), np.zeros(len(true), bool)):
-        detections = degraded(true, kept, true.class_ids[kept], spurious, np.array([1, 2]), np.ones(kept.sum() + 2))
+        detections = degrade(true, kept, true.class_ids[kept], spurious, np.array([1, 2]), np.ones(kept.sum() + 2))
         np.testing.assert_array_equal(detections.masks, np.concatenate((true.masks[kept], spurious)))
         np.testing.assert_array_equal(detections.boxes, mask_boxes(detections.masks))
         assert detections.instance_ids.tolist() == true.instance_ids[kept].tolist() + [-1, -1]

@@ -65,7 +65,7 @@ def or_refused(fit, *arguments):
 def test_box_orders_its_axes_as_numpy_did():
     """Random clouds of every elongation and orientation, axes exactly equal (a cube's corners: numpy's sort
     decides), flat and too small clouds, infinite spreads: the same boxes within rounding, or None."""
-    from clipclique.perception.ellipsoids import Oriented, _box, _oriented
+    from clipclique.perception.ellipsoids import Oriented, _box, _orientation
 
     rng = np.random.default_rng(11)
     params = FitParams(min_points=4)
@@ -94,8 +94,8 @@ def test_box_orders_its_axes_as_numpy_did():
                 np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
             assert np.linalg.det(got[2]) > 0 and np.all(np.diff(got[1]) <= 0)
     assert outcomes["box"] > 80 and outcomes["none"] > 80 and outcomes["raises"] > 0
-    assert _oriented(np.ones(3), np.eye(3), 0.01)[0] == Oriented.UNSURE  # the cube's ties took numpy's way
-    assert _oriented(np.array([1.0, 2.0, 3.0]), np.eye(3)[:, [2, 1, 0]], 0.01)[0] == Oriented.DONE
+    assert _orientation(np.ones(3), np.eye(3), 0.01)[0] == Oriented.UNSURE  # the cube's ties took numpy's way
+    assert _orientation(np.array([1.0, 2.0, 3.0]), np.eye(3)[:, [2, 1, 0]], 0.01)[0] == Oriented.DONE
 
 
 def test_box_parts_eigenvectors_are_numpys():

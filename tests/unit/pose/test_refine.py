@@ -50,7 +50,7 @@ def test_only_similar_landmarks_within_the_radius_are_taken_one_to_one():
 
 def dense_nearby_pairs(pose, observations, map, similarity, radius):
     """The (K, N) distance matrix version: every pair tested, nearest first, ties in row-major order. The
-    observations moved as `refine._moved` adds, r0 x0 + r1 x1 + r2 x2 + t: noise-free observations lie ~1e-16 from
+    observations moved as `refine._apply_poses` adds, r0 x0 + r1 x1 + r2 x2 + t: noise-free observations lie ~1e-16 from
     their landmarks, and the order of such distances is the rounding's."""
     x, r = observations.ellipsoids.centers, pose.rotation
     moved = x[:, :1] * r[:, 0] + x[:, 1:2] * r[:, 1] + x[:, 2:] * r[:, 2] + pose.translation
@@ -201,12 +201,12 @@ def test_the_compiled_move_is_numpys_einsum():
         rotations = np.array([Rotation.random(random_state=seed).as_matrix() for seed in range(poses)])
         translations, centers = rng.normal(scale=3.0, size=(poses, 3)), rng.normal(scale=2.0, size=(points, 3))
         expected = (np.einsum("bij,kj->bki", rotations, centers) + translations[:, None]).reshape(-1, 3)
-        np.testing.assert_allclose(refine_module._moved(rotations, translations, centers), expected, rtol=0,
+        np.testing.assert_allclose(refine_module._apply_poses(rotations, translations, centers), expected, rtol=0,
                                    atol=1e-14)
 
 
 def test_the_compiled_round_bookkeeping_is_numpys():
-    """`_refitting`, `_gathered` and `_survivors` against the numpy expressions they replace: no pose, one, fifty;
+    """`_refitting`, `_chosen_pairs` and `_survivors` against the numpy expressions they replace: no pose, one, fifty;
     empty sets, sets under 3 and under the hypothesis's own size, ties of sizes, sets that found no pose."""
     rng = np.random.default_rng(12)
     for trial in range(300):
@@ -217,7 +217,7 @@ def test_the_compiled_round_bookkeeping_is_numpys():
         np.testing.assert_array_equal(refits, np.flatnonzero(counts >= np.maximum(3, sizes)))
         similarity = rng.choice([-0.0, 0.0, 0.4, np.nan, 0.9], size=(6, 9)).astype(rng.choice([np.float64, np.float32]))
         pairs = np.column_stack((rng.integers(0, 6, counts.sum()), rng.integers(0, 9, counts.sum())))
-        chosen, scores = refine_module._gathered(pairs, starts[refits], counts[refits], similarity)
+        chosen, scores = refine_module._chosen_pairs(pairs, starts[refits], counts[refits], similarity)
         expected = pairs[np.repeat(starts[refits] - np.cumsum(counts[refits]) + counts[refits], counts[refits])
                          + np.arange(counts[refits].sum())]
         np.testing.assert_array_equal(chosen, expected)
@@ -290,12 +290,12 @@ def same_refinement(got, want):
 
 @pytest.mark.parametrize("weights", ["none", "sim", "com", "both"])
 def test_the_one_compiled_refinement_is_the_round_by_round_one(weights, monkeypatch):
-    """`_refined_densely` (through `refined`) against `_refined_by_rounds`: no hypothesis, one, fifty; 0 to 3
+    """`_refine_densely` (through `refine_stack`) against `_refine_by_rounds`: no hypothesis, one, fifty; 0 to 3
     rounds; similarities with zeros, float32, NaN; an observation without a place; landmarks twice (ties)."""
     rng = np.random.default_rng(30)
     calls = []
-    densely = refine_module._refined_densely
-    monkeypatch.setattr(refine_module, "_refined_densely", lambda *a: calls.append(1) or densely(*a))
+    densely = refine_module._refine_densely
+    monkeypatch.setattr(refine_module, "_refine_densely", lambda *a: calls.append(1) or densely(*a))
     refitted = 0
     for trial in range(60):
         map, observations, truth = crowded_desk(rng, int(rng.integers(3, 40)))
@@ -309,9 +309,9 @@ def test_the_one_compiled_refinement_is_the_round_by_round_one(weights, monkeypa
             observations.ellipsoids.centers[0] = np.nan
         rounds, radius = int(rng.integers(0, 4)), float(rng.choice([0.05, 0.15, 0.3]))
         with np.errstate(invalid="ignore"):
-            got = refine_module.refined(stack, observations, map, similarity, radius, weights, rounds)
-            want = refine_module._refined_by_rounds(stack, observations, map, similarity, radius, weights, rounds,
-                                                    None)
+            got = refine_module.refine_stack(stack, observations, map, similarity, radius, weights, rounds)
+            want = refine_module._refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds,
+                                                   None)
         same_refinement(got, want)
         assert got[1].any() or got[0] is stack
         refitted += got[1].any()
@@ -335,9 +335,9 @@ def test_sets_that_are_not_finite_are_not_refitted():
         similarity = np.ones((len(observations), len(map)))
         before = [a.copy() for a in (stack.rotations, stack.translations, stack.counts, stack.pairs)]
         with np.errstate(all="ignore"):
-            got = refine_module.refined(stack, observations, map, similarity, 0.3, "both")
-            same_refinement(got, refine_module._refined_by_rounds(stack, observations, map, similarity, 0.3, "both", 2,
-                                                                  None))
+            got = refine_module.refine_stack(stack, observations, map, similarity, 0.3, "both")
+            same_refinement(got, refine_module._refine_by_rounds(stack, observations, map, similarity, 0.3, "both", 2,
+                                                                 None))
         assert got[0] is stack and not got[1].any()
         for a, b in zip(before, (stack.rotations, stack.translations, stack.counts, stack.pairs)):
             np.testing.assert_array_equal(a, b)

@@ -43,7 +43,7 @@ def test_box_alignment_recovers_a_pose_a_clique_left_loose():
     start = perturbed(truth)
     hypothesis = Hypothesis(start, np.column_stack((np.arange(4), np.arange(4))), 4.0, verification=1.0)
     assert pose_errors(start, truth)[0] > 0.25
-    [refined] = boxalign.refined([hypothesis], observations, map, steps=15, scale=10.0)
+    [refined] = boxalign.refine_hypotheses([hypothesis], observations, map, steps=15, scale=10.0)
     translation, rotation = pose_errors(refined.pose, truth)
     assert translation < 0.05 and np.rad2deg(rotation) < 0.5
     assert refined.verification == 1.0 and refined.correspondences is hypothesis.correspondences
@@ -61,7 +61,7 @@ def test_the_cost_never_rises_and_disagreeing_boxes_leave_the_pose_bounded():
         rot, trans, before, after = boxalign.solve(problem, start.rotation[None], start.translation[None], 5, 10.0,
                                                  CAMERA)
         assert after[0] <= before[0]
-        [kept] = boxalign.refined([Hypothesis(start, pairs, 4.0)], obs, map, steps=5, scale=10.0)
+        [kept] = boxalign.refine_hypotheses([Hypothesis(start, pairs, 4.0)], obs, map, steps=5, scale=10.0)
         moved, turned = pose_errors(kept.pose, start)
         assert moved < boxalign.MAX_MOVE_M and turned < boxalign.MAX_TURN_RAD
 
@@ -70,12 +70,12 @@ def test_too_few_boxed_pairs_or_no_steps_leave_the_hypotheses_alone():
     map, observations, truth = desk()
     start = perturbed(truth)
     few = Hypothesis(start, np.array([[0, 0], [1, 1]]), 2.0)
-    assert boxalign.refined([few], observations, map, steps=5, scale=10.0)[0] is few
+    assert boxalign.refine_hypotheses([few], observations, map, steps=5, scale=10.0)[0] is few
     whole = Hypothesis(start, np.column_stack((np.arange(4), np.arange(4))), 4.0)
-    assert boxalign.refined([whole], observations, map, steps=0, scale=10.0)[0] is whole
+    assert boxalign.refine_hypotheses([whole], observations, map, steps=0, scale=10.0)[0] is whole
     no_boxes = Observations(observations.ellipsoids, observations.class_ids, None, observations.instance_ids,
                             observations.detection_index)
-    assert boxalign.refined([whole], no_boxes, map, steps=5, scale=10.0)[0] is whole
+    assert boxalign.refine_hypotheses([whole], no_boxes, map, steps=5, scale=10.0)[0] is whole
 
 
 def test_a_side_cut_by_the_image_border_is_left_out():
@@ -87,7 +87,7 @@ def test_a_side_cut_by_the_image_border_is_left_out():
     pairs = np.column_stack((np.arange(4), np.arange(4)))
     problem = boxalign._problem([Hypothesis(truth, pairs, 4.0)], cut, map, None)
     assert problem.sides[0].tolist() == [0.0, 1.0, 1.0, 1.0] and problem.sides[1:].all()
-    [refined] = boxalign.refined([Hypothesis(perturbed(truth), pairs, 4.0)], cut, map, steps=15, scale=10.0)
+    [refined] = boxalign.refine_hypotheses([Hypothesis(perturbed(truth), pairs, 4.0)], cut, map, steps=15, scale=10.0)
     assert pose_errors(refined.pose, truth)[0] < 0.05
 
 
@@ -110,7 +110,7 @@ def test_in_localize_the_lever_at_0_changes_nothing_and_on_it_sharpens_the_top_p
     def never(*args, **kwargs):
         raise AssertionError("box refinement called with pose.box_refine_steps = 0")
 
-    monkeypatch.setattr(boxalign, "refined", never)
+    monkeypatch.setattr(boxalign, "refine_hypotheses", never)
     untouched = localize(noisy, index_map(map, config), config).hypotheses
     off, prior, on = (results[name].hypotheses for name in ("off", "prior", "on"))
     assert len(untouched) == len(off) == len(prior) == len(on) > 0
@@ -131,6 +131,6 @@ def test_a_repeated_hypothesis_is_refined_once_and_alike():
     hypotheses = [Hypothesis(start, pairs, 4.0, verification=3.0), Hypothesis(other, pairs, 4.0),
                   Hypothesis(copy, pairs.copy(), 3.0, verification=2.0)]
     assert len(boxalign._distinct(hypotheses)[0]) == 2
-    first, second, again = boxalign.refined(hypotheses, observations, map, steps=15, scale=10.0)
+    first, second, again = boxalign.refine_hypotheses(hypotheses, observations, map, steps=15, scale=10.0)
     assert np.array_equal(first.pose.matrix(), again.pose.matrix()) and pose_errors(first.pose, truth)[0] < 0.05
     assert again.score == 3.0 and again.verification == 2.0 and pose_errors(second.pose, truth)[0] < 0.05

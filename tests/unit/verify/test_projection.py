@@ -220,10 +220,10 @@ def numpy_products(centers, spread, rotations, translations, intrinsics):
 
 @pytest.mark.parametrize("count", [0, 2, 3, 7, 40])
 def test_the_compiled_products_are_numpys_matmul(count):
-    """`_projected`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) against numpy's matmul, through `_outline_boxes`,
+    """`_projections`'s V = K R^T, h = (c - t) V^T and vec(V M V^T) against numpy's matmul, through `_outline_boxes`,
     on random poses and on hand-made entries: -0, NaN, infinities, centres on the camera (a zero offset), equal
     landmarks (ties) and no landmarks."""
-    from clipclique.verify.projection import _outline_boxes, _projected
+    from clipclique.verify.projection import _outline_boxes, _projections
 
     rng = np.random.default_rng(count)
     for trial in range(30):
@@ -241,7 +241,7 @@ def test_the_compiled_products_are_numpys_matmul(count):
         with np.errstate(invalid="ignore", over="ignore"):
             terms, images = numpy_products(centers, spread, rotations, translations, intrinsics)
             expected = (*_outline_boxes(terms, images, 640.0, 480.0, 8.0), images)
-            got = _projected(centers, spread, rotations, translations, intrinsics, 640.0, 480.0, 8.0)
+            got = _projections(centers, spread, rotations, translations, intrinsics, 640.0, 480.0, 8.0)
         # The conics and h within rounding; the boxes (pixels) and areas (square pixels) of these random spreads, not
         # positive definite, come from square roots of differences that cancel to 1e-8 of their terms.
         # A visibility may differ only for a box thinner than that rounding (a sliver at the decision's edge).

@@ -387,7 +387,7 @@ def test_the_missed_costs_are_the_numpy_passes():
 
 
 def test_the_verified_figures_are_the_kernels_passes():
-    """`_verified` against its passes one by one (`_rows_pairs`, `_depths_along`, `_measures`, the numpy missed cost)
+    """`_verdicts` against its passes one by one (`_rows_pairs`, `_depths_along`, `_measures`, the numpy missed cost)
     and each hypothesis given its group's figures: groups in any order, hypotheses without pairs, none."""
     from clipclique.sim.poses import random_rotation
 
@@ -414,7 +414,7 @@ def test_the_verified_figures_are_the_kernels_passes():
         class_ids, detected_classes = rng.integers(0, 3, landmarks), rng.integers(0, 3, detections)
         weight, share_from = float(rng.choice([0.0, 0.25])), float(rng.choice([0.0, 3.0]))
         settings = (0.5, float(rng.choice([0.0, 100.0])), 0.1, float(rng.choice([0.0, 900.0])))
-        got = verification._verified(group, firsts, pairs, counts, rotations, translations, centers, nearby, landmarks,
+        got = verification._verdicts(group, firsts, pairs, counts, rotations, translations, centers, nearby, landmarks,
                                      visible, projected, full_areas, boxes, observed, class_ids, detected_classes,
                                      *settings, weight, share_from)
         obs, lm, owner, sizes = verification._rows_pairs(pairs, counts, firsts)

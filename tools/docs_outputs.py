@@ -67,7 +67,9 @@ def shown_name(page: Path) -> str:
 
 
 def comparable(printed: str) -> list[str]:
-    """The lines of a printed output with its timings (a table's `ms` column, a `time:` line) blanked out."""
+    """The lines of a printed output with its timings (a table's `ms` column, a `time:` line) blanked out, and
+    its layout too (runs of spaces and of a rule's `─`): a timing one digit wider re-pads a table's columns and
+    re-centres its title, which says nothing of the figures."""
     lines, timed, timings = [], False, False
     for line in printed.splitlines():
         if line.startswith("time: "):  # a command's own stopwatch
@@ -82,7 +84,7 @@ def comparable(printed: str) -> list[str]:
             line = re.sub(r"\d+(\.\d+)?", "#", line)
         elif timed:
             line = line.rsplit(maxsplit=1)[0]
-        lines.append(line.rstrip())
+        lines.append(" ".join(re.sub("─+", "─", line).split()))
     return lines
 
 

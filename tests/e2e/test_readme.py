@@ -222,3 +222,9 @@ def test_a_stale_printed_example_fails_the_check_and_a_timing_does_not(tmp_path)
     assert page.read_text().endswith("```text\nMethod TE ms\nsh 0.18 0.7\n```\n")
     page.write_text(page.read_text().replace("0.18 0.7", "0.18 1.4"))  # another run's timing: not a change
     assert subprocess.run([*tool, "--check", str(page)], capture_output=True, timeout=60).returncode == 0
+    timings = ("```sh\nprintf 'Median time [ms]\\ndet. fit\\n%s  1.8\\n' 18.8\n```\n\n"
+               "<!-- printed by the block above -->\n\n")
+    page.write_text(timings + "```text\nMedian time [ms]\ndet. fit\n 9.8  1.8\n```\n")  # a digit less, re-padded
+    assert subprocess.run([*tool, "--check", str(page)], capture_output=True, timeout=60).returncode == 0
+    page.write_text(timings + "```text\nMedian time [ms]\ndet. enc.\n 9.8  1.8\n```\n")  # a header changed
+    assert subprocess.run([*tool, "--check", str(page)], capture_output=True, timeout=60).returncode == 1

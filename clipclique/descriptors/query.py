@@ -78,6 +78,8 @@ def scores(
     walks: sp.csr_matrix | None,
     config: LocalizationConfig,
 ) -> tuple[np.ndarray, list[str]]:
+    """(observations x landmarks) similarity by `similarity.descriptor`, and the notes it leaves (SH alone where
+    the CLIP embeddings are missing)."""
     descriptor = config.similarity.descriptor
     if descriptor == "xview":
         return similarity.walk_similarity(walks, index.walks), []

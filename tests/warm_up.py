@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-FULL_SIZE_SCENES = ("demo", "demo_tum", "demo_apartment", "demo_desk", "demo_clutter")  # tests/e2e/test_golden.py
+FULL_SIZE_SCENES = ("demo", "demo_tum", "demo_apartment", "demo_desk", "demo_clutter")  # the golden results' scenes
 
 
 def kernels() -> None:

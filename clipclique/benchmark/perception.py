@@ -57,14 +57,9 @@ def key_of(run: Run) -> dict[str, Any]:
             "detector": run.detector.name, "encoder": None if run.encoder is None else run.encoder.name,
             "detector_spec": run.settings.detector, "min_score": run.settings.min_score, "labels": run.settings.labels,
             "strict_detections": run.settings.strict_detections, "map_classes": run.map.class_names,
-            "yolo_weights": run.settings.yolo_weights, "seed": run.settings.seed, "bag_reading": _bag_reading(run),
+            "yolo_weights": run.settings.yolo_weights, "seed": run.settings.seed,
+            "bag_reading": None if run.settings.bag is None else list(run.settings.bag.image_options()),
             "observations": run.config.to_dict()["observations"], "code": code_version(), "format": CACHE_FORMAT}
-
-
-def _bag_reading(run: Run) -> list[object] | None:
-    """The options that choose a bag's images (topics, depth unit); its ground truth changes no observation."""
-    bag = run.settings.bag
-    return None if bag is None else [bag.rgb_topic, bag.depth_topic, bag.camera_info_topic, bag.depth_scale]
 
 
 def folder_of(cache_root: Path, key: dict[str, Any]) -> Path:

@@ -6,8 +6,7 @@
 Each frame goes through the detector, the observation fit and the encoder ONCE; the observations
 are cached (on disk, clipclique-bench's perception cache in outputs/cache/) and every configuration (Table I's four
 methods, the ablations, the alpha sweep) localizes the cached observations. The algorithm costs milliseconds per frame,
-the detector and
-the encoder far more, so this is what lets the suite finish in minutes.
+the detector and the encoder far more, so this is what lets the suite finish in minutes.
 
 Stochastic configurations (RANSAC, PROSAC, X-View's random walks) run with three seeds; tables
 give the best seed, as the paper does, and the spread over the seeds. Scalability copies the first

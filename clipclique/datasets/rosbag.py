@@ -71,6 +71,10 @@ class BagOptions:
     groundtruth: Path | None = None  # a TUM trajectory file
     gt_frames: str | None = None  # "WORLD:CAMERA": ground truth from /tf
 
+    def image_options(self) -> tuple[str | None, str | None, str | None, float | None]:
+        """The options that choose the images read (topics, depth unit); the ground truth changes none of them."""
+        return self.rgb_topic, self.depth_topic, self.camera_info_topic, self.depth_scale
+
 
 @dataclass
 class Topic:

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 from tolerance import compare, decisions
+from warm_up import FULL_SIZE_SCENES
 
 from clipclique.localization.results import read_results, results_digest
 from clipclique.localization.run import RunSettings, run_and_save
@@ -27,7 +28,7 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[2]  # the repository
 GOLDEN = ROOT / "tests" / "golden"
 GOLDEN_FORMAT = "clipclique golden results"
-SCENES = ("demo", "demo_tum", "demo_apartment", "demo_desk", "demo_clutter")
+SCENES = FULL_SIZE_SCENES  # tests/warm_up.py generates them before the workers start
 METHODS = ("clipclique", "sh", "cliploc")
 STRIDE = 3  # every third frame: the fifteen runs in well under a minute
 

@@ -44,6 +44,10 @@ PLANS: dict[str, bytes | None] = {
     "window-a-string": b'scenes = ["demo"]\nwindow = "3"',
     "same-place-a-number": b'scenes = ["demo"]\nsame_place = 1',
     "map-a-list": b'scenes = ["demo"]\nmap = ["a.map.npz"]',
+    "depth-scale-a-string": b'scenes = ["demo"]\ndepth_scale = "0.001"',
+    "gt-frames-a-number": b'scenes = ["demo"]\ngt_frames = 1',
+    "groundtruth-a-list": b'scenes = ["demo"]\ngroundtruth = ["gt.txt"]',
+    "rgb-topic-a-table": b'scenes = ["demo"]\n[rgb_topic]\nname = "/camera/rgb"',
 }
 
 

@@ -46,11 +46,33 @@ def compatibility_graph(
         return np.zeros((0, 2), dtype=np.int64)
     slack = np.zeros(len(candidates)) if slack is None else np.asarray(slack, dtype=np.float64)
     obs, lm = candidates[:, 0], candidates[:, 1]
+    if len(candidates) <= KD_LEAF_SIZE:  # the tree's one leaf
+        objects = np.arange(len(observed_centers)) if objects is None else objects
+        return _small_graph(np.ascontiguousarray(observed_centers, np.float64),
+                            np.ascontiguousarray(landmark_centers, np.float64), np.asarray(obs, np.int64),
+                            np.asarray(lm, np.int64), np.asarray(objects, np.int64), float(d_comp), slack)
     shown = obs if objects is None else np.asarray(objects, dtype=np.int64)[obs]
     observed = pair_distances(observed_centers)
     points = np.asarray(landmark_centers).take(lm, axis=0)  # take: a row gather, quicker than fancy indexing
     return _compatible(_pairs_in_reach(points, pair_reach(observed, d_comp, slack)), points, obs, shown, lm, observed,
                        d_comp, slack)
+
+
+@njit(cache=True)
+def _small_graph(observed_centers: np.ndarray, landmark_centers: np.ndarray, obs: np.ndarray, lm: np.ndarray,
+                 objects: np.ndarray, d_comp: float, slack: np.ndarray) -> np.ndarray:
+    """`compatibility_graph` of at most KD_LEAF_SIZE candidates in one compiled call: the gather, the pair distances,
+    the reach, the leaf's pairs (`_leaf_pairs`) and the rigid test, where five calls, their arguments and the arrays
+    they handed back cost a small frame more than its pairs."""
+    points = np.empty((len(lm), 3))
+    shown = np.empty(len(obs), np.int64)
+    for c in range(len(lm)):
+        points[c, 0], points[c, 1], points[c, 2] = (landmark_centers[lm[c], 0], landmark_centers[lm[c], 1],
+                                                    landmark_centers[lm[c], 2])
+        shown[c] = objects[obs[c]]
+    observed = _pair_distances(observed_centers)
+    pairs = _leaf_pairs(points, _reach(observed.reshape(-1), d_comp, slack))
+    return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 
 def _pairs_in_reach(points: np.ndarray, reach: float) -> np.ndarray:

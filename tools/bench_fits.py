@@ -6,8 +6,8 @@ Every pose a query computes is a weighted fit of a correspondence set, one compi
 (clipclique.pose.fit: the moments, both covariances' eigenvalues and Horn's quaternion). Each query runs
 once with its fits recorded (the refinement round by round, which computes the same as its one compiled
 call: tests/unit/pose/test_refine.py), then, fastest of `--repeat`, the whole `localize`
-and the recorded batches fitted again alone, the same calls (`fit_rigid_conditioned` for the clique
-poses, `fit_rigid_batch` for the refinement's, each a Python call that the refinement's own compiled
+and the recorded batches fitted again alone, the same calls (`fit_sets` for the clique poses, the weighted sets
+gathered and fitted, `fit_rigid_batch` for the refinement's, each a Python call that the refinement's own compiled
 call does without). Printed per scene, medians over frames: the sets fitted per query, ms of the fits
 and of the whole query, and the fits' share of it.
 """
@@ -28,30 +28,31 @@ import clipclique.inliers.hypotheses as hypotheses  # noqa: E402  (the clique po
 import clipclique.pipeline as pipeline  # noqa: E402
 import clipclique.pose.refine as refine  # noqa: E402
 from clipclique.localization.run import RunSettings, observe, prepare, selected_frames  # noqa: E402
-from clipclique.pose.fit import fit_rigid_batch, fit_rigid_conditioned  # noqa: E402
+from clipclique.pose.fit import fit_rigid_batch, fit_sets  # noqa: E402
 
-Batch = tuple[Callable, np.ndarray, np.ndarray, np.ndarray]  # the fit called, source, target, weights
+Batch = tuple[Callable, tuple, int]  # the fit called, its arguments, the sets it fits
 
 
 def recorded_fits(query: Callable[[], object]) -> list[Batch]:
     """The fit batches one call of `query` makes, in order, with their inputs copied."""
     batches: list[Batch] = []
 
-    def recording(fit: Callable) -> Callable:
-        def recorded(source, target, weights):
-            batches.append((fit, np.array(source), np.array(target), np.array(weights)))
-            return fit(source, target, weights)
+    def recording(fit: Callable, sets: Callable[[tuple], int]) -> Callable:
+        def recorded(*arguments):
+            copied = tuple(np.array(a) if isinstance(a, np.ndarray) else a for a in arguments)
+            batches.append((fit, copied, sets(copied)))
+            return fit(*arguments)
         return recorded
 
-    saved = hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refine_stack
-    hypotheses.fit_rigid_conditioned = recording(fit_rigid_conditioned)
-    refine.fit_rigid_batch = recording(fit_rigid_batch)
+    saved = hypotheses.fit_sets, refine.fit_rigid_batch, refine.refine_stack
+    hypotheses.fit_sets = recording(fit_sets, lambda arguments: len(arguments[2]))  # (pairs, scores, counts, ...)
+    refine.fit_rigid_batch = recording(fit_rigid_batch, lambda arguments: len(arguments[2]))  # (source, target, w)
     refine.refine_stack = lambda stack, observations, map, similarity, radius, weights, rounds=2, landmarks=None: (
         refine._refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks))
     try:
         query()
     finally:
-        hypotheses.fit_rigid_conditioned, refine.fit_rigid_batch, refine.refine_stack = saved
+        hypotheses.fit_sets, refine.fit_rigid_batch, refine.refine_stack = saved
     return batches
 
 
@@ -65,12 +66,12 @@ def measure(scene: str, max_frames: int, repeat: int) -> None:
             return pipeline.localize(observations, index, run.config)
         query()  # compiled and warm
         batches = recorded_fits(query)
-        clique_sets.append(sum(len(b[3]) for b in batches if b[0] is fit_rigid_conditioned))
-        refined_sets.append(sum(len(b[3]) for b in batches if b[0] is fit_rigid_batch))
+        clique_sets.append(sum(sets for fit, _, sets in batches if fit is fit_sets))
+        refined_sets.append(sum(sets for fit, _, sets in batches if fit is fit_rigid_batch))
 
         def refit(batches=batches) -> None:
-            for fit, source, target, weights in batches:
-                fit(source, target, weights)
+            for fit, arguments, _ in batches:
+                fit(*arguments)
         fits.append(fastest(refit, repeat))
         whole.append(fastest(query, repeat))
     fit_ms, whole_ms = np.median(fits), np.median(whole)

@@ -20,7 +20,7 @@ from clipclique.config import LocalizationConfig
 from clipclique.inliers import cliquesearch, compatibility, consensus, regions
 from clipclique.inliers.cliquesearch import sort_span
 from clipclique.outcomes import CapHit, Failure, FailureKind, LocalizationResult, Stage
-from clipclique.pose.fit import fit_rigid_conditioned, nonzero_counts, weighted_sets
+from clipclique.pose.fit import fit_sets
 from clipclique.pose.stack import Stack
 from clipclique.types import Map, Observations
 from clipclique.verify import verification
@@ -264,26 +264,13 @@ def _hypotheses(result: LocalizationResult, observations: Observations, map: Map
     # Shorter sets are padded with the first candidate at weight 0, its numbers as Python's (numba's dispatch reads
     # a numpy scalar argument microseconds slower).
     first = result.candidates[0].tolist()
-    source, target, weights = weighted_sets(
+    rotation, translation, ok, measure, usable = fit_sets(
         pairs, result.candidate_scores[members], sizes, (first[0], first[1], result.candidate_scores[0]),
         (observations.ellipsoids.centers, observations.ellipsoids.axes), (map.ellipsoids.centers, map.ellipsoids.axes),
-        config.pose.weights)
-    rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
-    if _usable(ok, weights, measure, float(config.pose.min_conditioning)):  # nearly always: the arrays as they are
+        config.pose.weights, config.pose.min_conditioning)
+    if usable:  # nearly always: the arrays as they are
         return Stack(rotations=rotation, translations=translation, pairs=pairs,
                      counts=sizes.astype(np.int64, copy=False), scores=np.asarray(scores, np.float64),
                      conditioning=measure)
     return Stack(rotations=rotation[ok], translations=translation[ok], pairs=pairs[np.repeat(ok, sizes)],
                  counts=sizes[ok].astype(np.int64), scores=np.asarray(scores, np.float64)[ok], conditioning=measure[ok])
-
-
-@njit(cache=True)
-def _usable(ok: np.ndarray, weights: np.ndarray, measure: np.ndarray, min_conditioning: float) -> bool:
-    """`ok &= (nonzero_counts(weights) >= 3) & (measure >= min_conditioning)` in place (else too few weighted
-    pairs, or a near-row of objects), and whether all are: one call for numpy's five passes over a batch's rows."""
-    counts = nonzero_counts(weights)
-    usable = True
-    for b in range(len(ok)):
-        ok[b] = ok[b] and counts[b] >= 3 and measure[b] >= min_conditioning
-        usable &= ok[b]
-    return usable

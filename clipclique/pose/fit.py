@@ -429,6 +429,35 @@ def weighted_sets(pairs: np.ndarray, scores: np.ndarray, counts: np.ndarray, pad
                                   WEIGHT_MODES[mode])
 
 
+def fit_sets(pairs: np.ndarray, scores: np.ndarray, counts: np.ndarray, pad: tuple[int, int, float],
+             observed: tuple[np.ndarray, np.ndarray], landmarks: tuple[np.ndarray, np.ndarray], mode: PoseWeights,
+             min_conditioning: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """`fit_rigid_conditioned` of `weighted_sets(pairs, scores, counts, pad, observed, landmarks, mode)` in one
+    compiled call, with `ok` also False where fewer than 3 pairs weigh (not 0) or the conditioning is below
+    `min_conditioning` (a near-row of objects); and whether every set is ok. The clique poses' fits: the three
+    calls it replaces, their argument checks and the batch arrays handed back and forth cost a small query more
+    than its fits."""
+    return _fit_sets(np.asarray(pairs, np.int64), np.asarray(scores, np.float64), np.asarray(counts, np.int64),
+                     pad[0], pad[1], float(pad[2]), *observed, *landmarks, WEIGHT_MODES[mode], float(min_conditioning))
+
+
+@njit(cache=True)
+def _fit_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, observed_centers, observed_axes,
+              landmark_centers, landmark_axes, mode, min_conditioning):
+    source, target, weights = compiled_weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score,
+                                                     observed_centers, observed_axes, landmark_centers, landmark_axes,
+                                                     mode)
+    rotation, translation, ok, measure = _fit(weights, source, target)
+    usable = True
+    for b in range(len(ok)):
+        weighed = 0
+        for p in range(weights.shape[1]):
+            weighed += weights[b, p] != 0  # NaN counts, as in nonzero_counts
+        ok[b] = ok[b] and weighed >= 3 and measure[b] >= min_conditioning
+        usable &= ok[b]
+    return rotation, translation, ok, measure, usable
+
+
 @njit(cache=True)
 def compiled_weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, observed_centers,
                            observed_axes, landmark_centers, landmark_axes, mode):

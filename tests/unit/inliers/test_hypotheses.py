@@ -4,7 +4,7 @@ degenerate cliques skipped, cliques tried without their added look-alike pairs, 
 import numpy as np
 
 from clipclique.config import make_config
-from clipclique.inliers.hypotheses import _flatten_sets, _hypotheses, _objects, _usable, _without_added, from_cliques
+from clipclique.inliers.hypotheses import _flatten_sets, _hypotheses, _objects, _without_added, from_cliques
 from clipclique.outcomes import LocalizationResult
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations
@@ -132,25 +132,6 @@ def test_the_compiled_rests_are_the_numpy_passes():
             np.testing.assert_allclose(got[2], expected[2], rtol=1e-12, atol=1e-12)
             kept += len(expected[1])
     assert kept > 200
-
-
-def test_usable_fits_are_the_numpy_mask():
-    """`_usable` against the numpy expression it replaced, `ok & (nonzero_counts(weights) >= 3) &
-    (measure >= floor)` and its `.all()`: weights of 0, -0 and NaN (a NaN counts), NaN and infinite measures, a
-    measure exactly at the floor, sets already not ok, and an empty batch."""
-    from clipclique.pose.fit import nonzero_counts
-
-    rng = np.random.default_rng(31)
-    for trial in range(500):
-        count, width = int(rng.integers(0, 6)), int(rng.integers(0, 6))
-        weights = rng.choice([0.0, -0.0, np.nan, 0.5, 1.0], size=(count, width))
-        measure = rng.choice([0.0, 0.01, 0.2, np.nan, np.inf, -np.inf], size=count)
-        ok = rng.random(count) < 0.8
-        floor = float(rng.choice([0.0, 0.01, 0.2, -np.inf]))
-        expected = ok & (nonzero_counts(weights) >= 3) & (measure >= floor)
-        got = ok.copy()
-        assert _usable(got, weights, measure, floor) == expected.all()
-        np.testing.assert_array_equal(got, expected)
 
 
 def test_the_fitted_stack_is_the_masked_rows():

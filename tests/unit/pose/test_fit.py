@@ -12,6 +12,7 @@ from clipclique.pose.fit import (
     fit_rigid_batch,
     fit_rigid_conditioned,
     fit_rigid_sets,
+    fit_sets,
     fit_similarity,
     nonzero_counts,
     weighted_sets,
@@ -409,6 +410,39 @@ def test_weighted_sets_are_the_padded_numpy_construction(mode):
         np.testing.assert_allclose(weights, expected, rtol=1e-12, atol=0)
         np.testing.assert_array_equal(source, observed_centers[obs])
         np.testing.assert_array_equal(target, landmark_centers[lm])
+
+
+def test_fit_sets_are_the_three_calls_and_the_numpy_mask():
+    """`fit_sets` against `weighted_sets`, `fit_rigid_conditioned` and `ok & (nonzero_counts(weights) >= 3) &
+    (measure >= floor)` (the calls it replaced): the same poses and conditioning to the bit, the same mask and its
+    `.all()`; sets of 0 to 7 pairs, zero and NaN scores (a NaN weight counts), a collinear set, floors exactly at a
+    set's conditioning, 0, -inf and above every set; and an empty batch."""
+    rng = np.random.default_rng(32)
+    observed_centers, observed_axes = rng.normal(size=(12, 3)), rng.uniform(0.05, 0.4, (12, 3))
+    landmark_centers, landmark_axes = rng.normal(size=(30, 3)), rng.uniform(0.05, 0.4, (30, 3))
+    observed_centers[:3] = np.outer([0.0, 1.0, 2.0], [1.0, 0.5, 0.25])  # observations 0, 1, 2 in a row
+    all_ok = some_not = 0
+    for trial in range(300):
+        counts = rng.integers(0, 8, int(rng.integers(0, 6)))
+        pairs = np.column_stack((rng.integers(0, 12, counts.sum()), rng.integers(0, 30, counts.sum())))
+        if trial % 7 == 0 and len(counts) and counts[0] >= 3:
+            pairs[:3, 0] = [0, 1, 2]  # the first set begins with the row
+        scores = rng.choice([0.0, 0.3, 0.8, 1.0, np.nan], p=[0.1, 0.3, 0.3, 0.25, 0.05], size=counts.sum())
+        pad = (int(rng.integers(0, 12)), int(rng.integers(0, 30)), 0.5)
+        observed, landmarks = (observed_centers, observed_axes), (landmark_centers, landmark_axes)
+        source, target, weights = weighted_sets(pairs, scores, counts, pad, observed, landmarks, "both")
+        rotation, translation, ok, measure = fit_rigid_conditioned(source, target, weights)
+        floors = [0.0, -np.inf, 2.0, float(rng.uniform(0, 0.5))] + ([float(measure[0])] if len(measure) else [])
+        for floor in floors:
+            expected = ok & (nonzero_counts(weights) >= 3) & (measure >= floor)
+            got = fit_sets(pairs, scores, counts, pad, observed, landmarks, "both", floor)
+            for ours, theirs in zip(got[:4], (rotation, translation, expected, measure)):
+                assert ours.dtype == theirs.dtype
+                np.testing.assert_array_equal(ours, theirs)
+            assert got[4] == expected.all()
+            all_ok += bool(len(expected)) and bool(expected.all())
+            some_not += not expected.all()
+    assert all_ok > 50 and some_not > 200
 
 
 def test_nonzero_counts_are_numpys_count_nonzero():

@@ -233,19 +233,31 @@ def partial_view_slack(
     """
     if fraction == 0 or len(observed_axes) == 0:
         return np.zeros(len(observed_axes))
+    rows = np.arange(len(observed_axes))
     return _slack(np.ascontiguousarray(observed_axes, np.float64), np.ascontiguousarray(landmark_axes, np.float64),
-                  float(fraction), float(cap), float(min_deficit))
+                  rows, rows, float(fraction), float(cap), float(min_deficit))
+
+
+def candidate_slack(observed_axes: np.ndarray, landmark_axes: np.ndarray, candidates: np.ndarray, fraction: float,
+                    cap: float, min_deficit: float) -> np.ndarray:
+    """`partial_view_slack(observed_axes[candidates[:, 0]], landmark_axes[candidates[:, 1]], ...)` of (C, 2)
+    candidates, the rows read where they lie (two gathers fewer a query)."""
+    if fraction == 0 or len(candidates) == 0:
+        return np.zeros(len(candidates))
+    return _slack(np.ascontiguousarray(observed_axes, np.float64), np.ascontiguousarray(landmark_axes, np.float64),
+                  candidates[:, 0], candidates[:, 1], float(fraction), float(cap), float(min_deficit))
 
 
 @njit(cache=True)
-def _slack(observed_axes: np.ndarray, landmark_axes: np.ndarray, fraction: float, cap: float,
-           min_deficit: float) -> np.ndarray:
-    """`partial_view_slack` in one compiled pass, as numpy's passes computed it:
-    `np.where(deficit >= min_deficit, np.minimum(fraction * deficit, cap), 0)`, the deficit the largest difference
-    of the sorted semi-axes (NaN sorted last, a NaN difference the largest), a handful of (C, 3) temporaries fewer."""
-    slack = np.zeros(len(observed_axes))
-    for c in range(len(observed_axes)):
-        observed, mapped = _sorted3(observed_axes[c]), _sorted3(landmark_axes[c])
+def _slack(observed_axes: np.ndarray, landmark_axes: np.ndarray, observed_rows: np.ndarray, landmark_rows: np.ndarray,
+           fraction: float, cap: float, min_deficit: float) -> np.ndarray:
+    """`partial_view_slack` of the rows `observed_rows` and `landmark_rows` in one compiled pass, as numpy's passes
+    computed it: `np.where(deficit >= min_deficit, np.minimum(fraction * deficit, cap), 0)`, the deficit the largest
+    difference of the sorted semi-axes (NaN sorted last, a NaN difference the largest), a handful of (C, 3)
+    temporaries fewer."""
+    slack = np.zeros(len(observed_rows))
+    for c in range(len(observed_rows)):
+        observed, mapped = _sorted3(observed_axes, observed_rows[c]), _sorted3(landmark_axes, landmark_rows[c])
         deficit = mapped[0] - observed[0]
         for axis in range(1, 3):
             difference = mapped[axis] - observed[axis]
@@ -257,10 +269,11 @@ def _slack(observed_axes: np.ndarray, landmark_axes: np.ndarray, fraction: float
     return slack
 
 
-@njit(cache=True)
-def _sorted3(values: np.ndarray) -> tuple[float, float, float]:
-    """np.sort of three values: ascending, NaN last, equal values in their order (numpy's insertion sort)."""
-    a, b, c = values[0], values[1], values[2]
+@njit(cache=True, inline="always")
+def _sorted3(values: np.ndarray, row: int) -> tuple[float, float, float]:
+    """np.sort of the three values of values[row]: ascending, NaN last, equal values in their order (numpy's
+    insertion sort); read by index (a row view is reference-counted)."""
+    a, b, c = values[row, 0], values[row, 1], values[row, 2]
     if _before(b, a):
         a, b = b, a
     if _before(c, b):

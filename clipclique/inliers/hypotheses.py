@@ -61,11 +61,8 @@ def from_cliques(result: LocalizationResult, observations: Observations, map: Ma
     centers = observations.ellipsoids.centers, map.ellipsoids.centers
     objects = _objects(observations, settings.duplicate_iou)
     if split is None:
-        slack = compatibility.partial_view_slack(  # take: a row gather, quicker than fancy indexing
-            observations.ellipsoids.axes.take(candidates[:, 0], axis=0),
-            map.ellipsoids.axes.take(candidates[:, 1], axis=0),
-            settings.partial_slack, settings.max_slack, settings.slack_min_deficit,
-        )
+        slack = compatibility.candidate_slack(observations.ellipsoids.axes, map.ellipsoids.axes, candidates,
+                                              settings.partial_slack, settings.max_slack, settings.slack_min_deficit)
         kept = compatibility.affordable_candidates(*centers, candidates, scores, settings.d_comp, slack,
                                                    max_pairs=settings.max_pairs)
         pairs_capped = len(kept) < len(candidates)

@@ -217,8 +217,8 @@ def _graph(region: np.ndarray, observations: Ellipsoids, landmarks: Ellipsoids, 
     obs, lm = candidates[region, 0], candidates[region, 1]
     unique, local_landmark = np.unique(lm, return_inverse=True)
     points, local = landmarks.centers[unique], np.column_stack((obs, local_landmark.ravel()))
-    slack = compatibility.partial_view_slack(observations.axes[obs], landmarks.axes[lm], settings.partial_slack,
-                                             settings.max_slack, settings.slack_min_deficit)
+    slack = compatibility.candidate_slack(observations.axes, landmarks.axes, candidates[region], settings.partial_slack,
+                                          settings.max_slack, settings.slack_min_deficit)
     kept = compatibility.affordable_candidates(observations.centers, points, local, scores[region],
                                                settings.d_comp, slack, max_pairs=settings.max_pairs)
     graph = lambda d_comp: compatibility.compatibility_graph(  # noqa: E731

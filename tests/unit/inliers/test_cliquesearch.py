@@ -98,6 +98,16 @@ def test_groups_must_be_independent():
         top_cliques(np.array([[0, 1]]), 3, np.ones(3), 1, groups=np.array([0, 0, 1]))
 
 
+def test_a_negative_group_is_refused_whether_or_not_a_search_runs():
+    """The compiled search checks the groups itself (numpy's minimum was a tenth of a small search); a call that
+    searches nothing (no clique wanted, fewer vertices than min_size) still refuses a negative group."""
+    edges, weights = np.array([[0, 1], [1, 2], [0, 2]]), np.ones(3)
+    for count, groups in [(5, np.array([0, -1, 2])), (0, np.array([0, -1, 2])), (5, np.array([-3, 1]))]:
+        with pytest.raises(ValueError, match="groups must be non-negative"):
+            top_cliques(edges if len(groups) == 3 else edges[:1], len(groups), weights[: len(groups)], count, groups)
+    assert top_cliques(edges, 3, weights, 5, np.array([0, 1, 2])).sizes.tolist() == [3]
+
+
 def test_the_bit_intrinsics_count_and_find_bits_as_python_does():
     """`_popcount` and `_lowest_bit` (LLVM's ctpop and cttz) on hand-made words: one bit at either end, all
     64, alternating patterns, and random words; `_popcount(0)` is 0."""

@@ -247,6 +247,24 @@ def test_partial_view_slack_is_the_numpy_passes():
             np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=str((fraction, cap, min_deficit)))
 
 
+def test_candidate_slack_is_the_slack_of_the_gathered_rows():
+    """`candidate_slack` reads each candidate's rows where they lie: the same numbers as `partial_view_slack` of the
+    gathered rows, on candidates repeating rows, axes with NaN, a fraction of 0 and no candidates."""
+    from clipclique.inliers.compatibility import candidate_slack, partial_view_slack
+
+    rng = np.random.default_rng(23)
+    observed, mapped = rng.uniform(0.0, 0.5, (6, 3)), rng.uniform(0.0, 0.9, (15, 3))
+    observed[2, 1], mapped[4, 0] = np.nan, np.nan
+    for count in (0, 1, 7, 40):
+        candidates = np.column_stack((rng.integers(0, 6, count), rng.integers(0, 15, count))).astype(np.int64)
+        for fraction, cap, min_deficit in [(0.5, 0.3, 0.05), (1.0, 0.6, 0.0), (0.0, 0.6, 0.3)]:
+            expected = partial_view_slack(observed[candidates[:, 0]], mapped[candidates[:, 1]], fraction, cap,
+                                          min_deficit)
+            got = candidate_slack(observed, mapped, candidates, fraction, cap, min_deficit)
+            np.testing.assert_array_equal(got, expected)
+            assert count < 40 or fraction == 0 or (got > 0).sum() > 10
+
+
 def test_pairs_in_reach_are_the_kd_trees_in_its_order():
     """`compatibility._pairs_in_reach` (one leaf's pairs listed by a compiled pass up to the tree's leaf size, the tree
     beyond) against `cKDTree.query_pairs`, array for array: random, rounded and repeated points of 0 to 20 (the

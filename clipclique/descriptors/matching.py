@@ -155,7 +155,7 @@ class Lookalikes:
 
     groups: ClassGroups
     classes: np.ndarray  # (K,) each observation's class
-    axes: np.ndarray  # (K, 3) float64 each observation's semi-axes, sorted
+    axes: np.ndarray  # (K, 3) float64 each observation's semi-axes (`_merge_lookalikes` sorts each row)
 
 
 def class_groups(landmark_classes: np.ndarray, kernel: sp.csr_matrix, landmark_axes: np.ndarray) -> ClassGroups:
@@ -365,8 +365,12 @@ def _best_of(similarity_row, landmarks, observed_axes, landmark_axes, ratio, bes
 def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, landmarks, starts,
                       lookalike_starts, lookalikes, landmark_axes, per_class, ratio):
     """`with_lookalikes` in one compiled pass per observation over only its look-alike classes' landmarks:
-    (C, 2) merged, (C,) added, and how many look-alike landmarks were of a size (0: nothing to merge)."""
+    (C, 2) merged, (C,) added, and how many look-alike landmarks were of a size (0: nothing to merge). Each
+    observation's semi-axes are sorted here (numpy's sort of a frame's (K, 3) was a tenth of the matching stage)."""
     num_obs = similarity.shape[0]
+    sorted_axes = np.empty((num_obs, 3))
+    for i in range(num_obs):
+        sorted_axes[i] = np.sort(observed_axes[i])
     row_starts = np.zeros(num_obs + 1, np.int64)
     for c in range(len(candidates)):
         row_starts[candidates[c, 0] + 1] += 1
@@ -394,7 +398,7 @@ def _merge_lookalikes(candidates, similarity, observed_classes, observed_axes, l
             columns[j], added[j] = by_row[row_starts[i] + j], False
         own = observed_classes[i]
         for group in lookalikes[lookalike_starts[own]:lookalike_starts[own + 1]]:
-            kept, eligible = _best_of(similarity[i], landmarks[starts[group]:starts[group + 1]], observed_axes[i],
+            kept, eligible = _best_of(similarity[i], landmarks[starts[group]:starts[group + 1]], sorted_axes[i],
                                       landmark_axes, ratio, best)
             columns[count:count + kept] = best[:kept]
             added[count:count + kept] = True

@@ -119,7 +119,7 @@ def lookalikes(observations: Observations, index: MapSide, config: LocalizationC
             or index.class_groups is None):
         return None
     return matching.Lookalikes(groups=index.class_groups, classes=observations.class_ids,
-                               axes=np.sort(np.asarray(observations.ellipsoids.axes, np.float64), axis=1))
+                               axes=np.asarray(observations.ellipsoids.axes, np.float64))
 
 
 def _missing_embeddings(observations: Observations, map: Map) -> str | None:

@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-KD_LEAF_SIZE = 16  # cKDTree's default leafsize: up to this many points, its tree is a single leaf
+ALL_PAIRS_UP_TO = 128  # candidates: up to here every pair is tested (8 us of 100, where a KD-tree took 36)
 
 
 def compatibility_graph(
@@ -40,13 +40,15 @@ def compatibility_graph(
 
     Two landmarks farther apart than the widest observation pair plus the widest tolerance
     cannot pass the test, so only landmark pairs within that reach (a KD-tree query) are tested:
-    the cost grows with the candidates' neighbourhoods, not with the square of their number.
+    the cost grows with the candidates' neighbourhoods, not with the square of their number. Up to
+    ALL_PAIRS_UP_TO candidates every pair is tested instead, in one compiled call (`_small_graph`); the edges
+    come in the order `_pairs_in_reach` lists them.
     """
     if len(candidates) < 2:
         return np.zeros((0, 2), dtype=np.int64)
     slack = np.zeros(len(candidates)) if slack is None else np.asarray(slack, dtype=np.float64)
     obs, lm = candidates[:, 0], candidates[:, 1]
-    if len(candidates) <= KD_LEAF_SIZE:  # the tree's one leaf
+    if len(candidates) <= ALL_PAIRS_UP_TO:
         objects = np.arange(len(observed_centers)) if objects is None else objects
         return _small_graph(np.ascontiguousarray(observed_centers, np.float64),
                             np.ascontiguousarray(landmark_centers, np.float64), np.asarray(obs, np.int64),
@@ -61,9 +63,10 @@ def compatibility_graph(
 @njit(cache=True)
 def _small_graph(observed_centers: np.ndarray, landmark_centers: np.ndarray, obs: np.ndarray, lm: np.ndarray,
                  objects: np.ndarray, d_comp: float, slack: np.ndarray) -> np.ndarray:
-    """`compatibility_graph` of at most KD_LEAF_SIZE candidates in one compiled call: the gather, the pair distances,
-    the reach, the leaf's pairs (`_leaf_pairs`) and the rigid test, where five calls, their arguments and the arrays
-    they handed back cost a small frame more than its pairs."""
+    """`compatibility_graph` of at most ALL_PAIRS_UP_TO candidates in one compiled call: the gather, the pair
+    distances, the reach, the pairs within it (`_all_pairs_within`) and the rigid test, where five calls, their
+    arguments and the arrays they handed back cost a small frame more than its pairs (and a KD-tree's construction
+    and query alone 12 to 36 us of 17 to 100 candidates)."""
     points = np.empty((len(lm), 3))
     shown = np.empty(len(obs), np.int64)
     for c in range(len(lm)):
@@ -71,25 +74,25 @@ def _small_graph(observed_centers: np.ndarray, landmark_centers: np.ndarray, obs
                                                     landmark_centers[lm[c], 2])
         shown[c] = objects[obs[c]]
     observed = _pair_distances(observed_centers)
-    pairs = _leaf_pairs(points, _reach(observed.reshape(-1), d_comp, slack))
+    pairs = _all_pairs_within(points, _reach(observed.reshape(-1), d_comp, slack))
     return _compatible(pairs, points, obs, shown, lm, observed, d_comp, slack)
 
 
 def _pairs_in_reach(points: np.ndarray, reach: float) -> np.ndarray:
-    """(P, 2) int64 pairs i < j of `points` (C, 3) at most `reach` apart, as `cKDTree.query_pairs` lists them (in
-    its order: the clique search's order of equal candidates follows it). Up to the tree's leaf size the tree is one
-    leaf that it reads pair by pair, in order: `_leaf_pairs` does the same without building it (the tree's
-    construction and query were a third of a sparse frame's compatibility graph)."""
-    if len(points) <= KD_LEAF_SIZE:
-        return _leaf_pairs(np.asarray(points, np.float64), float(reach))
+    """(P, 2) int64 pairs i < j of `points` (C, 3) at most `reach` apart, the pairs `cKDTree.query_pairs` finds: up to
+    ALL_PAIRS_UP_TO points every pair tested, in order (i, then j: `_all_pairs_within`), beyond in the tree's order.
+    The clique search orders equal candidates by it, so that the maximal cliques it reaches before its cut (not the
+    cliques it finds) can differ with it where weights tie."""
+    if len(points) <= ALL_PAIRS_UP_TO:
+        return _all_pairs_within(np.asarray(points, np.float64), float(reach))
     return cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64, copy=False)
 
 
 @njit(cache=True)
-def _leaf_pairs(points: np.ndarray, reach: float) -> np.ndarray:
-    """`cKDTree(points).query_pairs(reach)` of at most KD_LEAF_SIZE points (C, 3), one leaf: every pair i < j in
-    order whose squared distance (`_squared_distance`, summed as the tree sums it) is at most reach * reach, as the
-    tree compares (a negative reach squared too, NaN none); the tree's ValueError on a point that is not finite."""
+def _all_pairs_within(points: np.ndarray, reach: float) -> np.ndarray:
+    """The pairs of `cKDTree(points).query_pairs(reach)` of points (C, 3), every pair i < j tested in order: those
+    whose squared distance (`_squared_distance`, summed as the tree sums it) is at most reach * reach, as the tree
+    compares (a negative reach squared too, NaN none); the tree's ValueError on a point that is not finite."""
     for i in range(len(points)):
         for k in range(3):
             if not np.isfinite(points[i, k]):

@@ -265,19 +265,25 @@ def test_candidate_slack_is_the_slack_of_the_gathered_rows():
             assert count < 40 or fraction == 0 or (got > 0).sum() > 10
 
 
-def test_pairs_in_reach_are_the_kd_trees_in_its_order():
-    """`compatibility._pairs_in_reach` (one leaf's pairs listed by a compiled pass up to the tree's leaf size, the tree
-    beyond) against `cKDTree.query_pairs`, array for array: random, rounded and repeated points of 0 to 20 (the
-    leaf size and past it), reaches exactly at a pair's distance and one step either side of it, 0, negative, NaN
-    and infinite; and the tree's ValueError for a point that is not finite."""
+def lexicographic(pairs: np.ndarray) -> np.ndarray:
+    """Pairs (P, 2) in order of their first index, then their second."""
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+
+
+def test_pairs_in_reach_are_the_kd_trees():
+    """`compatibility._pairs_in_reach` (every pair tested by a compiled pass, listed i then j, up to ALL_PAIRS_UP_TO
+    points; the tree, in its order, beyond) against `cKDTree.query_pairs`, pair for pair: random, rounded and
+    repeated points of 0 to 20 and about ALL_PAIRS_UP_TO (past it), reaches exactly at a pair's distance and one
+    step either side of it, 0, negative, NaN and infinite; and the tree's ValueError for a point that is not
+    finite."""
     from scipy.spatial import cKDTree
 
-    from clipclique.inliers.compatibility import KD_LEAF_SIZE, _pairs_in_reach
+    from clipclique.inliers.compatibility import ALL_PAIRS_UP_TO, _pairs_in_reach
 
     rng = np.random.default_rng(21)
     at_boundary = 0
     for trial in range(3000):
-        count = int(rng.integers(0, KD_LEAF_SIZE + 5))
+        count = int(rng.integers(0, 21) if trial % 10 else rng.integers(ALL_PAIRS_UP_TO - 4, ALL_PAIRS_UP_TO + 4))
         points = rng.normal(size=(count, 3)) * 10.0 ** rng.integers(-3, 4)
         if trial % 3 == 0:
             points = np.round(points, 1)  # equal distances
@@ -293,11 +299,11 @@ def test_pairs_in_reach_are_the_kd_trees_in_its_order():
             expected = cKDTree(points).query_pairs(reach, output_type="ndarray").astype(np.int64)
             got = _pairs_in_reach(points, reach)
             assert got.dtype == np.int64
-            np.testing.assert_array_equal(got, expected)
+            np.testing.assert_array_equal(got, lexicographic(expected) if count <= ALL_PAIRS_UP_TO else expected)
         at_boundary += count > 1
     assert at_boundary > 2000
     for bad in (np.nan, np.inf, -np.inf):
-        for count in (3, KD_LEAF_SIZE + 2):
+        for count in (3, ALL_PAIRS_UP_TO + 2):
             points = rng.normal(size=(count, 3))
             points[count // 2, 1] = bad
             with pytest.raises(ValueError) as ours:
@@ -307,9 +313,10 @@ def test_pairs_in_reach_are_the_kd_trees_in_its_order():
             assert str(ours.value) == str(trees.value)
 
 
-def test_compatibility_graph_lists_the_kd_trees_pairs_in_its_order():
-    """`compatibility_graph` against the graph of every pair the tree lists, filtered by the rigid test in that order
-    (the clique search orders equal candidates by it), on frames of 2 to 30 candidates with slack and objects."""
+def test_compatibility_graph_lists_the_kd_trees_pairs_in_order():
+    """`compatibility_graph` against the graph of every pair the tree lists, i then j, filtered by the rigid test in
+    that order (the clique search orders equal candidates by it), on frames of 2 to 30 candidates with slack and
+    objects."""
     from scipy.spatial import cKDTree
 
     from clipclique.inliers.compatibility import _compatible, pair_distances, pair_reach
@@ -323,7 +330,8 @@ def test_compatibility_graph_lists_the_kd_trees_pairs_in_its_order():
         objects = np.minimum(np.arange(observations), rng.integers(0, observations, observations))
         objects = objects[objects]  # an observation's object shows its own
         distances, points = pair_distances(observed), landmarks[candidates[:, 1]]
-        pairs = cKDTree(points).query_pairs(pair_reach(distances, 0.3, slack), output_type="ndarray").astype(np.int64)
+        pairs = lexicographic(cKDTree(points).query_pairs(pair_reach(distances, 0.3, slack), output_type="ndarray")
+                              .astype(np.int64))
         expected = _compatible(pairs, points, candidates[:, 0], objects[candidates[:, 0]], candidates[:, 1], distances,
                                0.3, slack)
         got = compatibility_graph(observed, landmarks, candidates, 0.3, slack, objects)

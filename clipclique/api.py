@@ -18,7 +18,13 @@ from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import BagOptions, Sequence
 from clipclique.errors import ClipcliqueError
 from clipclique.io import mapfile
-from clipclique.localization.run import check_encoder, choose_detector, choose_query_encoder, observe_with
+from clipclique.localization.run import (
+    check_encoder,
+    choose_detector,
+    choose_query_encoder,
+    met_by_detector,
+    observe_with,
+)
 from clipclique.localization.runs import RunSettings
 from clipclique.mapping import build
 from clipclique.outcomes import LocalizationResult
@@ -53,6 +59,7 @@ class Localizer:
             if sequence is None:
                 raise ClipcliqueError(f"Localizer(detector={detector!r}): pass sequence= (its object classes)")
             self.detector = choose_detector(settings, sequence, self.map, self.notes)
+        self.map = met_by_detector(self.map, self.detector, self.notes)
         self.encoder: Encoder | None = (encoder if encoder is not None and not isinstance(encoder, str) else
                                         choose_query_encoder(settings, self.config, self.map, sequence, self.notes))
         check_encoder(self.config, self.encoder, self.map, map_name, method, self.notes)

@@ -19,7 +19,9 @@ the scene's detector over every frame (seed 1, not the queries' 0), its class th
 vocabularies (issue 38): the scene's COCO map written in LVIS names, as MSG-Loc's LVIS maps are, two ways: one
 LVIS name per COCO class ("renamed": `cup` is `mug` throughout), and a name drawn per landmark among the class's
 LVIS names ("mixed", seed 0: some cups are `mug`, some `cup`, some `teacup`). The scene's COCO detections meet each
-map through `clipclique.interop.labels.class_lookup`, as a COCO detection file's do. Printed per map: its classes,
+map through `clipclique.interop.labels.class_lookup`, as a COCO detection file's do; each LVIS map is measured
+as read and as `clipclique.interop.labels.met_by` meets it for COCO detections (classes named by their COCO
+class, as `clipclique-loc run` does for a file's or YOLO's detections). Printed per map: its classes,
 the landmarks whose class a COCO detection class reaches (a counterpart), and top-1 success within
 0.25 / 0.5 / 1 / 2 m (clipclique and sh) beside the COCO map on the same frames.
 """
@@ -41,7 +43,7 @@ import numpy as np  # noqa: E402
 from clipclique.backends import load_encoder, make_detector  # noqa: E402
 from clipclique.descriptors.lookalikes import LVIS_TO_COCO  # noqa: E402
 from clipclique.interop.boxfit import BoxSegmentation, box_mask  # noqa: E402
-from clipclique.interop.labels import class_lookup, label_set  # noqa: E402
+from clipclique.interop.labels import COCO, class_lookup, label_set, met_by  # noqa: E402
 from clipclique.io.mapfile import save_map  # noqa: E402
 from clipclique.localization.run import RunSettings, prepare, selected_frames  # noqa: E402
 from clipclique.mapping.build import build_map  # noqa: E402
@@ -154,12 +156,14 @@ def lvis_names(coco: str) -> list[str]:
 
 
 def lvis_map(map: Map, mixed: bool) -> Map:
-    """`map` in LVIS names: each class's first LVIS name, or (`mixed`) a name drawn per landmark (seed 0)."""
+    """`map` in LVIS names as an import with `--labels lvis` records it: each class's first LVIS name, or
+    (`mixed`) a name drawn per landmark (seed 0)."""
     rng = np.random.default_rng(0)
     names = [lvis_names(name) or [name] for name in map.class_names]
     chosen = [str(rng.choice(names[c])) if mixed else names[c][0] for c in map.class_ids.tolist()]
     vocabulary = sorted(set(chosen))
-    return dataclasses.replace(map, class_names=vocabulary,
+    source = dict(map.provenance.get("source", {})) | {"labels": "lvis"}
+    return dataclasses.replace(map, class_names=vocabulary, provenance=dict(map.provenance) | {"source": source},
                                class_ids=np.array([vocabulary.index(n) for n in chosen], dtype=np.int64))
 
 
@@ -176,14 +180,16 @@ def vocabularies(scene: str, folder: Path, max_frames: int | None) -> None:
                                    max_frames=max_frames))
     coco = coco_run.map
     detected = sorted({coco.class_names[c] for c in coco.class_ids.tolist()})
-    maps = {"COCO": coco, "LVIS, renamed": lvis_map(coco, mixed=False), "LVIS, mixed": lvis_map(coco, mixed=True)}
+    renamed, mixed = lvis_map(coco, mixed=False), lvis_map(coco, mixed=True)
+    maps = {"COCO": coco, "LVIS, renamed, as read": renamed, "LVIS, renamed, met": met_by(renamed, COCO)[0],
+            "LVIS, mixed, as read": mixed, "LVIS, mixed, met": met_by(mixed, COCO)[0]}
     frames = list(selected_frames(coco_run))
     print(f"{scene}: {len(coco)} landmarks, {len(frames)} frames, detector {coco_run.detector.name}")
     for label, map in maps.items():
         lookup = class_lookup(map.class_names)
         reached = {lookup[name.lower()] for name in detected if name.lower() in lookup}
         found = int(np.isin(map.class_ids, sorted(reached)).sum())
-        line = [f"  {label:>13}: {len(map.class_names)} classes, {found} of {len(map)} landmarks with a counterpart;"]
+        line = [f"  {label:>22}: {len(map.class_names)} classes, {found} of {len(map)} landmarks with a counterpart;"]
         for method in ("clipclique", "sh"):
             run = prepare(RunSettings(scene, method=method, map_path=built_map(scene, folder),
                                       data_root=ROOT / "data", max_frames=max_frames))

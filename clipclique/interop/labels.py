@@ -12,15 +12,18 @@ and `cup`, `computer keyboard` and `keyboard`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
+
+import numpy as np
 
 from clipclique.descriptors.lookalikes import LVIS_TO_COCO
 from clipclique.interop.errors import InteropError
 from clipclique.io.safeio import check_text, read_text
 from clipclique.perception.yolo import COCO_NAMES
+from clipclique.types import Map
 
 MAX_LABELS = 10_000  # LVIS holds 1,203; a larger file is not a label list
 BUNDLED = ("coco", "lvis")
@@ -118,3 +121,28 @@ def class_lookup(class_names: list[str]) -> dict[str, int]:
         if name.lower() not in lookup and coco.lower() in by_coco:
             lookup[name.lower()] = by_coco[coco.lower()]
     return lookup
+
+
+def met_by(map: Map, labels: LabelSet) -> tuple[Map, list[str]]:
+    """`map` as detections in `labels` see it, and the note saying what changed. An LVIS map (imported with
+    `--labels lvis`) names its classes finer than COCO and may split one COCO class over several names (`cup`,
+    `mug`, `teacup`); a COCO detection carries one class, so landmarks of the other names would find no
+    counterpart, and the look-alike pairs (`lookalikes`, in COCO names) would miss them. Against COCO detections
+    each class with a COCO class is named by it, and names of one class are merged. Other maps, and detections
+    in the map's own set, are left as they are."""
+    if labels.source != "coco" or map.provenance.get("source", {}).get("labels") != "lvis":
+        return map, []
+    names = [coco_class_of(name) or name for name in map.class_names]
+    vocabulary = list(dict.fromkeys(names))
+    if vocabulary == map.class_names:
+        return map, []
+    target = np.array([vocabulary.index(name) for name in names], np.int64)
+    distributions = map.class_distributions
+    if distributions is not None:
+        distributions = np.zeros((len(map), len(vocabulary)))
+        np.add.at(distributions.T, target, map.class_distributions.T)
+    renamed = [f"{old} -> {new}" for old, new in zip(map.class_names, names) if old != new]
+    shown = ", ".join(renamed[:3]) + (", ..." if len(renamed) > 3 else "")
+    return (replace(map, class_names=vocabulary, class_ids=target[map.class_ids], class_distributions=distributions),
+            [f"LVIS map met by COCO detections: {len(renamed)} of its {len(map.class_names)} classes named by their "
+             f"COCO class ({shown}), {len(vocabulary)} classes in all"])

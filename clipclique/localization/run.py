@@ -29,6 +29,7 @@ from clipclique.datasets.rosbag import NO_DETECTOR
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder, FileDetector
+from clipclique.interop.labels import COCO, met_by
 from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import Staging
 from clipclique.localization.results import (
@@ -78,6 +79,7 @@ def prepare(settings: RunSettings) -> Run:
     if gap := sequence.missing_poses():
         notes.append(f"{gap}; those frames cannot be scored")
     detector = choose_detector(settings, sequence, map, notes)
+    map = met_by_detector(map, detector, notes)
     encoder = choose_query_encoder(settings, config, map, sequence, notes)
     check_encoder(config, encoder, map, str(map_path), settings.method, notes)
     recorder = None
@@ -104,6 +106,20 @@ def choose_detector(settings: RunSettings, sequence: Sequence, map: Map, notes: 
     elif settings.labels is not None:
         raise ClipcliqueError(f"--labels {settings.labels}: only a --detector file: reads category ids")
     return detector
+
+
+def met_by_detector(map: Map, detector: Detector | None, notes: list[str]) -> Map:
+    """The map as the detector's classes meet it (`clipclique.interop.labels.met_by`: COCO detections, a file's
+    or YOLO's, against an LVIS map), what changed going into `notes`."""
+    if isinstance(detector, FileDetector):
+        labels = detector.labels
+    elif isinstance(detector, YoloDetector):
+        labels = COCO
+    else:
+        return map
+    map, note = met_by(map, labels)
+    notes += note
+    return map
 
 
 def choose_query_encoder(settings: RunSettings, config: LocalizationConfig, map: Map, sequence: Sequence | None,

@@ -93,3 +93,66 @@ def test_lvis_detection_file_against_a_coco_map(tmp_path):
     assert found.class_ids.tolist() == [CLASSES.index("cup")] and found.scores.tolist() == [0.9]
     with pytest.raises(InteropError, match="category id 343 is not a coco class id"):
         detector(path)  # read as COCO-80 ids
+
+
+def lvis_room(labels: str | None = "lvis"):
+    """Six landmarks in LVIS names, two COCO cups split over `mug` and `teacup`, with class distributions."""
+    import numpy as np
+
+    from clipclique.sim.synthetic import synthetic_map
+
+    room = synthetic_map(np.random.default_rng(3), 6)
+    names = ["book", "computer keyboard", "cup", "mug", "teacup", "aerosol can"]
+    distributions = np.eye(6)[[0, 1, 2, 3, 4, 5]] * 0.5 + np.eye(6)[[3, 1, 3, 2, 3, 5]] * 0.5
+    source = {"kind": "import"} | ({"labels": labels} if labels else {})
+    return room.__class__(room.ellipsoids, np.arange(6), names, list(names), room.instance_ids, None, "none",
+                          {"source": source}, distributions)
+
+
+def test_an_lvis_map_met_by_coco_detections_names_its_classes_by_their_coco_class():
+    """Before: a COCO `cup` detection reached the map's `cup` alone; its `mug` and `teacup` had no counterpart."""
+    import numpy as np
+
+    from clipclique.interop.labels import met_by
+
+    room = lvis_room()
+    met, note = met_by(room, COCO)
+    assert met.class_names == ["book", "keyboard", "cup", "aerosol can"]
+    assert met.class_ids.tolist() == [0, 1, 2, 2, 2, 3]
+    lookup = class_lookup(met.class_names)
+    assert {i for i, c in enumerate(met.class_ids) if c == lookup["cup"]} == {2, 3, 4}
+    np.testing.assert_allclose(met.class_distributions, [[0.5, 0, 0.5, 0], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                         [0, 0, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
+    assert note == ["LVIS map met by COCO detections: 3 of its 6 classes named by their COCO class (computer keyboard "
+                    "-> keyboard, mug -> cup, teacup -> cup), 4 classes in all"]
+    assert room.class_names[3] == "mug" and room.class_ids.tolist() == list(range(6))  # the map read is untouched
+
+
+def test_maps_and_detections_of_one_vocabulary_are_met_as_they_are():
+    from clipclique.interop.labels import met_by
+
+    for room, labels in ((lvis_room(), label_set("lvis")), (lvis_room(labels=None), COCO),
+                         (lvis_room(labels="coco"), COCO)):
+        met, note = met_by(room, labels)
+        assert met is room and note == []
+
+
+def test_an_import_records_its_label_set_and_a_coco_file_detector_meets_the_lvis_map(tmp_path):
+    from clipclique.interop.commands import AlignmentRequest, import_map
+    from clipclique.localization.run import met_by_detector
+
+    path = tmp_path / "desk_yolo_lvis_map.json"
+    nodes = [msgloc_node(node_id=i, baseline_label={category: [1.0, [1, 2, 3]]})
+             for i, category in enumerate(("707.0", "343.0", "704.0"))]  # mug, cup, mouse (computer equipment)
+    path.write_text(json.dumps({"nodes": nodes}))
+    map = import_map(path, None, None, AlignmentRequest(), None, label_set("lvis")).map
+    assert map.provenance["source"]["labels"] == "lvis" and map.class_names == [
+        "cup", "mouse (computer equipment)", "mug"]
+    (tmp_path / "detections.json").write_text("[]")
+    notes: list[str] = []
+    met = met_by_detector(map, detector(tmp_path / "detections.json"), notes)
+    assert met.class_names == ["cup", "mouse"] and met.class_ids.tolist() == [0, 0, 1]
+    assert notes and notes[0].startswith("LVIS map met by COCO detections: 2 of its 3 classes")
+    lvis_notes: list[str] = []
+    assert met_by_detector(map, detector(tmp_path / "detections.json", labels=label_set("lvis")), lvis_notes) is map
+    assert lvis_notes == []

@@ -200,7 +200,6 @@ class FileDetector:
     min_score: float = 0.0
     segmentation: BoxSegmentation = field(default_factory=BoxSegmentation)
     simulated: bool = False
-    labels: LabelSet = COCO  # the set its category ids were read in (`clipclique.interop.labels.met_by`)
     reads_instances: ClassVar[bool] = False
 
     @property
@@ -211,7 +210,7 @@ class FileDetector:
     def load(cls, spec: str, class_names: list[str], min_score: float = 0.0, labels: LabelSet = COCO,
              strict: bool = False) -> FileDetector:
         path, images = parse_spec(spec)
-        return cls(path, read_detections(path, images, labels, strict), class_names, min_score, labels=labels)
+        return cls(path, read_detections(path, images, labels, strict), class_names, min_score)
 
     @property
     def table(self) -> dict[str, list[FileDetection]]:

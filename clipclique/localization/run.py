@@ -29,7 +29,7 @@ from clipclique.datasets.rosbag import NO_DETECTOR
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder, FileDetector
-from clipclique.interop.labels import COCO, met_by
+from clipclique.interop.labels import COCO, label_set, met_by
 from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import Staging
 from clipclique.localization.results import (
@@ -78,8 +78,8 @@ def prepare(settings: RunSettings) -> Run:
     check_map_source(map, map_path, sequence.name, settings, notes)
     if gap := sequence.missing_poses():
         notes.append(f"{gap}; those frames cannot be scored")
+    map = met_by_detections(map, settings.detector or default_detector(sequence), settings.labels, notes)
     detector = choose_detector(settings, sequence, map, notes)
-    map = met_by_detector(map, detector, notes)
     encoder = choose_query_encoder(settings, config, map, sequence, notes)
     check_encoder(config, encoder, map, str(map_path), settings.method, notes)
     recorder = None
@@ -108,16 +108,17 @@ def choose_detector(settings: RunSettings, sequence: Sequence, map: Map, notes: 
     return detector
 
 
-def met_by_detector(map: Map, detector: Detector | None, notes: list[str]) -> Map:
-    """The map as the detector's classes meet it (`clipclique.interop.labels.met_by`: COCO detections, a file's
-    or YOLO's, against an LVIS map), what changed going into `notes`."""
-    if isinstance(detector, FileDetector):
-        labels = detector.labels
-    elif isinstance(detector, YoloDetector):
-        labels = COCO
+def met_by_detections(map: Map, detector_kind: str, labels: str | None, notes: list[str]) -> Map:
+    """The map as the detections of `--detector detector_kind` meet it (`clipclique.interop.labels.met_by`: COCO
+    detections, of a file read in `labels` or of YOLO, against an LVIS map), what changed going into `notes`; the
+    detector is then made for the map's classes as met."""
+    if detector_kind.startswith("file:"):
+        label_names = label_set(labels)
+    elif detector_kind == "yolo":
+        label_names = COCO
     else:
         return map
-    map, note = met_by(map, labels)
+    map, note = met_by(map, label_names)
     notes += note
     return map
 

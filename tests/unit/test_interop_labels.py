@@ -137,9 +137,12 @@ def test_maps_and_detections_of_one_vocabulary_are_met_as_they_are():
         assert met is room and note == []
 
 
-def test_an_import_records_its_label_set_and_a_coco_file_detector_meets_the_lvis_map(tmp_path):
+def test_an_import_records_its_label_set_and_a_coco_file_run_meets_the_lvis_map(tmp_path):
+    """As `clipclique-loc run` prepares it: the map met first, the file's detector made for the met classes, so a
+    COCO `cup` detection names the class of both the map's `cup` and its `mug` (before: only `cup`)."""
     from clipclique.interop.commands import AlignmentRequest, import_map
-    from clipclique.localization.run import met_by_detector
+    from clipclique.interop.detections import FileDetector
+    from clipclique.localization.run import met_by_detections
 
     path = tmp_path / "desk_yolo_lvis_map.json"
     nodes = [msgloc_node(node_id=i, baseline_label={category: [1.0, [1, 2, 3]]})
@@ -148,11 +151,17 @@ def test_an_import_records_its_label_set_and_a_coco_file_detector_meets_the_lvis
     map = import_map(path, None, None, AlignmentRequest(), None, label_set("lvis")).map
     assert map.provenance["source"]["labels"] == "lvis" and map.class_names == [
         "cup", "mouse (computer equipment)", "mug"]
-    (tmp_path / "detections.json").write_text("[]")
+    detections = tmp_path / "detections.json"
+    detections.write_text(json.dumps([{"file_name": "rgb/1311868164.363181.png", "detections": [
+        {"category_id": 41, "detection_score": 0.9, "bbox": [58, 38, 102, 82]}]}]))  # COCO 'cup' at the cup
     notes: list[str] = []
-    met = met_by_detector(map, detector(tmp_path / "detections.json"), notes)
+    met = met_by_detections(map, f"file:{detections}", None, notes)
     assert met.class_names == ["cup", "mouse"] and met.class_ids.tolist() == [0, 0, 1]
     assert notes and notes[0].startswith("LVIS map met by COCO detections: 2 of its 3 classes")
+    found = FileDetector.load(f"file:{detections}", met.class_names).detect(frame())
+    assert found.class_ids.tolist() == [0] == [met.class_ids[0]] == [met.class_ids[1]]
+    as_read = FileDetector.load(f"file:{detections}", map.class_names).detect(frame())
+    assert as_read.class_ids.tolist() == [0] and map.class_ids.tolist() == [2, 0, 1]  # the mug: no counterpart
     lvis_notes: list[str] = []
-    assert met_by_detector(map, detector(tmp_path / "detections.json", labels=label_set("lvis")), lvis_notes) is map
-    assert lvis_notes == []
+    assert met_by_detections(map, f"file:{detections}", "lvis", lvis_notes) is map and lvis_notes == []
+    assert met_by_detections(map, "simulated-yolo", None, lvis_notes) is map

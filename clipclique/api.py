@@ -17,6 +17,7 @@ from clipclique import backends
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import BagOptions, Sequence
 from clipclique.errors import ClipcliqueError
+from clipclique.interop.detections import FileDetector
 from clipclique.io import mapfile
 from clipclique.localization.run import (
     check_encoder,
@@ -63,6 +64,8 @@ class Localizer:
         self.encoder: Encoder | None = (encoder if encoder is not None and not isinstance(encoder, str) else
                                         choose_query_encoder(settings, self.config, self.map, sequence, self.notes))
         check_encoder(self.config, self.encoder, self.map, map_name, method, self.notes)
+        if isinstance(self.detector, FileDetector):
+            self.notes += self.detector.meet_by_text(self.encoder)
         self.index: MapIndex = index_map(self.map, self.config)
 
     def localize(self, frame: Frame) -> LocalizationResult:

@@ -7,7 +7,8 @@ COCO results files name their classes themselves (`categories`) and do not use i
 
 Maps and detections in different sets meet through `LVIS_TO_COCO` (in clipclique.descriptors.lookalikes, which
 map alignment matches classes by; LVIS was annotated on COCO's images: each COCO class has LVIS names, `mug`
-and `cup`, `computer keyboard` and `keyboard`).
+and `cup`, `computer keyboard` and `keyboard`), and, where a real CLIP is loaded, names no table holds (a
+Grounding DINO prompt's `coffee mug`) through their text embeddings (`text_matches`).
 """
 
 from __future__ import annotations
@@ -16,16 +17,25 @@ from dataclasses import dataclass, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clipclique.datasets.base import description_template
 from clipclique.descriptors.lookalikes import LVIS_TO_COCO
 from clipclique.interop.errors import InteropError
 from clipclique.io.safeio import check_text, read_text
 from clipclique.perception.yolo import COCO_NAMES
 from clipclique.types import Map
 
+if TYPE_CHECKING:
+    from clipclique.perception.encoders import Encoder
+
 MAX_LABELS = 10_000  # LVIS holds 1,203; a larger file is not a label list
+# A name no table meets is met by text (`text_matches`) only where its nearest map class and that class's nearest
+# name are each other, and the nearest stands this far (cosine) above the second: CLIP's text embeddings of any two
+# prompts are close (cosines mostly 0.7-0.9), so the gap, not the level, says that one class is meant.
+TEXT_MARGIN = 0.05
 BUNDLED = ("coco", "lvis")
 
 
@@ -146,3 +156,20 @@ def met_by(map: Map, labels: LabelSet) -> tuple[Map, list[str]]:
     return (replace(map, class_names=vocabulary, class_ids=target[map.class_ids], class_distributions=distributions),
             [f"LVIS map met by COCO detections: {len(renamed)} of its {len(map.class_names)} classes named by their "
              f"COCO class ({shown}), {len(vocabulary)} classes in all"])
+
+
+def text_matches(names: list[str], class_names: list[str], encoder: Encoder) -> dict[str, tuple[int, float]]:
+    """Detection class names -> (map class id, cosine) by the text embeddings of their prompts
+    (`description_template`): a name meets its nearest map class when that class's nearest name is it and the
+    nearest stands TEXT_MARGIN above the second. A simulated encoder knows only its scenes' descriptions, so
+    nothing is met through one."""
+    if not names or not class_names or getattr(encoder, "simulated", True):
+        return {}
+    embedded = encoder.encode_text([description_template(name) for name in [*names, *class_names]])
+    cosine = embedded[:len(names)] @ embedded[len(names):].T
+    nearest_class, nearest_name = cosine.argmax(axis=1), cosine.argmax(axis=0)
+    ranked = np.sort(cosine, axis=1)
+    gap = ranked[:, -1] - (ranked[:, -2] if len(class_names) > 1 else -1.0)
+    return {name: (int(nearest_class[row]), float(cosine[row, nearest_class[row]]))
+            for row, name in enumerate(names)
+            if nearest_name[nearest_class[row]] == row and gap[row] >= TEXT_MARGIN}

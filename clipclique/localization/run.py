@@ -82,6 +82,8 @@ def prepare(settings: RunSettings) -> Run:
     detector = choose_detector(settings, sequence, map, notes)
     encoder = choose_query_encoder(settings, config, map, sequence, notes)
     check_encoder(config, encoder, map, str(map_path), settings.method, notes)
+    if isinstance(detector, FileDetector):
+        notes += detector.meet_by_text(encoder)
     recorder = None
     if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))

@@ -165,3 +165,47 @@ def test_an_import_records_its_label_set_and_a_coco_file_run_meets_the_lvis_map(
     lvis_notes: list[str] = []
     assert met_by_detections(map, f"file:{detections}", "lvis", lvis_notes) is map and lvis_notes == []
     assert met_by_detections(map, "simulated-yolo", None, lvis_notes) is map
+
+
+class PromptEncoder:
+    """A stand-in for real CLIP's text side: fixed unit vectors per class name, near where the names mean one
+    thing (`coffee mug` and `cup`), between two classes where a name could mean either."""
+
+    name, simulated = "prompt-clip", False
+    VECTORS = {"book": [1, 0, 0, 0], "cup": [0, 1, 0, 0], "monitor": [0, 0, 1, 0],
+               "coffee mug": [0.1, 0.98, 0.05, 0.1], "screen or tablet": [0.6, 0, 0.6, 0.5],
+               "spaceship": [0, 0, 0, 1]}
+
+    def encode_text(self, texts):
+        import numpy as np
+
+        rows = np.array([self.VECTORS[text.removeprefix("a photo of a ")] for text in texts], np.float32)
+        return rows / np.linalg.norm(rows, axis=1, keepdims=True)
+
+
+def test_names_no_table_holds_meet_by_text_embeddings_when_one_class_stands_out():
+    from clipclique.interop.labels import text_matches
+
+    found = text_matches(["coffee mug", "screen or tablet", "spaceship"], CLASSES, PromptEncoder())
+    assert list(found) == ["coffee mug"] and found["coffee mug"][0] == CLASSES.index("cup")
+    assert found["coffee mug"][1] > 0.97
+    simulated = PromptEncoder()
+    simulated.simulated = True
+    assert text_matches(["coffee mug"], CLASSES, simulated) == {}
+
+
+def test_a_grounding_dino_style_file_meets_the_map_by_text_where_real_clip_is_loaded(tmp_path):
+    """Before: `coffee mug` detections were dropped, no table holding the name."""
+    (tmp_path / "prompts.txt").write_text("coffee mug\nspaceship\n")
+    path = tmp_path / "detections.json"
+    path.write_text(json.dumps([{"file_name": "rgb/1311868164.363181.png", "detections": [
+        {"category_id": 0, "detection_score": 0.9, "bbox": [58, 38, 102, 82]},
+        {"category_id": 1, "detection_score": 0.8, "bbox": [0, 0, 20, 20]}]}]))
+    labels = read_label_file(tmp_path / "prompts.txt")
+    assert detector(path, labels=labels).detect(frame()).class_ids.tolist() == []
+    found = detector(path, labels=labels)
+    assert found.meet_by_text(None) == []
+    note = found.meet_by_text(PromptEncoder())
+    assert note == ["detections.json: 1 classes met by their text embeddings (prompt-clip): 'coffee mug' as 'cup' "
+                    "(0.99); 1 without a counterpart (first 'spaceship')"]
+    assert found.detect(frame()).class_ids.tolist() == [CLASSES.index("cup")]

@@ -42,7 +42,7 @@ from clipclique.types import Map, Pose
 
 KINDS = ("split", "submap", "unrelated", "copies", "detectors")
 # the model before the evidence (issue 38): log correspondences and margin only
-WRONG_WEIGHT = 3.0  # 1, 2 or 3 give the same answers on detector pairs once the rotation's precision caps them
+WRONG_WEIGHT = 3.0  # 1 gives the same answers on the test's detector pairs (tools/align_pairs.py), 1 fewer refused
 BEFORE = np.array([-7.009, 2.251, 15.571, 0.0, 0.0, 0.0, 0.0, 0.0])
 
 
@@ -83,7 +83,7 @@ def is_right(candidate: mapalign.Candidate, truth: Pose | None, query: Map) -> b
             and math.degrees(rotation_angle(candidate.pose.rotation.T @ truth.rotation)) < mapalign.TOLERANCE_DEG)
 
 
-def collect(seeds: range) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray]:
+def collect(seeds: range) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray, np.ndarray]:
     """(features (n, len(EVIDENCE)), labels (n,), kinds, whether each is a top-1 answer not called ambiguous,
     whether each is a competitor of an ambiguous alignment) of every reported candidate."""
     config = make_config("clipclique")
@@ -147,7 +147,7 @@ def main() -> None:
     weights = fit(train[0], train[1], train[4])
     design = np.column_stack((np.ones(len(held[0])), held[0]))
     probability, before = expit(design @ weights), expit(design @ BEFORE)
-    probability = np.array([mapalign.supported(p, f, c) for p, f, c in zip(probability, *held[0::4])])  # the caps
+    probability = np.array([mapalign.supported(p, f, c) for p, f, c in zip(probability, held[0], held[4])])
     print(f"held-out seeds ({len(held[0])} candidates), model fitted on the others:")
     print(reliability(probability, held[1]))
     for kind in KINDS:

@@ -27,9 +27,10 @@ correspondences pin the rotation (`rotation_sigma`). A logistic model of them, f
 (`tools/fit_align_confidence.py`: split maps moved by random transforms, unrelated maps, rooms repeated
 side by side, and maps of one room by two simulated detectors, `clipclique.sim.mappairs`), gives the
 probability that the transform is right (every query landmark within TOLERANCE_M of where the truth puts
-it, the rotation within TOLERANCE_DEG). Two kinds of answer are never confident (`supported`): fewer than
-MIN_SUPPORT correspondences (a coincidence of a few objects), and a rotation whose standard error about its
-least constrained axis is more than 1 / PRECISION_SIGMAS of TOLERANCE_DEG. The second is what wrong answers
+it, the rotation within TOLERANCE_DEG). Three kinds of candidate are never confident (`supported`): fewer
+than MIN_SUPPORT correspondences (a coincidence of a few objects), the competitors of an ambiguous answer, and a
+rotation whose standard error about its least constrained axis is more than 1 / PRECISION_SIGMAS of
+TOLERANCE_DEG; the model is fitted on the candidates no cap holds. The last is what wrong answers
 of 6-9 correspondences between two detectors' maps mostly are: the right objects matched over a thin
 overlap (a band of the room, so the points barely constrain a turn about one axis), the rotation 5-12
 degrees off; their rms, margin and count look like those of right answers, the rotation's standard error
@@ -62,8 +63,9 @@ DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
 AMBIGUOUS_MARGIN = 0.15  # a competitor within this fraction of the best's similarity makes the answer ambiguous
 SEARCHED = 4  # hypotheses asked of the pipeline per candidate reported (near-duplicates are merged)
 # Logistic confidence, P = sigmoid(BIAS + WEIGHTS . evidence), the evidence being EVIDENCE (`evidence`), fitted on
-# the candidates `supported` leaves uncapped (its output says how well it is calibrated). The weights are of
-# correlated features (a count, a spread and the rotation's standard error that both depend on): read them together.
+# the candidates `supported` leaves uncapped (its output says how well it is calibrated). The features are
+# correlated (the rotation's standard error grows with the rms and shrinks with the count and the spread): read
+# the weights together, not one by one.
 EVIDENCE = ("log correspondences", "margin", "score per correspondence", "class rarity", "log spread (m)",
             "rms / map scale", "log rotation sigma (deg)")
 TOLERANCE_M, TOLERANCE_DEG = 0.3, 5.0  # a transform is right when its landmarks and rotation are this close

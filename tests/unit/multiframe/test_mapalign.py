@@ -163,6 +163,7 @@ def test_align_command_writes_json_g2o_and_a_recording(tmp_path):
     document = json.loads((tmp_path / "out" / "alignment.json").read_text())
     np.testing.assert_allclose(document["candidates"][0]["matrix"], truth.matrix(), atol=1e-9)
     assert document["ambiguous"] is False and document["candidates"][0]["confidence"] > 0.5
+    assert 0.1 < document["candidates"][0]["rotation_sigma_deg"] < 0.2  # noise-free: the 1 cm floor on the rms
     edge = (tmp_path / "out" / "alignment.g2o").read_text().splitlines()
     assert edge[0].startswith("# vertex 0: ") and edge[1].split()[3:6] == [f"{v:.9g}" for v in truth.translation]
     assert (tmp_path / "out" / "recording.rrd").stat().st_size > 1000

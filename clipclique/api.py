@@ -17,15 +17,22 @@ from clipclique import backends
 from clipclique.config import LocalizationConfig, make_config
 from clipclique.datasets import BagOptions, Sequence
 from clipclique.errors import ClipcliqueError
+from clipclique.interop.detections import FileDetector
 from clipclique.io import mapfile
-from clipclique.localization.run import check_encoder, choose_detector, choose_query_encoder, observe_with
+from clipclique.localization.run import (
+    check_encoder,
+    choose_detector,
+    choose_query_encoder,
+    met_by_detections,
+    observe_with,
+)
 from clipclique.localization.runs import RunSettings
 from clipclique.mapping import build
 from clipclique.outcomes import LocalizationResult
 from clipclique.perception.detectors import Detector
 from clipclique.perception.encoders import Encoder
 from clipclique.pipeline import MapIndex, index_map, localize
-from clipclique.resolve import open_scene
+from clipclique.resolve import default_detector, open_scene
 from clipclique.types import Frame, Map, Observations
 
 
@@ -52,10 +59,13 @@ class Localizer:
         if self.detector is None and (sequence is not None or isinstance(detector, str)):
             if sequence is None:
                 raise ClipcliqueError(f"Localizer(detector={detector!r}): pass sequence= (its object classes)")
+            self.map = met_by_detections(self.map, detector or default_detector(sequence), None, self.notes)
             self.detector = choose_detector(settings, sequence, self.map, self.notes)
         self.encoder: Encoder | None = (encoder if encoder is not None and not isinstance(encoder, str) else
                                         choose_query_encoder(settings, self.config, self.map, sequence, self.notes))
         check_encoder(self.config, self.encoder, self.map, map_name, method, self.notes)
+        if isinstance(self.detector, FileDetector):
+            self.notes += self.detector.meet_by_text(self.encoder)
         self.index: MapIndex = index_map(self.map, self.config)
 
     def localize(self, frame: Frame) -> LocalizationResult:

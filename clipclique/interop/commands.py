@@ -55,7 +55,7 @@ def import_map(path: Path, format: MapFormat | None, objects: Path | None, reque
     imported = read_map(path, format, labels)
     imported.notes += duplicate_note(labels)
     digest = hashlib.sha256(read_bytes(path, MAX_BINARY_BYTES, "map file", InteropError)).hexdigest()
-    map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder, digest)
+    map = to_map(imported, str(path), read_objects(objects) if objects else None, encoder, digest, labels.source)
     if request.groundtruth is None:
         return ImportReport(map, imported, None, imported.frame)
     trajectory = request.trajectory or imported.trajectory

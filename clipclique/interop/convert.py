@@ -27,10 +27,11 @@ def read_objects(path: Path) -> dict[int, tuple[str, str]]:
 
 
 def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]] | None = None,
-           encoder: Encoder | None = None, sha256: str | None = None) -> Map:
+           encoder: Encoder | None = None, sha256: str | None = None, labels: str | None = None) -> Map:
     """The clipclique map of imported landmarks: classes (and descriptions) from `objects` by object id
     where given, else the file's; InteropError naming `where` for a landmark left without a class. `sha256`, the
-    input's digest, lets a later import of the same file replace this map (`clipclique.mapping.run`)."""
+    input's digest, lets a later import of the same file replace this map (`clipclique.mapping.run`); `labels`, the
+    label set its category ids were read in (`lvis`: `clipclique.interop.labels.met_by` reads it)."""
     objects = objects or {}
     classes, descriptions = [], []
     for index, (object_id, name, description) in enumerate(zip(imported.object_ids, imported.classes,
@@ -63,7 +64,8 @@ def to_map(imported: ImportedMap, where: str, objects: dict[int, tuple[str, str]
     embeddings = None if encoder is None else np.asarray(encoder.encode_text(descriptions), np.float32)
     record = {
         "source": {"kind": "import", "format": imported.source.value, "file": where, "synthetic": False,
-                   "name": imported.frame or unaligned_name(where)} | ({"sha256": sha256} if sha256 else {}),
+                   "name": imported.frame or unaligned_name(where)} | ({"sha256": sha256} if sha256 else {})
+                  | ({"labels": labels} if labels else {}),
         "source_object_ids": [int(i) for i in imported.object_ids],
         "notes": notes,
         "encoder_simulated": bool(encoder is not None and getattr(encoder, "simulated", False)),

@@ -32,12 +32,13 @@ from clipclique.interop.coco import (
     write_json,
 )
 from clipclique.interop.errors import InteropError
-from clipclique.interop.labels import COCO, LabelSet, class_lookup
+from clipclique.interop.labels import COCO, LabelSet, class_lookup, text_matches
 from clipclique.io.safeio import read_json
 from clipclique.types import Detections, Frame
 
 if TYPE_CHECKING:
     from clipclique.datasets import Sequence
+    from clipclique.perception.encoders import Encoder
 
 DUPLICATE_IOU = 0.7  # two boxes of different classes overlapping this much are one object
 
@@ -200,6 +201,7 @@ class FileDetector:
     min_score: float = 0.0
     segmentation: BoxSegmentation = field(default_factory=BoxSegmentation)
     simulated: bool = False
+    by_text: dict[str, int] = field(default_factory=dict)  # class names met by text embeddings (`meet_by_text`)
     reads_instances: ClassVar[bool] = False
 
     @property
@@ -219,7 +221,24 @@ class FileDetector:
     @cached_property
     def _lookup(self) -> dict[str, int]:
         """Detection class name -> map class id; names missing are dropped."""
-        return class_lookup(self.class_names)
+        return class_lookup(self.class_names) | self.by_text
+
+    def meet_by_text(self, encoder: Encoder | None) -> list[str]:
+        """Meet the file's class names that no table holds through their text embeddings where `encoder` is a
+        real CLIP (`clipclique.interop.labels.text_matches`); the note saying which were met, and which not."""
+        tables = class_lookup(self.class_names)
+        unmet = sorted({d.class_name for listed in self.table.values() for d in listed
+                        if d.class_name.lower() not in tables})
+        found = text_matches(unmet, self.class_names, encoder) if encoder is not None else {}
+        if not found:
+            return []
+        self.by_text = {name.lower(): index for name, (index, _) in found.items()}
+        self.__dict__.pop("_lookup", None)
+        met = ", ".join(f"{name!r} as {self.class_names[index]!r} ({cosine:.2f})"
+                        for name, (index, cosine) in found.items())
+        left = [name for name in unmet if name not in found]
+        return [f"{self.path.name}: {len(found)} classes met by their text embeddings ({encoder.name}): {met}"
+                + (f"; {len(left)} without a counterpart (first {left[0]!r})" if left else "")]
 
     def check_coverage(self, sequence: Sequence, selected: range) -> list[str]:
         """Before a run: an error naming both naming schemes when the file covers none of the selected frames

@@ -7,22 +7,35 @@ COCO results files name their classes themselves (`categories`) and do not use i
 
 Maps and detections in different sets meet through `LVIS_TO_COCO` (in clipclique.descriptors.lookalikes, which
 map alignment matches classes by; LVIS was annotated on COCO's images: each COCO class has LVIS names, `mug`
-and `cup`, `computer keyboard` and `keyboard`).
+and `cup`, `computer keyboard` and `keyboard`), and, where a real CLIP is loaded, names no table holds (a
+Grounding DINO prompt's `coffee mug`) through their text embeddings (`text_matches`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+import numpy as np
+
+from clipclique.datasets.base import description_template
 from clipclique.descriptors.lookalikes import LVIS_TO_COCO
 from clipclique.interop.errors import InteropError
 from clipclique.io.safeio import check_text, read_text
 from clipclique.perception.yolo import COCO_NAMES
+from clipclique.types import Map
+
+if TYPE_CHECKING:
+    from clipclique.perception.encoders import Encoder
 
 MAX_LABELS = 10_000  # LVIS holds 1,203; a larger file is not a label list
+# A name no table meets is met by text (`text_matches`) only where its nearest map class and that class's nearest
+# name are each other, and the nearest stands this far (cosine) above the second: CLIP's text embeddings of any two
+# prompts are close (cosines mostly 0.7-0.9), so the gap, not the level, says that one class is meant.
+TEXT_MARGIN = 0.05
 BUNDLED = ("coco", "lvis")
 
 
@@ -118,3 +131,45 @@ def class_lookup(class_names: list[str]) -> dict[str, int]:
         if name.lower() not in lookup and coco.lower() in by_coco:
             lookup[name.lower()] = by_coco[coco.lower()]
     return lookup
+
+
+def met_by(map: Map, labels: LabelSet) -> tuple[Map, list[str]]:
+    """`map` as detections in `labels` see it, and the note saying what changed. An LVIS map (imported with
+    `--labels lvis`) names its classes finer than COCO and may split one COCO class over several names (`cup`,
+    `mug`, `teacup`); a COCO detection carries one class, so landmarks of the other names would find no
+    counterpart, and the look-alike pairs (`lookalikes`, in COCO names) would miss them. Against COCO detections
+    each class with a COCO class is named by it, and names of one class are merged. Other maps, and detections
+    in the map's own set, are left as they are."""
+    if labels.source != "coco" or map.provenance.get("source", {}).get("labels") != "lvis":
+        return map, []
+    names = [coco_class_of(name) or name for name in map.class_names]
+    vocabulary = list(dict.fromkeys(names))
+    if vocabulary == map.class_names:
+        return map, []
+    target = np.array([vocabulary.index(name) for name in names], np.int64)
+    distributions = map.class_distributions
+    if distributions is not None:
+        distributions = np.zeros((len(map), len(vocabulary)))
+        np.add.at(distributions.T, target, map.class_distributions.T)
+    renamed = [f"{old} -> {new}" for old, new in zip(map.class_names, names) if old != new]
+    shown = ", ".join(renamed[:3]) + (", ..." if len(renamed) > 3 else "")
+    return (replace(map, class_names=vocabulary, class_ids=target[map.class_ids], class_distributions=distributions),
+            [f"LVIS map met by COCO detections: {len(renamed)} of its {len(map.class_names)} classes named by their "
+             f"COCO class ({shown}), {len(vocabulary)} classes in all"])
+
+
+def text_matches(names: list[str], class_names: list[str], encoder: Encoder) -> dict[str, tuple[int, float]]:
+    """Detection class names -> (map class id, cosine) by the text embeddings of their prompts
+    (`description_template`): a name meets its nearest map class when that class's nearest name is it and the
+    nearest stands TEXT_MARGIN above the second. A simulated encoder knows only its scenes' descriptions, so
+    nothing is met through one."""
+    if not names or not class_names or getattr(encoder, "simulated", True):
+        return {}
+    embedded = encoder.encode_text([description_template(name) for name in [*names, *class_names]])
+    cosine = embedded[:len(names)] @ embedded[len(names):].T
+    nearest_class, nearest_name = cosine.argmax(axis=1), cosine.argmax(axis=0)
+    ranked = np.sort(cosine, axis=1)
+    gap = ranked[:, -1] - (ranked[:, -2] if len(class_names) > 1 else -1.0)
+    return {name: (int(nearest_class[row]), float(cosine[row, nearest_class[row]]))
+            for row, name in enumerate(names)
+            if nearest_name[nearest_class[row]] == row and gap[row] >= TEXT_MARGIN}

@@ -84,6 +84,7 @@ def alignment_document(settings: AlignSettings, alignment: MapAlignment, query: 
             "score": candidate.score,
             "margin": candidate.margin,
             "rms_m": candidate.rms_m,
+            "rotation_sigma_deg": candidate.rotation_sigma_deg,  # above 2.5 the candidate is never confident
             "correspondences": pairs.tolist(),
             "correspondence_classes": [[query.class_names[query.class_ids[a]], map.class_names[map.class_ids[b]]]
                                        for a, b in pairs],

@@ -135,6 +135,7 @@ def run(
         from clipclique.commands import rerun_hint
         from clipclique.config import method_key
         from clipclique.exits import user_errors
+        from clipclique.localization.firstrun import compile_note
         from clipclique.localization.run import RunSettings, run_and_save
         from clipclique.localization.tables import make_console, print_documents, print_frames
 
@@ -154,7 +155,7 @@ def run(
     console = make_console()
     with user_errors(TOOL), Progress(console=Console(stderr=True), transient=True, disable=quiet) as progress:
         title = escape(f"{sequence} / {method}")
-        task = progress.add_task(title, total=None)
+        task = progress.add_task(f"{title} {compile_note()}".rstrip(), total=None)
         document = run_and_save(settings, lambda reached: progress.update(
             task, completed=reached.done, total=reached.total, description=f"{title} {reached.describe()}".rstrip()))
     if verbose:

@@ -29,6 +29,7 @@ from clipclique.datasets.rosbag import NO_DETECTOR
 from clipclique.errors import ClipcliqueError, MapFileError, ModelUnavailableError
 from clipclique.interop.coco import reported_classes
 from clipclique.interop.detections import CocoRecorder, FileDetector
+from clipclique.interop.labels import COCO, label_set, met_by
 from clipclique.io.mapfile import load_map
 from clipclique.io.outputs import Staging
 from clipclique.localization.results import (
@@ -77,9 +78,12 @@ def prepare(settings: RunSettings) -> Run:
     check_map_source(map, map_path, sequence.name, settings, notes)
     if gap := sequence.missing_poses():
         notes.append(f"{gap}; those frames cannot be scored")
+    map = met_by_detections(map, settings.detector or default_detector(sequence), settings.labels, notes)
     detector = choose_detector(settings, sequence, map, notes)
     encoder = choose_query_encoder(settings, config, map, sequence, notes)
     check_encoder(config, encoder, map, str(map_path), settings.method, notes)
+    if isinstance(detector, FileDetector):
+        notes += detector.meet_by_text(encoder)
     recorder = None
     if isinstance(detector, YoloDetector):  # its detections, so that `--detector file:` reruns without GPU or weights
         recorder = CocoRecorder(map.class_names, reported_classes(detector.class_map, map.class_names))
@@ -104,6 +108,21 @@ def choose_detector(settings: RunSettings, sequence: Sequence, map: Map, notes: 
     elif settings.labels is not None:
         raise ClipcliqueError(f"--labels {settings.labels}: only a --detector file: reads category ids")
     return detector
+
+
+def met_by_detections(map: Map, detector_kind: str, labels: str | None, notes: list[str]) -> Map:
+    """The map as the detections of `--detector detector_kind` meet it (`clipclique.interop.labels.met_by`: COCO
+    detections, of a file read in `labels` or of YOLO, against an LVIS map), what changed going into `notes`; the
+    detector is then made for the map's classes as met."""
+    if detector_kind.startswith("file:"):
+        label_names = label_set(labels)
+    elif detector_kind == "yolo":
+        label_names = COCO
+    else:
+        return map
+    map, note = met_by(map, label_names)
+    notes += note
+    return map
 
 
 def choose_query_encoder(settings: RunSettings, config: LocalizationConfig, map: Map, sequence: Sequence | None,

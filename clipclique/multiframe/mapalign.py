@@ -22,11 +22,22 @@ class (nearest first, one-to-one) becomes a correspondence, and the transform is
 Maps cannot be verified in an image, so a candidate's confidence comes from its evidence (EVIDENCE):
 the number of correspondences, its margin (how far its summed similarity stands above the best other
 candidate's, relative to its own), the similarity per correspondence, the matched classes' rarity in the
-map, the matched landmarks' spread, and the residual against the map's scale (`map_scale`). A logistic
-model of them, fitted on generated cases (`tools/fit_align_confidence.py`: split maps moved by random
-transforms, unrelated maps, rooms repeated side by side, and maps of one room by two simulated
-detectors, `clipclique.sim.mappairs`), gives the probability that the transform is right (within
-0.3 m and 5 degrees); fewer than MIN_SUPPORT correspondences are never confident (`supported`).
+map, the matched landmarks' spread, the residual against the map's scale (`map_scale`), and how well the
+correspondences pin the rotation (`rotation_sigma`). A logistic model of them, fitted on generated cases
+(`tools/fit_align_confidence.py`: split maps moved by random transforms, unrelated maps, rooms repeated
+side by side, and maps of one room by two simulated detectors, `clipclique.sim.mappairs`), gives the
+probability that the transform is right (every query landmark within TOLERANCE_M of where the truth puts
+it, the rotation within TOLERANCE_DEG). Three kinds of candidate are never confident (`supported`): fewer
+than MIN_SUPPORT correspondences (a coincidence of a few objects), the competitors of an ambiguous answer, and a
+rotation whose standard error about its least constrained axis is more than 1 / PRECISION_SIGMAS of
+TOLERANCE_DEG; the model is fitted on the candidates no cap holds. The last is what wrong answers
+of 6-9 correspondences between two detectors' maps mostly are: the right objects matched over a thin
+overlap (a band of the room, so the points barely constrain a turn about one axis), the rotation 5-12
+degrees off; their rms, margin and count look like those of right answers, the rotation's standard error
+does not. (Tried and not kept, measured on 1,400 generated pairs: an a-contrario tail of k like-class
+coincidences under a random placement, unmatched query landmarks landing on map landmarks of another
+class, and the rotation's change when one correspondence is left out; none separated the wrong answers
+that the rotation's standard error leaves.)
 The answer is `ambiguous` when another candidate scores within AMBIGUOUS_MARGIN of the
 best: the competitors are listed instead of one being picked silently.
 """
@@ -51,12 +62,17 @@ DISTINCT_M = 0.5  # metres: transforms moving the query centroid less apart than
 DISTINCT_DEG = 10.0  # ... and rotating less apart than this are one candidate
 AMBIGUOUS_MARGIN = 0.15  # a competitor within this fraction of the best's similarity makes the answer ambiguous
 SEARCHED = 4  # hypotheses asked of the pipeline per candidate reported (near-duplicates are merged)
-# Logistic confidence, P = sigmoid(BIAS + WEIGHTS . evidence), the evidence being EVIDENCE (`evidence`),
-# fitted by tools/fit_align_confidence.py (its output says how well it is calibrated).
+# Logistic confidence, P = sigmoid(BIAS + WEIGHTS . evidence), the evidence being EVIDENCE (`evidence`), fitted on
+# the candidates `supported` leaves uncapped (its output says how well it is calibrated). The features are
+# correlated (the rotation's standard error grows with the rms and shrinks with the count and the spread): read
+# the weights together, not one by one.
 EVIDENCE = ("log correspondences", "margin", "score per correspondence", "class rarity", "log spread (m)",
-            "rms / map scale")
+            "rms / map scale", "log rotation sigma (deg)")
+TOLERANCE_M, TOLERANCE_DEG = 0.3, 5.0  # a transform is right when its landmarks and rotation are this close
 MIN_SUPPORT, SPARSE_CAP = 6, 0.4  # fewer correspondences than this: never confident (`supported`)
-BIAS, WEIGHTS = 1.588, (-0.306, 11.395, -4.444, 0.959, 1.135, -20.243)
+PRECISION_SIGMAS = 2.0  # ... nor a rotation whose standard error times this exceeds TOLERANCE_DEG
+# fitted by tools/fit_align_confidence.py --seeds 200 (WRONG_WEIGHT 3.0, 800 detector pairs among 10250 candidates)
+BIAS, WEIGHTS = -5.474, (1.844, 7.029, 3.810, 0.663, 6.000, 3.590, -5.292)
 TRANSLATION_FLOOR_M = 0.01  # the information matrix's translation sigma is at least this
 INFORMATION_CAP = 1e6  # ... and no entry exceeds this
 
@@ -73,6 +89,7 @@ class Candidate:
     rms_m: float  # root-mean-square centre residual of the correspondences after the transform
     spread_m: float = 0.0  # radius of gyration of the matched query landmarks (a rotation needs spread points)
     rarity: float = 0.0  # mean -log(share of the map's landmarks of the matched class): rare classes say more
+    rotation_sigma_deg: float = 0.0  # the rotation's standard error about its least constrained axis (`rotation_sigma`)
 
     def matrix(self) -> np.ndarray:
         return self.pose.matrix()
@@ -124,10 +141,10 @@ def conclude(result: LocalizationResult, query: AlignmentQuery, query_map: Map,
         if not any(_same_transform(refined.pose, c.pose, query_map) for c in candidates):  # converged onto another
             candidates.append(refined)
     candidates.sort(key=lambda c: -c.score)
-    _confidences(candidates, map_scale(query.map))
     best = candidates[0].score if candidates else 0.0
     competitors = ([i for i, c in enumerate(candidates) if c.score >= (1 - AMBIGUOUS_MARGIN) * best] if candidates
                    else [])
+    _confidences(candidates, map_scale(query.map), competitors if len(competitors) > 1 else [])
     return MapAlignment(candidates[:config.top_n], len(competitors) > 1, [i for i in competitors if i < config.top_n],
                         query.vocabulary, result.failure, query.notes + result.notes)
 
@@ -200,8 +217,20 @@ def _refinement(pose: Pose, clique: np.ndarray, observations: Observations, map:
     spread = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
     share = np.bincount(map.class_ids, minlength=len(map.class_names)) / max(len(map), 1)
     rarity = float(np.mean(-np.log(share[map.class_ids[correspondences[:, 1]]])))
-    return Candidate(pose, correspondences, score, 1.0, 0.0, float(np.sqrt(np.mean(np.sum(residual**2, axis=1)))),
-                     spread, rarity)
+    rms = float(np.sqrt(np.mean(np.sum(residual**2, axis=1))))
+    return Candidate(pose, correspondences, score, 1.0, 0.0, rms, spread, rarity, rotation_sigma(points, rms))
+
+
+def rotation_sigma(points: np.ndarray, rms_m: float) -> float:
+    """Degrees: the standard error of a rotation fitted on `points` with residual `rms_m`, about the axis they
+    constrain least. A turn by a small angle about an axis moves each point by its distance from the axis times
+    the angle, so in least squares the angle's variance is the per-coordinate noise (rms / sqrt 3) squared over
+    the smallest principal moment of the points about their centroid (the sum of squared distances from that
+    axis). Points along a line (or in a thin band of a room) leave one turn loose, whatever their spread."""
+    centred = points - points.mean(axis=0)
+    moments = np.sum(centred**2) * np.eye(3) - centred.T @ centred
+    smallest = max(float(np.linalg.eigvalsh(moments)[0]), TRANSLATION_FLOOR_M**2)
+    return math.degrees(max(rms_m, TRANSLATION_FLOOR_M) / math.sqrt(3 * smallest))
 
 
 def map_scale(map: Map) -> float:
@@ -213,31 +242,37 @@ def map_scale(map: Map) -> float:
     return max(float(np.median(distances[:, 1])), TRANSLATION_FLOOR_M)
 
 
-def _confidences(candidates: list[Candidate], scale: float) -> None:
-    """Margin and confidence of each candidate (best first)."""
+def _confidences(candidates: list[Candidate], scale: float, contested: list[int]) -> None:
+    """Margin and confidence of each candidate (best first); `contested`: the competitors of an ambiguous answer."""
     for i, candidate in enumerate(candidates):
         other = max((c.score for j, c in enumerate(candidates) if j != i), default=0.0)
         candidate.margin = (candidate.score - other) / candidate.score if candidate.score > 0 else 0.0
-        candidate.confidence = confidence(evidence(candidate, scale))
+        candidate.confidence = confidence(evidence(candidate, scale), i in contested)
 
 
 def evidence(candidate: Candidate, scale: float) -> np.ndarray:
     """The features the confidence weighs (EVIDENCE, in order)."""
     size = max(len(candidate.correspondences), 1)
     return np.array([math.log(size), candidate.margin, candidate.score / size, candidate.rarity,
-                     math.log(max(candidate.spread_m, TRANSLATION_FLOOR_M)), candidate.rms_m / scale])
+                     math.log(max(candidate.spread_m, TRANSLATION_FLOOR_M)), candidate.rms_m / scale,
+                     math.log(candidate.rotation_sigma_deg)])
 
 
-def confidence(features: np.ndarray) -> float:
+def confidence(features: np.ndarray, contested: bool = False) -> float:
     """P(right) of a candidate of these `evidence` features (module docstring), capped by `supported`."""
-    return supported(float(1.0 / (1.0 + math.exp(-(BIAS + float(np.dot(WEIGHTS, features)))))), features[0])
+    return supported(float(1.0 / (1.0 + math.exp(-(BIAS + float(np.dot(WEIGHTS, features)))))), features, contested)
 
 
-def supported(probability: float, log_size: float) -> float:
-    """`probability`, at most SPARSE_CAP for fewer than MIN_SUPPORT correspondences: on maps of one place made by
-    two detectors such an answer is mostly a coincidence of a few objects (generated pairs: 17 of 19 wrong), which
-    the margin and residual of the few cannot tell apart from the truth."""
-    return min(probability, SPARSE_CAP) if round(math.exp(log_size)) < MIN_SUPPORT else probability
+def supported(probability: float, features: np.ndarray, contested: bool = False) -> float:
+    """`probability`, at most SPARSE_CAP when the `evidence` cannot establish the transform: fewer than MIN_SUPPORT
+    correspondences (on maps of one place made by two detectors mostly a coincidence of a few objects, generated
+    pairs: 17 of 19 wrong, which the margin and residual of the few cannot tell apart from the truth), a rotation
+    whose standard error is more than TOLERANCE_DEG / PRECISION_SIGMAS (the objects may be the right ones, the
+    turn is not known to within the tolerance), or a `contested` candidate (one of an ambiguous answer's
+    competitors: the evidence does not single it out)."""
+    sparse = round(math.exp(features[0])) < MIN_SUPPORT
+    loose = PRECISION_SIGMAS * math.exp(features[EVIDENCE.index("log rotation sigma (deg)")]) > TOLERANCE_DEG
+    return min(probability, SPARSE_CAP) if sparse or loose or contested else probability
 
 
 def g2o_edge(candidate: Candidate, query_map: Map) -> str:

@@ -16,13 +16,17 @@ from numba import njit
 def _depth_points(k: int, radius: int) -> Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """The compiled pass `depth_points(depth, mask, intrinsics)` for `k` neighbours within `radius` pixels:
     `_neighbour_pass` with `k` and `radius` compiled in as constants (one cached compilation per pair; a closure
-    over integers alone, so that numba's cache finds it again in the next process)."""
+    over integers alone, so that numba's cache finds it again in the next process).
 
-    @njit(cache=True)
+    Each pair is named apart (`depth_points_k20_r2`), so its cache files are its own: numba names them by the
+    function's name, and closures of one name share an index whose entries number their data files, which two
+    processes compiling two pairs at once numbered alike (one loaded the other's machine code and failed)."""
+
     def depth_points(depth: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return _neighbour_pass(depth, mask, intrinsics, k, radius)
 
-    return depth_points
+    depth_points.__qualname__ = f"depth_points_k{k}_r{radius}"
+    return njit(cache=True)(depth_points)
 
 
 @njit(inline="always")

@@ -144,9 +144,9 @@ def _frame_pass(frame: Frame, detections: Detections, params: ObservationParams)
 @functools.cache
 def _compiled_frame_pass(k: int, radius: int):
     """The compiled frame pass for `k` neighbours within `radius` pixels, compiled in as constants (as
-    `depth._depth_points` compiles them; a closure over integers alone, which numba's cache finds again)."""
+    `depth._depth_points` compiles them; a closure over integers alone, which numba's cache finds again, named
+    apart per pair as there)."""
 
-    @njit(cache=True)
     def frame_pass(masks, boxes, depth, intrinsics, whole, erode_px, min_pixels, max_depth, border_px,
                    max_border_fraction, min_points, max_points, ratio, min_axis):
         """`_fit_detection` of each detection, step for step: `_masked_window`, the drops, `fit_ellipsoid_depth`
@@ -197,7 +197,8 @@ def _compiled_frame_pass(k: int, radius: int):
                                                                             parts[5])
         return outcomes, pixels_of, in_band_of, oriented, axes, rotations, means, middles, eigenvectors
 
-    return frame_pass
+    frame_pass.__qualname__ = f"frame_pass_k{k}_r{radius}"  # cache files of its own (`depth._depth_points`)
+    return njit(cache=True)(frame_pass)
 
 
 def mask_pixels(mask: np.ndarray, band: int) -> tuple[int, int]:

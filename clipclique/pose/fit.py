@@ -104,47 +104,55 @@ def fit_rigid_conditioned(
     if source.ndim != 3 or source.shape[2] != 3 or target.shape != source.shape or weights.shape != source.shape[:2]:
         raise ValueError(f"source {source.shape}, target {target.shape} and weights {weights.shape} must be "
                          "(B, P, 3) twice and (B, P)")  # the compiled pass reads them unchecked
-    return _fit(np.ascontiguousarray(weights, np.float64), source, target)
+    return _fit(np.ascontiguousarray(weights, np.float64), source, target, True)
 
 
 @njit(cache=True)
 def fit_rigid_sets(weights: np.ndarray, source: np.ndarray,
                    target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_batch` of C-contiguous float64 (B, P) weights and (B, P, 3) points for compiled callers (a
-    refinement fits inside one compiled call, clipclique.pose.refine)."""
-    rotation, translation, ok, _ = _fit(weights, source, target)
+    refinement fits inside one compiled call, clipclique.pose.refine), without the conditioning: a set of
+    non-negative weights whose spread passes for certain (`_surely_spread`) skips the eigenvalues (a third of
+    its fit), with the same pose and ok."""
+    rotation, translation, ok, _ = _fit(weights, source, target, False)
     return rotation, translation, ok
 
 
 @njit(cache=True)
-def _fit(weights: np.ndarray, source: np.ndarray,
-            target: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _fit(weights: np.ndarray, source: np.ndarray, target: np.ndarray,
+         conditioned: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """`fit_rigid_conditioned` of checked, C-contiguous float64 arrays, set by set (`_fit_set`): a query fits a
-    few batches of a few dozen sets each, so one compiled call per batch rather than a dozen numpy calls."""
+    few batches of a few dozen sets each, so one compiled call per batch rather than a dozen numpy calls.
+    `conditioned` False: the conditioning is not wanted (0 where the eigenvalues were skipped)."""
     count = len(weights)
     rotation, translation = np.empty((count, 3, 3)), np.empty((count, 3))
     ok, measure = np.zeros(count, np.bool_), np.zeros(count)
     moments, scratch = np.empty((3, 3, 3)), np.empty((2, 4, 4))
     for b in range(count):
-        ok[b], measure[b] = _fit_set(weights, source, target, b, moments, scratch, rotation, translation)
+        ok[b], measure[b] = _fit_set(weights, source, target, b, moments, scratch, rotation, translation,
+                                     conditioned)
     return rotation, translation, ok, measure
 
 
 @njit(cache=True, inline="always")
-def _fit_set(weights, source, target, b, moments, scratch, rotation, translation) -> tuple[bool, float]:
+def _fit_set(weights, source, target, b, moments, scratch, rotation, translation, conditioned) -> tuple[bool, float]:
     """Set b's pose into rotation[b] and translation[b], whether it fixes one, and its conditioning.
 
     The weighted means, the cross-covariance and both sides' covariances (`moments`: cross, source, target),
     the covariances' eigenvalues (`_eigenvalues`) for the spread test and the conditioning, and the rotation
-    by Horn's quaternion (`_rotation`). A set that fixes no pose gets the identity.
+    by Horn's quaternion (`_rotation`). A set that fixes no pose gets the identity. Not `conditioned`: the
+    eigenvalues only where `_surely_spread` does not settle the spread test (conditioning 0 otherwise).
     Inlined: an array passed to a compiled call is reference-counted, a few dozen times a set."""
     total, means = _moments(weights, source, target, b, moments)
-    fitted, conditioned = False, 0.0
+    fitted, measure = False, 0.0
     if total > 0 and _finite(means, moments):
-        source_variances = _eigenvalues(moments[1], scratch[0])
-        target_variances = _eigenvalues(moments[2], scratch[0])
-        fitted = _spread_ok(source_variances) and _spread_ok(target_variances)
-        conditioned = min(_ratio_of(source_variances), _ratio_of(target_variances))
+        if not conditioned and _nonnegative(weights, b) and _surely_spread(moments[1]) and _surely_spread(moments[2]):
+            fitted = True
+        else:
+            source_variances = _eigenvalues(moments[1], scratch[0])
+            target_variances = _eigenvalues(moments[2], scratch[0])
+            fitted = _spread_ok(source_variances) and _spread_ok(target_variances)
+            measure = min(_ratio_of(source_variances), _ratio_of(target_variances))
     if fitted:
         _rotation(moments[0], scratch, rotation, b)
         for i in range(3):
@@ -155,7 +163,29 @@ def _fit_set(weights, source, target, b, moments, scratch, rotation, translation
             translation[b, i] = 0.0
             for j in range(3):
                 rotation[b, i, j] = 1.0 if i == j else 0.0
-    return fitted, conditioned
+    return fitted, measure
+
+
+@njit(cache=True, inline="always")
+def _nonnegative(weights, b) -> bool:
+    """Whether set b's weights are all >= 0 (its covariances then sums of outer products, positive semidefinite)."""
+    for p in range(weights.shape[1]):
+        if not weights[b, p] >= 0.0:
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def _surely_spread(m: np.ndarray) -> bool:
+    """Whether the positive semidefinite covariance `m` passes `_spread_ok` whatever its eigenvalues' last digits,
+    from its trace and its principal 2 x 2 minors' sum c2 alone: with eigenvalues l1 <= l2 <= l3 >= 0, l3 <= trace
+    and c2 = l1 l2 + l1 l3 + l2 l3 <= 3 l2 l3, so l2 >= c2 / (3 trace); asked to clear the test's threshold a
+    thousandfold, rounding cannot move it across. A set of objects over a room clears it by orders of magnitude,
+    and a thin or tiny one is left to the eigenvalues."""
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    minors = m[0, 0] * m[1, 1] - m[0, 1] * m[0, 1] + m[0, 0] * m[2, 2] - m[0, 2] * m[0, 2] + m[1, 1] * m[2, 2] \
+        - m[1, 2] * m[1, 2]
+    return minors > 3e3 * trace * max(_RELATIVE_VARIANCE * trace, _MIN_VARIANCE)
 
 
 @njit(cache=True, inline="always")
@@ -447,7 +477,7 @@ def _fit_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score, o
     source, target, weights = compiled_weighted_sets(pairs, scores, counts, pad_observation, pad_landmark, pad_score,
                                                      observed_centers, observed_axes, landmark_centers, landmark_axes,
                                                      mode)
-    rotation, translation, ok, measure = _fit(weights, source, target)
+    rotation, translation, ok, measure = _fit(weights, source, target, True)
     usable = True
     for b in range(len(ok)):
         weighed = 0

@@ -153,7 +153,7 @@ def _nearest_of_all(points, by_axis, axis, landmark_of, similarity, radius, num_
     size = len(landmark_of)
     distance, lm = np.empty(num_obs * size), np.empty(num_obs * size, np.int64)
     firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
-    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark, live = np.empty(num_obs), np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
     pairs = np.empty((num_poses * min(num_obs, size), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
     landmark_used_by = np.full(similarity.shape[1], -1)
@@ -183,7 +183,8 @@ def _nearest_of_all(points, by_axis, axis, landmark_of, similarity, radius, num_
                         distance[near], lm[near] = d, n
                         near += 1
             ends[k] = near
-        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, live, b, landmark_used_by, pairs,
+                              count)
         per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose
 
@@ -195,7 +196,7 @@ def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmar
     (`_take_nearest` per pose)."""
     first = np.searchsorted(pose, np.arange(num_poses + 1))
     firsts, ends = np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
-    nearest, nearest_landmark = np.empty(num_obs), np.empty(num_obs, np.int64)
+    nearest, nearest_landmark, live = np.empty(num_obs), np.empty(num_obs, np.int64), np.empty(num_obs, np.int64)
     pairs = np.empty((len(pose), 2), np.int64)
     per_pose = np.zeros(num_poses, np.int64)
     landmark_used_by = np.full(num_landmarks, -1)
@@ -206,34 +207,48 @@ def _nearest_one_to_one(distance, pose, obs, lm, num_poses, num_obs, num_landmar
             if ends[obs[i]] == 0:
                 firsts[obs[i]] = i
             ends[obs[i]] = i + 1
-        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, b, landmark_used_by, pairs, count)
+        taken = _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, live, b, landmark_used_by, pairs,
+                              count)
         per_pose[b], count = taken - count, taken
     return pairs[:count].copy(), per_pose
 
 
 @njit(cache=True, inline="always")
-def _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, pose, landmark_used_by, pairs, count):
+def _take_nearest(distance, lm, firsts, ends, nearest, nearest_landmark, live, pose, landmark_used_by, pairs,
+                  count):
     """Pose `pose`'s near pairs taken nearest first, ties by observation, then landmark, each where neither side is
     used yet, written to `pairs` from row `count`; the rows written up to. Observation k's near pairs are
     distance[firsts[k]: ends[k]] and lm[...], in any order (`landmark_used_by`: the last pose that used each
     landmark; nearest, nearest_landmark: scratch). The greedy over all pairs sorted, without the sort: it takes
     the least pair whose sides are both free, which is the least of each free observation's nearest free
-    landmark; after a take only the observations whose nearest was that landmark look again. Inlined into its
-    callers, as `_near`: its arrays are not counted in and out per pose."""
+    landmark; after a take only the observations whose nearest was that landmark look again. An observation taken
+    or left without a free landmark never looks again, so each pass reads only those still `live` (scratch, in
+    order: a tie keeps the first). Inlined into its callers, as `_near`: its arrays are not counted in and out per
+    pose."""
+    alive = 0
     for k in range(len(firsts)):
         nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose, landmark_used_by)
+        if nearest[k] < np.inf:
+            live[alive] = k
+            alive += 1
     while True:
-        best, least = -1, np.inf
-        for k in range(len(firsts)):
-            if nearest[k] < least:  # a tie keeps the first observation
-                best, least = k, nearest[k]
+        best, least, kept = -1, np.inf, 0
+        for i in range(alive):
+            k = live[i]
+            if nearest[k] < np.inf:
+                live[kept] = k
+                kept += 1
+                if nearest[k] < least:  # a tie keeps the first observation
+                    best, least = k, nearest[k]
+        alive = kept
         if best < 0:
             return count
         taken = nearest_landmark[best]
         landmark_used_by[taken], nearest[best] = pose, np.inf
         pairs[count, 0], pairs[count, 1] = best, taken
         count += 1
-        for k in range(len(firsts)):
+        for i in range(alive):
+            k = live[i]
             if nearest_landmark[k] == taken and nearest[k] < np.inf:
                 nearest[k], nearest_landmark[k] = _nearest_free(distance, lm, firsts[k], ends[k], pose,
                                                                 landmark_used_by)

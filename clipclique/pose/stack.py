@@ -51,13 +51,13 @@ class Stack:
         where given (arrays over all B rows)."""
         rows = np.arange(len(self)) if rows is None else np.asarray(rows, np.int64)
         ends = np.cumsum(self.counts)
-        verified = [None] * len(self) if verification is None else verification.tolist()
-        confident = [None] * len(self) if confidence is None else confidence.tolist()
+        verified = [None] * len(rows) if verification is None else verification[rows].tolist()
+        confident = [None] * len(rows) if confidence is None else confidence[rows].tolist()
         return [Hypothesis(Pose(self.rotations[b], self.translations[b]), self.pairs[end - count: end], score,
-                           conditioning, verified[b], confident[b])
-                for b, end, count, score, conditioning in zip(
+                           conditioning, checked, confident)
+                for b, end, count, score, conditioning, checked, confident in zip(
                     rows.tolist(), ends[rows].tolist(), self.counts[rows].tolist(), self.scores[rows].tolist(),
-                    self.conditioning[rows].tolist())]
+                    self.conditioning[rows].tolist(), verified, confident)]
 
     @staticmethod
     def of(hypotheses: list[Hypothesis]) -> Stack:

@@ -83,21 +83,16 @@ def _projections(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray,
     return conics, boxes, visible, images, full_areas
 
 
-def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-                  camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`project_spreads`'s boxes (B, N, 4), visibility (B, N) and full areas (B, N), the boxes and areas where visible
-    (0 elsewhere): what image verification reads, without the conics it does not (`_visible_boxes`)."""
-    return _visible_boxes(centers, spread, rotations, translations, camera.intrinsics, float(camera.width),
-                          float(camera.height), float(camera.max_depth))
-
-
 @njit(cache=True, error_model="numpy")
-def _visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
-                   intrinsics: np.ndarray, width: float, height: float,
-                   max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """`visible_boxes` as `_projections` computes each (pose, landmark), but of V M V^T only the five entries a box
-    reads (`conic_entries`); then every box in one pass (`_boxes_where_visible`). numpy's error model: a division
-    by zero would give inf, not raise, and none occurs."""
+def visible_boxes(centers: np.ndarray, spread: np.ndarray, rotations: np.ndarray, translations: np.ndarray,
+                  intrinsics: np.ndarray, width: float, height: float,
+                  max_depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`project_spreads`'s boxes (B, N, 4), visibility (B, N) and full areas (B, N) under a camera (its intrinsics,
+    width, height and max depth), the boxes and areas where visible (0 elsewhere): what image verification reads,
+    without the conics it does not, for compiled callers (clipclique.verify.verification). Each (pose, landmark) as
+    `_projections` computes it, but of V M V^T only the five entries a box reads (`conic_entries`); then every box
+    in one pass (`_boxes_where_visible`). numpy's error model: a division by zero would give inf, not raise, and
+    none occurs."""
     entries = conic_entries(np.ascontiguousarray(centers.T), np.ascontiguousarray(spread.T), rotations,
                             translations, intrinsics)
     return _boxes_where_visible(entries, width, height, max_depth, len(rotations), len(centers))

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from numba import njit
 
 from clipclique.config import LocalizationConfig
 from clipclique.errors import ClipcliqueError
@@ -23,6 +24,7 @@ from clipclique.verify import confidence, verification
 # Re-ranking keys equal to this many decimals tie, and ties keep the pool's order (the clique score's): the same
 # correspondences in another order fit a pose that differs in its last bits, and so does its verification score.
 RANK_DECIMALS = 9
+_RANK_SCALE = 10.0**RANK_DECIMALS
 
 
 def reranked(observations: Observations, config: LocalizationConfig) -> bool:
@@ -58,7 +60,7 @@ def verify_pool(result: LocalizationResult, pool: Stack, observations: Observati
             raise ClipcliqueError(
                 "inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
         key = checked.score if config.inliers.rerank == "verification" else probability
-        kept = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[: config.top_n]
+        kept = best_first(key, config.top_n)
     result.hypotheses = pool.hypotheses(kept, checked.score, probability)
     if config.min_confidence > 0:
         if probability is None:
@@ -68,6 +70,31 @@ def verify_pool(result: LocalizationResult, pool: Stack, observations: Observati
         if not result.hypotheses:
             result.failure = Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=config.min_confidence,
                                      best_confidence=best)
+
+
+def best_first(key: np.ndarray, top_n: int) -> np.ndarray:
+    """The rows of the top_n largest keys rounded to RANK_DECIMALS, best first, ties in the pool's order and NaN
+    last: the first top_n of `np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")`, by a compiled selection
+    (`_best_first`; a frame keeps 5 of 50, and numpy's round, negation and sort cost more than the work)."""
+    return _best_first(np.asarray(key, np.float64), int(top_n))
+
+
+@njit(cache=True)
+def _best_first(key: np.ndarray, top_n: int) -> np.ndarray:
+    """`best_first`: each key rounded as numpy rounds to RANK_DECIMALS (times 10^d, to the nearest even, over
+    10^d), then top_n times the first largest of those not taken yet (a NaN only where nothing else is left)."""
+    rounded = np.empty(len(key))
+    for b in range(len(key)):
+        rounded[b] = np.rint(key[b] * _RANK_SCALE) / _RANK_SCALE
+    kept, taken = np.empty(min(top_n, len(key)), np.int64), np.zeros(len(key), np.bool_)
+    for r in range(len(kept)):
+        best = -1
+        for b in range(len(key)):
+            if not taken[b] and (best < 0 or rounded[b] > rounded[best]
+                                 or (np.isnan(rounded[best]) and not np.isnan(rounded[b]))):
+                best = b
+        taken[best], kept[r] = True, best
+    return kept
 
 
 def with_boxes(observations: Observations, pool: Stack,

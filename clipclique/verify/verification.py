@@ -70,24 +70,39 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
                  params: VerificationConfig = VerificationConfig(), spreads: np.ndarray | None = None) -> Verification:
     """Verification of each hypothesis of the stack. Hypotheses alike (one pose, one set of pairs: refinement
     often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
-    depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`).
-    Three compiled calls (the distinct hypotheses and the landmarks in range, their projection, the figures): a
-    frame's numpy calls between them cost more than their arithmetic."""
+    depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`; None:
+    computed here). One compiled call (`_verify`): a frame's numpy calls and compiled calls between its steps cost
+    more than their arithmetic."""
     require_image(observations, "image verification")
     camera = observations.camera
-    centers = np.asarray(map.ellipsoids.centers, np.float64)
-    group, firsts, nearby, rotations, translations = _distinct_in_range(
-        stack.rotations, stack.translations, stack.pairs, stack.counts, centers, map.ellipsoids.axes,
-        float(camera.max_depth))
-    spread = projection.spreads(map.ellipsoids.subset(nearby)) if spreads is None else spreads[nearby]
-    boxes, visible, full_areas = projection.visible_boxes(centers[nearby], spread, rotations, translations, camera)
-    figures = _verdicts(group, firsts, stack.pairs, stack.counts, rotations, translations, centers, nearby, len(map),
-                        visible, boxes, full_areas, np.asarray(observations.boxes, np.float64),
-                        observations.ellipsoids.centers, map.class_ids, observations.class_ids,
-                        float(params.depth_tolerance), float(params.min_visible_pixels), float(params.explained_iou),
-                        float(params.missed_full_area * camera.width * camera.height), float(params.missed_weight),
-                        float(params.missed_share_from))
+    figures = _verify(stack.rotations, stack.translations, stack.pairs, stack.counts,
+                      np.asarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes,
+                      projection.spreads(map.ellipsoids) if spreads is None else spreads,
+                      np.asarray(observations.boxes, np.float64), observations.ellipsoids.centers, map.class_ids,
+                      observations.class_ids, camera.intrinsics, float(camera.width), float(camera.height),
+                      float(camera.max_depth), float(params.depth_tolerance), float(params.min_visible_pixels),
+                      float(params.explained_iou), float(params.missed_full_area * camera.width * camera.height),
+                      float(params.missed_weight), float(params.missed_share_from))
     return Verification(**dict(zip(_PER_HYPOTHESIS, figures)), missed_weight=params.missed_weight)
+
+
+@njit(cache=True)
+def _verify(rotations, translations, pairs, counts, centers, axes, spreads, boxes, observed_centers, class_ids,
+            detected_classes, intrinsics, width, height, max_depth, depth_tolerance, min_pixels, explained_iou, full,
+            missed_weight, share_from):
+    """`verify_stack`'s figures: the distinct hypotheses and the landmarks in range (`_distinct_in_range`), those
+    landmarks projected under the distinct poses (`projection.visible_boxes`), their figures (`_verdicts`)."""
+    group, firsts, nearby, kept_rotations, kept_translations = _distinct_in_range(rotations, translations, pairs,
+                                                                                  counts, centers, axes, max_depth)
+    spread = np.empty((len(nearby), spreads.shape[1]))
+    for column in range(len(nearby)):
+        for k in range(spreads.shape[1]):
+            spread[column, k] = spreads[nearby[column], k]
+    projected, visible, full_areas = projection.visible_boxes(centers[nearby], spread, kept_rotations,
+                                                              kept_translations, intrinsics, width, height, max_depth)
+    return _verdicts(group, firsts, pairs, counts, kept_rotations, kept_translations, centers, nearby, len(centers),
+                     visible, projected, full_areas, boxes, observed_centers, class_ids, detected_classes,
+                     depth_tolerance, min_pixels, explained_iou, full, missed_weight, share_from)
 
 
 _PER_HYPOTHESIS = ("score", "overlap", "mean_iou", "missed", "missed_evidence", "expected_evidence", "depth_error")

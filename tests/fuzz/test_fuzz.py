@@ -914,3 +914,22 @@ def test_hostile_input_is_one_line_exit_2_and_loses_nothing(case: Case, workspac
     assert leftovers(workspace.root) == [] and leftovers(tmp_path) == []
     assert snapshot(workspace.root / "maps", workspace.loc) == before
     assert not PWNED.exists()  # no pickle was ever run
+
+
+def test_a_label_file_naming_one_class_twice_imports_with_a_note(tmp_path: Path):
+    """Two ids with one name are accepted (both ids mean that class), with a note naming the file and the ids."""
+    q = " ".join(f"{v:.8f}" for v in np.diag([0.09, 0.01, 0.04, -1.0]).T.ravel())
+    names = [f"class {i}" for i in range(60)]
+    names[50] = "class 41"
+    (tmp_path / "lvis.txt").write_text("\n".join(names) + "\n")
+    (tmp_path / "map_objects_x.txt").write_text(f"1 41 {q}\n2 50 {q.replace('-1.0', '-2.0')}\n")
+    result = RUNNER.invoke(map_app, ["import", str(tmp_path / "map_objects_x.txt"), "--labels",
+                                     str(tmp_path / "lvis.txt"), "--out", str(tmp_path / "x.map.npz"), "--encoder",
+                                     "none", "--no-rrd"])
+    assert result.exit_code == 0, result.output
+    assert f"{tmp_path / 'lvis.txt'}: 1 names given to several ids (first 'class 41': ids 41, 50)" in " ".join(
+        result.output.split())
+    from clipclique.io.mapfile import load_map
+
+    imported = load_map(tmp_path / "x.map.npz")
+    assert imported.class_names == ["class 41"] and imported.class_ids.tolist() == [0, 0]

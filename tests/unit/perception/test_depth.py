@@ -65,3 +65,15 @@ def test_neighbour_pass_gives_the_sequential_values(k, radius):
     assert len(theirs[0]) > 150 and np.isinf(theirs[1]).any()
     for a, b in zip(ours[:2], theirs[:2]):
         np.testing.assert_allclose(a, b, rtol=1e-6 if a.dtype == np.float32 else 1e-12, atol=0)
+
+
+def test_each_neighbour_pair_keeps_cache_files_of_its_own():
+    """Closures of one name shared numba's cache index; two processes compiling two pairs at once gave one of
+    them the other's machine code (`'descr' is NULL`)."""
+    from pathlib import Path
+
+    for k, radius in ((20, 2), (8, 1)):
+        kernel = _depth_points(k, radius)
+        kernel(np.full((4, 5), 2.0, np.float32), np.ones((4, 5), bool), np.eye(3))
+        folder = Path(kernel._cache.cache_path)
+        assert list(folder.glob(f"depth.depth_points_k{k}_r{radius}-*.nbi")), sorted(p.name for p in folder.iterdir())

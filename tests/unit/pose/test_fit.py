@@ -321,13 +321,27 @@ def test_sets_that_are_not_finite_are_flagged_and_leave_the_others_alone():
 
 
 def test_the_compiled_callers_fit_is_fit_rigid_batch():
-    """`fit_rigid_sets` (refinement's fit inside its compiled call): `fit_rigid_batch`'s bytes, no set to many."""
+    """`fit_rigid_sets` (refinement's fit inside its compiled call, its spread test mostly without eigenvalues):
+    `fit_rigid_batch`'s bytes, no set to many; so too for sets about the spread test's thresholds, where the
+    eigenvalues decide, and for weights of both signs (a covariance that need not be semidefinite)."""
     rng = np.random.default_rng(23)
     for count, width in [(0, 3), (1, 1), (3, 7), (5, 8), (2, 40)]:
         source, target, weights = rigid_copies(rng, count, width)
         for got, want in zip(fit_rigid_sets(weights, source, target), fit_rigid_batch(source, target, weights)):
             assert got.shape == want.shape
             np.testing.assert_array_equal(got, want)
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])
+    widths = np.array([1.0, 1e-3, 3e-5, 2.2 * MIN_SPREAD_M, 1.8 * MIN_SPREAD_M, 1.1e4 * RELATIVE_SPREAD,
+                       0.9e4 * RELATIVE_SPREAD])
+    lengths = np.array([1.0, 1.0, 1.0, 1.0, 1.0, 1e4, 1e4])
+    source = corners * np.column_stack((lengths, widths, widths))[:, None]
+    source = np.concatenate((source, np.tile(rng.normal(size=(1, 4, 3)), (2, 1, 1))))
+    target, weights = source + 1.0, np.ones((9, 4))
+    weights[7:] = [[1.0, -0.5, 1.0, 1.0], [2.0, -1.0, -0.5, 0.1]]
+    got, want = fit_rigid_sets(weights, source, target), fit_rigid_batch(source, target, weights)
+    assert want[2].tolist() == [True, True, True, True, False, True, False, True, False]
+    for got_array, want_array in zip(got, want):
+        np.testing.assert_array_equal(got_array, want_array)
 
 
 def test_eigenvalues_are_numpys_eigvalsh():

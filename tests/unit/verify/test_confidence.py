@@ -273,3 +273,31 @@ def test_the_compiled_features_are_numpys(dtype):
         got = confidence.feature_matrix(evidence, names)
         assert got.shape == expected.shape
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-12, err_msg=str(names))
+
+
+def test_predict_is_the_probability_of_the_feature_matrix():
+    """The compiled prediction (features, standardization, logit, expit in one pass) against the numpy path the
+    fitting tools use, for the shipped model and random models of feature subsets in any order: equal to the
+    product's rounding, probabilities that saturate at 0 and 1 included."""
+    rng = np.random.default_rng(8)
+    shipped = confidence.load_model()
+    for trial in range(60):
+        count = int(rng.choice([0, 1, 3, 12, 40]))
+        missed = rng.integers(0, 20, count)
+        checked = Verification(score=rng.normal(size=count), overlap=rng.uniform(0, 6, count),
+                               mean_iou=rng.random(count), missed=missed, missed_evidence=missed * 0.5,
+                               expected_evidence=missed + 1.0, depth_error=rng.uniform(0, 3, count), missed_weight=0.3)
+        counts = rng.integers(3, 9, count).astype(np.int64)
+        pairs = np.column_stack((rng.integers(0, 6, counts.sum()), rng.integers(0, 9, counts.sum()))).astype(np.int64)
+        pool = Stack(rotations=np.zeros((count, 3, 3)), translations=np.zeros((count, 3)), pairs=pairs, counts=counts,
+                     scores=np.zeros(count), conditioning=np.zeros(count))
+        evidence = confidence.Evidence(pool, checked, rng.random((6, 9)), int(rng.integers(3, 30)))
+        names = tuple(rng.permutation(list(confidence.FEATURES))[: int(rng.integers(1, 9))])
+        size = len(names)
+        model = shipped if trial == 0 else confidence.ConfidenceModel(
+            names, rng.normal(size=size), rng.uniform(0.1, 3.0, size), rng.normal(scale=3.0, size=size),
+            float(rng.normal()), (float(rng.uniform(0.2, 3.0)), float(rng.normal())), {})
+        expected = model.probability(confidence.feature_matrix(evidence, model.features))
+        got = model.predict(evidence)
+        assert got.shape == (count,)
+        np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-15)

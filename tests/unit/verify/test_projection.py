@@ -279,7 +279,9 @@ def test_visible_boxes_are_the_projections_where_visible(count):
             centers[1] = translations[-1] + 30.0 * rotations[-1][:, 2]  # straight ahead, beyond the depth range
         with np.errstate(invalid="ignore", over="ignore"):
             seen = project_spreads(centers, spread, rotations, translations, CAMERA)
-            boxes, visible, full_areas = visible_boxes(centers, spread, rotations, translations, CAMERA)
+            boxes, visible, full_areas = visible_boxes(centers, spread, rotations, translations, CAMERA.intrinsics,
+                                                       float(CAMERA.width), float(CAMERA.height),
+                                                       float(CAMERA.max_depth))
         assert_close(visible, seen.visible)
         assert_close(boxes, np.where(seen.visible[..., None], seen.boxes, 0.0))
         assert_close(full_areas, np.where(seen.visible, seen.full_areas, 0.0))

@@ -9,7 +9,7 @@ from clipclique.outcomes import LocalizationResult
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.stack import Stack
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
-from clipclique.verify.ranking import reranked, verify_pool, with_boxes
+from clipclique.verify.ranking import RANK_DECIMALS, best_first, reranked, verify_pool, with_boxes
 
 
 def pool_of(rows: list[list[tuple[int, int]]]) -> Stack:
@@ -62,3 +62,19 @@ def test_a_pool_without_boxes_keeps_the_clique_order_unverified():
     assert [h.score for h in result.hypotheses] == pool.scores.tolist()
     assert all(h.verification is None for h in result.hypotheses)
     assert result.notes == ["no boxes or camera: inliers.rerank = verification not applied"]
+
+
+def test_the_best_first_are_numpys_stable_sort_of_the_rounded_keys():
+    """`best_first` against `np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[:top_n]`: keys tied once
+    rounded (1e-10 apart), exactly tied, +0 and -0, infinities and NaN (last, in the pool's order), a pool smaller
+    than top_n, none."""
+    rng = np.random.default_rng(13)
+    for trial in range(500):
+        count = int(rng.choice([0, 1, 2, 5, 50, 80]))
+        key = np.round(rng.normal(size=count), int(rng.integers(0, 3)))
+        spots = rng.integers(0, max(count, 1), size=min(count, 6))
+        key[spots[:2]] = key[spots[:2]] + 1e-10 * rng.normal(size=len(spots[:2]))
+        key[spots[2:]] = rng.choice([0.0, -0.0, np.inf, -np.inf, np.nan], size=len(spots[2:]))
+        top_n = int(rng.choice([1, 5, 10, 100]))
+        expected = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[:top_n]
+        assert best_first(key, top_n).tolist() == expected.tolist(), (key, top_n)

@@ -67,8 +67,9 @@ def test_alike_hypotheses_are_verified_once_and_get_the_same_figures():
 
 
 def test_the_maps_kept_spreads_verify_as_the_landmarks_in_range_alone():
-    """`verify_stack` with the whole map's spreads (what `index_map` keeps) gathered for the landmarks in range gives
-    the figures it gives projecting those landmarks alone, when some landmarks are out of range and when none is."""
+    """`verify_stack` with the whole map's spreads (what `index_map` keeps) gives the figures it gives computing them
+    itself, and reads only the landmarks in range: spreads out of range changed change nothing, when some landmarks
+    are out of range and when none is (then the changed spreads move the figures)."""
     map, truth, observations = room()
     poses = [truth, Pose(truth.rotation, truth.translation + [0.3, 0, 0]),
              Pose(truth.rotation, truth.translation + [0, 0.4, 0.1])]
@@ -78,10 +79,17 @@ def test_the_maps_kept_spreads_verify_as_the_landmarks_in_range_alone():
         seen = dataclasses.replace(observations, camera=dataclasses.replace(observations.camera, max_depth=max_depth))
         in_range = verification._in_range(map.ellipsoids.centers, map.ellipsoids.axes, pool.translations, max_depth)
         assert in_range.sum() == (6 if max_depth > 4 else 3)
-        kept, alone = (verification.verify_stack(pool, seen, map, VerificationConfig(), spreads),
-                       verification.verify_stack(pool, seen, map, VerificationConfig()))
+        changed = spreads.copy()
+        changed[~in_range] *= 4.0
+        changed[in_range & (max_depth > 4)] *= 4.0
+        kept, alone, out_of_range = (verification.verify_stack(pool, seen, map, VerificationConfig(), spreads),
+                                     verification.verify_stack(pool, seen, map, VerificationConfig()),
+                                     verification.verify_stack(pool, seen, map, VerificationConfig(), changed))
         for name in verification._PER_HYPOTHESIS:
             assert_close(getattr(kept, name), getattr(alone, name))
+            if max_depth < 4:
+                assert_close(getattr(kept, name), getattr(out_of_range, name))
+        assert (max_depth > 4) == (not np.allclose(kept.overlap, out_of_range.overlap))
 
 
 def test_a_landmark_the_pose_expects_but_nothing_detected_is_missed():

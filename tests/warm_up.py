@@ -19,8 +19,40 @@ ROOT = Path(__file__).resolve().parents[1]
 FULL_SIZE_SCENES = ("demo", "demo_tum", "demo_apartment", "demo_desk", "demo_clutter")  # the golden results' scenes
 
 
+def stale_kernels(modules: dict[str, Path], imported: dict[str, set[str]]) -> list[Path]:
+    """numba's cache files of `modules` (name -> file) that are older than a module with kernels (`njit` in its
+    text) that their module imports, directly or not (`imported`: name -> the project modules it imports). numba
+    checks a cached kernel against its own file only, yet a kernel keeps the machine code of the kernels it calls
+    in other modules: after an edit there, the cache would run the old code until its own file changed."""
+    stale = []
+    for name, path in modules.items():
+        cached = list((path.parent / "__pycache__").glob(f"{path.stem}.*.nb[ic]"))
+        if not cached:
+            continue
+        seen, todo = {name}, [name]
+        while todo:
+            for other in imported.get(todo.pop(), set()) - seen:
+                seen.add(other)
+                todo.append(other)
+        newest = max(modules[other].stat().st_mtime for other in seen
+                     if other == name or "njit" in modules[other].read_text(encoding="utf-8"))
+        stale += [file for file in cached if file.stat().st_mtime < newest]
+    return stale
+
+
+def drop_stale_kernels() -> None:
+    """Delete `stale_kernels` of the package, so that the kernels below compile what the sources say."""
+    sys.path.insert(0, str(ROOT))
+    from tests.unit.test_architecture import imports, sources
+
+    modules = {name: path for name, path in sources().items() if name.startswith("clipclique")}
+    for file in stale_kernels(modules, {name: set(imports(path, set(modules))) for name, path in modules.items()}):
+        file.unlink(missing_ok=True)
+
+
 def kernels() -> None:
-    """Two frames of each generated scene kind localized with every method, and a map aligned to itself."""
+    """Two frames of each generated scene kind localized with every method, and a map aligned to itself (numba's
+    stale cache files dropped first)."""
     import dataclasses
 
     from clipclique.backends import load_encoder
@@ -32,6 +64,7 @@ def kernels() -> None:
     from clipclique.resolve import open_scene
     from clipclique.sim.demo import DEMO_SCENES, generate
 
+    drop_stale_kernels()
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         for name in ("demo_desk", "demo_apartment"):  # a TUM and a ScanNet layout; simulated YOLO and gt

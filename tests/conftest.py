@@ -43,11 +43,17 @@ def pytest_addoption(parser) -> None:
 
 
 def pytest_sessionstart(session) -> None:
-    """Before a parallel run's workers start: numba's kernels compiled into its cache and, for the whole suite,
-    the golden results' full-size scenes generated, side by side (tests/warm_up.py; seconds once they exist)."""
+    """numba's stale cache files dropped (`drop_stale_kernels`); before a parallel run's workers start, its kernels
+    compiled into its cache and, for the whole suite, the golden results' full-size scenes generated, side by side
+    (tests/warm_up.py; seconds once they exist)."""
     config = session.config
-    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
-        return  # a worker, or a run without workers: each test compiles and generates what it needs
+    if hasattr(config, "workerinput"):
+        return  # a worker: the controller did it
+    from tests.warm_up import drop_stale_kernels
+
+    drop_stale_kernels()
+    if not getattr(config.option, "numprocesses", None):
+        return  # a run without workers: each test compiles and generates what it needs
     whole_suite = not config.args or [Path(arg).resolve() for arg in config.args] == [ROOT / "tests"]
     jobs = ["kernels", "scenes"] if whole_suite else ["kernels"]
     started = [subprocess.Popen([sys.executable, str(ROOT / "tests" / "warm_up.py"), job]) for job in jobs]

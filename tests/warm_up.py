@@ -41,7 +41,8 @@ def stale_kernels(modules: dict[str, Path], imported: dict[str, set[str]]) -> li
 
 
 def drop_stale_kernels() -> None:
-    """Delete `stale_kernels` of the package, so that the kernels below compile what the sources say."""
+    """Delete `stale_kernels` of the package, so that the session compiles what the sources say (tests/conftest.py
+    runs it before every session, serial or parallel: well under a second)."""
     sys.path.insert(0, str(ROOT))
     from tests.unit.test_architecture import imports, sources
 
@@ -51,8 +52,7 @@ def drop_stale_kernels() -> None:
 
 
 def kernels() -> None:
-    """Two frames of each generated scene kind localized with every method, and a map aligned to itself (numba's
-    stale cache files dropped first)."""
+    """Two frames of each generated scene kind localized with every method, and a map aligned to itself."""
     import dataclasses
 
     from clipclique.backends import load_encoder
@@ -64,7 +64,6 @@ def kernels() -> None:
     from clipclique.resolve import open_scene
     from clipclique.sim.demo import DEMO_SCENES, generate
 
-    drop_stale_kernels()
     with tempfile.TemporaryDirectory() as scratch:
         root = Path(scratch)
         for name in ("demo_desk", "demo_apartment"):  # a TUM and a ScanNet layout; simulated YOLO and gt

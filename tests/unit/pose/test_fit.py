@@ -428,7 +428,7 @@ def test_weighted_sets_are_the_padded_numpy_construction(mode):
 
 def test_fit_sets_are_the_three_calls_and_the_numpy_mask():
     """`fit_sets` against `weighted_sets`, `fit_rigid_conditioned` and `ok & (nonzero_counts(weights) >= 3) &
-    (measure >= floor)` (the calls it replaced): the same poses and conditioning to the bit, the same mask and its
+    (measure >= floor)` (the calls it replaced): the same poses and conditioning exactly, the same mask and its
     `.all()`; sets of 0 to 7 pairs, zero and NaN scores (a NaN weight counts), a collinear set, floors exactly at a
     set's conditioning, 0, -inf and above every set; and an empty batch."""
     rng = np.random.default_rng(32)

@@ -96,9 +96,10 @@ def from_cliques(result: LocalizationResult, observations: Observations, map: Ma
         if fitted == pool or tried < wanted or found.cap is not None:
             break
         wanted *= 2
-    if reranked(observations, config) and result.lookalike_added is not None and result.lookalike_added.any():
-        members, sizes, totals = _without_added(*found.stacked(), result.lookalike_added, scores,
-                                                settings.min_clique_size)
+    cliques, added = found.stacked(), result.lookalike_added
+    if reranked(observations, config) and added is not None and _holds_rest(*cliques, added,
+                                                                             settings.min_clique_size):
+        members, sizes, totals = _without_added(*cliques, added, scores, settings.min_clique_size)
         if len(sizes):  # else no stack to join: the pool as it is
             fits.append(_hypotheses(result, observations, map, config, members, sizes, totals))
     result.num_cliques = found.reached
@@ -137,6 +138,22 @@ def _without_added(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, sc
     a cluttered desk: verification chooses between both."""
     return _rests(np.asarray(members, np.int64), np.asarray(sizes, np.int64), np.asarray(added, np.bool_),
                   np.asarray(scores, np.float64), min_size)
+
+
+@njit(cache=True)
+def _holds_rest(members: np.ndarray, sizes: np.ndarray, added: np.ndarray, min_size: int) -> bool:
+    """Whether some clique holds a candidate `added` and at least `min_size` others: where none does,
+    `_without_added` has no set to give (most frames of a room: its added pairs are in no clique, or in a clique of
+    three, whose rest is too small), and one answer costs less than its arrays handed back empty."""
+    start = 0
+    for c in range(len(sizes)):
+        kept = 0
+        for i in range(start, start + sizes[c]):
+            kept += not added[members[i]]
+        if min_size <= kept < sizes[c]:
+            return True
+        start += sizes[c]
+    return False
 
 
 @njit(cache=True)

@@ -285,13 +285,13 @@ def refine_stack(stack: Stack, observations: Observations, map: Map, similarity:
     Python-level calls a round cost as much as the work), a larger one round by round (`_refine_by_rounds`).
     `landmarks`: a KD-tree of the map's centres (`nearby_pairs_of`; None: built only where a round needs it)."""
     if len(stack) * len(observations) * len(map) <= DENSE_PAIRS:
-        rotations, translations, sizes, pairs, moved = _refine_densely(
+        rotations, translations, sizes, pairs, moved, any_moved = _refine_densely(
             stack.rotations, stack.translations, stack.counts, stack.pairs,
             np.ascontiguousarray(observations.ellipsoids.centers, np.float64), observations.ellipsoids.axes,
             np.ascontiguousarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes, similarity, radius,
             WEIGHT_MODES[weights], rounds)
         return (Stack(rotations=rotations, translations=translations, pairs=pairs, counts=sizes, scores=stack.scores,
-                      conditioning=stack.conditioning) if moved.any() else stack), moved
+                      conditioning=stack.conditioning) if any_moved else stack), moved
     return _refine_by_rounds(stack, observations, map, similarity, radius, weights, rounds, landmarks)
 
 
@@ -333,8 +333,8 @@ def _refine_by_rounds(stack: Stack, observations: Observations, map: Map, simila
 def _refine_densely(rotations, translations, counts, pairs, centers, axes, landmark_centers, landmark_axes,
                     similarity, radius, mode, rounds):
     """`_refine_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
-    stack's arrays) and which hypotheses moved. Each round as
-    `_refine_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_chosen_pairs`,
+    stack's arrays), which hypotheses moved and whether any did (numpy's `any` costs more than the pass). Each round
+    as `_refine_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_chosen_pairs`,
     `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and
     `_survivors`."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
@@ -370,7 +370,7 @@ def _refine_densely(rotations, translations, counts, pairs, centers, axes, landm
         for i in range(origin[b], origin[b] + sizes[b]):
             joined[row, 0], joined[row, 1] = found[i, 0], found[i, 1]
             row += 1
-    return rotations, translations, sizes, joined, moved
+    return rotations, translations, sizes, joined, moved, moved.any()
 
 
 def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,

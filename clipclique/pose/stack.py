@@ -8,6 +8,7 @@ arrays gathered back at every later stage, cost more than those stages' arithmet
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import accumulate
 
 import numpy as np
 from numba import njit
@@ -45,19 +46,19 @@ class Stack:
         return Stack(rotations=self.rotations[rows], translations=self.translations[rows], pairs=self.pairs[gather],
                      counts=counts, scores=self.scores[rows], conditioning=self.conditioning[rows])
 
-    def hypotheses(self, rows: np.ndarray | None = None, verification: np.ndarray | None = None,
-                   confidence: np.ndarray | None = None) -> list[Hypothesis]:
+    def hypotheses(self, rows: np.ndarray | None = None, verification: list[float] | None = None,
+                   confidence: list[float] | None = None) -> list[Hypothesis]:
         """`Hypothesis` objects of `rows` (None: all, in order), with their verification scores and confidences
-        where given (arrays over all B rows)."""
-        rows = np.arange(len(self)) if rows is None else np.asarray(rows, np.int64)
-        ends = np.cumsum(self.counts)
-        verified = [None] * len(rows) if verification is None else verification[rows].tolist()
-        confident = [None] * len(rows) if confidence is None else confidence[rows].tolist()
-        return [Hypothesis(Pose(self.rotations[b], self.translations[b]), self.pairs[end - count: end], score,
-                           conditioning, checked, confident)
-                for b, end, count, score, conditioning, checked, confident in zip(
-                    rows.tolist(), ends[rows].tolist(), self.counts[rows].tolist(), self.scores[rows].tolist(),
-                    self.conditioning[rows].tolist(), verified, confident)]
+        where given (one per row of `rows`). Read as Python numbers and views, row by row: a frame keeps five of
+        fifty, and a numpy gather per field cost more than the objects."""
+        counts, scores, conditioning = self.counts.tolist(), self.scores.tolist(), self.conditioning.tolist()
+        starts = [0, *accumulate(counts)]
+        chosen = range(len(counts)) if rows is None else rows.tolist()
+        verified = [None] * len(chosen) if verification is None else verification
+        confident = [None] * len(chosen) if confidence is None else confidence
+        return [Hypothesis(Pose(self.rotations[b], self.translations[b]), self.pairs[starts[b]: starts[b + 1]],
+                           scores[b], conditioning[b], checked, sure)
+                for b, checked, sure in zip(chosen, verified, confident)]
 
     @staticmethod
     def of(hypotheses: list[Hypothesis]) -> Stack:

@@ -46,24 +46,6 @@ class Evidence:
     num_observations: int
 
 
-def group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """The sum of each group values[ends[b - 1]: ends[b]] of a contiguous array, in its type (a numpy sum per group
-    cost more than the arithmetic)."""
-    return _group_sums(values, np.asarray(ends, np.int64))
-
-
-@njit(cache=True)
-def _group_sums(values: np.ndarray, ends: np.ndarray) -> np.ndarray:
-    """`group_sums`, each from +0 in order."""
-    sums = np.zeros(len(ends), values.dtype)
-    start = 0
-    for b in range(len(ends)):
-        for i in range(start, ends[b]):
-            sums[b] += values[i]
-        start = ends[b]
-    return sums
-
-
 # Each feature: its name, its column number in `_features` (the order here) and the sign its coefficient is held
 # to (0: free). How each is computed from a frame's `Evidence` (`_features` computes the same values in one pass):
 # - verification_in_frame: overlap - missed_weight * missed_in_frame: the verification score with its missed
@@ -88,11 +70,12 @@ _COLUMN = {name: column for column, name in enumerate(FEATURES)}
 def feature_matrix(evidence: Evidence, names: tuple[str, ...] = tuple(FEATURES)) -> np.ndarray:
     """(B, F) the named features of each hypothesis (`FEATURES`), in one compiled pass (`_features`): a numpy call
     or two per feature cost a frame more than all their arithmetic."""
-    return _features(_columns(tuple(names)), *_measured(evidence))
+    measured = _measured(evidence)
+    return _features(_columns(tuple(names)), np.arange(len(measured[1])), *measured)
 
 
 def _measured(evidence: Evidence) -> tuple:
-    """What `_features` reads of the evidence, after the columns."""
+    """What `_features` reads of the evidence, after the columns and rows."""
     checked, hypotheses = evidence.verification, evidence.hypotheses
     return (checked.overlap, checked.score, checked.mean_iou, checked.missed, checked.depth_error,
             float(checked.missed_weight), hypotheses.counts, hypotheses.pairs, evidence.similarity,
@@ -108,46 +91,56 @@ def _columns(names: tuple[str, ...]) -> np.ndarray:
 
 
 @njit(cache=True)
-def _features(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity,
+def _features(columns, rows, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity,
               observations):
-    """`feature_matrix` of the features numbered `columns` (their order in `FEATURES`), each written as numpy's
-    passes computed it: the missed count as a float less the frame's fewest, np.minimum's NaN, the margin against
-    the scores np.sort orders (`_top_two`), the similarity gathered and summed per hypothesis (`_group_sums`)."""
-    matrix = np.empty((len(score), len(columns)))
+    """`feature_matrix` of the features numbered `columns` (their order in `FEATURES`) of the hypotheses `rows`, the
+    frame's figures (its fewest missed, its best two scores) of all of them; each written as numpy's passes computed
+    it: the missed count as a float less the frame's fewest, np.minimum's NaN, the margin against the scores np.sort
+    orders (`_top_two`), the similarity gathered and summed per hypothesis from +0 in its type, as numpy's `.sum()`
+    (within its rounding)."""
+    matrix = np.empty((len(rows), len(columns)))
+    starts = np.cumsum(counts) - counts
+    total = np.zeros(1, similarity.dtype)  # the similarity's sum, rounded to its type at each step
     for j in range(len(columns)):
         column = columns[j]
         if column == 0 or column == 3:
             fewest = float(missed.min()) if len(missed) else 0.0
-            for b in range(len(score)):
-                beyond = float(missed[b]) - fewest
-                matrix[b, j] = overlap[b] - missed_weight * beyond if column == 0 else beyond
+            for r in range(len(rows)):
+                beyond = float(missed[rows[r]]) - fewest
+                matrix[r, j] = overlap[rows[r]] - missed_weight * beyond if column == 0 else beyond
         elif column == 1:
-            _margins_into(score, matrix[:, j])
+            first, second = _top_two(score) if len(score) > 1 else (np.nan, np.nan)
+            for r in range(len(rows)):
+                value = score[rows[r]]
+                matrix[r, j] = value if len(score) < 2 else value - (second if value == first else first)
         elif column == 2:
-            matrix[:, j] = mean_iou
+            for r in range(len(rows)):
+                matrix[r, j] = mean_iou[rows[r]]
         elif column == 4:
-            for b in range(len(score)):
-                matrix[b, j] = depth_error[b] if depth_error[b] < 2.0 or np.isnan(depth_error[b]) else 2.0
+            for r in range(len(rows)):
+                error = depth_error[rows[r]]
+                matrix[r, j] = error if error < 2.0 or np.isnan(error) else 2.0
         elif column == 5:
-            for b in range(len(score)):
-                matrix[b, j] = counts[b]
+            for r in range(len(rows)):
+                matrix[r, j] = counts[rows[r]]
         elif column == 6:
-            values = np.empty(len(pairs), similarity.dtype)
-            for m in range(len(pairs)):
-                values[m] = similarity[pairs[m, 0], pairs[m, 1]]
-            matrix[:, j] = _group_sums(values, np.cumsum(counts))
+            for r in range(len(rows)):
+                total[0] = 0.0
+                for m in range(starts[rows[r]], starts[rows[r]] + counts[rows[r]]):
+                    total[0] += similarity[pairs[m, 0], pairs[m, 1]]
+                matrix[r, j] = total[0]
         else:
             matrix[:, j] = observations
     return matrix
 
 
 @njit(cache=True)
-def _probabilities(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity,
-                   observations, mean, scale, coefficients, intercept, slope, offset):
-    """`ConfidenceModel.probability` of `_features`: each row standardized, its products with the coefficients
-    summed in column order (the matrix product's rounding may differ in the last bit), and 1 / (1 + exp(-x)) of the
-    Platt-scaled logit."""
-    features = _features(columns, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs,
+def probabilities(rows, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs, similarity,
+                  observations, columns, mean, scale, coefficients, intercept, slope, offset):
+    """`ConfidenceModel.probability` of `_features` of the hypotheses `rows`, for compiled callers too
+    (clipclique.verify.ranking): each row standardized, its products with the coefficients summed in column order
+    (the matrix product's rounding may differ in the last bit), and 1 / (1 + exp(-x)) of the Platt-scaled logit."""
+    features = _features(columns, rows, overlap, score, mean_iou, missed, depth_error, missed_weight, counts, pairs,
                          similarity, observations)
     probability = np.empty(len(features))
     for b in range(len(features)):
@@ -156,18 +149,6 @@ def _probabilities(columns, overlap, score, mean_iou, missed, depth_error, misse
             logit += (features[b, j] - mean[j]) / scale[j] * coefficients[j]
         probability[b] = 1.0 / (1.0 + np.exp(-(slope * (logit + intercept) + offset)))
     return probability
-
-
-@njit(cache=True)
-def _margins_into(score: np.ndarray, margins: np.ndarray) -> None:
-    """Each score minus the best other hypothesis's (the score itself when alone), as numpy's
-    `score - np.where(score == top[0], top[1], top[0])` of `top = np.sort(score)[::-1]`."""
-    if len(score) < 2:
-        margins[:] = score
-        return
-    first, second = _top_two(score)
-    for b in range(len(score)):
-        margins[b] = score[b] - (second if score[b] == first else first)
 
 
 @njit(cache=True)
@@ -208,11 +189,17 @@ class ConfidenceModel:
         return expit(slope * self.logit(features) + offset)
 
     def predict(self, evidence: Evidence) -> np.ndarray:
-        """`probability` of the evidence's `feature_matrix`, both in one compiled pass (`_probabilities`): a frame's
+        """`probability` of the evidence's `feature_matrix`, both in one compiled pass (`probabilities`): a frame's
         numpy standardization, product and expit cost more than their arithmetic."""
+        measured = _measured(evidence)
+        return probabilities(np.arange(len(measured[1])), *measured, *self.terms())
+
+    def terms(self) -> tuple:
+        """What `probabilities` reads of the model after the evidence: the features' columns, mean, scale,
+        coefficients, intercept and the Platt slope and offset."""
         slope, offset = self.platt
-        return _probabilities(_columns(self.features), *_measured(evidence), self.mean, self.scale, self.coefficients,
-                              float(self.intercept), float(slope), float(offset))
+        return (_columns(self.features), self.mean, self.scale, self.coefficients, float(self.intercept), float(slope),
+                float(offset))
 
     def to_json(self) -> dict:
         return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "features": list(self.features),

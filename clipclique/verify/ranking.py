@@ -49,27 +49,57 @@ def verify_pool(result: LocalizationResult, pool: Stack, observations: Observati
         return
     if not len(pool):
         return
-    seen, narrowed, similarity_seen = with_boxes(observations, pool, result.similarity)
-    checked = verification.verify_stack(narrowed, seen, map, config.verification, spreads)
     model = confidence.load_model(config.confidence_model)
-    probability = (None if model is None else
-                   model.predict(confidence.Evidence(narrowed, checked, similarity_seen, len(seen))))
-    kept = None
-    if config.inliers.rerank != "none":
-        if config.inliers.rerank == "confidence" and probability is None:
-            raise ClipcliqueError(
-                "inliers.rerank = confidence needs a confidence model (none is shipped in this build)")
-        key = checked.score if config.inliers.rerank == "verification" else probability
-        kept = best_first(key, config.top_n)
-    result.hypotheses = pool.hypotheses(kept, checked.score, probability)
+    if model is None and (config.inliers.rerank == "confidence" or config.min_confidence > 0):
+        why = "inliers.rerank = confidence" if config.inliers.rerank == "confidence" else "min_confidence"
+        raise ClipcliqueError(f"{why} needs a confidence model (none is shipped in this build)")
+    seen, narrowed, similarity_seen = with_boxes(observations, pool, result.similarity)
+    kept, figures = _ranked(_RERANK[config.inliers.rerank], int(config.top_n),
+                            *verification.figure_inputs(narrowed, seen, map, config.verification, spreads),
+                            similarity_seen, float(len(seen)), model is not None,
+                            *(_NO_MODEL if model is None else model.terms()))
+    verified, confident = figures.tolist()
+    result.hypotheses = pool.hypotheses(kept, verified, None if model is None else confident)
     if config.min_confidence > 0:
-        if probability is None:
-            raise ClipcliqueError("min_confidence needs a confidence model (none is shipped in this build)")
         best = max(h.confidence for h in result.hypotheses)
         result.hypotheses = [h for h in result.hypotheses if h.confidence >= config.min_confidence]
         if not result.hypotheses:
             result.failure = Failure(kind=FailureKind.NOT_CONFIDENT, min_confidence=config.min_confidence,
                                      best_confidence=best)
+
+
+_RERANK = {"none": 0, "verification": 1, "confidence": 2}  # `inliers.rerank` as `_ranked` reads it
+_NO_MODEL = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0), 0.0, 0.0, 0.0)  # `_ranked`'s model terms
+_NO_MODEL[0].flags.writeable = False  # as a model's columns (`ConfidenceModel.terms`): one compiled signature
+
+
+@njit(cache=True)
+def _ranked(rerank, top_n, rotations, translations, pairs, counts, centers, axes, spreads, boxes, observed_centers,
+            class_ids, detected_classes, intrinsics, width, height, max_depth, depth_tolerance, min_pixels,
+            explained_iou, full, missed_weight, share_from, similarity, num_observations, modelled, columns, mean,
+            scale, coefficients, intercept, slope, offset):
+    """`verify_pool`'s work in one compiled call (a small query's compiled calls and the arrays each hands back cost
+    more than its arithmetic): the figures (`verification.figures`), the rows kept (rerank 0: all, in pool order; 1:
+    `best_first` of the verification scores; 2: of the confidences) and (2, kept) their verification scores and
+    confidences (NaN without a model, `modelled` False). Re-ranked by verification, only the kept rows' confidences
+    are computed (each row's is its own, from the frame's figures)."""
+    score, overlap, mean_iou, missed, _, _, depth_error = verification.figures(
+        rotations, translations, pairs, counts, centers, axes, spreads, boxes, observed_centers, class_ids,
+        detected_classes, intrinsics, width, height, max_depth, depth_tolerance, min_pixels, explained_iou, full,
+        missed_weight, share_from)
+    kept = _best_first(score, top_n) if rerank == 1 else np.arange(len(score))
+    probability = np.full(len(kept), np.nan)
+    if modelled:
+        probability = confidence.probabilities(kept, overlap, score, mean_iou, missed, depth_error, missed_weight,
+                                               counts, pairs, similarity, num_observations, columns, mean, scale,
+                                               coefficients, intercept, slope, offset)
+        if rerank == 2:
+            kept = _best_first(probability, top_n)
+            probability = probability[kept]
+    out = np.empty((2, len(kept)))
+    for r in range(len(kept)):
+        out[0, r], out[1, r] = score[kept[r]], probability[r]
+    return kept, out
 
 
 def best_first(key: np.ndarray, top_n: int) -> np.ndarray:

@@ -71,27 +71,36 @@ def verify_stack(stack: Stack, observations: Observations, map: Map,
     """Verification of each hypothesis of the stack. Hypotheses alike (one pose, one set of pairs: refinement
     often brings several cliques of a re-ranked pool to one) are verified once; a hypothesis's figures do not
     depend on the others'. `spreads`: the map's `projection.spreads`, where kept (`pipeline.index_map`; None:
-    computed here). One compiled call (`_verify`): a frame's numpy calls and compiled calls between its steps cost
+    computed here). One compiled call (`figures`): a frame's numpy calls and compiled calls between its steps cost
     more than their arithmetic."""
     require_image(observations, "image verification")
+    return Verification(**dict(zip(_PER_HYPOTHESIS, figures(*figure_inputs(stack, observations, map, params,
+                                                                          spreads)))),
+                        missed_weight=params.missed_weight)
+
+
+def figure_inputs(stack: Stack, observations: Observations, map: Map, params: VerificationConfig,
+                  spreads: np.ndarray | None) -> tuple:
+    """What `figures` reads, in its order: the stack's arrays, the map's and the observations' (boxes and camera
+    given), the settings as numbers."""
     camera = observations.camera
-    figures = _verify(stack.rotations, stack.translations, stack.pairs, stack.counts,
-                      np.asarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes,
-                      projection.spreads(map.ellipsoids) if spreads is None else spreads,
-                      np.asarray(observations.boxes, np.float64), observations.ellipsoids.centers, map.class_ids,
-                      observations.class_ids, camera.intrinsics, float(camera.width), float(camera.height),
-                      float(camera.max_depth), float(params.depth_tolerance), float(params.min_visible_pixels),
-                      float(params.explained_iou), float(params.missed_full_area * camera.width * camera.height),
-                      float(params.missed_weight), float(params.missed_share_from))
-    return Verification(**dict(zip(_PER_HYPOTHESIS, figures)), missed_weight=params.missed_weight)
+    return (stack.rotations, stack.translations, stack.pairs, stack.counts,
+            np.asarray(map.ellipsoids.centers, np.float64), map.ellipsoids.axes,
+            projection.spreads(map.ellipsoids) if spreads is None else spreads,
+            np.asarray(observations.boxes, np.float64), observations.ellipsoids.centers, map.class_ids,
+            observations.class_ids, camera.intrinsics, float(camera.width), float(camera.height),
+            float(camera.max_depth), float(params.depth_tolerance), float(params.min_visible_pixels),
+            float(params.explained_iou), float(params.missed_full_area * camera.width * camera.height),
+            float(params.missed_weight), float(params.missed_share_from))
 
 
 @njit(cache=True)
-def _verify(rotations, translations, pairs, counts, centers, axes, spreads, boxes, observed_centers, class_ids,
+def figures(rotations, translations, pairs, counts, centers, axes, spreads, boxes, observed_centers, class_ids,
             detected_classes, intrinsics, width, height, max_depth, depth_tolerance, min_pixels, explained_iou, full,
             missed_weight, share_from):
-    """`verify_stack`'s figures: the distinct hypotheses and the landmarks in range (`_distinct_in_range`), those
-    landmarks projected under the distinct poses (`projection.visible_boxes`), their figures (`_verdicts`)."""
+    """`verify_stack`'s figures (in `_PER_HYPOTHESIS`'s order), for compiled callers too (clipclique.verify.ranking):
+    the distinct hypotheses and the landmarks in range (`_distinct_in_range`), those landmarks projected under the
+    distinct poses (`projection.visible_boxes`), their figures (`_verdicts`)."""
     group, firsts, nearby, kept_rotations, kept_translations = _distinct_in_range(rotations, translations, pairs,
                                                                                   counts, centers, axes, max_depth)
     spread = np.empty((len(nearby), spreads.shape[1]))

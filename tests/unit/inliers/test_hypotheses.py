@@ -4,7 +4,14 @@ degenerate cliques skipped, cliques tried without their added look-alike pairs, 
 import numpy as np
 
 from clipclique.config import make_config
-from clipclique.inliers.hypotheses import _flatten_sets, _hypotheses, _objects, _without_added, from_cliques
+from clipclique.inliers.hypotheses import (
+    _flatten_sets,
+    _holds_rest,
+    _hypotheses,
+    _objects,
+    _without_added,
+    from_cliques,
+)
 from clipclique.outcomes import LocalizationResult
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
 from clipclique.types import Ellipsoids, Map, Observations
@@ -107,7 +114,8 @@ def numpy_without_added(members, sizes, added, scores, min_size):
 
 def test_the_compiled_rests_are_the_numpy_passes():
     """`_without_added` against its numpy passes, arrays and dtypes: random cliques with repeats in other orders,
-    nothing or everything added, single and no cliques; scores with ties, -0, NaN and inf, rests of 8 or more."""
+    nothing or everything added, single and no cliques; scores with ties, -0, NaN and inf, rests of 8 or more. And
+    `_holds_rest` against numpy's count of each clique's rest: where it says none, `_without_added` gives none."""
     rng = np.random.default_rng(13)
     cases = [([], np.zeros(4, bool)), ([np.array([3, 1, 2])], np.ones(4, bool)),
              ([np.array([3, 1, 2])], np.zeros(4, bool)), ([np.array([0, 1, 2, 3]), np.array([3, 2, 1, 0])],
@@ -117,7 +125,7 @@ def test_the_compiled_rests_are_the_numpy_passes():
         cliques = [rng.permutation(count)[: int(rng.integers(1, count + 1))] for _ in range(int(rng.integers(0, 12)))]
         cliques += [rng.permutation(members) for members in cliques[:3]]
         cases.append((cliques, rng.random(count) < rng.choice([0.0, 0.2, 0.5, 1.0])))
-    kept = 0
+    kept = skipped = 0
     for trial, (cliques, added) in enumerate(cases):
         scores = rng.random(len(added)) if trial % 2 else np.round(rng.normal(size=len(added)), 1)  # ties
         if trial % 7 == 0:
@@ -131,7 +139,13 @@ def test_the_compiled_rests_are_the_numpy_passes():
             np.testing.assert_array_equal(got[1], expected[1])
             np.testing.assert_allclose(got[2], expected[2], rtol=1e-12, atol=1e-12)
             kept += len(expected[1])
-    assert kept > 200
+            members, sizes = _flatten_sets(cliques)
+            rests = np.add.reduceat(~added[members], np.cumsum(sizes) - sizes) if len(members) else np.zeros(0)
+            holds = bool(((rests >= min_size) & (rests < sizes)).any()) if len(sizes) and len(members) else False
+            assert _holds_rest(members, sizes, added, min_size) is holds
+            assert holds or not len(got[1])  # no clique with a rest: nothing to give
+            skipped += not holds
+    assert kept > 200 and skipped > 100
 
 
 def test_the_fitted_stack_is_the_masked_rows():

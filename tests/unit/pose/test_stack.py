@@ -44,12 +44,17 @@ def test_a_stack_takes_rows_with_their_pairs_and_gives_back_its_hypotheses():
     stack = Stack.of(hypotheses)
     taken = stack.take(np.array([3, 1, 0]))
     np.testing.assert_array_equal(taken.counts, [4, 0, 3])
-    for got, source in zip(taken.hypotheses(verification=np.array([0.25, 0.5, 0.75])), [3, 1, 0]):
+    for got, source in zip(taken.hypotheses(verification=[0.25, 0.5, 0.75]), [3, 1, 0]):
         np.testing.assert_array_equal(got.correspondences, hypotheses[source].correspondences)
         np.testing.assert_array_equal(got.pose.rotation, hypotheses[source].pose.rotation)  # taken, not computed
         assert ((got.score, got.conditioning, got.confidence)
                 == (hypotheses[source].score, hypotheses[source].conditioning, None))
-    assert [h.verification for h in taken.hypotheses(verification=np.array([0.25, 0.5, 0.75]))] == [0.25, 0.5, 0.75]
+    assert [h.verification for h in taken.hypotheses(verification=[0.25, 0.5, 0.75])] == [0.25, 0.5, 0.75]
+    chosen = stack.hypotheses(np.array([2, 0, 2]), [0.1, 0.2, 0.3], [0.6, 0.7, 0.8])  # one value per row chosen
+    assert [(h.score, h.verification, h.confidence) for h in chosen] == [(5.0, 0.1, 0.6), (3.0, 0.2, 0.7),
+                                                                          (5.0, 0.3, 0.8)]
+    np.testing.assert_array_equal(chosen[0].correspondences, hypotheses[2].correspondences)
+    assert type(chosen[0].score) is float and type(chosen[0].conditioning) is float
     joined = Stack.joined([taken, stack])
     np.testing.assert_array_equal(joined.pairs, np.concatenate((taken.pairs, stack.pairs)))
     assert len(Stack.joined([])) == 0 and len(Stack.of([])) == 0

@@ -64,8 +64,9 @@ def test_missed_landmarks_count_beyond_the_frame_s_fewest():
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_group_sums_are_numpys_sums_with_negative_zeros_nan_and_empty_groups(dtype):
-    """Each group's sum, within its type's rounding, from +0: a group of -0 alone sums to +0 at every length."""
+def test_the_similarity_sums_are_numpys_with_negative_zeros_nan_and_empty_groups(dtype):
+    """Each hypothesis's similarity summed in the matrix's type, within its rounding, from +0: a hypothesis whose
+    pairs are all -0 sums to +0 at every length."""
     rng = np.random.default_rng(9)
     groups = []
     for count in [0, 1, 2, 7, 8, 9, 16, 17, 128, 129, 300]:
@@ -73,9 +74,13 @@ def test_group_sums_are_numpys_sums_with_negative_zeros_nan_and_empty_groups(dty
         if count:
             groups.append(np.where(np.arange(count) == count // 2, np.nan, rng.normal(size=count)))
     values = np.concatenate(groups).astype(dtype)
-    expected = np.array([group.astype(dtype).sum() for group in groups], dtype)
-    got = confidence.group_sums(values, np.cumsum([len(group) for group in groups]))
-    assert got.dtype == dtype
+    counts = np.array([len(group) for group in groups], np.int64)
+    pool = Stack(rotations=np.zeros((len(groups), 3, 3)), translations=np.zeros((len(groups), 3)),
+                 pairs=np.column_stack((np.zeros(len(values), np.int64), np.arange(len(values)))), counts=counts,
+                 scores=np.zeros(len(groups)), conditioning=np.zeros(len(groups)))
+    evidence = confidence.Evidence(pool, verification_of([0.0] * len(groups), [0] * len(groups)), values[None], 1)
+    got = confidence.feature_matrix(evidence, ("similarity",))[:, 0]
+    expected = np.array([group.astype(dtype).sum() for group in groups], dtype).astype(float)
     tight = 1e-12 if dtype == np.float64 else 1e-5
     np.testing.assert_allclose(got, expected, rtol=tight, atol=tight * np.abs(values[np.isfinite(values)]).sum())
     assert not np.signbit(got[[len(group) > 0 and (group == 0).all() for group in groups]]).any()
@@ -211,8 +216,9 @@ def numpy_features(evidence: confidence.Evidence) -> dict[str, np.ndarray]:
         margin = score - np.where(score == top[0], top[1], top[0])
     if len(hypotheses):
         pairs = hypotheses.pairs
-        values = np.ascontiguousarray(evidence.similarity[pairs[:, 0], pairs[:, 1]])
-        similarity = confidence.group_sums(values, np.cumsum(hypotheses.counts)).astype(float)
+        values = evidence.similarity[pairs[:, 0], pairs[:, 1]]
+        similarity = np.array([group.sum() for group in np.split(values, np.cumsum(hypotheses.counts)[:-1])],
+                              evidence.similarity.dtype).astype(float)
     else:
         similarity = np.zeros(0)
     return {"verification_in_frame": checked.overlap - checked.missed_weight * missed, "margin": margin,
@@ -278,7 +284,8 @@ def test_the_compiled_features_are_numpys(dtype):
 def test_predict_is_the_probability_of_the_feature_matrix():
     """The compiled prediction (features, standardization, logit, expit in one pass) against the numpy path the
     fitting tools use, for the shipped model and random models of feature subsets in any order: equal to the
-    product's rounding, probabilities that saturate at 0 and 1 included."""
+    product's rounding, probabilities that saturate at 0 and 1 included; and of chosen rows alone, the very
+    probabilities of those rows."""
     rng = np.random.default_rng(8)
     shipped = confidence.load_model()
     for trial in range(60):
@@ -301,3 +308,6 @@ def test_predict_is_the_probability_of_the_feature_matrix():
         got = model.predict(evidence)
         assert got.shape == (count,)
         np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-15)
+        rows = rng.integers(0, max(count, 1), int(rng.integers(0, 6)) if count else 0)  # any order, repeated
+        chosen = confidence.probabilities(rows, *confidence._measured(evidence), *model.terms())
+        np.testing.assert_array_equal(chosen, got[rows])  # each row's own, from the frame's figures

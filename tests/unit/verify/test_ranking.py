@@ -2,13 +2,16 @@
 the pool is re-ranked, and a pool left unverified where the observations carry no boxes or camera."""
 
 import numpy as np
+import pytest
 
 from clipclique.config import make_config
+from clipclique.errors import ClipcliqueError
 from clipclique.inliers.hypotheses import from_cliques
 from clipclique.outcomes import LocalizationResult
 from clipclique.pipeline import index_map, localize
 from clipclique.pose.stack import Stack
 from clipclique.sim.synthetic import synthetic_map, synthetic_query
+from clipclique.verify import confidence, verification
 from clipclique.verify.ranking import RANK_DECIMALS, best_first, reranked, verify_pool, with_boxes
 
 
@@ -78,3 +81,50 @@ def test_the_best_first_are_numpys_stable_sort_of_the_rounded_keys():
         top_n = int(rng.choice([1, 5, 10, 100]))
         expected = np.argsort(-np.round(key, RANK_DECIMALS), kind="stable")[:top_n]
         assert best_first(key, top_n).tolist() == expected.tolist(), (key, top_n)
+
+
+@pytest.mark.parametrize("rerank", ["none", "verification", "confidence"])
+def test_the_pool_verified_in_one_call_is_its_steps_one_by_one(rerank, monkeypatch):
+    """`verify_pool`'s one compiled call against its steps: `verify_stack` of the whole pool, the model's `predict`
+    of it, `best_first` of the re-ranking key (all rows in pool order without one): the same rows, verification
+    scores and confidences to the bit, pools with hypotheses alike (ties) and top_n above and below their size; with
+    no model, no confidence (and re-ranking by it refused)."""
+    rng = np.random.default_rng(17)
+    checked_rows = 0
+    for trial in range(12):
+        map = synthetic_map(rng, num_landmarks=30)
+        query, _ = synthetic_query(map, rng, num_visible=9, num_outliers=2)
+        top_n = int(rng.choice([1, 5, 50]))
+        config = make_config("clipclique", overrides=[f"inliers.rerank={rerank}", f"top_n={top_n}"])
+        found = localize(query, index_map(map, config), config)
+        result = LocalizationResult(hypotheses=[], candidates=found.candidates,
+                                    candidate_scores=found.candidate_scores, similarity=found.similarity,
+                                    num_cliques=0, cap_hit=None, failure=None)
+        pool = from_cliques(result, query, map, config, lambda stage: None)
+        moved = pool.take(rng.integers(0, len(pool), 30))  # poses around the cliques', some exactly alike
+        moved.translations = moved.translations + rng.choice([0.0, 0.05, 0.3], (30, 1)) * rng.normal(size=(30, 3))
+        pool = Stack.joined([pool, moved])
+        checked = verification.verify_stack(pool, query, map, config.verification)
+        probability = confidence.load_model().predict(confidence.Evidence(pool, checked, found.similarity,
+                                                                          len(query)))
+        key = {"none": None, "verification": checked.score, "confidence": probability}[rerank]
+        kept = np.arange(len(pool)) if key is None else best_first(key, top_n)
+        verify_pool(result, pool, query, map, None, config)
+        assert [(h.score, h.verification, h.confidence) for h in result.hypotheses] == list(
+            zip(pool.scores[kept].tolist(), checked.score[kept].tolist(), probability[kept].tolist()))
+        for got, row in zip(result.hypotheses, kept.tolist()):
+            np.testing.assert_array_equal(got.pose.rotation, pool.rotations[row])
+            np.testing.assert_array_equal(got.correspondences, pool.take(np.array([row])).pairs)
+        checked_rows += len(kept)
+    assert checked_rows > 100
+    monkeypatch.setattr(confidence, "load_model", lambda path="": None)
+    config = make_config("clipclique", overrides=[f"inliers.rerank={rerank}"])
+    if rerank == "confidence":
+        with pytest.raises(ClipcliqueError, match="needs a confidence model"):
+            verify_pool(result, pool, query, map, None, config)
+        return
+    verify_pool(result, pool, query, map, None, config)
+    assert result.hypotheses and all(h.confidence is None for h in result.hypotheses)
+    key = checked.score if rerank == "verification" else None
+    kept = np.arange(len(pool)) if key is None else best_first(key, config.top_n)
+    assert [h.verification for h in result.hypotheses] == checked.score[kept].tolist()

@@ -22,7 +22,7 @@ from clipclique.pose.fit import (
     nonzero_counts,
     weighted_sets,
 )
-from clipclique.pose.stack import Stack, alike, alike_spans
+from clipclique.pose.stack import Stack, alike
 from clipclique.types import Hypothesis, Map, Observations, Pose
 
 
@@ -334,9 +334,10 @@ def _refine_densely(rotations, translations, counts, pairs, centers, axes, landm
                     similarity, radius, mode, rounds):
     """`_refine_by_rounds` of a room-sized map in one pass: new rotations, translations, counts and pairs (the
     stack's arrays), which hypotheses moved and whether any did (numpy's `any` costs more than the pass). Each round
-    as `_refine_by_rounds` takes it: `_nearest_of_all`, `_refitting`, `alike_spans`, `_chosen_pairs`,
-    `compiled_weighted_sets` of the distinct sets (the same batch, the same padded width), their fit and
-    `_survivors`."""
+    as `_refine_by_rounds` takes it: `_nearest_of_all`, `_refitting`, the distinct sets fitted (`_chosen_pairs`,
+    `compiled_weighted_sets`, their fit) and `_survivors`; but a set fitted in an earlier round is not fitted again
+    (`_known_sets`): a set's fit is its own (`_pad`), and a hypothesis whose refit found the pairs it was just fitted
+    to, or another's, would only be given that fit again (a third of a room's second-round refits)."""
     rotations, translations, sizes = rotations.copy(), translations.copy(), counts.copy()
     num_obs, (by_axis, axis, landmark_of) = len(centers), _along_widest_axis(landmark_centers)
     found = np.empty((len(pairs) + rounds * len(sizes) * min(num_obs, len(landmark_centers)), 2), np.int64)
@@ -344,6 +345,11 @@ def _refine_densely(rotations, translations, counts, pairs, centers, axes, landm
     origin, offset = np.cumsum(sizes) - sizes, len(pairs)
     moved = np.zeros(len(sizes), np.bool_)
     active = np.arange(len(sizes))
+    pad_observation, pad_landmark = _pad(centers), _pad(landmark_centers)
+    # every set fitted so far: where it lies in `found`, its pose and whether it has one
+    set_starts, set_counts = np.empty(rounds * len(sizes), np.int64), np.empty(rounds * len(sizes), np.int64)
+    set_rotations, set_translations = np.empty((rounds * len(sizes), 3, 3)), np.empty((rounds * len(sizes), 3))
+    set_ok, known = np.empty(rounds * len(sizes), np.bool_), 0
     for _ in range(rounds):
         if not len(active):
             break
@@ -352,17 +358,25 @@ def _refine_densely(rotations, translations, counts, pairs, centers, axes, landm
         starts, refits = _refitting(near_counts, sizes[active])
         if not len(refits):
             break
-        fitted, firsts = alike_spans(np.zeros((len(refits), 0), np.int64), near.reshape(-1), 2 * starts[refits],
-                                     2 * near_counts[refits])
-        firsts = refits[firsts]
-        chosen, scores = _chosen_pairs(near, starts[firsts], near_counts[firsts], similarity)
-        source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[firsts], 0, 0,
-                                                   np.float64(similarity[0, 0]), centers, axes, landmark_centers,
-                                                   landmark_axes, mode)
-        rotation, translation, ok = fit_rigid_sets(w, source, target)
-        active = _survivors(rotation, translation, ok & (nonzero_counts(w) >= 3), fitted, refits, active, starts,
-                            offset, near_counts, rotations, translations, sizes, origin, moved)
         found[offset: offset + len(near)] = near
+        fitted, fresh = _known_sets(found, offset + starts[refits], near_counts[refits], set_starts, set_counts, known)
+        new = refits[fresh]
+        chosen, scores = _chosen_pairs(near, starts[new], near_counts[new], similarity)
+        source, target, w = compiled_weighted_sets(chosen, scores.astype(np.float64), near_counts[new],
+                                                   pad_observation, pad_landmark, 0.0, centers, axes,
+                                                   landmark_centers, landmark_axes, mode)
+        rotation, translation, ok = fit_rigid_sets(w, source, target)
+        ok &= nonzero_counts(w) >= 3
+        for i in range(len(new)):
+            s = known + i
+            set_starts[s], set_counts[s], set_ok[s] = offset + starts[new[i]], near_counts[new[i]], ok[i]
+            for j in range(3):  # number by number: row views are counted in and out
+                set_translations[s, j] = translation[i, j]
+                for k in range(3):
+                    set_rotations[s, j, k] = rotation[i, j, k]
+        known += len(new)
+        active = _survivors(set_rotations, set_translations, set_ok, fitted, refits, active, starts, offset,
+                            near_counts, rotations, translations, sizes, origin, moved)
         offset += len(near)
     joined = np.empty((sizes.sum(), 2), np.int64)
     row = 0
@@ -373,12 +387,56 @@ def _refine_densely(rotations, translations, counts, pairs, centers, axes, landm
     return rotations, translations, sizes, joined, moved, moved.any()
 
 
+@njit(cache=True)
+def _known_sets(found: np.ndarray, starts: np.ndarray, counts: np.ndarray, set_starts: np.ndarray,
+                set_counts: np.ndarray, known: int) -> tuple[np.ndarray, np.ndarray]:
+    """Of the sets found[starts[r]: starts[r] + counts[r]]: (R,) which set each is, numbered among the `known`
+    (found[set_starts[s]: set_starts[s] + set_counts[s]], all distinct) and then the new ones in order of first
+    appearance; and (R',) the first of each new one. Sets are alike where they hold the same pairs in the same
+    order; each is compared pair by pair, in place (a row handed to a helper is a view, counted in and out)."""
+    fitted, fresh = np.empty(len(starts), np.int64), np.empty(len(starts), np.int64)
+    new = 0
+    for r in range(len(starts)):
+        fitted[r] = -1
+        for s in range(known + new):
+            start, count = (set_starts[s], set_counts[s]) if s < known else (starts[fresh[s - known]],
+                                                                             counts[fresh[s - known]])
+            if count != counts[r]:
+                continue
+            same = True
+            for i in range(count):
+                if found[start + i, 0] != found[starts[r] + i, 0] or found[start + i, 1] != found[starts[r] + i, 1]:
+                    same = False
+                    break
+            if same:
+                fitted[r] = s
+                break
+        if fitted[r] < 0:
+            fitted[r], fresh[new] = known + new, r
+            new += 1
+    return fitted, fresh[:new].copy()
+
+
+@njit(cache=True)
+def _pad(points: np.ndarray) -> int:
+    """The first point (row) whose coordinates are all finite (0 where none is): what a batch fit pads its shorter
+    sets with, at weight 0. A finite pad adds zeros to every sum of a fit, so that a set's pose does not depend on
+    the sets fitted beside it (a NaN pad made every padded set of its batch degenerate)."""
+    for k in range(len(points)):
+        if np.isfinite(points[k, 0]) and np.isfinite(points[k, 1]) and np.isfinite(points[k, 2]):
+            return k
+    return 0
+
+
 def _refit(pairs: np.ndarray, starts: np.ndarray, counts: np.ndarray, observations: Observations, map: Map,
            similarity: np.ndarray, weights: PoseWeights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The weighted pose of each set `pairs[start: start + count]`, fitted in one batch (shorter sets padded
-    with pair (0, 0) at weight 0), and whether it has a pose (at least 3 positive weights, not collinear)."""
+    with a pair of finite centres at weight 0, `_pad`), and whether it has a pose (at least 3 positive weights, not
+    collinear)."""
     chosen, scores = _chosen_pairs(pairs, starts, counts, similarity)
-    source, target, w = weighted_sets(chosen, scores, counts, (0, 0, similarity[0, 0]),
+    pad = (_pad(np.ascontiguousarray(observations.ellipsoids.centers, np.float64)),
+           _pad(np.ascontiguousarray(map.ellipsoids.centers, np.float64)), 0.0)
+    source, target, w = weighted_sets(chosen, scores, counts, pad,
                                       (observations.ellipsoids.centers, observations.ellipsoids.axes),
                                       (map.ellipsoids.centers, map.ellipsoids.axes), weights)
     rotation, translation, ok = fit_rigid_batch(source, target, w)

@@ -384,3 +384,34 @@ def test_the_centres_are_ordered_along_their_widest_finite_spread_without_nan():
     assert by_axis.flags.c_contiguous
     np.testing.assert_array_equal(by_axis, centers[landmark_of].T)
     assert refine_module._along_widest_axis(np.zeros((0, 3)))[0].shape == (3, 0)
+
+
+def test_each_hypothesis_refines_as_it_would_alone():
+    """A hypothesis's refinement is its own, whatever the others refitted beside it: the stack refined at once (the
+    compiled pass, which also gives a set fitted in an earlier round its earlier fit) and round by round, against
+    each hypothesis refined alone, to the bit; with the first observation's and the first landmark's centres NaN
+    (a batch's padding once made every padded set of it degenerate)."""
+    rng = np.random.default_rng(32)
+    moved = 0
+    for trial in range(40):
+        map, observations, truth = crowded_desk(rng, int(rng.integers(6, 40)))
+        stack = scattered_stack(rng, map, observations, truth, int(rng.choice([2, 7, 30])))
+        similarity = rng.random((len(observations), len(map))) * (rng.random((len(observations), len(map))) < 0.8)
+        if trial % 2:
+            observations.ellipsoids.centers[0] = np.nan
+            map.ellipsoids.centers[0] = np.nan
+        rounds = int(rng.integers(1, 4))
+        with np.errstate(invalid="ignore"):
+            together = refine_module.refine_stack(stack, observations, map, similarity, 0.3, "both", rounds)
+            by_rounds = refine_module._refine_by_rounds(stack, observations, map, similarity, 0.3, "both", rounds,
+                                                        None)
+            alone = [refine_module.refine_stack(stack.take(np.array([b])), observations, map, similarity, 0.3, "both",
+                                                rounds) for b in range(len(stack))]
+        for b, (single, single_moved) in enumerate(alone):
+            row = together[0].take(np.array([b]))
+            for field in ("rotations", "translations", "pairs", "counts"):
+                np.testing.assert_array_equal(getattr(row, field), getattr(single, field), err_msg=field)
+            assert together[1][b] == single_moved[0]
+        same_refinement(by_rounds, together)
+        moved += together[1].sum()
+    assert moved > 200

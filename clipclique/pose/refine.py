@@ -405,28 +405,35 @@ def _known_sets(found: np.ndarray, starts: np.ndarray, counts: np.ndarray, set_s
     """Of the sets found[starts[r]: starts[r] + counts[r]]: (R,) which set each is, numbered among the `known`
     (found[set_starts[s]: set_starts[s] + set_counts[s]], all distinct) and then the new ones in order of first
     appearance; and (R',) the first of each new one. Sets are alike where they hold the same pairs in the same
-    order; each is compared pair by pair, in place (a row handed to a helper is a view, counted in and out)."""
+    order, compared by index in place (a row handed to a helper is a view, counted in and out)."""
     fitted, fresh = np.empty(len(starts), np.int64), np.empty(len(starts), np.int64)
     new = 0
     for r in range(len(starts)):
         fitted[r] = -1
-        for s in range(known + new):
-            start, count = (set_starts[s], set_counts[s]) if s < known else (starts[fresh[s - known]],
-                                                                             counts[fresh[s - known]])
-            if count != counts[r]:
-                continue
-            same = True
-            for i in range(count):
-                if found[start + i, 0] != found[starts[r] + i, 0] or found[start + i, 1] != found[starts[r] + i, 1]:
-                    same = False
-                    break
-            if same:
+        for s in range(known):
+            if _same_rows(found, set_starts[s], set_counts[s], starts[r], counts[r]):
                 fitted[r] = s
+                break
+        for i in range(new if fitted[r] < 0 else 0):
+            if _same_rows(found, starts[fresh[i]], counts[fresh[i]], starts[r], counts[r]):
+                fitted[r] = known + i
                 break
         if fitted[r] < 0:
             fitted[r], fresh[new] = known + new, r
             new += 1
     return fitted, fresh[:new].copy()
+
+
+@njit(cache=True, inline="always")
+def _same_rows(rows: np.ndarray, first: int, first_count: int, second: int, second_count: int) -> bool:
+    """Whether rows[first: first + first_count] and rows[second: second + second_count] of an (M, 2) array are the
+    same rows in the same order."""
+    if first_count != second_count:
+        return False
+    for i in range(first_count):
+        if rows[first + i, 0] != rows[second + i, 0] or rows[first + i, 1] != rows[second + i, 1]:
+            return False
+    return True
 
 
 @njit(cache=True)

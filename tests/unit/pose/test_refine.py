@@ -415,3 +415,32 @@ def test_each_hypothesis_refines_as_it_would_alone():
         same_refinement(by_rounds, together)
         moved += together[1].sum()
     assert moved > 200
+
+
+def test_the_known_sets_are_a_dictionary_of_their_pairs():
+    """`_known_sets` against a dictionary keyed by each set's pairs in order: sets known from earlier rounds, repeated
+    in this one, in another order (not alike), one a prefix of another, none known."""
+    rng = np.random.default_rng(33)
+    reused = 0
+    for trial in range(300):
+        pool = [rng.integers(0, 4, (int(rng.integers(3, 6)), 2)) for _ in range(int(rng.integers(1, 8)))]
+        pool += [pool[0][::-1], pool[0][:-1]] if len(pool[0]) > 3 else []
+        known = [pool[i] for i in rng.choice(len(pool), int(rng.integers(0, len(pool) + 1)), replace=False)]
+        known = list({pairs.tobytes(): pairs for pairs in known}.values())  # the known sets are distinct
+        asked = [pool[i] for i in rng.integers(0, len(pool), int(rng.integers(0, 12)))]
+        found = np.concatenate(known + asked + [np.zeros((0, 2), np.int64)]).astype(np.int64)
+        set_counts = np.array([len(s) for s in known], np.int64)
+        counts = np.array([len(s) for s in asked], np.int64)
+        starts = set_counts.sum() + np.cumsum(counts) - counts
+        fitted, fresh = refine_module._known_sets(found, starts, counts, np.cumsum(set_counts) - set_counts,
+                                                  set_counts, len(known))
+        numbers = {s.tobytes(): i for i, s in enumerate(known)}
+        expected, firsts = [], []
+        for r, s in enumerate(asked):
+            if s.tobytes() not in numbers:
+                numbers[s.tobytes()] = len(numbers)
+                firsts.append(r)
+            expected.append(numbers[s.tobytes()])
+        assert fitted.tolist() == expected and fresh.tolist() == firsts
+        reused += sum(number < len(known) for number in expected)
+    assert reused > 200

@@ -33,6 +33,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from clipclique.descriptors.graph import sort_span
 from clipclique.outcomes import CapHit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
@@ -246,7 +247,8 @@ def _prepare(edges, num_nodes, weights, groups, count):
             g = groups[indices[k]]
             potential[v] += best_in_group[g]
             best_in_group[g] = 0.0
-    order = np.argsort(-potential, kind="mergesort")
+    order = np.empty(num_nodes, np.int64)
+    _rank_descending(potential, num_nodes, order)  # np.argsort(-potential, kind="mergesort"), a small graph's in place
     position = np.empty(num_nodes, np.int64)
     position[order] = np.arange(num_nodes)
     width = degree.max() + 1 if num_nodes else 1
@@ -302,19 +304,6 @@ def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
             rank[j] = rank[j - 1]
             j -= 1
         rank[j] = i
-
-
-@njit(cache=True, inline="always")
-def sort_span(values: np.ndarray, start: int, stop: int) -> None:
-    """values[start: stop].sort() of integers by an insertion sort in place: a clique's dozen members, where a
-    view's sort costs its reference counts and numba's quicksort setup (inlined into its callers)."""
-    for i in range(start + 1, stop):
-        value = values[i]
-        j = i
-        while j > start and values[j - 1] > value:
-            values[j] = values[j - 1]
-            j -= 1
-        values[j] = value
 
 
 @njit(cache=True)

@@ -306,13 +306,14 @@ def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
         rank[j] = i
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
            best_size: np.ndarray, best_slot: np.ndarray, best_members: np.ndarray) -> None:
     """Insert a maximal clique into the ranked top list if it ranks high enough. Written out without helper calls
-    or views (the sort, `sort_span`, is inlined): each array handed to a compiled call, or sliced, is
-    reference-counted by two atomic operations, which cost a desk search a quarter of its time when the comparison
-    was a function and the sort a view's sort."""
+    or views (the sort, `sort_span`, is inlined), and itself inlined into `_search` (as `_threshold` is): each array
+    handed to a compiled call, or sliced, is reference-counted by two atomic operations, which cost a desk search a
+    quarter of its time when the comparison was a function and the sort a view's sort, and a small frame's search
+    a quarter when these two were calls."""
     sort_span(clique, 0, size)
     total = 0.0
     for k in range(size):
@@ -349,7 +350,7 @@ def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray
     state[FILLED] = min(filled + 1, capacity)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _threshold(state: np.ndarray, best_total: np.ndarray) -> float:
     """The weight a branch must be able to reach (minus round-off slack) to be explored."""
     if state[FILLED] < len(best_total):

@@ -55,7 +55,8 @@ class MapIndex:
     """Map-side work done once per map and config."""
 
     map: Map
-    built_for: str  # index_key of the config this index was built with; localize checks it
+    built_for: str  # index_key of the config this index was built with
+    settings: tuple  # _index_settings of that config: what localize compares (formatting the key cost 1.3 us a query)
     adjacency: sp.csr_matrix  # (N, N) semantic graph
     histograms: sp.csr_matrix | None  # (N, C^s) Semantic Histograms, when the descriptor uses them
     walks: sp.csr_matrix | None  # (N, C^s) X-View random-walk counts, when the descriptor uses them
@@ -84,8 +85,9 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
                                                 distributions=soft)
     text = None if map.text_embeddings is None else np.asarray(map.text_embeddings, np.float64)
     kernel = lookalikes.class_kernel(map.class_names, config.similarity.lookalike_weight)
-    return MapIndex(map=map, built_for=index_key(config), adjacency=adjacency, histograms=histograms, walks=walks,
-                    text_embeddings=text, class_kernel=kernel, class_distributions=soft, capped_nodes=capped,
+    return MapIndex(map=map, built_for=index_key(config), settings=_index_settings(config), adjacency=adjacency,
+                    histograms=histograms, walks=walks, text_embeddings=text, class_kernel=kernel,
+                    class_distributions=soft, capped_nodes=capped,
                     histograms_by_bin=None if histograms is None else similarity.by_bin(histograms),
                     kernel_by_landmark=similarity.kernel_columns(kernel, map.class_ids),
                     landmark_tree=tree,
@@ -96,7 +98,7 @@ def index_map(map: Map, config: LocalizationConfig) -> MapIndex:
 def localize(observations: Observations, index: MapIndex, config: LocalizationConfig) -> LocalizationResult:
     """Ranked camera-to-map poses for one frame's observations."""
     _check_observations(observations, index.map)
-    if index.built_for != index_key(config):
+    if index.settings != _index_settings(config):
         raise ClipcliqueError(
             f"the map index was built for {index.built_for}, not {index_key(config)}: call index_map with this config"
         )
@@ -168,6 +170,12 @@ def index_key(config: LocalizationConfig) -> str:
     """The settings a map index depends on, readable and hashable: indexes built alike share it."""
     return (f"descriptor={config.similarity.descriptor}, lookalike_weight={config.similarity.lookalike_weight}, "
             f"soft_classes={config.similarity.soft_classes}, {config.graph}")
+
+
+def _index_settings(config: LocalizationConfig) -> tuple:
+    """The values `index_key` reads, as a tuple: compared in a fraction of the time its string takes to format."""
+    settings = config.similarity
+    return settings.descriptor, settings.lookalike_weight, settings.soft_classes, *vars(config.graph).values()
 
 
 def _check_observations(observations: Observations, map: Map) -> None:

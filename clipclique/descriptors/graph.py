@@ -266,6 +266,7 @@ def _l2_normalized(matrix: sp.csr_matrix) -> sp.csr_matrix:
     return sp.csr_matrix(sp.diags(np.where(norms > 0, 1.0 / np.maximum(norms, 1e-300), 0.0)) @ matrix)
 
 
+SORTED_IN_PLACE_UP_TO = 32  # a row's tails: up to here sorted by insertion (`sort_span`), beyond by numpy's sort
 QUERY_BINS_LIMIT = 1 << 22  # widest walk prefix (C^(s-1) bins) the compiled query path accumulates densely
 
 
@@ -356,7 +357,7 @@ def _inverse_norms(pointers: np.ndarray, values: np.ndarray) -> np.ndarray:
     return scale
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _inverse_norm(values: np.ndarray, start: int, end: int) -> float:
     """1 / the L2 norm of values[start:end] as `_inverse_norms` computes a row's (0 for an empty row, norm 0 or NaN);
     the squares summed in order, within rounding of numpy's pairwise sum."""
@@ -464,9 +465,10 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
                     if seen[b]:
                         touched[count] = b
                         count += 1
+            elif count <= SORTED_IN_PLACE_UP_TO:
+                sort_span(touched, 0, count)
             else:
                 touched[:count].sort()
-            tails = touched[:count]
             labels = label_pointers[v + 1] - label_pointers[v]
             start = 0 if last else next_pointers[v]
             need = start + labels * count
@@ -480,18 +482,19 @@ def _walk_histograms(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarr
             out_bins, out_values = (row_bins, row_values) if last else (next_bins, next_values)
             at = start
             for e in range(label_pointers[v], label_pointers[v + 1]):  # the row-wise Kronecker product
-                for b in tails:
+                for k in range(count):  # the tails touched[:count], read by index (a view is reference-counted)
+                    b = touched[k]
                     out_bins[at], out_values[at] = label_bins[e] * width + b, label_values[e] * total[b]
                     at += 1
-            if not _ascending(out_bins[start:at]):  # it is when the label row is (a canonical kernel's rows are)
+            if not _ascending(out_bins, start, at):  # it is when the label row is (a canonical kernel's rows are)
                 order = np.argsort(out_bins[start:at])  # bins are distinct: any sort gives scipy's canonical order
                 out_bins[start:at], out_values[start:at] = out_bins[start:at][order], out_values[start:at][order]
             if last:
                 at = _append_scaled_reversed(next_bins, next_values, next_pointers[v], row_bins, row_values, 0, at,
                                              _inverse_norm(row_values, 0, at))
             next_pointers[v + 1] = at
-            for b in tails:
-                seen[b] = False
+            for k in range(count):
+                seen[touched[k]] = False
         pointers, bins, values = next_pointers, next_bins[:next_pointers[n]], next_values[:next_pointers[n]]
         width *= num_classes
     return pointers, bins, values
@@ -511,6 +514,20 @@ def _row_bound(neighbour_pointers: np.ndarray, neighbour_indices: np.ndarray, po
     return bound
 
 
+@njit(cache=True, inline="always")
+def sort_span(values: np.ndarray, start: int, stop: int) -> None:
+    """values[start: stop].sort() of integers by an insertion sort in place: a row's few walk tails here, a clique's
+    dozen members in clipclique.inliers, where a view's sort cost some 250 ns of reference counts and numba's
+    quicksort setup (inlined into its callers)."""
+    for i in range(start + 1, stop):
+        value = values[i]
+        j = i
+        while j > start and values[j - 1] > value:
+            values[j] = values[j - 1]
+            j -= 1
+        values[j] = value
+
+
 @njit(cache=True)
 def _scale_rows(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
                 scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -524,7 +541,7 @@ def _scale_rows(pointers: np.ndarray, bins: np.ndarray, values: np.ndarray,
     return out_pointers, out_bins[:out_pointers[n]], out_values[:out_pointers[n]]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _append_scaled_reversed(out_bins: np.ndarray, out_values: np.ndarray, at: int, bins: np.ndarray,
                             values: np.ndarray, start: int, end: int, scale: float) -> int:
     """Writes `scale` times entries[start:end] last first, zeros dropped, at out[at:]; returns where it stopped."""
@@ -536,9 +553,11 @@ def _append_scaled_reversed(out_bins: np.ndarray, out_values: np.ndarray, at: in
     return at
 
 
-@njit(cache=True)
-def _ascending(values: np.ndarray) -> bool:
-    for i in range(1, len(values)):
+@njit(cache=True, inline="always")
+def _ascending(values: np.ndarray, start: int, stop: int) -> bool:
+    """Whether values[start:stop] ascend, read by index (inlined: a view, or an array handed to a call, is
+    reference-counted, and a frame's rows made a dozen such calls each)."""
+    for i in range(start + 1, stop):
         if values[i] < values[i - 1]:
             return False
     return True

@@ -33,6 +33,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from clipclique.descriptors.graph import sort_span
 from clipclique.outcomes import CapHit
 
 SLICE = 50_000  # branch steps between time-limit checks (about a millisecond or two)
@@ -246,7 +247,8 @@ def _prepare(edges, num_nodes, weights, groups, count):
             g = groups[indices[k]]
             potential[v] += best_in_group[g]
             best_in_group[g] = 0.0
-    order = np.argsort(-potential, kind="mergesort")
+    order = np.empty(num_nodes, np.int64)
+    _rank_descending(potential, num_nodes, order)  # np.argsort(-potential, kind="mergesort"), a small graph's in place
     position = np.empty(num_nodes, np.int64)
     position[order] = np.arange(num_nodes)
     width = degree.max() + 1 if num_nodes else 1
@@ -305,25 +307,13 @@ def _rank_descending(values: np.ndarray, count: int, rank: np.ndarray) -> None:
 
 
 @njit(cache=True, inline="always")
-def sort_span(values: np.ndarray, start: int, stop: int) -> None:
-    """values[start: stop].sort() of integers by an insertion sort in place: a clique's dozen members, where a
-    view's sort costs its reference counts and numba's quicksort setup (inlined into its callers)."""
-    for i in range(start + 1, stop):
-        value = values[i]
-        j = i
-        while j > start and values[j - 1] > value:
-            values[j] = values[j - 1]
-            j -= 1
-        values[j] = value
-
-
-@njit(cache=True)
 def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray, best_total: np.ndarray,
            best_size: np.ndarray, best_slot: np.ndarray, best_members: np.ndarray) -> None:
     """Insert a maximal clique into the ranked top list if it ranks high enough. Written out without helper calls
-    or views (the sort, `sort_span`, is inlined): each array handed to a compiled call, or sliced, is
-    reference-counted by two atomic operations, which cost a desk search a quarter of its time when the comparison
-    was a function and the sort a view's sort."""
+    or views (the sort, `sort_span`, is inlined), and itself inlined into `_search` (as `_threshold` is): each array
+    handed to a compiled call, or sliced, is reference-counted by two atomic operations, which cost a desk search a
+    quarter of its time when the comparison was a function and the sort a view's sort, and a small frame's search
+    a quarter when these two were calls."""
     sort_span(clique, 0, size)
     total = 0.0
     for k in range(size):
@@ -360,7 +350,7 @@ def _offer(clique: np.ndarray, size: int, weights: np.ndarray, state: np.ndarray
     state[FILLED] = min(filled + 1, capacity)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _threshold(state: np.ndarray, best_total: np.ndarray) -> float:
     """The weight a branch must be able to reach (minus round-off slack) to be explored."""
     if state[FILLED] < len(best_total):

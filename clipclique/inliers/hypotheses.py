@@ -218,9 +218,8 @@ def _same_span(values: np.ndarray, first: int, second: int, size: int) -> bool:
 def _objects(observations: Observations, duplicate_iou: float) -> np.ndarray:
     """(K,) the object each observation shows: its own index, or with `duplicate_iou` > 0 the first
     of the observations whose boxes overlap it at least that much (one object detected twice)."""
-    objects = np.arange(len(observations))
     if duplicate_iou == 0 or observations.boxes is None or len(observations) < 2:
-        return objects
+        return np.arange(len(observations))
     return _first_overlapping(np.ascontiguousarray(observations.boxes, np.float64), duplicate_iou)
 
 

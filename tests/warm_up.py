@@ -24,7 +24,8 @@ def stale_kernels(modules: dict[str, Path], imported: dict[str, set[str]]) -> li
     text) that their module imports, directly or not (`imported`: name -> the project modules it imports). numba
     checks a cached kernel against its own file only, yet a kernel keeps the machine code of the kernels it calls
     in other modules: after an edit there, the cache would run the old code until its own file changed."""
-    stale = []
+    stale: list[Path] = []
+    kernel_modules = {name for name, path in modules.items() if "njit" in path.read_text(encoding="utf-8")}
     for name, path in modules.items():
         cached = list((path.parent / "__pycache__").glob(f"{path.stem}.*.nb[ic]"))
         if not cached:
@@ -34,8 +35,7 @@ def stale_kernels(modules: dict[str, Path], imported: dict[str, set[str]]) -> li
             for other in imported.get(todo.pop(), set()) - seen:
                 seen.add(other)
                 todo.append(other)
-        newest = max(modules[other].stat().st_mtime for other in seen
-                     if other == name or "njit" in modules[other].read_text(encoding="utf-8"))
+        newest = max(modules[other].stat().st_mtime for other in seen if other == name or other in kernel_modules)
         stale += [file for file in cached if file.stat().st_mtime < newest]
     return stale
 
